@@ -1,0 +1,172 @@
+//! [`Camera`]: an orbit camera around the centre of the volume's box.
+//!
+//! Model space is physical millimetres with the box centred on the origin and the
+//! volume's index axes along x, y, z (patient LPS for medical data: x to the
+//! patient's left, y to posterior, z to superior). The camera orbits the origin
+//! with z up: azimuth 0 looks from anterior (−y) at the face, 90° from the
+//! patient's left (+x); elevation lifts it towards superior. Distance is in
+//! multiples of the box's bounding-sphere radius, so one camera frames every
+//! dataset alike.
+
+use glam::{Mat4, Vec3};
+
+/// The largest elevation magnitude, degrees (the view stays defined at ±90 too,
+/// the limit only keeps the orbit from flipping over the pole).
+pub const MAX_ELEVATION_DEG: f32 = 90.0;
+/// The smallest distance, in bounding-sphere radii (inside the volume).
+pub const MIN_DISTANCE: f32 = 0.05;
+/// The largest distance, in bounding-sphere radii.
+pub const MAX_DISTANCE: f32 = 100.0;
+/// The accepted vertical fields of view, degrees.
+pub const FOV_RANGE_DEG: (f32, f32) = (1.0, 120.0);
+
+/// An orbit camera with a perspective projection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Rotation about the z axis, degrees; 0 looks from −y (anterior).
+    pub azimuth_deg: f32,
+    /// Angle above the x–y plane, degrees, −90..=90.
+    pub elevation_deg: f32,
+    /// Distance of the eye from the box centre, in bounding-sphere radii.
+    pub distance: f32,
+    /// Vertical field of view, degrees.
+    pub fov_y_deg: f32,
+}
+
+impl Default for Camera {
+    /// A front view that frames the whole box.
+    fn default() -> Camera {
+        Camera {
+            azimuth_deg: 0.0,
+            elevation_deg: 0.0,
+            distance: 3.0,
+            fov_y_deg: 30.0,
+        }
+    }
+}
+
+/// The camera's frame in model space.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraBasis {
+    /// The eye position.
+    pub eye: Vec3,
+    /// Unit vector from the eye into the scene.
+    pub forward: Vec3,
+    /// Unit vector to the image's right.
+    pub right: Vec3,
+    /// Unit vector to the image's top.
+    pub up: Vec3,
+}
+
+impl Camera {
+    /// The eye and its axes for a box with bounding-sphere radius `radius` (mm).
+    pub fn basis(&self, radius: f32) -> CameraBasis {
+        let (sin_az, cos_az) = self.azimuth_deg.to_radians().sin_cos();
+        let (sin_el, cos_el) = self.elevation_deg.to_radians().sin_cos();
+        // From the centre towards the eye.
+        let toward_eye = Vec3::new(sin_az * cos_el, -cos_az * cos_el, sin_el);
+        // Right stays horizontal, so the basis is defined even looking straight down.
+        let right = Vec3::new(cos_az, sin_az, 0.0);
+        let up = toward_eye.cross(right);
+        CameraBasis {
+            eye: toward_eye * self.distance * radius,
+            forward: -toward_eye,
+            right,
+            up,
+        }
+    }
+
+    /// View-projection matrix (model → clip, depth 0..1) for a box with
+    /// bounding-sphere radius `radius` and an image of the given aspect (w / h).
+    pub fn view_proj(&self, radius: f32, aspect: f32) -> Mat4 {
+        let b = self.basis(radius);
+        let view = glam::camera::rh::view::look_to_mat4(b.eye, b.forward, b.up);
+        // Near and far enclose the bounding sphere; near stays positive inside it.
+        let near = ((self.distance - 1.0) * radius * 0.5).max(radius * 0.01);
+        let far = (self.distance + 1.0) * radius * 1.01;
+        // WebGPU clip space: depth 0..1 and y up, the Direct3D convention.
+        let proj = glam::camera::rh::proj::directx::perspective(
+            self.fov_y_deg.to_radians(),
+            aspect,
+            near,
+            far,
+        );
+        proj * view
+    }
+
+    /// Checks that every field is finite and in range, naming the first that is not.
+    pub fn validate(&self) -> Result<(), String> {
+        let check = |name: &str, value: f32, lo: f32, hi: f32| {
+            if value.is_finite() && (lo..=hi).contains(&value) {
+                Ok(())
+            } else {
+                Err(format!(
+                    "camera {name} = {value}: expected a number from {lo} to {hi}"
+                ))
+            }
+        };
+        check("azimuth", self.azimuth_deg, -3600.0, 3600.0)?;
+        check(
+            "elevation",
+            self.elevation_deg,
+            -MAX_ELEVATION_DEG,
+            MAX_ELEVATION_DEG,
+        )?;
+        check("distance", self.distance, MIN_DISTANCE, MAX_DISTANCE)?;
+        check("fov", self.fov_y_deg, FOV_RANGE_DEG.0, FOV_RANGE_DEG.1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: Vec3, b: Vec3) -> bool {
+        (a - b).length() < 1e-5
+    }
+
+    #[test]
+    fn front_view_looks_from_anterior_with_patient_left_on_the_right() {
+        let b = Camera::default().basis(1.0);
+        assert!(close(b.forward, Vec3::Y));
+        assert!(close(b.right, Vec3::X));
+        assert!(close(b.up, Vec3::Z));
+        assert!(close(b.eye, Vec3::new(0.0, -3.0, 0.0)));
+    }
+
+    #[test]
+    fn looking_straight_down_keeps_a_basis() {
+        let cam = Camera {
+            elevation_deg: 90.0,
+            ..Camera::default()
+        };
+        let b = cam.basis(1.0);
+        assert!(close(b.forward, -Vec3::Z));
+        assert!((b.up.length() - 1.0).abs() < 1e-5);
+        assert!(b.right.dot(b.up).abs() < 1e-5);
+    }
+
+    #[test]
+    fn the_box_centre_projects_to_the_image_centre() {
+        let cam = Camera {
+            azimuth_deg: 37.0,
+            elevation_deg: -20.0,
+            ..Camera::default()
+        };
+        let clip = cam.view_proj(150.0, 1.5) * glam::Vec4::new(0.0, 0.0, 0.0, 1.0);
+        let ndc = clip.truncate() / clip.w;
+        assert!(ndc.x.abs() < 1e-5 && ndc.y.abs() < 1e-5);
+        assert!(ndc.z > 0.0 && ndc.z < 1.0);
+    }
+
+    #[test]
+    fn validation_names_the_field() {
+        let cam = Camera {
+            elevation_deg: f32::NAN,
+            ..Camera::default()
+        };
+        let msg = cam.validate().expect_err("NaN elevation");
+        assert!(msg.contains("elevation"), "{msg}");
+        assert!(Camera::default().validate().is_ok());
+    }
+}

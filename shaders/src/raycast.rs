@@ -1,0 +1,304 @@
+//! The `raycast` stage: direct volume rendering of one 3D texture with a 1D RGBA
+//! transfer function (`shaders/wgsl/raycast.wgsl`; CPU twin [`crate::cpu::raycast`]).
+//!
+//! [`RaycastParams`] is built once per frame from the [`FrameRequest`] and the
+//! volume's geometry by [`RaycastParams::new`], and both the GPU pipeline and the
+//! CPU twin read exactly that struct, so they differ only in arithmetic.
+
+use glam::{Mat4, Vec3};
+
+use crate::volume_texture::VolumeTexture;
+use crate::{FrameRequest, GpuContext, GpuError, Shading};
+
+/// Invocations per workgroup along x and y.
+pub const WORKGROUP_SIZE: u32 = 8;
+/// Accumulated opacity at which a ray stops.
+pub const EARLY_TERMINATION: f32 = 0.99;
+/// The light, in view space (x right, y up, z towards the eye): above and to the
+/// left of the eye, so shapes read as lit from the upper left.
+const LIGHT_IN_VIEW: Vec3 = Vec3::new(-0.35, 0.45, 1.0);
+/// Blinn–Phong ambient, diffuse, specular and shininess.
+const PHONG: [f32; 4] = [0.35, 0.65, 0.25, 24.0];
+/// Gradients weaker than this fraction of the value range per voxel stay unshaded.
+const GRADIENT_THRESHOLD_PER_VOXEL: f32 = 0.002;
+
+/// [`RaycastParams::flags`] bit: jitter each ray's first sample.
+pub const FLAG_JITTER: u32 = 1;
+/// [`RaycastParams::flags`] bit: gradient Blinn–Phong shading.
+pub const FLAG_SHADED: u32 = 2;
+
+/// The per-frame uniforms of `raycast`.
+// keep in sync with shaders/wgsl/shared/raycast_params.wgsl `RaycastParams`
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RaycastParams {
+    /// Clip space → model space, column major.
+    pub inv_view_proj: [[f32; 4]; 4],
+    /// Model-space corner of the box (mm).
+    pub box_min: [f32; 3],
+    /// Distance between samples (mm).
+    pub step: f32,
+    /// Model-space size of the box (mm).
+    pub box_size: [f32; 3],
+    /// The step transfer-function opacities refer to (mm).
+    pub reference_step: f32,
+    /// Voxel spacing (mm).
+    pub voxel_size: [f32; 3],
+    /// Accumulated opacity at which a ray stops.
+    pub early_termination: f32,
+    /// Unit vector towards the light, model space.
+    pub light_dir: [f32; 3],
+    /// Gradient magnitude (transfer-function units per mm) under which samples stay unshaded.
+    pub gradient_threshold: f32,
+    /// Background colour (rgb, a unused).
+    pub background: [f32; 4],
+    /// Blinn–Phong ambient, diffuse, specular, shininess.
+    pub phong: [f32; 4],
+    /// Texel value → transfer-function coordinate: scale.
+    pub value_scale: f32,
+    /// Texel value → transfer-function coordinate: offset.
+    pub value_offset: f32,
+    /// Upper bound on samples per ray.
+    pub max_steps: u32,
+    /// Entries in the transfer-function table.
+    pub tf_len: u32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// `FLAG_*` bits.
+    pub flags: u32,
+    /// Padding to a multiple of 16 bytes.
+    pub _pad: u32,
+}
+
+impl RaycastParams {
+    /// The uniforms for rendering `request` of the volume stored as `texture`, with
+    /// a transfer-function table of `tf_len` entries.
+    pub fn new(texture: &VolumeTexture, request: &FrameRequest, tf_len: u32) -> RaycastParams {
+        let box_size = Vec3::from(texture.extent_mm());
+        let radius = box_size.length() * 0.5;
+        let aspect = request.width as f32 / request.height as f32;
+        let inv_view_proj: Mat4 = request.camera.view_proj(radius, aspect).inverse();
+        let basis = request.camera.basis(radius);
+        let light = LIGHT_IN_VIEW.x * basis.right + LIGHT_IN_VIEW.y * basis.up
+            - LIGHT_IN_VIEW.z * basis.forward;
+        let min_spacing = texture.min_spacing();
+        let step = request.step_voxels * min_spacing;
+        let max_steps = (box_size.length() / step).ceil() as u32 + 2;
+        let mut flags = FLAG_JITTER;
+        if request.shading == Shading::Gradient {
+            flags |= FLAG_SHADED;
+        }
+        let [r, g, b] = request.background;
+        RaycastParams {
+            inv_view_proj: inv_view_proj.to_cols_array_2d(),
+            box_min: (-0.5 * box_size).into(),
+            step,
+            box_size: box_size.into(),
+            reference_step: min_spacing,
+            voxel_size: texture.spacing,
+            early_termination: EARLY_TERMINATION,
+            light_dir: light.normalize().into(),
+            gradient_threshold: GRADIENT_THRESHOLD_PER_VOXEL / min_spacing,
+            background: [r, g, b, 1.0],
+            phong: PHONG,
+            value_scale: texture.value_scale,
+            value_offset: texture.value_offset,
+            max_steps,
+            tf_len,
+            width: request.width,
+            height: request.height,
+            flags,
+            _pad: 0,
+        }
+    }
+
+    /// Workgroups to dispatch along x and y.
+    pub fn workgroups(&self) -> (u32, u32) {
+        (
+            self.width.div_ceil(WORKGROUP_SIZE),
+            self.height.div_ceil(WORKGROUP_SIZE),
+        )
+    }
+}
+
+/// The compiled `raycast` compute pipeline and its bind group layout.
+#[derive(Debug)]
+pub struct RaycastPipeline {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
+}
+
+/// The resources `raycast` binds, in binding order.
+#[derive(Debug, Clone, Copy)]
+pub struct RaycastBindings<'a> {
+    /// 0: uniform [`RaycastParams`].
+    pub params: &'a wgpu::Buffer,
+    /// 1: the volume texture.
+    pub volume: &'a wgpu::TextureView,
+    /// 3: the transfer-function table, `array<vec4<f32>>`.
+    pub transfer_function: &'a wgpu::Buffer,
+    /// 4: the rgba8unorm output texture.
+    pub output: &'a wgpu::TextureView,
+}
+
+impl RaycastPipeline {
+    /// Compiles the stage (every voxel format voxserve uses filters linearly).
+    pub fn new(gpu: &GpuContext) -> Result<RaycastPipeline, GpuError> {
+        gpu.scoped("building the raycast pipeline", || {
+            let device = &gpu.device;
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("raycast"),
+                source: wgpu::ShaderSource::Wgsl(crate::wgsl::RAYCAST.into()),
+            });
+            let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty,
+                count: None,
+            };
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("raycast"),
+                entries: &[
+                    entry(
+                        0,
+                        wgpu::BindingType::Buffer {
+                            ty: wgpu::BufferBindingType::Uniform,
+                            has_dynamic_offset: false,
+                            min_binding_size: wgpu::BufferSize::new(
+                                size_of::<RaycastParams>() as u64
+                            ),
+                        },
+                    ),
+                    entry(
+                        1,
+                        wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                            view_dimension: wgpu::TextureViewDimension::D3,
+                            multisampled: false,
+                        },
+                    ),
+                    entry(
+                        2,
+                        wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    ),
+                    entry(
+                        3,
+                        wgpu::BindingType::Buffer {
+                            ty: wgpu::BufferBindingType::Storage { read_only: true },
+                            has_dynamic_offset: false,
+                            min_binding_size: None,
+                        },
+                    ),
+                    entry(
+                        4,
+                        wgpu::BindingType::StorageTexture {
+                            access: wgpu::StorageTextureAccess::WriteOnly,
+                            format: wgpu::TextureFormat::Rgba8Unorm,
+                            view_dimension: wgpu::TextureViewDimension::D2,
+                        },
+                    ),
+                ],
+            });
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("raycast"),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("raycast"),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+            let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+                label: Some("volume"),
+                address_mode_u: wgpu::AddressMode::ClampToEdge,
+                address_mode_v: wgpu::AddressMode::ClampToEdge,
+                address_mode_w: wgpu::AddressMode::ClampToEdge,
+                mag_filter: wgpu::FilterMode::Linear,
+                min_filter: wgpu::FilterMode::Linear,
+                ..Default::default()
+            });
+            RaycastPipeline {
+                pipeline,
+                layout,
+                sampler,
+            }
+        })
+    }
+
+    /// A bind group over `bindings`.
+    pub fn bind_group(&self, gpu: &GpuContext, bindings: RaycastBindings<'_>) -> wgpu::BindGroup {
+        gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("raycast"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: bindings.params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(bindings.volume),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: bindings.transfer_function.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: wgpu::BindingResource::TextureView(bindings.output),
+                },
+            ],
+        })
+    }
+
+    /// Records the dispatch for an image of `params.width` × `params.height`.
+    pub fn dispatch(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        bind_group: &wgpu::BindGroup,
+        params: &RaycastParams,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("raycast"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, bind_group, &[]);
+        let (x, y) = params.workgroups();
+        pass.dispatch_workgroups(x, y, 1);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn params_are_a_multiple_of_16_bytes_like_the_wgsl_struct() {
+        // WGSL: mat4x4 (64), four vec3 + scalar pairs and two vec4s (16 each), eight scalars.
+        assert_eq!(size_of::<RaycastParams>(), 64 + 6 * 16 + 8 * 4);
+        assert_eq!(size_of::<RaycastParams>() % 16, 0);
+    }
+
+    #[test]
+    fn the_wgsl_parses_and_validates() {
+        let module = naga::front::wgsl::parse_str(crate::wgsl::RAYCAST).expect("WGSL parses");
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::empty(),
+        )
+        .validate(&module)
+        .expect("WGSL validates");
+    }
+}

@@ -1,0 +1,300 @@
+//! How a [`Volume`] becomes a 3D texture: the texel format, the texel values, and
+//! the linear map from a sampled texel value to the transfer-function coordinate.
+//!
+//! 8-bit volumes go to `r8unorm`, 16-bit volumes to `r16unorm` where the adapter
+//! has `TEXTURE_FORMAT_16BIT_NORM`; both filter linearly everywhere. Without it,
+//! 16-bit volumes go to `r16float` holding the transfer-function coordinate itself,
+//! so the precision of half floats is spent on the range the data occupies.
+//! Voxels live in textures, not storage buffers: some adapters cap storage buffers
+//! at 128 MiB. [`GpuVolume::upload`] writes the texture in slabs of z-slices.
+
+use blocks::{Volume, VoxelData, VoxelType};
+
+use crate::{GpuContext, GpuError};
+
+/// Largest slab written to the GPU in one call.
+const UPLOAD_SLAB_BYTES: usize = 32 << 20;
+
+/// A texel format voxserve stores voxels in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TexelFormat {
+    /// 8-bit normalized: texel = stored / 255.
+    R8Unorm,
+    /// 16-bit normalized: texel = stored / 65535.
+    R16Unorm,
+    /// Half float holding the transfer-function coordinate.
+    R16Float,
+}
+
+impl TexelFormat {
+    /// The wgpu format.
+    pub fn wgpu(self) -> wgpu::TextureFormat {
+        match self {
+            TexelFormat::R8Unorm => wgpu::TextureFormat::R8Unorm,
+            TexelFormat::R16Unorm => wgpu::TextureFormat::R16Unorm,
+            TexelFormat::R16Float => wgpu::TextureFormat::R16Float,
+        }
+    }
+
+    /// Bytes per texel.
+    pub fn size(self) -> usize {
+        match self {
+            TexelFormat::R8Unorm => 1,
+            TexelFormat::R16Unorm | TexelFormat::R16Float => 2,
+        }
+    }
+}
+
+/// The texture a volume becomes, and how its texels map to the transfer function.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VolumeTexture {
+    /// Texels along x, y, z.
+    pub dims: [u32; 3],
+    /// Voxel spacing along x, y, z (mm).
+    pub spacing: [f32; 3],
+    /// Storage format.
+    pub format: TexelFormat,
+    /// The physical value range the transfer-function table covers.
+    pub tf_domain: [f32; 2],
+    /// Transfer-function coordinate = texel * value_scale + value_offset.
+    pub value_scale: f32,
+    /// See `value_scale`.
+    pub value_offset: f32,
+}
+
+impl VolumeTexture {
+    /// Chooses the format for `volume` given the device's features and derives the
+    /// texel → transfer-function map.
+    pub fn for_volume(volume: &Volume, features: wgpu::Features) -> VolumeTexture {
+        let format = match volume.voxel_type() {
+            VoxelType::U8 => TexelFormat::R8Unorm,
+            VoxelType::U16 if features.contains(wgpu::Features::TEXTURE_FORMAT_16BIT_NORM) => {
+                TexelFormat::R16Unorm
+            }
+            VoxelType::U16 => TexelFormat::R16Float,
+        };
+        let tf_domain = tf_domain(volume.value_range);
+        let width = tf_domain[1] - tf_domain[0];
+        let (value_scale, value_offset) = match format {
+            TexelFormat::R8Unorm | TexelFormat::R16Unorm => {
+                // texel t = stored / max; physical = stored * slope + intercept;
+                // u = (physical - domain_min) / width.
+                let map = volume.value_map;
+                (
+                    volume.voxel_type().max_stored() * map.slope / width,
+                    (map.intercept - tf_domain[0]) / width,
+                )
+            }
+            TexelFormat::R16Float => (1.0, 0.0),
+        };
+        VolumeTexture {
+            dims: volume.dims,
+            spacing: volume.spacing,
+            format,
+            tf_domain,
+            value_scale,
+            value_offset,
+        }
+    }
+
+    /// The texel values as the GPU samples them, as `f32`: what the CPU twins read.
+    pub fn texel_values(&self, volume: &Volume) -> Vec<f32> {
+        match (self.format, &volume.voxels) {
+            (TexelFormat::R8Unorm, VoxelData::U8(v)) => {
+                v.iter().map(|&s| f32::from(s) / 255.0).collect()
+            }
+            (TexelFormat::R16Unorm, VoxelData::U16(v)) => {
+                v.iter().map(|&s| f32::from(s) / 65535.0).collect()
+            }
+            _ => self
+                .half_texels(volume)
+                .iter()
+                .map(|h| h.to_f32())
+                .collect(),
+        }
+    }
+
+    /// The box the texture fills in model space (mm): `dims * spacing`.
+    pub fn extent_mm(&self) -> [f32; 3] {
+        std::array::from_fn(|i| self.dims[i] as f32 * self.spacing[i])
+    }
+
+    /// The smallest voxel spacing (mm).
+    pub fn min_spacing(&self) -> f32 {
+        self.spacing.iter().copied().fold(f32::INFINITY, f32::min)
+    }
+
+    /// Texels as half floats holding the transfer-function coordinate.
+    fn half_texels(&self, volume: &Volume) -> Vec<half::f16> {
+        let [lo, hi] = self.tf_domain;
+        (0..volume.voxel_count())
+            .map(|i| {
+                let physical = volume.value_map.physical(volume.voxels.get(i));
+                half::f16::from_f32((physical - lo) / (hi - lo))
+            })
+            .collect()
+    }
+
+    /// The texel bytes to upload.
+    fn texel_bytes<'a>(&self, volume: &'a Volume) -> std::borrow::Cow<'a, [u8]> {
+        match self.format {
+            TexelFormat::R8Unorm | TexelFormat::R16Unorm => volume.voxel_bytes().into(),
+            TexelFormat::R16Float => {
+                bytemuck::cast_slice::<half::f16, u8>(&self.half_texels(volume))
+                    .to_vec()
+                    .into()
+            }
+        }
+    }
+}
+
+/// The transfer-function domain for a physical value range: the range itself, or
+/// one unit around it when the volume is constant.
+fn tf_domain(range: [f32; 2]) -> [f32; 2] {
+    if range[1] > range[0] {
+        range
+    } else {
+        [range[0] - 0.5, range[0] + 0.5]
+    }
+}
+
+/// A volume resident on the GPU as a 3D texture.
+#[derive(Debug)]
+pub struct GpuVolume {
+    /// The texture.
+    pub texture: wgpu::Texture,
+    /// A view of the whole texture.
+    pub view: wgpu::TextureView,
+    /// Its format and value map.
+    pub desc: VolumeTexture,
+}
+
+impl GpuVolume {
+    /// Creates the texture and writes the volume into it slab by slab.
+    pub fn upload(gpu: &GpuContext, volume: &Volume) -> Result<GpuVolume, GpuError> {
+        let desc = VolumeTexture::for_volume(volume, gpu.device.features());
+        let max = gpu.device.limits().max_texture_dimension_3d;
+        if volume.dims.iter().any(|&d| d > max) {
+            return Err(GpuError::Unsupported {
+                what: format!("volume '{}' of {:?} voxels", volume.name, volume.dims),
+                limit: format!(
+                    "adapter '{}' allows 3D textures up to {max} texels per axis",
+                    gpu.info.name
+                ),
+            });
+        }
+        let [nx, ny, nz] = volume.dims;
+        let texture = gpu.scoped("creating the volume texture", || {
+            gpu.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("volume"),
+                size: wgpu::Extent3d {
+                    width: nx,
+                    height: ny,
+                    depth_or_array_layers: nz,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D3,
+                format: desc.format.wgpu(),
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            })
+        })?;
+        let bytes = desc.texel_bytes(volume);
+        let slice_bytes = nx as usize * ny as usize * desc.format.size();
+        let slab_slices = (UPLOAD_SLAB_BYTES / slice_bytes).max(1) as u32;
+        gpu.scoped("uploading the volume", || {
+            let mut z = 0;
+            while z < nz {
+                let depth = slab_slices.min(nz - z);
+                let start = z as usize * slice_bytes;
+                let end = start + depth as usize * slice_bytes;
+                gpu.queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &texture,
+                        mip_level: 0,
+                        origin: wgpu::Origin3d { x: 0, y: 0, z },
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    &bytes[start..end],
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(nx * desc.format.size() as u32),
+                        rows_per_image: Some(ny),
+                    },
+                    wgpu::Extent3d {
+                        width: nx,
+                        height: ny,
+                        depth_or_array_layers: depth,
+                    },
+                );
+                // Submit each slab so the staging memory of the previous one is freed.
+                gpu.queue.submit([]);
+                z += depth;
+            }
+        })?;
+        gpu.wait("uploading the volume")?;
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        Ok(GpuVolume {
+            texture,
+            view,
+            desc,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use blocks::{ValueMap, VoxelData};
+
+    fn ct(voxels: Vec<u16>) -> Volume {
+        Volume::new(
+            "ct",
+            [voxels.len() as u32, 1, 1],
+            [1.0; 3],
+            VoxelData::U16(voxels),
+            ValueMap {
+                slope: 1.0,
+                intercept: -1024.0,
+            },
+        )
+        .expect("valid volume")
+    }
+
+    #[test]
+    fn unorm_texels_map_onto_the_value_range() {
+        let v = ct(vec![24, 1024, 2024]);
+        let t = VolumeTexture::for_volume(&v, wgpu::Features::TEXTURE_FORMAT_16BIT_NORM);
+        assert_eq!(t.format, TexelFormat::R16Unorm);
+        let texels = t.texel_values(&v);
+        let u: Vec<f32> = texels
+            .iter()
+            .map(|x| x * t.value_scale + t.value_offset)
+            .collect();
+        for (got, want) in u.iter().zip([0.0, 0.5, 1.0]) {
+            assert!((got - want).abs() < 1e-5, "{u:?}");
+        }
+    }
+
+    #[test]
+    fn without_16bit_norm_texels_hold_the_tf_coordinate_in_half_floats() {
+        let v = ct(vec![24, 1024, 2024]);
+        let t = VolumeTexture::for_volume(&v, wgpu::Features::empty());
+        assert_eq!(t.format, TexelFormat::R16Float);
+        assert_eq!((t.value_scale, t.value_offset), (1.0, 0.0));
+        let texels = t.texel_values(&v);
+        for (got, want) in texels.iter().zip([0.0, 0.5, 1.0]) {
+            assert!((got - want).abs() < 1e-3, "{texels:?}");
+        }
+        assert_eq!(t.texel_bytes(&v).len(), 6);
+    }
+
+    #[test]
+    fn a_constant_volume_gets_a_non_empty_domain() {
+        let v = ct(vec![100, 100]);
+        let t = VolumeTexture::for_volume(&v, wgpu::Features::TEXTURE_FORMAT_16BIT_NORM);
+        assert!(t.tf_domain[1] > t.tf_domain[0]);
+        assert!(t.value_scale.is_finite() && t.value_offset.is_finite());
+    }
+}
