@@ -1,0 +1,42 @@
+//! [`AppError`]: what an HTTP handler can fail with, and the response each becomes.
+
+use axum::Json;
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+
+/// A handler's failure.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// The request is malformed or out of range; the message says which field and
+    /// what was expected. Answered with 400 and not logged.
+    #[error("{0}")]
+    BadRequest(String),
+    /// The named thing does not exist. Answered with 404.
+    #[error("{0}")]
+    NotFound(String),
+    /// The server is at capacity; the client may retry. Answered with 503.
+    #[error("{0}")]
+    Busy(String),
+    /// Something broke inside the server. Logged once here; the client sees a
+    /// generic 500.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl IntoResponse for AppError {
+    fn into_response(self) -> Response {
+        let (status, message) = match self {
+            AppError::BadRequest(m) => (StatusCode::BAD_REQUEST, m),
+            AppError::NotFound(m) => (StatusCode::NOT_FOUND, m),
+            AppError::Busy(m) => (StatusCode::SERVICE_UNAVAILABLE, m),
+            AppError::Internal(m) => {
+                tracing::error!("{m}");
+                (
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    "internal server error (logged on the server)".to_owned(),
+                )
+            }
+        };
+        (status, Json(serde_json::json!({ "error": message }))).into_response()
+    }
+}

@@ -1,0 +1,265 @@
+//! The query string of `GET /api/render` → a [`FrameRequest`].
+//!
+//! | parameter | meaning | default |
+//! |---|---|---|
+//! | `dataset` | dataset id | the server's first dataset |
+//! | `az` | camera azimuth, degrees (0 = from anterior) | 0 |
+//! | `el` | camera elevation, degrees, −90..=90 | 0 |
+//! | `dist` | camera distance, bounding-sphere radii, 0.05..=100 | 3 |
+//! | `fov` | vertical field of view, degrees, 1..=120 | 30 |
+//! | `w`, `h` | image size, pixels, 1..=4096 | 512 |
+//! | `preset` | transfer-function preset | the dataset's default |
+//! | `shading` | `gradient` or `unshaded` | `gradient` |
+//! | `step` | sample step, voxels, 0.05..=4 | 0.5 |
+//!
+//! Every parameter is checked before anything renders; a bad one is refused
+//! with a message that names it, the value given and what was expected. Unknown
+//! and repeated parameters are refused too, so a typo never silently falls back
+//! to a default.
+
+use std::str::FromStr;
+
+use blocks::Preset;
+use shaders::frame::{MAX_IMAGE_EDGE, STEP_RANGE_VOXELS};
+use shaders::{Camera, FrameRequest, Shading, camera};
+
+use crate::Dataset;
+
+/// The parameters `GET /api/render` accepts.
+pub const PARAMETERS: [&str; 10] = [
+    "dataset", "az", "el", "dist", "fov", "w", "h", "preset", "shading", "step",
+];
+
+/// The default image edge in pixels.
+pub const DEFAULT_EDGE: u32 = 512;
+
+/// The query's parameters, checked for unknown and repeated names.
+struct Params<'a> {
+    pairs: &'a [(String, String)],
+}
+
+impl<'a> Params<'a> {
+    fn new(pairs: &'a [(String, String)]) -> Result<Params<'a>, String> {
+        for (i, (name, _)) in pairs.iter().enumerate() {
+            if !PARAMETERS.contains(&name.as_str()) {
+                return Err(format!(
+                    "unknown query parameter '{name}': expected one of {}",
+                    PARAMETERS.join(", ")
+                ));
+            }
+            if pairs[..i].iter().any(|(earlier, _)| earlier == name) {
+                return Err(format!(
+                    "query parameter '{name}' is given twice: expected it once"
+                ));
+            }
+        }
+        Ok(Params { pairs })
+    }
+
+    fn get(&self, name: &str) -> Option<&'a str> {
+        self.pairs
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_str())
+    }
+
+    /// A finite number in `lo..=hi`, or `default` when absent.
+    fn number(
+        &self,
+        name: &str,
+        default: f32,
+        lo: f32,
+        hi: f32,
+        unit: &str,
+    ) -> Result<f32, String> {
+        let Some(text) = self.get(name) else {
+            return Ok(default);
+        };
+        let expected = || {
+            format!(
+                "query parameter {name}={text:?}: expected a number of {unit} from {lo} to {hi}"
+            )
+        };
+        let value = f32::from_str(text.trim()).map_err(|_| expected())?;
+        if value.is_finite() && (lo..=hi).contains(&value) {
+            Ok(value)
+        } else {
+            Err(expected())
+        }
+    }
+
+    /// A whole number in `lo..=hi`, or `default` when absent.
+    fn whole(&self, name: &str, default: u32, lo: u32, hi: u32, unit: &str) -> Result<u32, String> {
+        let Some(text) = self.get(name) else {
+            return Ok(default);
+        };
+        let expected = || {
+            format!(
+                "query parameter {name}={text:?}: expected a whole number of {unit} from {lo} to {hi}"
+            )
+        };
+        let value = u32::from_str(text.trim()).map_err(|_| expected())?;
+        if (lo..=hi).contains(&value) {
+            Ok(value)
+        } else {
+            Err(expected())
+        }
+    }
+
+    /// A name parsed by `T::from_str`, or `default` when absent.
+    fn named<T: FromStr>(&self, name: &str, default: T) -> Result<T, String>
+    where
+        T::Err: std::fmt::Display,
+    {
+        match self.get(name) {
+            None => Ok(default),
+            Some(text) => text
+                .parse()
+                .map_err(|e| format!("query parameter {name}: {e}")),
+        }
+    }
+}
+
+/// Picks the dataset and builds the frame request a query asks for.
+pub fn parse<'d>(
+    pairs: &[(String, String)],
+    datasets: &'d [Dataset],
+) -> Result<(&'d Dataset, FrameRequest), String> {
+    let params = Params::new(pairs)?;
+    let dataset = match params.get("dataset") {
+        None => datasets.first().ok_or("the server has no datasets")?,
+        Some(id) => datasets.iter().find(|d| d.id == id).ok_or_else(|| {
+            let known: Vec<&str> = datasets.iter().map(|d| d.id.as_str()).collect();
+            format!(
+                "query parameter dataset={id:?}: expected one of {}",
+                known.join(", ")
+            )
+        })?,
+    };
+    let defaults = Camera::default();
+    let camera = Camera {
+        azimuth_deg: params.number("az", defaults.azimuth_deg, -3600.0, 3600.0, "degrees")?,
+        elevation_deg: params.number(
+            "el",
+            defaults.elevation_deg,
+            -camera::MAX_ELEVATION_DEG,
+            camera::MAX_ELEVATION_DEG,
+            "degrees",
+        )?,
+        distance: params.number(
+            "dist",
+            defaults.distance,
+            camera::MIN_DISTANCE,
+            camera::MAX_DISTANCE,
+            "bounding-sphere radii",
+        )?,
+        fov_y_deg: params.number(
+            "fov",
+            defaults.fov_y_deg,
+            camera::FOV_RANGE_DEG.0,
+            camera::FOV_RANGE_DEG.1,
+            "degrees",
+        )?,
+    };
+    let width = params.whole("w", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, "pixels")?;
+    let height = params.whole("h", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, "pixels")?;
+    let preset: Preset = params.named("preset", dataset.default_preset())?;
+    let shading: Shading = params.named("shading", Shading::default())?;
+    let step_voxels = params.number(
+        "step",
+        0.5,
+        STEP_RANGE_VOXELS.0,
+        STEP_RANGE_VOXELS.1,
+        "voxels",
+    )?;
+    let request = FrameRequest {
+        camera,
+        shading,
+        step_voxels,
+        ..FrameRequest::new(
+            width,
+            height,
+            preset.transfer_function(dataset.volume.value_range),
+        )
+    };
+    request.validate()?;
+    Ok((dataset, request))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn datasets() -> Vec<Dataset> {
+        vec![Dataset::phantom(16).expect("phantom")]
+    }
+
+    fn query(q: &str) -> Vec<(String, String)> {
+        q.split('&')
+            .filter(|p| !p.is_empty())
+            .map(|p| {
+                let (k, v) = p.split_once('=').unwrap_or((p, ""));
+                (k.to_owned(), v.to_owned())
+            })
+            .collect()
+    }
+
+    fn error(q: &str) -> String {
+        let ds = datasets();
+        parse(&query(q), &ds).expect_err(q)
+    }
+
+    #[test]
+    fn an_empty_query_gives_the_defaults() {
+        let ds = datasets();
+        let (d, r) = parse(&[], &ds).expect("defaults");
+        assert_eq!(d.id, "phantom");
+        assert_eq!((r.width, r.height), (512, 512));
+        assert_eq!(r.camera, Camera::default());
+        assert_eq!(r.shading, Shading::Gradient);
+    }
+
+    #[test]
+    fn every_parameter_is_read() {
+        let ds = datasets();
+        let q = "dataset=phantom&az=30&el=-10&dist=2.5&fov=40&w=64&h=32&preset=ct-soft-tissue&shading=unshaded&step=1";
+        let (_, r) = parse(&query(q), &ds).expect("valid");
+        assert_eq!(r.camera.azimuth_deg, 30.0);
+        assert_eq!(r.camera.elevation_deg, -10.0);
+        assert_eq!(r.camera.distance, 2.5);
+        assert_eq!(r.camera.fov_y_deg, 40.0);
+        assert_eq!((r.width, r.height), (64, 32));
+        assert_eq!(r.shading, Shading::Unshaded);
+        assert_eq!(r.step_voxels, 1.0);
+        let tf = Preset::CtSoftTissue.transfer_function(ds[0].volume.value_range);
+        assert_eq!(r.transfer_function, tf);
+    }
+
+    #[test]
+    fn bad_values_name_the_parameter_and_the_expectation() {
+        let cases = [
+            (
+                "w=0",
+                "w=\"0\": expected a whole number of pixels from 1 to 4096",
+            ),
+            ("w=100000", "w=\"100000\""),
+            ("h=-5", "h=\"-5\""),
+            ("w=12.5", "whole number"),
+            ("az=abc", "az=\"abc\": expected a number of degrees"),
+            ("az=NaN", "az=\"NaN\""),
+            ("el=inf", "el=\"inf\""),
+            ("el=91", "from -90 to 90"),
+            ("dist=0", "dist=\"0\""),
+            ("preset=bone", "unknown transfer-function preset 'bone'"),
+            ("shading=phong", "unknown shading 'phong'"),
+            ("dataset=lung", "dataset=\"lung\": expected one of phantom"),
+            ("zoom=2", "unknown query parameter 'zoom'"),
+            ("az=1&az=2", "'az' is given twice"),
+            ("step=0", "step=\"0\""),
+        ];
+        for (q, want) in cases {
+            let msg = error(q);
+            assert!(msg.contains(want), "{q}: {msg}");
+        }
+    }
+}

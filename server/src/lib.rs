@@ -1,0 +1,29 @@
+//! The voxserve server: HTTP API, the web client, the render worker that owns the
+//! GPU, frame encoding, and the command-line subcommands.
+//!
+//! # Layout
+//! - [`app`]: the axum router, [`AppState`], and [`run`](app::run), which serves on
+//!   a listener until a shutdown future resolves (tests use port 0).
+//! - [`error`]: [`AppError`]: client errors become 4xx with a message naming the
+//!   field; internal errors become a generic 500 and are logged once.
+//! - [`frame_query`]: the query string of `GET /api/render` → a [`shaders::FrameRequest`].
+//! - [`render_service`]: [`RenderService`], one worker thread that owns the GPU
+//!   renderer and serves render jobs from all requests in arrival order.
+//! - [`dataset`]: [`Dataset`], a volume the server offers, and its public description.
+//! - [`encode`]: frame → PNG.
+//! - [`web`]: the static web client from `web/`, compiled into the binary.
+//! - [`commands`]: the `serve`, `render` and `bench` subcommands.
+
+pub mod app;
+pub mod commands;
+pub mod dataset;
+pub mod encode;
+pub mod error;
+pub mod frame_query;
+pub mod render_service;
+pub mod web;
+
+pub use app::{AppState, run};
+pub use dataset::Dataset;
+pub use error::AppError;
+pub use render_service::RenderService;

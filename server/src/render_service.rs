@@ -1,0 +1,106 @@
+//! [`RenderService`]: one worker thread owns the GPU [`Renderer`]; handlers send it
+//! jobs over a bounded channel and await the reply.
+//!
+//! GPU work is blocking (submit, then wait for the queue), so it runs on its own
+//! thread rather than on the async runtime. Jobs are served in arrival order; when
+//! the queue is full a request is refused at once (503) instead of waiting behind
+//! work that will be stale by the time it runs.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use shaders::{Frame, FrameRequest, GpuContext, GpuError, Renderer};
+use tokio::sync::{mpsc, oneshot};
+
+use crate::{AppError, Dataset};
+
+/// Jobs that may wait for the worker; more are refused.
+pub const QUEUE_CAPACITY: usize = 8;
+
+/// A rendered frame and how long the GPU took.
+#[derive(Debug)]
+pub struct RenderedFrame {
+    /// The pixels.
+    pub frame: Frame,
+    /// Milliseconds from the worker taking the job to the pixels being read back.
+    pub render_ms: f64,
+}
+
+struct Job {
+    request: FrameRequest,
+    reply: oneshot::Sender<Result<RenderedFrame, GpuError>>,
+}
+
+/// A handle to the render worker; cloning shares the worker.
+#[derive(Debug, Clone)]
+pub struct RenderService {
+    jobs: mpsc::Sender<Job>,
+    adapter: Arc<str>,
+}
+
+impl std::fmt::Debug for Job {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Job")
+            .field("request", &self.request)
+            .finish()
+    }
+}
+
+impl RenderService {
+    /// Uploads `dataset` to `gpu` and starts the worker thread.
+    pub fn start(gpu: GpuContext, dataset: &Dataset) -> Result<RenderService, GpuError> {
+        let adapter: Arc<str> = gpu.describe().into();
+        let mut renderer = Renderer::new(gpu, &dataset.volume)?;
+        let (jobs, mut queue) = mpsc::channel::<Job>(QUEUE_CAPACITY);
+        std::thread::Builder::new()
+            .name("render-worker".into())
+            .spawn(move || {
+                // Ends when every sender (every RenderService clone) is gone.
+                while let Some(job) = queue.blocking_recv() {
+                    let start = Instant::now();
+                    let result = renderer.render(&job.request).map(|frame| RenderedFrame {
+                        frame,
+                        render_ms: start.elapsed().as_secs_f64() * 1e3,
+                    });
+                    if let Err(e) = &result {
+                        tracing::warn!("render failed: {e}");
+                    }
+                    // The requester may have gone away; nothing to do then.
+                    let _ = job.reply.send(result);
+                }
+            })
+            .map_err(|e| GpuError::Wait {
+                operation: "starting the render worker".into(),
+                reason: e.to_string(),
+            })?;
+        Ok(RenderService { jobs, adapter })
+    }
+
+    /// The adapter the worker renders on.
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// Renders `request`, or refuses at once when the queue is full.
+    pub async fn render(&self, request: FrameRequest) -> Result<RenderedFrame, AppError> {
+        let (reply, answer) = oneshot::channel();
+        self.jobs
+            .try_send(Job { request, reply })
+            .map_err(|e| match e {
+                mpsc::error::TrySendError::Full(_) => AppError::Busy(format!(
+                    "the renderer has {QUEUE_CAPACITY} frames waiting: retry shortly"
+                )),
+                mpsc::error::TrySendError::Closed(_) => {
+                    AppError::Internal("the render worker has stopped".into())
+                }
+            })?;
+        let result = answer
+            .await
+            .map_err(|_| AppError::Internal("the render worker dropped a job".into()))?;
+        result.map_err(|e| match e {
+            GpuError::InvalidRequest(m) => AppError::BadRequest(m),
+            GpuError::Unsupported { .. } => AppError::BadRequest(e.to_string()),
+            other => AppError::Internal(other.to_string()),
+        })
+    }
+}

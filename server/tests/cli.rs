@@ -1,0 +1,246 @@
+//! The `voxserve` binary as a user runs it: `--help`, `render` to a file, bad
+//! flags, and `serve` printing its URL and answering `GET /api/render`.
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::Duration;
+
+use voxserve_tests::Tolerance;
+use voxserve_tests::checks::assert_front_view_of_phantom;
+use voxserve_tests::gpu::require_gpu;
+use voxserve_tests::image_compare::compare;
+
+const VOXSERVE: &str = env!("CARGO_BIN_EXE_voxserve");
+
+fn voxserve(args: &[&str]) -> Output {
+    Command::new(VOXSERVE)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("running voxserve {args:?}: {e}"))
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// True when the run failed only because there is no GPU, and that is allowed.
+fn skipped_for_lack_of_gpu(test: &str, out: &Output) -> bool {
+    let stderr = text(&out.stderr);
+    if out.status.success() || !stderr.contains("no GPU adapter found") {
+        return false;
+    }
+    assert!(
+        !require_gpu(),
+        "{test}: VOXSERVE_REQUIRE_GPU=1 but: {stderr}"
+    );
+    voxserve_tests::gpu::report_skip(test, "no GPU adapter");
+    true
+}
+
+fn temp_path(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("voxserve-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir.join(name)
+}
+
+#[test]
+fn help_explains_every_subcommand_and_flag() {
+    let top = text(&voxserve(&["--help"]).stdout);
+    for word in ["serve", "render", "bench", "WGPU_BACKEND"] {
+        assert!(top.contains(word), "voxserve --help lacks {word}:\n{top}");
+    }
+    let render = text(&voxserve(&["render", "--help"]).stdout);
+    for flag in [
+        "--out",
+        "--azimuth",
+        "--elevation",
+        "--distance",
+        "--fov",
+        "--width",
+        "--height",
+        "--preset",
+        "--shading",
+        "--step",
+        "--cpu",
+        "--phantom-size",
+        "ct-bone",
+        "DATASET",
+    ] {
+        assert!(
+            render.contains(flag),
+            "render --help lacks {flag}:\n{render}"
+        );
+    }
+    let serve = text(&voxserve(&["serve", "--help"]).stdout);
+    for flag in ["--addr", "127.0.0.1:8080", "--phantom-size"] {
+        assert!(serve.contains(flag), "serve --help lacks {flag}:\n{serve}");
+    }
+}
+
+#[test]
+fn bad_flags_are_refused_with_the_flag_named() {
+    for (args, flag) in [
+        (vec!["render", "--width", "0"], "--width"),
+        (vec!["render", "--height", "100000"], "--height"),
+        (vec!["render", "--azimuth", "north"], "--azimuth"),
+        (vec!["render", "--preset", "bone"], "--preset"),
+        (vec!["render", "--phantom-size", "8"], "--phantom-size"),
+        (vec!["serve", "--addr", "localhost"], "--addr"),
+    ] {
+        let out = voxserve(&args);
+        assert!(!out.status.success(), "{args:?} should fail");
+        let stderr = text(&out.stderr);
+        assert!(stderr.contains(flag), "{args:?}: {stderr}");
+    }
+    let out = voxserve(&["render", "engine.raw"]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("unknown dataset 'engine.raw'"),
+        "{}",
+        text(&out.stderr)
+    );
+}
+
+#[test]
+fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
+    let common = [
+        "--phantom-size",
+        "64",
+        "--width",
+        "96",
+        "--height",
+        "80",
+        "--azimuth",
+        "25",
+    ];
+    let cpu_path = temp_path("cpu.png");
+    let out = voxserve(
+        &[
+            &[
+                "render",
+                "--cpu",
+                "--out",
+                cpu_path.to_str().expect("utf-8"),
+            ][..],
+            &common,
+        ]
+        .concat(),
+    );
+    assert!(out.status.success(), "render --cpu: {}", text(&out.stderr));
+    assert!(text(&out.stdout).contains("wrote"), "{}", text(&out.stdout));
+    let cpu = image::open(&cpu_path).expect("CPU PNG").to_rgba8();
+    assert_eq!(cpu.dimensions(), (96, 80));
+    assert!(
+        voxserve_tests::checks::coverage(&cpu) > 0.1,
+        "the phantom is in the CPU frame"
+    );
+
+    let gpu_path = temp_path("gpu.png");
+    let out = voxserve(
+        &[
+            &["render", "--out", gpu_path.to_str().expect("utf-8")][..],
+            &common,
+        ]
+        .concat(),
+    );
+    if skipped_for_lack_of_gpu("render_writes_the_frame_and_gpu_and_cpu_twin_agree", &out) {
+        return;
+    }
+    assert!(out.status.success(), "render: {}", text(&out.stderr));
+    let gpu = image::open(&gpu_path).expect("GPU PNG").to_rgba8();
+    let tolerance = Tolerance {
+        max_mean: 0.5,
+        pixel_threshold: 8,
+        max_differing_fraction: 0.01,
+    };
+    let dir = gpu_path.parent().expect("temp dir");
+    compare("cli-gpu-vs-cpu", &gpu, &cpu, &tolerance, dir).unwrap_or_else(|m| panic!("{m}"));
+}
+
+#[cfg(target_os = "linux")]
+#[test]
+fn without_an_adapter_render_names_the_package_to_install() {
+    // Linux has no DX12, so this backend choice leaves no adapter at all.
+    let out = Command::new(VOXSERVE)
+        .args(["render", "--phantom-size", "16", "--out", "/dev/null"])
+        .env("WGPU_BACKEND", "dx12")
+        .output()
+        .expect("run voxserve");
+    assert!(!out.status.success());
+    let stderr = text(&out.stderr);
+    assert!(stderr.contains("no GPU adapter found"), "{stderr}");
+    assert!(stderr.contains("mesa-vulkan-drivers"), "{stderr}");
+}
+
+/// Kills the server when the test ends, even on panic.
+struct Server(Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[tokio::test]
+async fn serve_prints_its_url_and_renders_the_phantom() {
+    let mut child = Command::new(VOXSERVE)
+        .args(["serve", "--addr", "127.0.0.1:0", "--phantom-size", "64"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start voxserve serve");
+    let stdout = child.stdout.take().expect("stdout");
+    let stderr = child.stderr.take().expect("stderr");
+    // Drain stderr so the server never blocks on a full pipe; keep it for messages.
+    let stderr = std::thread::spawn(move || {
+        let mut text = String::new();
+        let _ = std::io::Read::read_to_string(&mut BufReader::new(stderr), &mut text);
+        text
+    });
+    let mut server = Server(child);
+    // The first stdout line names the URL; read it off the async runtime.
+    let line = tokio::task::spawn_blocking(move || {
+        let mut line = String::new();
+        BufReader::new(stdout).read_line(&mut line).map(|_| line)
+    });
+    let line = tokio::time::timeout(Duration::from_secs(60), line)
+        .await
+        .expect("the server printed nothing within 60 s")
+        .expect("reader task")
+        .expect("reading stdout");
+    if line.is_empty() {
+        // stdout closed without a URL: the server exited.
+        let out = Output {
+            status: server.0.wait().expect("exit status"),
+            stdout: Vec::new(),
+            stderr: stderr.join().unwrap_or_default().into_bytes(),
+        };
+        if skipped_for_lack_of_gpu("serve_prints_its_url_and_renders_the_phantom", &out) {
+            return;
+        }
+        panic!("serve exited: {}", text(&out.stderr));
+    }
+    let url = line
+        .split_whitespace()
+        .find(|w| w.starts_with("http://"))
+        .unwrap_or_else(|| panic!("no URL in {line:?}"))
+        .trim_end_matches('/')
+        .to_owned();
+    let response = reqwest::get(format!("{url}/api/render?w=128&h=128&shading=unshaded"))
+        .await
+        .expect("GET /api/render");
+    assert_eq!(response.status(), 200);
+    let bytes = response.bytes().await.expect("body");
+    let img = image::load_from_memory(&bytes).expect("PNG").to_rgba8();
+    assert_front_view_of_phantom(&img);
+    let bad = reqwest::get(format!("{url}/api/render?w=0"))
+        .await
+        .expect("GET");
+    assert_eq!(bad.status(), 400);
+    let again = reqwest::get(format!("{url}/api/render?w=32&h=32"))
+        .await
+        .expect("GET");
+    assert_eq!(again.status(), 200, "still serving after a bad request");
+}

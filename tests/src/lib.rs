@@ -1,0 +1,22 @@
+//! Helpers for voxserve's end-to-end and image tests.
+//!
+//! # Layout
+//! - [`gpu`]: the shared [`GpuContext`] of a test binary, or a printed reason to
+//!   skip; with `VOXSERVE_REQUIRE_GPU=1` (set by `.ci/run`) a missing adapter fails.
+//! - [`image_compare`]: compare a rendered frame with another or with a golden PNG
+//!   under a tolerance, writing `*-actual.png` and `*-diff.png` on failure.
+//! - [`phantom`]: the phantom at test sizes, generated once per test binary.
+//! - [`checks`]: facts that show a volume is really in an image (coverage,
+//!   left–right symmetry, centroid).
+//! - [`server`]: a real server on port 0 for end-to-end tests.
+
+pub mod checks;
+pub mod gpu;
+pub mod image_compare;
+pub mod phantom;
+pub mod server;
+
+pub use gpu::{gpu_or_skip, require_gpu};
+pub use image_compare::{ImageDiff, Tolerance};
+
+use shaders::GpuContext;

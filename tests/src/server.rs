@@ -1,0 +1,54 @@
+//! A real voxserve server on an ephemeral port, stopped when dropped.
+
+use server::{AppState, Dataset, RenderService};
+use shaders::GpuContext;
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+
+/// A running server.
+#[derive(Debug)]
+pub struct TestServer {
+    /// `http://127.0.0.1:PORT`.
+    pub base_url: String,
+    stop: Option<oneshot::Sender<()>>,
+}
+
+impl TestServer {
+    /// Serves the phantom at `phantom_size`³ on `gpu`, on 127.0.0.1 port 0.
+    ///
+    /// # Panics
+    /// When the server cannot start.
+    pub async fn start(gpu: &GpuContext, phantom_size: u32) -> TestServer {
+        let dataset = Dataset::phantom(phantom_size).expect("phantom");
+        let renderer = RenderService::start(gpu.clone(), &dataset).expect("render worker");
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind port 0");
+        let addr = listener.local_addr().expect("local address");
+        let (stop, stopped) = oneshot::channel::<()>();
+        tokio::spawn(async move {
+            let shutdown = async {
+                // A dropped sender stops the server as well.
+                let _ = stopped.await;
+            };
+            if let Err(e) = server::run(listener, AppState { dataset, renderer }, shutdown).await {
+                panic!("test server failed: {e}");
+            }
+        });
+        TestServer {
+            base_url: format!("http://{addr}"),
+            stop: Some(stop),
+        }
+    }
+
+    /// The absolute URL of `path` (which starts with `/`).
+    pub fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base_url)
+    }
+}
+
+impl Drop for TestServer {
+    fn drop(&mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+    }
+}

@@ -1,0 +1,169 @@
+//! End-to-end tests of the HTTP API against a real server on port 0.
+
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
+
+use voxserve_tests::checks::assert_front_view_of_phantom;
+use voxserve_tests::gpu_or_skip;
+use voxserve_tests::server::TestServer;
+
+async fn get(url: &str) -> reqwest::Response {
+    reqwest::get(url)
+        .await
+        .unwrap_or_else(|e| panic!("GET {url}: {e}"))
+}
+
+#[tokio::test]
+async fn render_returns_a_png_in_which_the_phantom_is_visible() {
+    let Some(gpu) = gpu_or_skip("render_returns_a_png_in_which_the_phantom_is_visible") else {
+        return;
+    };
+    let server = TestServer::start(gpu, 64).await;
+    let response =
+        get(&server.url("/api/render?az=0&el=0&w=128&h=96&preset=ct-bone&shading=unshaded")).await;
+    assert_eq!(response.status(), 200);
+    assert_eq!(
+        response.headers()["content-type"],
+        "image/png",
+        "content type"
+    );
+    assert!(response.headers().contains_key("x-render-ms"));
+    let bytes = response.bytes().await.expect("body");
+    let img = image::load_from_memory(&bytes)
+        .expect("a decodable PNG")
+        .to_rgba8();
+    assert_eq!(img.dimensions(), (128, 96));
+    let (coverage, mirror) = assert_front_view_of_phantom(&img);
+    println!("phantom covers {coverage:.3} of the frame; mirror difference {mirror:.3}");
+}
+
+#[tokio::test]
+async fn the_view_changes_with_the_camera() {
+    let Some(gpu) = gpu_or_skip("the_view_changes_with_the_camera") else {
+        return;
+    };
+    let server = TestServer::start(gpu, 64).await;
+    let frame = |q: &'static str| {
+        let url = server.url(&format!("/api/render?w=64&h=64&preset=ct-soft-tissue&{q}"));
+        async move {
+            let bytes = get(&url).await.bytes().await.expect("body");
+            image::load_from_memory(&bytes).expect("PNG").to_rgba8()
+        }
+    };
+    let front = frame("az=0").await;
+    let side = frame("az=90").await;
+    let near = frame("az=0&dist=1.5").await;
+    let (d_side, _) = voxserve_tests::image_compare::measure(&front, &side, 8);
+    let (d_near, _) = voxserve_tests::image_compare::measure(&front, &near, 8);
+    assert!(d_side.differing_fraction > 0.05, "side view: {d_side:?}");
+    assert!(d_near.differing_fraction > 0.05, "closer view: {d_near:?}");
+    let cov = voxserve_tests::checks::coverage;
+    assert!(
+        cov(&near) > cov(&front),
+        "a closer camera shows a bigger phantom"
+    );
+}
+
+#[tokio::test]
+async fn bad_queries_get_400_with_a_message_and_the_server_keeps_serving() {
+    let Some(gpu) = gpu_or_skip("bad_queries_get_400_with_a_message_and_the_server_keeps_serving")
+    else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let cases = [
+        ("w=0", "w=\"0\""),
+        ("w=100000", "w=\"100000\""),
+        ("h=abc", "h=\"abc\""),
+        (
+            "preset=nonsense",
+            "unknown transfer-function preset 'nonsense'",
+        ),
+        ("az=north", "az=\"north\""),
+        ("el=NaN", "el=\"NaN\""),
+        ("dist=-1", "dist=\"-1\""),
+        ("dataset=engine", "dataset=\"engine\""),
+        ("colour=red", "unknown query parameter 'colour'"),
+        ("w=64&w=64", "given twice"),
+    ];
+    for (query, expected) in cases {
+        let response = get(&server.url(&format!("/api/render?{query}"))).await;
+        assert_eq!(response.status(), 400, "{query}");
+        let body: serde_json::Value = response.json_body().await;
+        let message = body["error"].as_str().unwrap_or_default();
+        assert!(message.contains(expected), "{query}: {message}");
+    }
+    let ok = get(&server.url("/api/render?w=32&h=32")).await;
+    assert_eq!(
+        ok.status(),
+        200,
+        "the server still renders after bad requests"
+    );
+}
+
+#[tokio::test]
+async fn concurrent_requests_are_all_answered() {
+    let Some(gpu) = gpu_or_skip("concurrent_requests_are_all_answered") else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let requests = (0..6).map(|i| {
+        let url = server.url(&format!("/api/render?w=48&h=48&az={}", i * 60));
+        tokio::spawn(async move { get(&url).await.status() })
+    });
+    for handle in requests {
+        assert_eq!(handle.await.expect("request task"), 200);
+    }
+}
+
+#[tokio::test]
+async fn the_web_client_and_dataset_list_are_served() {
+    let Some(gpu) = gpu_or_skip("the_web_client_and_dataset_list_are_served") else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let index = get(&server.url("/")).await;
+    assert_eq!(index.status(), 200);
+    assert!(
+        index.headers()["content-type"]
+            .to_str()
+            .unwrap_or_default()
+            .starts_with("text/html")
+    );
+    let html = index.text().await.expect("body");
+    assert!(
+        html.contains("app.js"),
+        "index.html loads the client module"
+    );
+    for module in ["/app.js", "/camera.js", "/frames.js"] {
+        let r = get(&server.url(module)).await;
+        assert_eq!(r.status(), 200, "{module}");
+        let ct = r.headers()["content-type"]
+            .to_str()
+            .unwrap_or_default()
+            .to_owned();
+        assert!(ct.contains("javascript"), "{module}: {ct}");
+    }
+    assert_eq!(get(&server.url("/no-such-file.js")).await.status(), 404);
+
+    let datasets: serde_json::Value = get(&server.url("/api/datasets")).await.json_body().await;
+    let phantom = &datasets[0];
+    assert_eq!(phantom["id"], "phantom");
+    assert_eq!(phantom["dims"], serde_json::json!([32, 32, 32]));
+    assert_eq!(phantom["unit"], "HU");
+    assert_eq!(phantom["default_preset"], "ct-bone");
+    assert!(phantom["presets"].as_array().is_some_and(|p| p.len() == 5));
+    let health: serde_json::Value = get(&server.url("/healthz")).await.json_body().await;
+    assert_eq!(health["status"], "ok");
+}
+
+/// JSON bodies without reqwest's `json` feature.
+trait JsonBody {
+    async fn json_body(self) -> serde_json::Value;
+}
+
+impl JsonBody for reqwest::Response {
+    async fn json_body(self) -> serde_json::Value {
+        let text = self.text().await.expect("body");
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("not JSON ({e}): {text}"))
+    }
+}
