@@ -33,6 +33,9 @@ pub const PARAMETERS: [&str; 10] = [
 /// The default image edge in pixels.
 pub const DEFAULT_EDGE: u32 = 512;
 
+const DEGREES: &str = "a number of degrees";
+const PIXELS: &str = "a whole number of pixels";
+
 /// The query's parameters, checked for unknown and repeated names.
 struct Params<'a> {
     pairs: &'a [(String, String)],
@@ -63,46 +66,20 @@ impl<'a> Params<'a> {
             .map(|(_, v)| v.as_str())
     }
 
-    /// A finite number in `lo..=hi`, or `default` when absent.
-    fn number(
-        &self,
-        name: &str,
-        default: f32,
-        lo: f32,
-        hi: f32,
-        unit: &str,
-    ) -> Result<f32, String> {
+    /// A value in `lo..=hi` (so never NaN or infinite), or `default` when absent.
+    /// `what` names the kind of value in the message, e.g. "a number of degrees".
+    fn ranged<T>(&self, name: &str, default: T, lo: T, hi: T, what: &str) -> Result<T, String>
+    where
+        T: FromStr + PartialOrd + Copy + std::fmt::Display,
+    {
         let Some(text) = self.get(name) else {
             return Ok(default);
         };
-        let expected = || {
-            format!(
-                "query parameter {name}={text:?}: expected a number of {unit} from {lo} to {hi}"
-            )
-        };
-        let value = f32::from_str(text.trim()).map_err(|_| expected())?;
-        if value.is_finite() && (lo..=hi).contains(&value) {
-            Ok(value)
-        } else {
-            Err(expected())
-        }
-    }
-
-    /// A whole number in `lo..=hi`, or `default` when absent.
-    fn whole(&self, name: &str, default: u32, lo: u32, hi: u32, unit: &str) -> Result<u32, String> {
-        let Some(text) = self.get(name) else {
-            return Ok(default);
-        };
-        let expected = || {
-            format!(
-                "query parameter {name}={text:?}: expected a whole number of {unit} from {lo} to {hi}"
-            )
-        };
-        let value = u32::from_str(text.trim()).map_err(|_| expected())?;
-        if (lo..=hi).contains(&value) {
-            Ok(value)
-        } else {
-            Err(expected())
+        match T::from_str(text.trim()) {
+            Ok(value) if (lo..=hi).contains(&value) => Ok(value),
+            _ => Err(format!(
+                "query parameter {name}={text:?}: expected {what} from {lo} to {hi}"
+            )),
         }
     }
 
@@ -138,39 +115,39 @@ pub fn parse<'d>(
     };
     let defaults = Camera::default();
     let camera = Camera {
-        azimuth_deg: params.number("az", defaults.azimuth_deg, -3600.0, 3600.0, "degrees")?,
-        elevation_deg: params.number(
+        azimuth_deg: params.ranged("az", defaults.azimuth_deg, -3600.0, 3600.0, DEGREES)?,
+        elevation_deg: params.ranged(
             "el",
             defaults.elevation_deg,
             -camera::MAX_ELEVATION_DEG,
             camera::MAX_ELEVATION_DEG,
-            "degrees",
+            DEGREES,
         )?,
-        distance: params.number(
+        distance: params.ranged(
             "dist",
             defaults.distance,
             camera::MIN_DISTANCE,
             camera::MAX_DISTANCE,
-            "bounding-sphere radii",
+            "a number of bounding-sphere radii",
         )?,
-        fov_y_deg: params.number(
+        fov_y_deg: params.ranged(
             "fov",
             defaults.fov_y_deg,
             camera::FOV_RANGE_DEG.0,
             camera::FOV_RANGE_DEG.1,
-            "degrees",
+            DEGREES,
         )?,
     };
-    let width = params.whole("w", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, "pixels")?;
-    let height = params.whole("h", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, "pixels")?;
+    let width = params.ranged("w", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, PIXELS)?;
+    let height = params.ranged("h", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, PIXELS)?;
     let preset: Preset = params.named("preset", dataset.default_preset())?;
     let shading: Shading = params.named("shading", Shading::default())?;
-    let step_voxels = params.number(
+    let step_voxels = params.ranged(
         "step",
         0.5,
         STEP_RANGE_VOXELS.0,
         STEP_RANGE_VOXELS.1,
-        "voxels",
+        "a number of voxels",
     )?;
     let request = FrameRequest {
         camera,

@@ -62,14 +62,32 @@ impl GpuContext {
     }
 
     /// Finds the best adapter and creates a device on it.
+    ///
+    /// Without `WGPU_BACKEND`, the native backends (Vulkan, Metal, DX12) are searched
+    /// first and GL only when they offer nothing: starting GL probes display servers
+    /// (EGL), which is slow and noisy on a headless machine.
     pub async fn new_async() -> Result<GpuContext, GpuError> {
-        let descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        let backends = descriptor.backends;
-        let instance = wgpu::Instance::new(descriptor);
-        let mut adapters = instance.enumerate_adapters(backends).await;
+        let mut adapters = Vec::new();
+        let mut searched = wgpu::Backends::empty();
+        let choices = match wgpu::Backends::from_env() {
+            Some(chosen) => vec![chosen],
+            None => vec![wgpu::Backends::PRIMARY, wgpu::Backends::SECONDARY],
+        };
+        for backends in choices {
+            let descriptor = wgpu::InstanceDescriptor {
+                backends,
+                ..wgpu::InstanceDescriptor::new_without_display_handle_from_env()
+            };
+            let instance = wgpu::Instance::new(descriptor);
+            searched |= backends;
+            adapters = instance.enumerate_adapters(backends).await;
+            if !adapters.is_empty() {
+                break;
+            }
+        }
         if adapters.is_empty() {
             return Err(GpuError::NoAdapter {
-                backends: format!("{backends:?}"),
+                backends: format!("{searched:?}"),
             });
         }
         if let Ok(wanted) = std::env::var("WGPU_ADAPTER_NAME") {
@@ -103,7 +121,7 @@ impl GpuContext {
             }
         }
         Err(last_error.unwrap_or(GpuError::NoAdapter {
-            backends: format!("{backends:?}"),
+            backends: format!("{searched:?}"),
         }))
     }
 
