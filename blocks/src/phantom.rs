@@ -274,7 +274,7 @@ mod tests {
     fn hu_at(v: &Volume, p: [f32; 3]) -> f32 {
         let n = v.dims[0] as f32;
         let idx = |t: f32| (((t + 1.0) * 0.5 * n) as u32).min(v.dims[0] - 1);
-        v.physical_at(idx(p[0]), idx(-p[1]), idx(p[2]))
+        v.physical_at(idx(p[0]), idx(-p[1]), idx(p[2])) as f32
     }
 
     #[test]
@@ -296,7 +296,7 @@ mod tests {
         // Air outside the head: the mean of many voxels is −1000 within a fraction of an HU.
         let corner: Vec<f32> = (0..8)
             .flat_map(|z| (0..8).flat_map(move |y| (0..8).map(move |x| (x, y, z))))
-            .map(|(x, y, z)| v.physical_at(x, y, z))
+            .map(|(x, y, z)| v.physical_at(x, y, z) as f32)
             .collect();
         let mean = corner.iter().sum::<f32>() / corner.len() as f32;
         assert!((mean - AIR_HU).abs() < 1.0, "mean air {mean}");
@@ -335,7 +335,10 @@ mod tests {
                 for x in 0..32 {
                     let (a, b) = (v.physical_at(x, y, z), v.physical_at(63 - x, y, z));
                     if a.max(b) > 300.0 {
-                        assert!((a - b).abs() <= NOISE_HU + 1.0, "({x},{y},{z}): {a} vs {b}");
+                        assert!(
+                            (a - b).abs() <= f64::from(NOISE_HU) + 1.0,
+                            "({x},{y},{z}): {a} vs {b}"
+                        );
                     }
                 }
             }
@@ -348,7 +351,7 @@ mod tests {
         // tissue through intermediate values, not in one step.
         let v = head(256).expect("phantom");
         let (y, z) = (128, 128);
-        let profile: Vec<f32> = (212..220).map(|x| v.physical_at(x, y, z)).collect();
+        let profile: Vec<f32> = (212..220).map(|x| v.physical_at(x, y, z) as f32).collect();
         let intermediate = profile
             .iter()
             .filter(|h| **h > 200.0 && **h < 850.0)

@@ -10,62 +10,193 @@ use crate::Error;
 /// The type of one stored voxel value.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum VoxelType {
-    /// Unsigned 8-bit values.
+    /// Unsigned 8-bit integers.
     U8,
-    /// Unsigned 16-bit values.
+    /// Signed 8-bit integers.
+    I8,
+    /// Unsigned 16-bit integers.
     U16,
+    /// Signed 16-bit integers.
+    I16,
+    /// Unsigned 32-bit integers.
+    U32,
+    /// Signed 32-bit integers.
+    I32,
+    /// 32-bit floats.
+    F32,
 }
 
 impl VoxelType {
+    /// Every voxel type.
+    pub const ALL: [VoxelType; 7] = [
+        VoxelType::U8,
+        VoxelType::I8,
+        VoxelType::U16,
+        VoxelType::I16,
+        VoxelType::U32,
+        VoxelType::I32,
+        VoxelType::F32,
+    ];
+
     /// Bytes per voxel.
     pub fn size(self) -> usize {
         match self {
-            VoxelType::U8 => 1,
-            VoxelType::U16 => 2,
+            VoxelType::U8 | VoxelType::I8 => 1,
+            VoxelType::U16 | VoxelType::I16 => 2,
+            VoxelType::U32 | VoxelType::I32 | VoxelType::F32 => 4,
         }
     }
 
-    /// The largest stored value, which a normalized GPU texture maps to 1.0.
-    pub fn max_stored(self) -> f32 {
+    /// The largest stored value of an integer type, which a normalized GPU
+    /// texture maps to 1.0; `None` for floats.
+    pub fn max_stored(self) -> Option<f32> {
         match self {
-            VoxelType::U8 => f32::from(u8::MAX),
-            VoxelType::U16 => f32::from(u16::MAX),
+            VoxelType::U8 => Some(f32::from(u8::MAX)),
+            VoxelType::I8 => Some(f32::from(i8::MAX)),
+            VoxelType::U16 => Some(f32::from(u16::MAX)),
+            VoxelType::I16 => Some(f32::from(i16::MAX)),
+            VoxelType::U32 => Some(u32::MAX as f32),
+            VoxelType::I32 => Some(i32::MAX as f32),
+            VoxelType::F32 => None,
         }
     }
 
-    /// The name used in messages and file names (`uint8`, `uint16`).
+    /// The name used in messages, file names and on the command line
+    /// (`uint8`, `int8`, `uint16`, `int16`, `uint32`, `int32`, `float32`).
     pub fn name(self) -> &'static str {
         match self {
             VoxelType::U8 => "uint8",
+            VoxelType::I8 => "int8",
             VoxelType::U16 => "uint16",
+            VoxelType::I16 => "int16",
+            VoxelType::U32 => "uint32",
+            VoxelType::I32 => "int32",
+            VoxelType::F32 => "float32",
         }
+    }
+
+    /// The type named `name` ([`VoxelType::name`], or `float` for `float32`).
+    pub fn from_name(name: &str) -> Option<VoxelType> {
+        if name == "float" {
+            return Some(VoxelType::F32);
+        }
+        VoxelType::ALL.into_iter().find(|t| t.name() == name)
     }
 }
 
-/// The stored voxel values of a volume.
-#[derive(Debug, Clone, PartialEq)]
-pub enum VoxelData {
-    /// 8-bit voxels.
-    U8(Vec<u8>),
-    /// 16-bit voxels.
-    U16(Vec<u16>),
+/// A voxel value type: plain old data that widens to `f64` without loss.
+pub trait Voxel: bytemuck::Pod + Into<f64> + PartialOrd + Send + Sync {
+    /// The value from little-endian bytes (`size_of::<Self>()` of them).
+    fn from_le(bytes: &[u8]) -> Self;
+    /// The value from big-endian bytes.
+    fn from_be(bytes: &[u8]) -> Self;
 }
 
+macro_rules! impl_voxel {
+    ($($t:ty),*) => {$(
+        impl Voxel for $t {
+            fn from_le(bytes: &[u8]) -> Self {
+                let mut b = [0u8; size_of::<$t>()];
+                b.copy_from_slice(bytes);
+                <$t>::from_le_bytes(b)
+            }
+            fn from_be(bytes: &[u8]) -> Self {
+                let mut b = [0u8; size_of::<$t>()];
+                b.copy_from_slice(bytes);
+                <$t>::from_be_bytes(b)
+            }
+        }
+    )*};
+}
+impl_voxel!(u8, i8, u16, i16, u32, i32, f32);
+
+/// The stored voxel values of a volume or a slab of one.
+#[derive(Debug, Clone, PartialEq)]
+pub enum VoxelData {
+    /// Unsigned 8-bit voxels.
+    U8(Vec<u8>),
+    /// Signed 8-bit voxels.
+    I8(Vec<i8>),
+    /// Unsigned 16-bit voxels.
+    U16(Vec<u16>),
+    /// Signed 16-bit voxels.
+    I16(Vec<i16>),
+    /// Unsigned 32-bit voxels.
+    U32(Vec<u32>),
+    /// Signed 32-bit voxels.
+    I32(Vec<i32>),
+    /// 32-bit float voxels.
+    F32(Vec<f32>),
+}
+
+/// Runs `$body` with `$v` bound to the typed vector inside a [`VoxelData`].
+macro_rules! with_voxels {
+    ($data:expr, $v:ident => $body:expr) => {
+        match $data {
+            $crate::VoxelData::U8($v) => $body,
+            $crate::VoxelData::I8($v) => $body,
+            $crate::VoxelData::U16($v) => $body,
+            $crate::VoxelData::I16($v) => $body,
+            $crate::VoxelData::U32($v) => $body,
+            $crate::VoxelData::I32($v) => $body,
+            $crate::VoxelData::F32($v) => $body,
+        }
+    };
+}
+pub(crate) use with_voxels;
+
 impl VoxelData {
+    /// `len` zero voxels of type `ty`.
+    pub fn zeros(ty: VoxelType, len: usize) -> VoxelData {
+        match ty {
+            VoxelType::U8 => VoxelData::U8(vec![0; len]),
+            VoxelType::I8 => VoxelData::I8(vec![0; len]),
+            VoxelType::U16 => VoxelData::U16(vec![0; len]),
+            VoxelType::I16 => VoxelData::I16(vec![0; len]),
+            VoxelType::U32 => VoxelData::U32(vec![0; len]),
+            VoxelType::I32 => VoxelData::I32(vec![0; len]),
+            VoxelType::F32 => VoxelData::F32(vec![0.0; len]),
+        }
+    }
+
+    /// Decodes voxels of type `ty` from bytes in the given byte order.
+    /// Trailing bytes that do not fill a voxel are ignored.
+    pub fn from_bytes(ty: VoxelType, bytes: &[u8], big_endian: bool) -> VoxelData {
+        fn decode<T: Voxel>(bytes: &[u8], big_endian: bool) -> Vec<T> {
+            let chunks = bytes.chunks_exact(size_of::<T>());
+            if big_endian {
+                chunks.map(T::from_be).collect()
+            } else {
+                chunks.map(T::from_le).collect()
+            }
+        }
+        match ty {
+            VoxelType::U8 => VoxelData::U8(bytes.to_vec()),
+            VoxelType::I8 => VoxelData::I8(bytemuck::cast_slice(bytes).to_vec()),
+            VoxelType::U16 => VoxelData::U16(decode(bytes, big_endian)),
+            VoxelType::I16 => VoxelData::I16(decode(bytes, big_endian)),
+            VoxelType::U32 => VoxelData::U32(decode(bytes, big_endian)),
+            VoxelType::I32 => VoxelData::I32(decode(bytes, big_endian)),
+            VoxelType::F32 => VoxelData::F32(decode(bytes, big_endian)),
+        }
+    }
+
     /// The voxel type.
     pub fn voxel_type(&self) -> VoxelType {
         match self {
             VoxelData::U8(_) => VoxelType::U8,
+            VoxelData::I8(_) => VoxelType::I8,
             VoxelData::U16(_) => VoxelType::U16,
+            VoxelData::I16(_) => VoxelType::I16,
+            VoxelData::U32(_) => VoxelType::U32,
+            VoxelData::I32(_) => VoxelType::I32,
+            VoxelData::F32(_) => VoxelType::F32,
         }
     }
 
     /// The number of voxels.
     pub fn len(&self) -> usize {
-        match self {
-            VoxelData::U8(v) => v.len(),
-            VoxelData::U16(v) => v.len(),
-        }
+        with_voxels!(self, v => v.len())
     }
 
     /// Whether there are no voxels.
@@ -73,25 +204,51 @@ impl VoxelData {
         self.len() == 0
     }
 
-    /// The stored value at linear index `i`, widened to `f32`.
-    pub fn get(&self, i: usize) -> f32 {
-        match self {
-            VoxelData::U8(v) => f32::from(v[i]),
-            VoxelData::U16(v) => f32::from(v[i]),
-        }
+    /// The stored value at linear index `i`, widened to `f64` (exact for every type).
+    pub fn get(&self, i: usize) -> f64 {
+        with_voxels!(self, v => v[i].into())
     }
 
-    /// The smallest and largest stored value, or `None` when there are no voxels.
-    pub fn stored_range(&self) -> Option<[f32; 2]> {
-        fn range<T: Copy + Ord + Into<f32>>(v: &[T]) -> Option<[f32; 2]> {
-            let min = v.iter().copied().min()?;
-            let max = v.iter().copied().max()?;
-            Some([min.into(), max.into()])
+    /// The smallest and largest stored value (NaNs ignored), or `None` when there
+    /// are no comparable voxels.
+    pub fn stored_range(&self) -> Option<[f64; 2]> {
+        fn range<T: Voxel>(v: &[T]) -> Option<[f64; 2]> {
+            let mut values = v.iter().map(|&x| x.into()).filter(|x: &f64| !x.is_nan());
+            let first = values.next()?;
+            Some(values.fold([first, first], |[lo, hi], x| [lo.min(x), hi.max(x)]))
         }
-        match self {
-            VoxelData::U8(v) => range(v),
-            VoxelData::U16(v) => range(v),
+        with_voxels!(self, v => range(v))
+    }
+
+    /// The voxels as little-endian bytes (the in-memory layout on every target
+    /// voxserve builds for), ready for a GPU upload or a file.
+    pub fn as_bytes(&self) -> &[u8] {
+        with_voxels!(self, v => bytemuck::cast_slice(v))
+    }
+
+    /// Appends `other`, which must hold the same voxel type.
+    pub fn append(&mut self, other: VoxelData) -> Result<(), Error> {
+        let (want, got) = (self.voxel_type(), other.voxel_type());
+        match (self, other) {
+            (VoxelData::U8(a), VoxelData::U8(b)) => a.extend(b),
+            (VoxelData::I8(a), VoxelData::I8(b)) => a.extend(b),
+            (VoxelData::U16(a), VoxelData::U16(b)) => a.extend(b),
+            (VoxelData::I16(a), VoxelData::I16(b)) => a.extend(b),
+            (VoxelData::U32(a), VoxelData::U32(b)) => a.extend(b),
+            (VoxelData::I32(a), VoxelData::I32(b)) => a.extend(b),
+            (VoxelData::F32(a), VoxelData::F32(b)) => a.extend(b),
+            _ => {
+                return Err(Error::InvalidVolume {
+                    name: "slab".into(),
+                    reason: format!(
+                        "{} voxels appended to {}: expected one type",
+                        got.name(),
+                        want.name()
+                    ),
+                });
+            }
         }
+        Ok(())
     }
 }
 
@@ -113,10 +270,13 @@ impl ValueMap {
     };
 
     /// The physical value of a stored value.
-    pub fn physical(self, stored: f32) -> f32 {
-        stored * self.slope + self.intercept
+    pub fn physical(self, stored: f64) -> f64 {
+        stored * f64::from(self.slope) + f64::from(self.intercept)
     }
 }
+
+/// The identity direction matrix: index axes along the physical axes.
+pub const IDENTITY_DIRECTION: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
 /// A volume held in memory: voxels, geometry and value map.
 #[derive(Debug, Clone)]
@@ -127,8 +287,12 @@ pub struct Volume {
     pub dims: [u32; 3],
     /// Distance between voxel centres along x, y and z, in millimetres.
     pub spacing: [f32; 3],
-    /// The physical position of the centre of voxel (0, 0, 0), in millimetres.
+    /// The physical position of the centre of voxel (0, 0, 0), in millimetres
+    /// (patient LPS for medical data).
     pub origin: [f32; 3],
+    /// Unit vectors of the index axes x, y, z in physical space (the columns of
+    /// the direction matrix; identity when unknown).
+    pub direction: [[f32; 3]; 3],
     /// The stored values, x fastest.
     pub voxels: VoxelData,
     /// Stored → physical values.
@@ -190,9 +354,10 @@ impl Volume {
             dims,
             spacing,
             origin: [0.0; 3],
+            direction: IDENTITY_DIRECTION,
             voxels,
             value_map,
-            value_range: [a.min(b), a.max(b)],
+            value_range: [a.min(b) as f32, a.max(b) as f32],
             unit: None,
             modality: None,
         })
@@ -215,7 +380,7 @@ impl Volume {
     }
 
     /// The physical value of voxel (x, y, z).
-    pub fn physical_at(&self, x: u32, y: u32, z: u32) -> f32 {
+    pub fn physical_at(&self, x: u32, y: u32, z: u32) -> f64 {
         self.value_map
             .physical(self.voxels.get(self.index(x, y, z)))
     }
@@ -232,12 +397,7 @@ impl Volume {
 
     /// The stored voxels as little-endian bytes, ready for a GPU upload.
     pub fn voxel_bytes(&self) -> &[u8] {
-        match &self.voxels {
-            VoxelData::U8(v) => v,
-            // GPU uploads expect little-endian bytes; every target wgpu runs on is
-            // little-endian, so the in-memory layout is already right.
-            VoxelData::U16(v) => bytemuck::cast_slice(v),
-        }
+        self.voxels.as_bytes()
     }
 }
 

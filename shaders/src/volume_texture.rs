@@ -1,10 +1,12 @@
 //! How a [`Volume`] becomes a 3D texture: the texel format, the texel values, and
 //! the linear map from a sampled texel value to the transfer-function coordinate.
 //!
-//! 8-bit volumes go to `r8unorm`, 16-bit volumes to `r16unorm` where the adapter
-//! has `TEXTURE_FORMAT_16BIT_NORM`; both filter linearly everywhere. Without it,
-//! 16-bit volumes go to `r16float` holding the transfer-function coordinate itself,
-//! so the precision of half floats is spent on the range the data occupies.
+//! 8-bit volumes go to `r8unorm`/`r8snorm`, 16-bit volumes to `r16unorm`/`r16snorm`
+//! where the adapter has `TEXTURE_FORMAT_16BIT_NORM`; all of these filter linearly
+//! and keep every stored value exact. Everything else (16-bit without that
+//! feature, 32-bit integers, floats) goes to `r16float` holding the
+//! transfer-function coordinate itself, so the precision of half floats is spent
+//! on the range the data occupies; NaN voxels become the bottom of the range.
 //! Voxels live in textures, not storage buffers: some adapters cap storage buffers
 //! at 128 MiB. [`GpuVolume::upload`] writes the texture in slabs of z-slices.
 
@@ -20,8 +22,12 @@ const UPLOAD_SLAB_BYTES: usize = 32 << 20;
 pub enum TexelFormat {
     /// 8-bit normalized: texel = stored / 255.
     R8Unorm,
+    /// 8-bit signed normalized: texel = max(stored / 127, −1).
+    R8Snorm,
     /// 16-bit normalized: texel = stored / 65535.
     R16Unorm,
+    /// 16-bit signed normalized: texel = max(stored / 32767, −1).
+    R16Snorm,
     /// Half float holding the transfer-function coordinate.
     R16Float,
 }
@@ -31,7 +37,9 @@ impl TexelFormat {
     pub fn wgpu(self) -> wgpu::TextureFormat {
         match self {
             TexelFormat::R8Unorm => wgpu::TextureFormat::R8Unorm,
+            TexelFormat::R8Snorm => wgpu::TextureFormat::R8Snorm,
             TexelFormat::R16Unorm => wgpu::TextureFormat::R16Unorm,
+            TexelFormat::R16Snorm => wgpu::TextureFormat::R16Snorm,
             TexelFormat::R16Float => wgpu::TextureFormat::R16Float,
         }
     }
@@ -39,8 +47,8 @@ impl TexelFormat {
     /// Bytes per texel.
     pub fn size(self) -> usize {
         match self {
-            TexelFormat::R8Unorm => 1,
-            TexelFormat::R16Unorm | TexelFormat::R16Float => 2,
+            TexelFormat::R8Unorm | TexelFormat::R8Snorm => 1,
+            TexelFormat::R16Unorm | TexelFormat::R16Snorm | TexelFormat::R16Float => 2,
         }
     }
 }
@@ -52,6 +60,8 @@ pub struct VolumeTexture {
     pub dims: [u32; 3],
     /// Voxel spacing along x, y, z (mm).
     pub spacing: [f32; 3],
+    /// Unit vectors of the index axes in patient space (direction matrix columns).
+    pub direction: [[f32; 3]; 3],
     /// Storage format.
     pub format: TexelFormat,
     /// The physical value range the transfer-function table covers.
@@ -66,30 +76,32 @@ impl VolumeTexture {
     /// Chooses the format for `volume` given the device's features and derives the
     /// texel → transfer-function map.
     pub fn for_volume(volume: &Volume, features: wgpu::Features) -> VolumeTexture {
+        let norm16 = features.contains(wgpu::Features::TEXTURE_FORMAT_16BIT_NORM);
         let format = match volume.voxel_type() {
             VoxelType::U8 => TexelFormat::R8Unorm,
-            VoxelType::U16 if features.contains(wgpu::Features::TEXTURE_FORMAT_16BIT_NORM) => {
-                TexelFormat::R16Unorm
-            }
-            VoxelType::U16 => TexelFormat::R16Float,
+            VoxelType::I8 => TexelFormat::R8Snorm,
+            VoxelType::U16 if norm16 => TexelFormat::R16Unorm,
+            VoxelType::I16 if norm16 => TexelFormat::R16Snorm,
+            _ => TexelFormat::R16Float,
         };
         let tf_domain = tf_domain(volume.value_range);
         let width = tf_domain[1] - tf_domain[0];
-        let (value_scale, value_offset) = match format {
-            TexelFormat::R8Unorm | TexelFormat::R16Unorm => {
+        let (value_scale, value_offset) = match (format, volume.voxel_type().max_stored()) {
+            (TexelFormat::R16Float, _) | (_, None) => (1.0, 0.0),
+            (_, Some(max_stored)) => {
                 // texel t = stored / max; physical = stored * slope + intercept;
                 // u = (physical - domain_min) / width.
                 let map = volume.value_map;
                 (
-                    volume.voxel_type().max_stored() * map.slope / width,
+                    max_stored * map.slope / width,
                     (map.intercept - tf_domain[0]) / width,
                 )
             }
-            TexelFormat::R16Float => (1.0, 0.0),
         };
         VolumeTexture {
             dims: volume.dims,
             spacing: volume.spacing,
+            direction: volume.direction,
             format,
             tf_domain,
             value_scale,
@@ -99,13 +111,23 @@ impl VolumeTexture {
 
     /// The texel values as the GPU samples them, as `f32`: what the CPU twins read.
     pub fn texel_values(&self, volume: &Volume) -> Vec<f32> {
+        // The normalized conversions of the WebGPU spec; snorm clamps the most
+        // negative value to −1.
         match (self.format, &volume.voxels) {
             (TexelFormat::R8Unorm, VoxelData::U8(v)) => {
                 v.iter().map(|&s| f32::from(s) / 255.0).collect()
             }
+            (TexelFormat::R8Snorm, VoxelData::I8(v)) => v
+                .iter()
+                .map(|&s| (f32::from(s) / 127.0).max(-1.0))
+                .collect(),
             (TexelFormat::R16Unorm, VoxelData::U16(v)) => {
                 v.iter().map(|&s| f32::from(s) / 65535.0).collect()
             }
+            (TexelFormat::R16Snorm, VoxelData::I16(v)) => v
+                .iter()
+                .map(|&s| (f32::from(s) / 32767.0).max(-1.0))
+                .collect(),
             _ => self
                 .half_texels(volume)
                 .iter()
@@ -130,7 +152,8 @@ impl VolumeTexture {
         (0..volume.voxel_count())
             .map(|i| {
                 let physical = volume.value_map.physical(volume.voxels.get(i));
-                half::f16::from_f32((physical - lo) / (hi - lo))
+                let u = (physical - f64::from(lo)) / f64::from(hi - lo);
+                half::f16::from_f64(if u.is_nan() { 0.0 } else { u })
             })
             .collect()
     }
@@ -138,7 +161,10 @@ impl VolumeTexture {
     /// The texel bytes to upload.
     fn texel_bytes<'a>(&self, volume: &'a Volume) -> std::borrow::Cow<'a, [u8]> {
         match self.format {
-            TexelFormat::R8Unorm | TexelFormat::R16Unorm => volume.voxel_bytes().into(),
+            TexelFormat::R8Unorm
+            | TexelFormat::R8Snorm
+            | TexelFormat::R16Unorm
+            | TexelFormat::R16Snorm => volume.voxel_bytes().into(),
             TexelFormat::R16Float => {
                 bytemuck::cast_slice::<half::f16, u8>(&self.half_texels(volume))
                     .to_vec()
