@@ -1,8 +1,77 @@
 //! The error type of the `blocks` crate.
 
-/// Everything that can go wrong while building or classifying volume data.
+use std::path::PathBuf;
+
+/// Everything that can go wrong while reading, building or classifying volume data.
+/// Messages name the file, the field and what was expected.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// A file or folder could not be opened or read.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The operating system's reason.
+        source: std::io::Error,
+    },
+    /// A header field is missing, malformed or unsupported.
+    #[error("{}: {field}: {message}", path.display())]
+    Field {
+        /// The file.
+        path: PathBuf,
+        /// The header field (or DICOM attribute) at fault.
+        field: String,
+        /// What is wrong and what was expected.
+        message: String,
+    },
+    /// The voxel data ends before the header's dimensions are filled.
+    #[error(
+        "{}: truncated voxel data: the header promises {expected} bytes of voxels, the data ends \
+         after {got}; expected a complete file (check dims, type and header offset)",
+        path.display()
+    )]
+    Truncated {
+        /// The data file.
+        path: PathBuf,
+        /// Bytes of voxel data the header promises.
+        expected: u64,
+        /// Bytes actually present.
+        got: u64,
+    },
+    /// A compressed stream is corrupt.
+    #[error("{}: corrupt {codec} data: {detail}", path.display())]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// The compression or codec (`gzip`, `zlib`, a DICOM transfer syntax).
+        codec: String,
+        /// The decoder's reason.
+        detail: String,
+    },
+    /// A folder holds several DICOM series and none was chosen.
+    #[error(
+        "{}: the folder holds {count} DICOM series; choose one with --series UID:\n{listing}",
+        path.display()
+    )]
+    SeveralSeries {
+        /// The folder.
+        path: PathBuf,
+        /// How many series.
+        count: usize,
+        /// One line per series: UID, description, slices, size.
+        listing: String,
+    },
+    /// The input's format cannot be told from its name or first bytes.
+    #[error(
+        "{}: unknown volume format: expected a raw file (with --raw-dims and --raw-type, or a \
+         name like engine_256x256x128_uint8.raw), NRRD (.nrrd, .nhdr), NIfTI-1 (.nii, .nii.gz), \
+         MetaImage (.mha, .mhd), a DICOM file, or a folder of DICOM files",
+        path.display()
+    )]
+    UnknownFormat {
+        /// The input.
+        path: PathBuf,
+    },
     /// A value given for a named setting lies outside what that setting accepts.
     #[error("{what} = {value}: expected {expected}")]
     OutOfRange {

@@ -2,6 +2,8 @@
 //! and how values are classified by a transfer function.
 //!
 //! # Layout
+//! - [`ingest`]: reading raw, NRRD, NIfTI-1, MetaImage and DICOM series as a
+//!   [`ingest::VolumeSource`] that delivers z-slabs in bounded memory.
 //! - [`volume`]: [`Volume`], a voxel grid in memory with its physical geometry
 //!   (dimensions, spacing, origin) and the map from stored values to physical ones
 //!   (Hounsfield units for CT).
@@ -12,13 +14,15 @@
 //! - [`error`]: [`Error`], this crate's one error type.
 
 pub mod error;
+pub mod ingest;
 pub mod phantom;
 pub mod transfer_function;
 pub mod volume;
 
 pub use error::Error;
+pub use ingest::{VolumeInfo, VolumeSource};
 pub use transfer_function::{Preset, TfPoint, TransferFunction};
-pub use volume::{ValueMap, Volume, VoxelData, VoxelType};
+pub use volume::{ValueMap, Volume, Voxel, VoxelData, VoxelType};
 
 // GPU uploads hand voxel memory to the device as little-endian bytes.
 #[cfg(target_endian = "big")]

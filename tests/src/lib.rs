@@ -6,11 +6,13 @@
 //! - [`image_compare`]: compare a rendered frame with another or with a golden PNG
 //!   under a tolerance, writing `*-actual.png` and `*-diff.png` on failure.
 //! - [`phantom`]: the phantom at test sizes, generated once per test binary.
+//! - [`data`]: the real datasets in `../shared/data`, or a printed reason to skip.
 //! - [`checks`]: facts that show a volume is really in an image (coverage,
 //!   left–right symmetry, centroid).
 //! - [`server`]: a real server on port 0 for end-to-end tests.
 
 pub mod checks;
+pub mod data;
 pub mod gpu;
 pub mod image_compare;
 pub mod phantom;

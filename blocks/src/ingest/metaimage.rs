@@ -1,0 +1,240 @@
+//! MetaImage (ITK's `.mha` with the data attached, `.mhd` with a separate data
+//! file): `Key = Value` lines ending with `ElementDataFile`. Reads `NDims`,
+//! `DimSize`, `ElementType`, `ElementSpacing` (or `ElementSize`), `Offset` (or
+//! `Origin`, `Position`), `TransformMatrix` (or `Rotation`, `Orientation`),
+//! `AnatomicalOrientation`, `BinaryDataByteOrderMSB` (or `ElementByteOrderMSB`),
+//! `CompressedData` (zlib), `HeaderSize` and `ElementNumberOfChannels`.
+//!
+//! As in ITK, `TransformMatrix` lists the direction of index axis x first, then y,
+//! then z, each in the physical frame, which MetaImage files from ITK put in LPS.
+//! `AnatomicalOrientation` (e.g. `RPS`) is reported; the geometry comes from the
+//! matrix.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use super::header::{boolean, field, numbers, read_text_header, three};
+use super::stream::{Compression, SampleType, StreamLayout, StreamSource};
+use super::{Format, VolumeInfo, check_dims, check_spacing};
+use crate::{Error, ValueMap, VoxelType};
+
+fn sample_type(name: &str) -> Option<SampleType> {
+    let t = match name {
+        "MET_UCHAR" => VoxelType::U8,
+        "MET_CHAR" => VoxelType::I8,
+        "MET_USHORT" => VoxelType::U16,
+        "MET_SHORT" => VoxelType::I16,
+        "MET_UINT" => VoxelType::U32,
+        "MET_INT" => VoxelType::I32,
+        "MET_FLOAT" => VoxelType::F32,
+        "MET_DOUBLE" => return Some(SampleType::F64),
+        _ => return None,
+    };
+    Some(SampleType::Voxel(t))
+}
+
+/// Opens a MetaImage file.
+pub fn open(path: &Path) -> Result<StreamSource, Error> {
+    let is_data_file_line = |line: &str| {
+        line.split_once('=')
+            .is_some_and(|(k, _)| k.trim().eq_ignore_ascii_case("ElementDataFile"))
+    };
+    let head = read_text_header(path, is_data_file_line)?;
+    let mut fields = HashMap::new();
+    for line in &head.lines {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let Some((key, value)) = line.split_once('=') else {
+            return Err(field(
+                path,
+                "header",
+                format!("line '{line}': expected 'Key = Value'"),
+            ));
+        };
+        fields.insert(key.trim().to_ascii_lowercase(), value.trim().to_owned());
+    }
+    let get = |name: &str| fields.get(&name.to_ascii_lowercase()).map(String::as_str);
+    let first = |names: &[&'static str]| names.iter().find_map(|n| get(n).map(|v| (*n, v)));
+    let require = |name: &'static str| {
+        get(name).ok_or_else(|| field(path, name, "missing: expected this field"))
+    };
+
+    let data_file = require("ElementDataFile")?;
+    if let Some(object) = get("ObjectType")
+        && !object.eq_ignore_ascii_case("Image")
+    {
+        return Err(field(
+            path,
+            "ObjectType",
+            format!("'{object}': expected Image"),
+        ));
+    }
+    let ndims: usize = require("NDims")?
+        .parse()
+        .map_err(|_| field(path, "NDims", "expected a whole number"))?;
+    if !(2..=3).contains(&ndims) {
+        return Err(field(
+            path,
+            "NDims",
+            format!("{ndims}: expected 3 (a volume) or 2 (one slice)"),
+        ));
+    }
+    if let Some(channels) = get("ElementNumberOfChannels")
+        && channels != "1"
+    {
+        return Err(field(
+            path,
+            "ElementNumberOfChannels",
+            format!("{channels}: expected 1 (scalar voxels)"),
+        ));
+    }
+    let type_name = require("ElementType")?;
+    let sample = sample_type(type_name).ok_or_else(|| {
+        field(
+            path,
+            "ElementType",
+            format!("'{type_name}': expected MET_UCHAR, MET_CHAR, MET_USHORT, MET_SHORT, MET_UINT, MET_INT, MET_FLOAT or MET_DOUBLE"),
+        )
+    })?;
+    let mut sizes: Vec<u64> = numbers(path, "DimSize", require("DimSize")?, ndims)?;
+    let mut notes = Vec::new();
+    let mut spacing: Vec<f64> = match first(&["ElementSpacing", "ElementSize"]) {
+        Some((name, text)) => numbers(path, name, text, ndims)?,
+        None => {
+            notes.push("no ElementSpacing: assumed 1 mm".to_owned());
+            vec![1.0; ndims]
+        }
+    };
+    let mut origin: Vec<f64> = match first(&["Offset", "Origin", "Position"]) {
+        Some((name, text)) => numbers(path, name, text, ndims)?,
+        None => vec![0.0; ndims],
+    };
+    let mut matrix: Vec<f64> = match first(&["TransformMatrix", "Rotation", "Orientation"]) {
+        Some((name, text)) => numbers(path, name, text, ndims * ndims)?,
+        None => (0..ndims * ndims)
+            .map(|i| if i % (ndims + 1) == 0 { 1.0 } else { 0.0 })
+            .collect(),
+    };
+    if ndims == 2 {
+        sizes.push(1);
+        spacing.push(1.0);
+        origin.push(0.0);
+        matrix = vec![
+            matrix[0], matrix[1], 0.0, matrix[2], matrix[3], 0.0, 0.0, 0.0, 1.0,
+        ];
+    }
+    let spacing = three(&spacing);
+    check_spacing(path, "ElementSpacing", spacing)?;
+    if !origin.iter().chain(&matrix).all(|v| v.is_finite()) {
+        return Err(field(
+            path,
+            "Offset or TransformMatrix",
+            "expected finite numbers",
+        ));
+    }
+    let direction = [
+        [matrix[0], matrix[1], matrix[2]],
+        [matrix[3], matrix[4], matrix[5]],
+        [matrix[6], matrix[7], matrix[8]],
+    ];
+    super::check_direction(path, "TransformMatrix", direction)?;
+    if let Some(orientation) = get("AnatomicalOrientation") {
+        notes.push(format!(
+            "AnatomicalOrientation {orientation} (geometry from TransformMatrix)"
+        ));
+    }
+    let dims = check_dims(
+        path,
+        "DimSize",
+        [sizes[0], sizes[1], sizes[2]],
+        sample.size() as u64,
+    )?;
+
+    let big_endian = match first(&["BinaryDataByteOrderMSB", "ElementByteOrderMSB"]) {
+        Some((name, text)) => boolean(path, name, text)?,
+        None => false,
+    };
+    let compressed = match get("CompressedData") {
+        Some(text) => boolean(path, "CompressedData", text)?,
+        None => false,
+    };
+    if get("BinaryData").is_some_and(|b| boolean(path, "BinaryData", b).ok() == Some(false)) {
+        return Err(field(
+            path,
+            "BinaryData",
+            "False: expected binary voxel data (text data is not supported)",
+        ));
+    }
+    let (data_path, mut file_offset) = if data_file.eq_ignore_ascii_case("LOCAL") {
+        (path.to_owned(), head.len)
+    } else if data_file.starts_with("LIST")
+        || data_file.contains('%')
+        || data_file.split_whitespace().count() > 1
+    {
+        return Err(field(
+            path,
+            "ElementDataFile",
+            format!(
+                "'{data_file}': expected LOCAL or one data file (lists and patterns are not supported)"
+            ),
+        ));
+    } else {
+        (path.parent().unwrap_or(Path::new(".")).join(data_file), 0)
+    };
+    let total = u64::from(dims[0]) * u64::from(dims[1]) * u64::from(dims[2]) * sample.size() as u64;
+    match get("HeaderSize") {
+        None => {}
+        Some("-1") if !compressed => {
+            let size = std::fs::metadata(&data_path)
+                .map_err(|source| Error::Io {
+                    path: data_path.clone(),
+                    source,
+                })?
+                .len();
+            file_offset = size.checked_sub(total).ok_or(Error::Truncated {
+                path: data_path.clone(),
+                expected: total,
+                got: size,
+            })?;
+        }
+        Some(n) => {
+            file_offset += n.parse::<u64>().map_err(|_| {
+                field(
+                    path,
+                    "HeaderSize",
+                    format!("'{n}': expected a whole number, or -1 for uncompressed data"),
+                )
+            })?;
+        }
+    }
+    let info = VolumeInfo {
+        path: path.to_owned(),
+        format: Format::MetaImage,
+        dims,
+        voxel_type: sample.voxel_type(),
+        spacing,
+        origin: three(&origin),
+        direction,
+        value_map: ValueMap::IDENTITY,
+        unit: None,
+        modality: get("Modality").map(|m| m.trim_start_matches("MET_MOD_").to_owned()),
+        description: None,
+        notes,
+    };
+    StreamSource::new(
+        info,
+        StreamLayout {
+            data_path,
+            compression: if compressed {
+                Compression::Zlib
+            } else {
+                Compression::None
+            },
+            file_offset,
+            skip: 0,
+            sample,
+            big_endian,
+        },
+    )
+}

@@ -1,0 +1,403 @@
+//! Reading volumes from the files scanners and tools write: raw, NRRD, NIfTI-1,
+//! MetaImage and DICOM series.
+//!
+//! Every reader is a [`VolumeSource`]: a [`VolumeInfo`] (dimensions, voxel type,
+//! physical geometry in patient LPS, value map, modality) and slab reads — a range
+//! of z-slices at a time — so a volume far larger than memory flows through in
+//! bounded memory. [`open`] picks the reader from the path.
+//!
+//! Geometry: `origin` is the LPS position (mm) of voxel (0, 0, 0)'s centre;
+//! `direction` holds the unit vectors of the index axes x, y, z in LPS; a voxel
+//! (i, j, k) sits at `origin + i·spacing₀·d₀ + j·spacing₁·d₁ + k·spacing₂·d₂`.
+//! Formats that work in RAS (NIfTI, NRRD with a RAS space) are converted.
+//!
+//! Headers never decide an allocation on their own: dimensions are checked
+//! against [`MAX_SLICE_BYTES`] and [`MAX_VOXELS`], and against the size of the
+//! data they describe, before anything is read.
+//!
+//! # Layout
+//! - [`stream`]: voxels as a byte stream in a file (raw, gzip or zlib), shared by
+//!   raw, NRRD, NIfTI and MetaImage.
+//! - [`raw`], [`nrrd`], [`nifti`], [`metaimage`]: the header readers.
+//! - [`dicom`]: DICOM series: grouping, sorting, spacing checks, pixel decoding.
+//! - [`header`]: parsing helpers shared by the text headers.
+
+pub mod dicom;
+pub mod header;
+pub mod metaimage;
+pub mod nifti;
+pub mod nrrd;
+pub mod raw;
+pub mod stream;
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use crate::{Error, ValueMap, Volume, VoxelData, VoxelType};
+
+/// The largest slice accepted, in bytes: a slab holds at least one slice, so this
+/// bounds the memory a read can need.
+pub const MAX_SLICE_BYTES: u64 = 1 << 30;
+/// The largest volume accepted, in voxels (2⁴⁰: 4 TiB of 32-bit voxels).
+pub const MAX_VOXELS: u64 = 1 << 40;
+/// Slab size aimed at by [`slab_depth`].
+pub const SLAB_BYTES: u64 = 64 << 20;
+
+/// The file formats voxserve reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Format {
+    /// Headerless voxels.
+    Raw,
+    /// NRRD, attached or detached header.
+    Nrrd,
+    /// NIfTI-1, single file or pair, optionally gzip-compressed.
+    Nifti,
+    /// MetaImage, `.mha` or `.mhd` + data file.
+    MetaImage,
+    /// A DICOM series (a folder) or a single DICOM file.
+    Dicom,
+}
+
+impl fmt::Display for Format {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Format::Raw => "raw",
+            Format::Nrrd => "NRRD",
+            Format::Nifti => "NIfTI-1",
+            Format::MetaImage => "MetaImage",
+            Format::Dicom => "DICOM",
+        })
+    }
+}
+
+/// What a reader learnt about a volume from its headers.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VolumeInfo {
+    /// The file or folder read.
+    pub path: PathBuf,
+    /// The format.
+    pub format: Format,
+    /// Voxels along x, y, z.
+    pub dims: [u32; 3],
+    /// The type slabs are delivered in.
+    pub voxel_type: VoxelType,
+    /// Voxel spacing along the index axes, mm.
+    pub spacing: [f64; 3],
+    /// LPS position of voxel (0, 0, 0)'s centre, mm.
+    pub origin: [f64; 3],
+    /// Unit vectors of the index axes in LPS (columns of the direction matrix).
+    pub direction: [[f64; 3]; 3],
+    /// Stored → physical values.
+    pub value_map: ValueMap,
+    /// The unit of physical values, when known (e.g. `HU`).
+    pub unit: Option<String>,
+    /// The imaging modality, when known (e.g. `CT`).
+    pub modality: Option<String>,
+    /// A description from the header, when there is one.
+    pub description: Option<String>,
+    /// Things the reader assumed or corrected, for the user to see.
+    pub notes: Vec<String>,
+}
+
+impl VolumeInfo {
+    /// Bytes in one z-slice.
+    pub fn slice_bytes(&self) -> u64 {
+        u64::from(self.dims[0]) * u64::from(self.dims[1]) * self.voxel_type.size() as u64
+    }
+
+    /// Bytes in the whole volume.
+    pub fn total_bytes(&self) -> u64 {
+        self.slice_bytes() * u64::from(self.dims[2])
+    }
+
+    /// A short name for listings: the file or folder name.
+    pub fn name(&self) -> String {
+        self.path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| self.path.display().to_string())
+    }
+}
+
+/// A volume that can be read a slab of z-slices at a time.
+///
+/// Reading slabs in increasing z is the fast path; compressed sources restart
+/// their decoder when asked to go back.
+pub trait VolumeSource: Send + fmt::Debug {
+    /// What the headers say.
+    fn info(&self) -> &VolumeInfo;
+
+    /// Reads slices `z0 .. z0 + depth`, x fastest, in [`VolumeInfo::voxel_type`].
+    fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error>;
+}
+
+/// How to open an input where its headers leave choices.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct OpenOptions {
+    /// The DICOM series to read from a folder that holds several.
+    pub series: Option<String>,
+    /// Layout of a raw file (each field overrides what the file name says).
+    pub raw: raw::RawOptions,
+}
+
+/// Opens `path` with the reader its name or first bytes call for.
+pub fn open(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>, Error> {
+    let meta = std::fs::metadata(path).map_err(|source| Error::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    if meta.is_dir() {
+        return Ok(Box::new(dicom::open_folder(
+            path,
+            options.series.as_deref(),
+        )?));
+    }
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let ext = |e: &str| name.ends_with(e);
+    if ext(".nrrd") || ext(".nhdr") {
+        return Ok(Box::new(nrrd::open(path)?));
+    }
+    if ext(".nii") || ext(".nii.gz") || ext(".hdr") {
+        return Ok(Box::new(nifti::open(path)?));
+    }
+    if ext(".mha") || ext(".mhd") {
+        return Ok(Box::new(metaimage::open(path)?));
+    }
+    if ext(".dcm") {
+        return Ok(Box::new(dicom::open_file(path)?));
+    }
+    if ext(".raw") || options.raw.is_given() {
+        return Ok(Box::new(raw::open(path, &options.raw)?));
+    }
+    // No telling extension: look at the first bytes.
+    let head = header::read_prefix(path, 352)?;
+    if head.starts_with(b"NRRD") {
+        Ok(Box::new(nrrd::open(path)?))
+    } else if head.get(128..132) == Some(b"DICM") {
+        Ok(Box::new(dicom::open_file(path)?))
+    } else if head.get(344..347) == Some(b"n+1") || head.starts_with(&[0x1f, 0x8b]) {
+        Ok(Box::new(nifti::open(path)?))
+    } else if head.starts_with(b"ObjectType") || head.starts_with(b"NDims") {
+        Ok(Box::new(metaimage::open(path)?))
+    } else {
+        Err(Error::UnknownFormat {
+            path: path.to_owned(),
+        })
+    }
+}
+
+/// Checks dimensions from a header before anything is allocated for them:
+/// every axis at least 1, a slice at most [`MAX_SLICE_BYTES`], the volume at most
+/// [`MAX_VOXELS`].
+pub fn check_dims(
+    path: &Path,
+    field: &str,
+    dims: [u64; 3],
+    voxel_size: u64,
+) -> Result<[u32; 3], Error> {
+    let bad = |message: String| Error::Field {
+        path: path.to_owned(),
+        field: field.to_owned(),
+        message,
+    };
+    if dims.contains(&0) {
+        return Err(bad(format!(
+            "{dims:?}: expected at least one voxel along every axis"
+        )));
+    }
+    let slice = dims[0].saturating_mul(dims[1]).saturating_mul(voxel_size);
+    if slice > MAX_SLICE_BYTES {
+        return Err(bad(format!(
+            "{} × {} × {}: one slice would be {slice} bytes; expected at most {MAX_SLICE_BYTES} \
+             bytes per slice (are the dimensions right?)",
+            dims[0], dims[1], dims[2]
+        )));
+    }
+    let voxels = dims[0].saturating_mul(dims[1]).saturating_mul(dims[2]);
+    if voxels > MAX_VOXELS {
+        return Err(bad(format!(
+            "{} × {} × {} = {voxels} voxels: expected at most {MAX_VOXELS}",
+            dims[0], dims[1], dims[2]
+        )));
+    }
+    // Each axis fits u32 now: a slice is at most 2³⁰ bytes and the volume 2⁴⁰ voxels.
+    let axis = |d: u64| {
+        u32::try_from(d)
+            .map_err(|_| bad(format!("axis of {d} voxels: expected at most {}", u32::MAX)))
+    };
+    Ok([axis(dims[0])?, axis(dims[1])?, axis(dims[2])?])
+}
+
+/// The number of slices per slab that keeps a slab near [`SLAB_BYTES`] (at least 1).
+pub fn slab_depth(info: &VolumeInfo) -> u32 {
+    let depth = (SLAB_BYTES / info.slice_bytes().max(1)).max(1);
+    u32::try_from(depth).unwrap_or(u32::MAX).min(info.dims[2])
+}
+
+/// Statistics of a whole volume, gathered slab by slab.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VolumeStats {
+    /// Smallest and largest stored value (NaNs ignored).
+    pub stored_range: [f64; 2],
+    /// Mean stored value.
+    pub mean: f64,
+    /// Voxels read.
+    pub voxels: u64,
+    /// NaN voxels (float data only).
+    pub nans: u64,
+}
+
+/// Reads the whole volume slab by slab and gathers [`VolumeStats`], in memory
+/// bounded by one slab. `progress` is called with the slices read so far.
+pub fn scan(
+    source: &mut dyn VolumeSource,
+    mut progress: impl FnMut(u32),
+) -> Result<VolumeStats, Error> {
+    let info = source.info().clone();
+    let depth = slab_depth(&info);
+    let (mut lo, mut hi, mut sum, mut count, mut nans) =
+        (f64::INFINITY, f64::NEG_INFINITY, 0.0, 0u64, 0u64);
+    let mut z = 0;
+    while z < info.dims[2] {
+        let d = depth.min(info.dims[2] - z);
+        let slab = source.read_slab(z, d)?;
+        crate::volume::with_voxels!(&slab, v => {
+            for &x in v {
+                let x: f64 = x.into();
+                if x.is_nan() {
+                    nans += 1;
+                    continue;
+                }
+                lo = lo.min(x);
+                hi = hi.max(x);
+                sum += x;
+                count += 1;
+            }
+        });
+        z += d;
+        progress(z);
+    }
+    Ok(VolumeStats {
+        stored_range: if count > 0 { [lo, hi] } else { [0.0, 0.0] },
+        mean: if count > 0 { sum / count as f64 } else { 0.0 },
+        voxels: count + nans,
+        nans,
+    })
+}
+
+/// The largest volume [`load`] reads into memory, in bytes.
+pub const MAX_LOAD_BYTES: u64 = 8 << 30;
+
+/// Reads a whole volume into memory (for rendering small data directly and for
+/// tests). Refuses volumes over [`MAX_LOAD_BYTES`]: those go through a brick store.
+pub fn load(source: &mut dyn VolumeSource) -> Result<Volume, Error> {
+    let info = source.info().clone();
+    if info.total_bytes() > MAX_LOAD_BYTES {
+        return Err(Error::Field {
+            path: info.path.clone(),
+            field: "size".into(),
+            message: format!(
+                "{} bytes of voxels: expected at most {MAX_LOAD_BYTES} to load into memory",
+                info.total_bytes()
+            ),
+        });
+    }
+    let depth = slab_depth(&info);
+    let mut voxels = VoxelData::zeros(info.voxel_type, 0);
+    let mut z = 0;
+    while z < info.dims[2] {
+        let d = depth.min(info.dims[2] - z);
+        voxels.append(source.read_slab(z, d)?)?;
+        z += d;
+    }
+    let spacing = info.spacing.map(|s| s as f32);
+    let mut volume = Volume::new(info.name(), info.dims, spacing, voxels, info.value_map)?;
+    volume.origin = info.origin.map(|o| o as f32);
+    volume.direction = info.direction.map(|c| c.map(|x| x as f32));
+    volume.unit = info.unit.clone();
+    volume.modality = info.modality.clone();
+    Ok(volume)
+}
+
+/// The identity direction matrix.
+pub const IDENTITY: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+/// Splits the columns of an affine's 3×3 part into spacings (their lengths) and
+/// unit directions. A zero column is refused by the caller's checks.
+pub fn spacing_and_direction(columns: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
+    let norm = |c: [f64; 3]| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+    let spacing = columns.map(norm);
+    let mut direction = columns;
+    for (d, s) in direction.iter_mut().zip(spacing) {
+        if s > 0.0 {
+            *d = d.map(|x| x / s);
+        }
+    }
+    (spacing, direction)
+}
+
+/// Checks that the index axes' directions are finite and span space (no two
+/// parallel), naming the field: a flat direction matrix cannot place voxels.
+pub fn check_direction(path: &Path, field: &str, d: [[f64; 3]; 3]) -> Result<(), Error> {
+    let det = d[0][0] * (d[1][1] * d[2][2] - d[1][2] * d[2][1])
+        - d[1][0] * (d[0][1] * d[2][2] - d[0][2] * d[2][1])
+        + d[2][0] * (d[0][1] * d[1][2] - d[0][2] * d[1][1]);
+    if det.is_finite() && det.abs() > 1e-6 {
+        Ok(())
+    } else {
+        Err(Error::Field {
+            path: path.to_owned(),
+            field: field.to_owned(),
+            message: format!("axes {d:?}: expected three independent directions"),
+        })
+    }
+}
+
+/// Checks that spacings are finite and positive, naming the field.
+pub fn check_spacing(path: &Path, field: &str, spacing: [f64; 3]) -> Result<(), Error> {
+    if spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
+        Ok(())
+    } else {
+        Err(Error::Field {
+            path: path.to_owned(),
+            field: field.to_owned(),
+            message: format!("{spacing:?}: expected finite positive spacings (mm)"),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn absurd_dimensions_are_refused_before_any_allocation() {
+        let p = Path::new("huge.nrrd");
+        let err = check_dims(p, "sizes", [1_000_000; 3], 1).expect_err("absurd");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("huge.nrrd: sizes:") && msg.contains("per slice"),
+            "{msg}"
+        );
+        let err = check_dims(p, "sizes", [1024, 1024, 2_000_000], 1).expect_err("too many voxels");
+        assert!(
+            err.to_string().contains("voxels: expected at most"),
+            "{err}"
+        );
+        assert!(check_dims(p, "sizes", [0, 4, 4], 1).is_err());
+        assert_eq!(
+            check_dims(p, "sizes", [256, 256, 128], 2).expect("fine"),
+            [256, 256, 128]
+        );
+    }
+
+    #[test]
+    fn spacing_and_direction_split_affine_columns() {
+        let (s, d) = spacing_and_direction([[-2.0, 0.0, 0.0], [0.0, 0.0, 3.0], [0.0, 0.5, 0.0]]);
+        assert_eq!(s, [2.0, 3.0, 0.5]);
+        assert_eq!(d, [[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]);
+    }
+}
