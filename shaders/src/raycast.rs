@@ -5,7 +5,7 @@
 //! volume's geometry by [`RaycastParams::new`], and both the GPU pipeline and the
 //! CPU twin read exactly that struct, so they differ only in arithmetic.
 
-use glam::{Mat4, Vec3};
+use glam::{Mat3, Mat4, Vec3, Vec4};
 
 use crate::volume_texture::VolumeTexture;
 use crate::{FrameRequest, GpuContext, GpuError, Shading};
@@ -34,22 +34,18 @@ pub const FLAG_SHADED: u32 = 2;
 pub struct RaycastParams {
     /// Clip space → model space, column major.
     pub inv_view_proj: [[f32; 4]; 4],
-    /// Model-space corner of the box (mm).
-    pub box_min: [f32; 3],
+    /// Model space → texture space (affine), column major.
+    pub texture_from_model: [[f32; 4]; 4],
+    /// Texture-space derivatives → model-space gradients (upper 3×3 used).
+    pub gradient_from_texture: [[f32; 4]; 4],
+    /// One texel in texture coordinates: 1 / dims.
+    pub texel: [f32; 3],
     /// Distance between samples (mm).
     pub step: f32,
-    /// Model-space size of the box (mm).
-    pub box_size: [f32; 3],
-    /// The step transfer-function opacities refer to (mm).
-    pub reference_step: f32,
-    /// Voxel spacing (mm).
-    pub voxel_size: [f32; 3],
-    /// Accumulated opacity at which a ray stops.
-    pub early_termination: f32,
     /// Unit vector towards the light, model space.
     pub light_dir: [f32; 3],
-    /// Gradient magnitude (transfer-function units per mm) under which samples stay unshaded.
-    pub gradient_threshold: f32,
+    /// The step transfer-function opacities refer to (mm).
+    pub reference_step: f32,
     /// Background colour (rgb, a unused).
     pub background: [f32; 4],
     /// Blinn–Phong ambient, diffuse, specular, shininess.
@@ -58,6 +54,10 @@ pub struct RaycastParams {
     pub value_scale: f32,
     /// Texel value → transfer-function coordinate: offset.
     pub value_offset: f32,
+    /// Gradient magnitude (transfer-function units per mm) under which samples stay unshaded.
+    pub gradient_threshold: f32,
+    /// Accumulated opacity at which a ray stops.
+    pub early_termination: f32,
     /// Upper bound on samples per ray.
     pub max_steps: u32,
     /// Entries in the transfer-function table.
@@ -69,15 +69,55 @@ pub struct RaycastParams {
     /// `FLAG_*` bits.
     pub flags: u32,
     /// Padding to a multiple of 16 bytes.
-    pub _pad: u32,
+    pub _pad: [u32; 3],
+}
+
+/// Where the volume sits in model space: the linear map from texture offsets
+/// (u − ½) to model millimetres, whose columns are the index axes' direction
+/// times the volume's extent along them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VolumePlacement {
+    /// Texture offset → model mm.
+    pub model_from_texture: Mat3,
+}
+
+impl VolumePlacement {
+    /// The placement of a volume stored as `texture`.
+    pub fn of(texture: &VolumeTexture) -> VolumePlacement {
+        let extent = texture.extent_mm();
+        let column = |i: usize| Vec3::from(texture.direction[i]) * extent[i];
+        VolumePlacement {
+            model_from_texture: Mat3::from_cols(column(0), column(1), column(2)),
+        }
+    }
+
+    /// The radius of the sphere around the model origin that holds the volume.
+    pub fn radius(&self) -> f32 {
+        let mut radius = 0.0f32;
+        for corner in 0..8 {
+            let sign = |bit: u32| if corner & (1 << bit) != 0 { 0.5 } else { -0.5 };
+            let c = Vec3::new(sign(0), sign(1), sign(2));
+            radius = radius.max((self.model_from_texture * c).length());
+        }
+        radius
+    }
 }
 
 impl RaycastParams {
     /// The uniforms for rendering `request` of the volume stored as `texture`, with
     /// a transfer-function table of `tf_len` entries.
     pub fn new(texture: &VolumeTexture, request: &FrameRequest, tf_len: u32) -> RaycastParams {
-        let box_size = Vec3::from(texture.extent_mm());
-        let radius = box_size.length() * 0.5;
+        let placement = VolumePlacement::of(texture);
+        let radius = placement.radius();
+        let texture_from_model_linear = placement.model_from_texture.inverse();
+        let texture_from_model = Mat4::from_cols(
+            texture_from_model_linear.x_axis.extend(0.0),
+            texture_from_model_linear.y_axis.extend(0.0),
+            texture_from_model_linear.z_axis.extend(0.0),
+            Vec4::new(0.5, 0.5, 0.5, 1.0),
+        );
+        // tc = M p + ½, so ∂f/∂p = Mᵀ ∂f/∂tc.
+        let gradient_from_texture = Mat4::from_mat3(texture_from_model_linear.transpose());
         let aspect = request.width as f32 / request.height as f32;
         let inv_view_proj: Mat4 = request.camera.view_proj(radius, aspect).inverse();
         let basis = request.camera.basis(radius);
@@ -85,7 +125,7 @@ impl RaycastParams {
             - LIGHT_IN_VIEW.z * basis.forward;
         let min_spacing = texture.min_spacing();
         let step = request.step_voxels * min_spacing;
-        let max_steps = (box_size.length() / step).ceil() as u32 + 2;
+        let max_steps = (2.0 * radius / step).ceil() as u32 + 2;
         let mut flags = FLAG_JITTER;
         if request.shading == Shading::Gradient {
             flags |= FLAG_SHADED;
@@ -93,24 +133,24 @@ impl RaycastParams {
         let [r, g, b] = request.background;
         RaycastParams {
             inv_view_proj: inv_view_proj.to_cols_array_2d(),
-            box_min: (-0.5 * box_size).into(),
+            texture_from_model: texture_from_model.to_cols_array_2d(),
+            gradient_from_texture: gradient_from_texture.to_cols_array_2d(),
+            texel: texture.dims.map(|d| 1.0 / d as f32),
             step,
-            box_size: box_size.into(),
-            reference_step: min_spacing,
-            voxel_size: texture.spacing,
-            early_termination: EARLY_TERMINATION,
             light_dir: light.normalize().into(),
-            gradient_threshold: GRADIENT_THRESHOLD_PER_VOXEL / min_spacing,
+            reference_step: min_spacing,
             background: [r, g, b, 1.0],
             phong: PHONG,
             value_scale: texture.value_scale,
             value_offset: texture.value_offset,
+            gradient_threshold: GRADIENT_THRESHOLD_PER_VOXEL / min_spacing,
+            early_termination: EARLY_TERMINATION,
             max_steps,
             tf_len,
             width: request.width,
             height: request.height,
             flags,
-            _pad: 0,
+            _pad: [0; 3],
         }
     }
 
@@ -286,9 +326,34 @@ mod tests {
 
     #[test]
     fn params_are_a_multiple_of_16_bytes_like_the_wgsl_struct() {
-        // WGSL: mat4x4 (64), four vec3 + scalar pairs and two vec4s (16 each), eight scalars.
-        assert_eq!(size_of::<RaycastParams>(), 64 + 6 * 16 + 8 * 4);
+        // WGSL: three mat4x4 (64 each), two vec3 + scalar pairs and two vec4s (16
+        // each), twelve scalars.
+        assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 4 * 16 + 12 * 4);
         assert_eq!(size_of::<RaycastParams>() % 16, 0);
+    }
+
+    #[test]
+    fn texture_from_model_undoes_the_placement() {
+        let texture = VolumeTexture {
+            dims: [10, 20, 5],
+            spacing: [1.0, 0.5, 2.0],
+            direction: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
+            format: crate::volume_texture::TexelFormat::R8Unorm,
+            tf_domain: [0.0, 1.0],
+            value_scale: 1.0,
+            value_offset: 0.0,
+        };
+        let tf = blocks::Preset::Generic.transfer_function([0.0, 1.0]);
+        let p = RaycastParams::new(&texture, &FrameRequest::new(8, 8, tf), 16);
+        let m = Mat4::from_cols_array_2d(&p.texture_from_model);
+        // Texture x runs along model −y over 10 mm; texture y along model +x over 10 mm.
+        let tc = |v: Vec3| m.transform_point3(v);
+        assert!((tc(Vec3::ZERO) - Vec3::splat(0.5)).length() < 1e-6);
+        assert!((tc(Vec3::new(0.0, -5.0, 0.0)) - Vec3::new(1.0, 0.5, 0.5)).length() < 1e-6);
+        assert!((tc(Vec3::new(5.0, 0.0, 0.0)) - Vec3::new(0.5, 1.0, 0.5)).length() < 1e-6);
+        assert!((tc(Vec3::new(0.0, 0.0, -5.0)) - Vec3::new(0.5, 0.5, 1.0)).length() < 1e-6);
+        let radius = VolumePlacement::of(&texture).radius();
+        assert!((radius - 75.0f32.sqrt()).abs() < 1e-4, "{radius}");
     }
 
     #[test]

@@ -1,6 +1,7 @@
 // raycast: direct volume rendering by ray casting.
 //
-// Per pixel, a ray from the camera crosses the volume's box; samples every
+// Per pixel, a ray from the camera crosses the volume (a box in texture space,
+// a possibly oriented or sheared parallelepiped in model space); samples every
 // `params.step` mm are classified by the 1D transfer function, their opacity
 // corrected for the step length (α' = 1 − (1 − α)^(step / reference_step)),
 // optionally shaded with gradient Blinn–Phong, and composited front to back
@@ -45,18 +46,19 @@ fn classify(u: f32) -> vec4<f32> {
 }
 
 // The gradient of the transfer-function coordinate at tc, by central differences
-// one voxel apart, in transfer-function units per mm.
+// one voxel apart, in transfer-function units per mm of model space.
 fn gradient(tc: vec3<f32>) -> vec3<f32> {
-    let texel = params.voxel_size / params.box_size;
-    let dx = vec3<f32>(texel.x, 0.0, 0.0);
-    let dy = vec3<f32>(0.0, texel.y, 0.0);
-    let dz = vec3<f32>(0.0, 0.0, texel.z);
-    let g = vec3<f32>(
+    let h = params.texel;
+    let dx = vec3<f32>(h.x, 0.0, 0.0);
+    let dy = vec3<f32>(0.0, h.y, 0.0);
+    let dz = vec3<f32>(0.0, 0.0, h.z);
+    let differences = vec3<f32>(
         sample_volume(tc + dx) - sample_volume(tc - dx),
         sample_volume(tc + dy) - sample_volume(tc - dy),
         sample_volume(tc + dz) - sample_volume(tc - dz),
     );
-    return g * params.value_scale / (2.0 * params.voxel_size);
+    let per_texture_unit = differences / (2.0 * h);
+    return (params.gradient_from_texture * vec4<f32>(per_texture_unit, 0.0)).xyz * params.value_scale;
 }
 
 // Two-sided Blinn–Phong with the surface normal along the gradient.
@@ -74,14 +76,14 @@ fn shade(rgb: vec3<f32>, tc: vec3<f32>, view_dir: vec3<f32>) -> vec3<f32> {
     return rgb * (params.phong.x + params.phong.y * diffuse) + vec3<f32>(params.phong.z * specular);
 }
 
-// Distances along the ray to where it enters and leaves the box; enter > exit
-// when it misses.
+// Distances along a texture-space ray (origin, dir per mm of model space) to
+// where it enters and leaves the unit box; enter > exit when it misses.
 fn intersect_box(origin: vec3<f32>, dir: vec3<f32>) -> vec2<f32> {
     // Avoid dividing by an exact zero: a tiny component stands in for it.
     let safe_dir = select(dir, vec3<f32>(1e-12), abs(dir) < vec3<f32>(1e-12));
     let inv = 1.0 / safe_dir;
-    let t0 = (params.box_min - origin) * inv;
-    let t1 = (params.box_min + params.box_size - origin) * inv;
+    let t0 = -origin * inv;
+    let t1 = (vec3<f32>(1.0) - origin) * inv;
     let lo = min(t0, t1);
     let hi = max(t0, t1);
     let enter = max(max(lo.x, lo.y), max(lo.z, 0.0));
@@ -104,8 +106,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let far = params.inv_view_proj * vec4<f32>(ndc, 1.0, 1.0);
     let origin = near.xyz / near.w;
     let dir = normalize(far.xyz / far.w - origin);
+    // The same ray in texture space; t still counts mm of model space.
+    let tex_origin = (params.texture_from_model * vec4<f32>(origin, 1.0)).xyz;
+    let tex_dir = (params.texture_from_model * vec4<f32>(dir, 0.0)).xyz;
 
-    let span = intersect_box(origin, dir);
+    let span = intersect_box(tex_origin, tex_dir);
     var color = vec3<f32>(0.0);
     var alpha = 0.0;
     if span.x < span.y {
@@ -119,7 +124,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             if t > span.y {
                 break;
             }
-            let tc = (origin + dir * t - params.box_min) / params.box_size;
+            let tc = tex_origin + tex_dir * t;
             let u = sample_volume(tc) * params.value_scale + params.value_offset;
             let rgba = classify(u);
             if rgba.a > 0.0 {

@@ -65,17 +65,18 @@ fn classify(b: &Bindings<'_>, u: f32) -> Vec4 {
 
 fn gradient(b: &Bindings<'_>, tc: Vec3) -> Vec3 {
     let p = b.params;
-    let voxel_size = Vec3::from(p.voxel_size);
-    let texel = voxel_size / Vec3::from(p.box_size);
-    let dx = Vec3::new(texel.x, 0.0, 0.0);
-    let dy = Vec3::new(0.0, texel.y, 0.0);
-    let dz = Vec3::new(0.0, 0.0, texel.z);
-    let g = Vec3::new(
+    let h = Vec3::from(p.texel);
+    let dx = Vec3::new(h.x, 0.0, 0.0);
+    let dy = Vec3::new(0.0, h.y, 0.0);
+    let dz = Vec3::new(0.0, 0.0, h.z);
+    let differences = Vec3::new(
         sample_volume(b, tc + dx) - sample_volume(b, tc - dx),
         sample_volume(b, tc + dy) - sample_volume(b, tc - dy),
         sample_volume(b, tc + dz) - sample_volume(b, tc - dz),
     );
-    g * p.value_scale / (2.0 * voxel_size)
+    let per_texture_unit = differences / (2.0 * h);
+    let gradient_from_texture = Mat4::from_cols_array_2d(&p.gradient_from_texture);
+    (gradient_from_texture * per_texture_unit.extend(0.0)).xyz() * p.value_scale
 }
 
 fn shade(b: &Bindings<'_>, rgb: Vec3, tc: Vec3, view_dir: Vec3) -> Vec3 {
@@ -93,14 +94,12 @@ fn shade(b: &Bindings<'_>, rgb: Vec3, tc: Vec3, view_dir: Vec3) -> Vec3 {
     rgb * (ambient + kd * diffuse) + Vec3::splat(ks * specular)
 }
 
-fn intersect_box(b: &Bindings<'_>, origin: Vec3, dir: Vec3) -> Vec2 {
-    let box_min = Vec3::from(b.params.box_min);
-    let box_size = Vec3::from(b.params.box_size);
+fn intersect_box(origin: Vec3, dir: Vec3) -> Vec2 {
     let tiny = dir.abs().cmplt(Vec3::splat(1e-12));
     let safe_dir = Vec3::select(tiny, Vec3::splat(1e-12), dir);
     let inv = 1.0 / safe_dir;
-    let t0 = (box_min - origin) * inv;
-    let t1 = (box_min + box_size - origin) * inv;
+    let t0 = -origin * inv;
+    let t1 = (Vec3::ONE - origin) * inv;
     let lo = t0.min(t1);
     let hi = t0.max(t1);
     let enter = lo.x.max(lo.y).max(lo.z.max(0.0));
@@ -124,8 +123,11 @@ fn main(b: &Bindings<'_>, gid: [u32; 2]) -> Option<[u8; 4]> {
     let far = inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
     let origin = near.xyz() / near.w;
     let dir = (far.xyz() / far.w - origin).normalize();
+    let texture_from_model = Mat4::from_cols_array_2d(&p.texture_from_model);
+    let tex_origin = (texture_from_model * origin.extend(1.0)).xyz();
+    let tex_dir = (texture_from_model * dir.extend(0.0)).xyz();
 
-    let span = intersect_box(b, origin, dir);
+    let span = intersect_box(tex_origin, tex_dir);
     let mut color = Vec3::ZERO;
     let mut alpha = 0.0f32;
     if span.x < span.y {
@@ -134,14 +136,12 @@ fn main(b: &Bindings<'_>, gid: [u32; 2]) -> Option<[u8; 4]> {
             jitter = unit_from_hash(pcg_hash(gid[1] * p.width + gid[0]));
         }
         let exponent = p.step / p.reference_step;
-        let box_min = Vec3::from(p.box_min);
-        let box_size = Vec3::from(p.box_size);
         let mut t = span.x + jitter * p.step;
         for _k in 0..p.max_steps {
             if t > span.y {
                 break;
             }
-            let tc = (origin + dir * t - box_min) / box_size;
+            let tc = tex_origin + tex_dir * t;
             let u = sample_volume(b, tc) * p.value_scale + p.value_offset;
             let rgba = classify(b, u);
             if rgba.w > 0.0 {
