@@ -1,172 +1,50 @@
-//! The `voxserve` command line: `serve`, `render` and `bench`.
+//! What the `voxserve` subcommands do (their flags are in [`crate::cli`]).
 
-use std::io::Write;
-use std::net::SocketAddr;
+use std::io::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Context, bail};
-use blocks::Preset;
-use clap::builder::PossibleValuesParser;
-use clap::{Args, Parser, Subcommand};
-use shaders::frame::MAX_IMAGE_EDGE;
-use shaders::{Camera, FrameRequest, GpuContext, Renderer, Shading, camera};
+use anyhow::Context;
+use blocks::ingest::dicom::FolderScan;
+use blocks::ingest::{self, VolumeSource};
+use shaders::{Camera, FrameRequest, GpuContext, Renderer, Shading};
 use tokio::net::TcpListener;
 
+use crate::cli::{BenchArgs, DataArgs, InfoArgs, RenderArgs, ServeArgs};
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
-
-/// Remote viewing of large 3D scans and simulations in a browser.
-///
-/// voxserve renders volumes on the GPU (through wgpu: Vulkan, Metal, DX12 or GL;
-/// Mesa's lavapipe where there is no GPU) and serves the frames to a thin web
-/// client. Without a dataset it serves a built-in CT head phantom.
-///
-/// Environment: WGPU_BACKEND picks the graphics backend (vulkan, gl, metal, dx12),
-/// WGPU_ADAPTER_NAME picks an adapter by part of its name, RUST_LOG sets the log
-/// level (default info).
-#[derive(Debug, Parser)]
-#[command(name = "voxserve", version)]
-pub struct Cli {
-    /// What to do.
-    #[command(subcommand)]
-    pub command: Command,
-}
-
-/// The subcommands.
-#[derive(Debug, Subcommand)]
-pub enum Command {
-    /// Serve the web client and the render API, and print the URL to open.
-    Serve(ServeArgs),
-    /// Render one frame to a PNG file.
-    Render(RenderArgs),
-    /// Measure phantom generation and frame rendering; prints JSON lines.
-    Bench(BenchArgs),
-}
-
-/// Where the volume comes from.
-#[derive(Debug, Clone, Args)]
-pub struct DataArgs {
-    /// Edge length in voxels of the built-in phantom (16 to 512); it is generated at start.
-    #[arg(long, default_value_t = blocks::phantom::DEFAULT_SIZE,
-          value_parser = clap::value_parser!(u32).range(
-              i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
-    pub phantom_size: u32,
-}
-
-/// `voxserve serve`.
-#[derive(Debug, Args)]
-pub struct ServeArgs {
-    /// Address and port to listen on; port 0 picks a free port.
-    #[arg(long, default_value = "127.0.0.1:8080")]
-    pub addr: SocketAddr,
-    #[command(flatten)]
-    pub data: DataArgs,
-}
-
-/// `voxserve render`.
-#[derive(Debug, Args)]
-pub struct RenderArgs {
-    /// The dataset to render: `phantom`, the built-in CT head phantom.
-    #[arg(default_value = PHANTOM_ID)]
-    pub dataset: String,
-    /// The PNG file to write [default: DATASET.png].
-    #[arg(long, short)]
-    pub out: Option<PathBuf>,
-    /// Camera azimuth in degrees about the vertical axis: 0 looks at the face (from
-    /// anterior), 90 from the patient's left.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true,
-          value_parser = finite_in(-3600.0, 3600.0))]
-    pub azimuth: f32,
-    /// Camera elevation in degrees above the horizontal, -90 to 90.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true,
-          value_parser = finite_in(-camera::MAX_ELEVATION_DEG, camera::MAX_ELEVATION_DEG))]
-    pub elevation: f32,
-    /// Camera distance from the volume's centre, in radii of its bounding sphere
-    /// (0.05 to 100; below 1 the camera is inside the volume).
-    #[arg(long, default_value_t = 3.0,
-          value_parser = finite_in(camera::MIN_DISTANCE, camera::MAX_DISTANCE))]
-    pub distance: f32,
-    /// Vertical field of view in degrees (1 to 120).
-    #[arg(long, default_value_t = 30.0,
-          value_parser = finite_in(camera::FOV_RANGE_DEG.0, camera::FOV_RANGE_DEG.1))]
-    pub fov: f32,
-    /// Image width in pixels (1 to 4096).
-    #[arg(long, default_value_t = 512,
-          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
-    pub width: u32,
-    /// Image height in pixels (1 to 4096).
-    #[arg(long, default_value_t = 512,
-          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
-    pub height: u32,
-    /// Transfer-function preset [default: ct-bone for CT data, else generic].
-    #[arg(long, value_parser = PossibleValuesParser::new(Preset::ALL.map(Preset::name)))]
-    pub preset: Option<String>,
-    /// Shading: gradient (Blinn–Phong from the data's gradient) or unshaded.
-    #[arg(long, default_value = "gradient",
-          value_parser = PossibleValuesParser::new(Shading::ALL.map(Shading::name)))]
-    pub shading: String,
-    /// Distance between samples along a ray, in voxels (0.05 to 4); smaller is finer.
-    #[arg(long, default_value_t = 0.5,
-          value_parser = finite_in(shaders::frame::STEP_RANGE_VOXELS.0, shaders::frame::STEP_RANGE_VOXELS.1))]
-    pub step: f32,
-    /// Render on the CPU with the ray caster's CPU twin instead of the GPU (slow;
-    /// for checking, or where no GPU driver is installed).
-    #[arg(long)]
-    pub cpu: bool,
-    #[command(flatten)]
-    pub data: DataArgs,
-}
-
-/// `voxserve bench`.
-#[derive(Debug, Args)]
-pub struct BenchArgs {
-    /// Image edges to render, in pixels (square images), comma separated.
-    #[arg(long, value_delimiter = ',', default_values_t = [256u32, 512, 1024],
-          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
-    pub sizes: Vec<u32>,
-    /// Frames timed per size (after one untimed warm-up frame).
-    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
-    pub frames: u32,
-    /// Also time the CPU twin (slow).
-    #[arg(long)]
-    pub cpu: bool,
-    #[command(flatten)]
-    pub data: DataArgs,
-}
 
 /// The adapter features the CPU twin assumes: 16-bit volumes in `r16unorm`
 /// textures, as on every Vulkan, Metal and DX12 adapter voxserve has met.
 const CPU_TWIN_FEATURES: shaders::wgpu::Features =
     shaders::wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
 
-/// A clap value parser for a finite number in `lo..=hi`.
-fn finite_in(
-    lo: f32,
-    hi: f32,
-) -> impl Fn(&str) -> Result<f32, String> + Clone + Send + Sync + 'static {
-    move |text| {
-        let expected = || format!("expected a number from {lo} to {hi}, got '{text}'");
-        let value: f32 = text.trim().parse().map_err(|_| expected())?;
-        if value.is_finite() && (lo..=hi).contains(&value) {
-            Ok(value)
-        } else {
-            Err(expected())
-        }
-    }
-}
-
-/// Loads the dataset named on the command line.
-fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
-    if name != PHANTOM_ID {
-        bail!("unknown dataset '{name}': expected '{PHANTOM_ID}', the built-in CT head phantom");
-    }
+/// Loads the dataset named on the command line: the phantom, or a volume file
+/// or DICOM folder read into memory.
+pub fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
     let start = Instant::now();
-    let dataset = Dataset::phantom(data.phantom_size)?;
+    if name == PHANTOM_ID {
+        let dataset = Dataset::phantom(data.phantom_size)?;
+        tracing::info!(
+            "generated the {n}³ phantom in {:.0} ms",
+            start.elapsed().as_secs_f64() * 1e3,
+            n = data.phantom_size
+        );
+        return Ok(dataset);
+    }
+    let path = std::path::Path::new(name);
+    if !path.exists() {
+        anyhow::bail!(
+            "dataset '{name}': no such file or folder: expected '{PHANTOM_ID}' (the built-in CT \
+             head phantom), a volume file or a folder of DICOM files"
+        );
+    }
+    let dataset = Dataset::load(path, &data.input.open_options())?;
     tracing::info!(
-        "generated the {n}³ phantom in {:.0} ms",
-        start.elapsed().as_secs_f64() * 1e3,
-        n = data.phantom_size
+        "read {} ({:?} voxels) in {:.0} ms",
+        path.display(),
+        dataset.volume.dims,
+        start.elapsed().as_secs_f64() * 1e3
     );
     Ok(dataset)
 }
@@ -181,7 +59,7 @@ fn say(line: &str) -> anyhow::Result<()> {
 
 /// `voxserve serve`: serves until Ctrl-C.
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
-    let dataset = load_dataset(PHANTOM_ID, &args.data)?;
+    let dataset = load_dataset(&args.dataset, &args.data)?;
     let gpu = GpuContext::new()?;
     let renderer = RenderService::start(gpu, &dataset)?;
     let listener = TcpListener::bind(args.addr)
@@ -260,6 +138,9 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
 
 /// `voxserve bench`: JSON lines with the settings that produced them.
 pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
+    if let Some(gib) = args.read_gib {
+        return bench_read(gib);
+    }
     let size = args.data.phantom_size;
     let mut generation_ms = Vec::new();
     let mut dataset = None;
@@ -269,7 +150,7 @@ pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
         generation_ms.push(start.elapsed().as_secs_f64() * 1e3);
     }
     let Some(dataset) = dataset else {
-        bail!("the phantom was never generated");
+        anyhow::bail!("the phantom was never generated");
     };
     let threads = std::thread::available_parallelism().map_or(1, usize::from);
     say(&serde_json::json!({
@@ -356,56 +237,235 @@ fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use clap::CommandFactory;
-
-    #[test]
-    fn the_cli_is_well_formed() {
-        Cli::command().debug_assert();
+/// `voxserve info`: what a file or DICOM folder holds, and its value statistics
+/// (a full read, slab by slab).
+pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
+    let options = args.input.open_options();
+    let mut series = None;
+    let mut source: Box<dyn VolumeSource> = if args.path.is_dir() {
+        let scan = FolderScan::new(&args.path)?;
+        let summaries = scan.summaries();
+        if summaries.len() > 1 && options.series.is_none() && !args.json {
+            say(&format!(
+                "{}: {} DICOM series",
+                args.path.display(),
+                summaries.len()
+            ))?;
+            for s in &summaries {
+                say(&format!("  {s}"))?;
+            }
+        }
+        series = Some(summaries);
+        Box::new(scan.open(options.series.as_deref())?)
+    } else {
+        ingest::open(&args.path, &options)?
+    };
+    let info = source.info().clone();
+    let bar = progress_bar(u64::from(info.dims[2]), "reading slices");
+    let stats = ingest::scan(source.as_mut(), |z| bar.set_position(u64::from(z)))?;
+    bar.finish_and_clear();
+    let physical = stats.stored_range.map(|v| info.value_map.physical(v));
+    let (lo, hi) = (physical[0].min(physical[1]), physical[0].max(physical[1]));
+    if args.json {
+        let json = serde_json::json!({
+            "path": info.path,
+            "format": info.format.to_string(),
+            "dims": info.dims,
+            "voxel_type": info.voxel_type.name(),
+            "spacing": info.spacing,
+            "origin": info.origin,
+            "direction": info.direction,
+            "value_map": { "slope": info.value_map.slope, "intercept": info.value_map.intercept },
+            "stored_range": stats.stored_range,
+            "value_range": [lo, hi],
+            "mean_stored": stats.mean,
+            "nan_voxels": stats.nans,
+            "unit": info.unit,
+            "modality": info.modality,
+            "description": info.description,
+            "notes": info.notes,
+            "series": series.map(|list| list.iter().map(|s| serde_json::json!({
+                "id": s.id, "modality": s.modality, "description": s.description,
+                "slices": s.slices, "columns": s.size[0], "rows": s.size[1],
+            })).collect::<Vec<_>>()),
+        });
+        return say(&serde_json::to_string_pretty(&json)?);
     }
+    let v3 = |v: [f64; 3]| format!("({}, {}, {})", g(v[0]), g(v[1]), g(v[2]));
+    let unit = info
+        .unit
+        .as_deref()
+        .map(|u| format!(" {u}"))
+        .unwrap_or_default();
+    let mut lines = vec![
+        format!("path:        {}", info.path.display()),
+        format!("format:      {}", info.format),
+        format!(
+            "dims:        {} × {} × {} voxels",
+            info.dims[0], info.dims[1], info.dims[2]
+        ),
+        format!("voxel type:  {}", info.voxel_type.name()),
+        format!(
+            "spacing:     {} × {} × {} mm",
+            g(info.spacing[0]),
+            g(info.spacing[1]),
+            g(info.spacing[2])
+        ),
+        format!("origin:      {} mm (LPS)", v3(info.origin)),
+        format!(
+            "direction:   x {}  y {}  z {}",
+            v3(info.direction[0]),
+            v3(info.direction[1]),
+            v3(info.direction[2])
+        ),
+        format!(
+            "value map:   physical = stored × {} + {}",
+            g(f64::from(info.value_map.slope)),
+            g(f64::from(info.value_map.intercept))
+        ),
+        format!(
+            "values:      {} … {}{unit} (stored {} … {}, mean {})",
+            g(lo),
+            g(hi),
+            g(stats.stored_range[0]),
+            g(stats.stored_range[1]),
+            g(stats.mean)
+        ),
+        format!(
+            "modality:    {}",
+            info.modality.as_deref().unwrap_or("unknown")
+        ),
+    ];
+    if stats.nans > 0 {
+        lines.push(format!("NaN voxels:  {}", stats.nans));
+    }
+    if let Some(d) = &info.description {
+        lines.push(format!("description: {d}"));
+    }
+    if let Some(list) = &series {
+        lines.push(format!("series:      {} in the folder", list.len()));
+        lines.extend(list.iter().map(|s| format!("  {s}")));
+    }
+    lines.extend(info.notes.iter().map(|n| format!("note:        {n}")));
+    say(&lines.join("\n"))
+}
 
-    #[test]
-    fn render_flags_parse_and_bad_values_are_refused_with_the_flag_named() {
-        let cli = Cli::try_parse_from([
-            "voxserve",
-            "render",
-            "--azimuth",
-            "-45",
-            "--width",
-            "64",
-            "--preset",
-            "ct-angio",
-        ])
-        .expect("valid");
-        let Command::Render(args) = cli.command else {
-            panic!("expected render");
-        };
-        assert_eq!(args.azimuth, -45.0);
-        assert_eq!(args.width, 64);
-        for bad in [
-            ["--width", "0"],
-            ["--width", "100000"],
-            ["--azimuth", "north"],
-            ["--elevation", "NaN"],
-            ["--preset", "bone"],
-            ["--shading", "phong"],
-        ] {
-            let err = Cli::try_parse_from(["voxserve", "render", bad[0], bad[1]])
-                .expect_err("invalid")
-                .to_string();
-            assert!(err.contains(bad[0]), "{bad:?}: {err}");
+/// A number in its shortest form with at most 6 significant digits.
+fn g(x: f64) -> String {
+    let x = if x == 0.0 { 0.0 } else { x }; // no "-0"
+    if x == x.trunc() && x.abs() < 1e15 {
+        format!("{x:.0}")
+    } else {
+        let s = format!("{x:.6}");
+        s.trim_end_matches('0').trim_end_matches('.').to_owned()
+    }
+}
+
+/// A progress bar on standard error, hidden when it is not a terminal.
+fn progress_bar(len: u64, message: &'static str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len).with_message(message);
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} {elapsed}")
+    {
+        bar.set_style(style);
+    }
+    bar
+}
+
+/// `voxserve bench --read-gib N`: writes a generated uint16 volume of N GiB to a
+/// temporary raw file, reads it back slab by slab through the raw reader, checks
+/// every voxel's value, and reports MB/s and the process's peak memory.
+fn bench_read(gib: f32) -> anyhow::Result<()> {
+    const NX: u32 = 2048;
+    const NY: u32 = 2048;
+    let slice_bytes = u64::from(NX) * u64::from(NY) * 2;
+    let nz = ((f64::from(gib) * f64::from(1u32 << 30)) / slice_bytes as f64)
+        .ceil()
+        .max(1.0) as u32;
+    let path = std::env::temp_dir().join(format!(
+        "voxserve-bench-{}_{NX}x{NY}x{nz}_uint16.raw",
+        std::process::id()
+    ));
+    // The file goes away however this function ends.
+    struct Remove(PathBuf);
+    impl Drop for Remove {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_file(&self.0);
         }
     }
-
-    #[test]
-    fn an_unknown_dataset_is_refused() {
-        let data = DataArgs { phantom_size: 16 };
-        let err = load_dataset("engine", &data).expect_err("unknown");
-        assert!(
-            err.to_string().contains("unknown dataset 'engine'"),
-            "{err}"
-        );
+    let _remove = Remove(path.clone());
+    // Voxel (x, y, z) holds (x + 3y + 7z) mod 65536: cheap to generate and to check.
+    let value =
+        |x: u32, y: u32, z: u32| (x.wrapping_add(3 * y).wrapping_add(7 * z) & 0xffff) as u16;
+    let start = Instant::now();
+    {
+        let file = std::fs::File::create(&path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        let mut out = std::io::BufWriter::with_capacity(8 << 20, file);
+        let mut slice = Vec::with_capacity(slice_bytes as usize);
+        for z in 0..nz {
+            slice.clear();
+            for y in 0..NY {
+                for x in 0..NX {
+                    slice.extend_from_slice(&value(x, y, z).to_le_bytes());
+                }
+            }
+            out.write_all(&slice)?;
+        }
+        out.flush()?;
     }
+    let write_s = start.elapsed().as_secs_f64();
+    let total = slice_bytes * u64::from(nz);
+
+    let mut source = ingest::open(&path, &ingest::OpenOptions::default())?;
+    let depth = ingest::slab_depth(source.info());
+    let start = Instant::now();
+    let mut z = 0;
+    let mut mismatches = 0u64;
+    while z < nz {
+        let d = depth.min(nz - z);
+        let slab = source.read_slab(z, d)?;
+        let blocks::VoxelData::U16(v) = slab else {
+            anyhow::bail!(
+                "the raw reader returned {} voxels, expected uint16",
+                slab.voxel_type().name()
+            );
+        };
+        for (i, &got) in v.iter().enumerate() {
+            let i = i as u64;
+            let (x, y, zz) = (
+                (i % u64::from(NX)) as u32,
+                ((i / u64::from(NX)) % u64::from(NY)) as u32,
+                z + (i / (u64::from(NX) * u64::from(NY))) as u32,
+            );
+            mismatches += u64::from(got != value(x, y, zz));
+        }
+        z += d;
+    }
+    let read_s = start.elapsed().as_secs_f64();
+    if mismatches > 0 {
+        anyhow::bail!("{mismatches} voxels read back wrong");
+    }
+    let mb = total as f64 / 1e6;
+    say(&serde_json::json!({
+        "bench": "read",
+        "format": "raw",
+        "dims": [NX, NY, nz],
+        "voxel_type": "uint16",
+        "bytes": total,
+        "slab_bytes": u64::from(depth) * slice_bytes,
+        "write_mb_s": mb / write_s,
+        "read_mb_s": mb / read_s,
+        "verified_voxels": total / 2,
+        "peak_rss_mib": peak_rss_mib(),
+    })
+    .to_string())
+}
+
+/// The process's peak resident memory in MiB (Linux: VmHWM), if known.
+fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
 }

@@ -1,7 +1,10 @@
 //! [`Dataset`]: a volume the server offers under an id, and [`DatasetInfo`], what
 //! clients learn about it.
 
+use std::path::Path;
 use std::sync::Arc;
+
+use blocks::ingest::{self, OpenOptions};
 
 use blocks::{Preset, Volume};
 use serde::Serialize;
@@ -63,12 +66,34 @@ impl Dataset {
         })
     }
 
-    /// The preset to start with: CT bone for CT data, generic otherwise.
+    /// A volume file or DICOM folder read into memory, under an id made from its
+    /// name (`engine_256x256x128_uint8.raw` → `engine_256x256x128_uint8`).
+    pub fn load(path: &Path, options: &OpenOptions) -> Result<Dataset, blocks::Error> {
+        let mut source = ingest::open(path, options)?;
+        let volume = ingest::load(source.as_mut())?;
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "volume".to_owned());
+        let id = [
+            ".nii.gz", ".raw", ".nrrd", ".nhdr", ".nii", ".mha", ".mhd", ".dcm",
+        ]
+        .iter()
+        .find_map(|ext| name.strip_suffix(ext))
+        .unwrap_or(&name)
+        .to_owned();
+        Ok(Dataset {
+            id,
+            volume: Arc::new(volume),
+        })
+    }
+
+    /// The preset to start with: CT bone for CT, MR for MR, generic otherwise.
     pub fn default_preset(&self) -> Preset {
-        if self.volume.modality.as_deref() == Some("CT") {
-            Preset::CtBone
-        } else {
-            Preset::Generic
+        match self.volume.modality.as_deref() {
+            Some("CT") => Preset::CtBone,
+            Some("MR") => Preset::Mr,
+            _ => Preset::Generic,
         }
     }
 

@@ -12,9 +12,11 @@
 //! - [`dataset`]: [`Dataset`], a volume the server offers, and its public description.
 //! - [`encode`]: frame → PNG.
 //! - [`web`]: the static web client from `web/`, compiled into the binary.
-//! - [`commands`]: the `serve`, `render` and `bench` subcommands.
+//! - [`cli`]: the command line's subcommands and flags.
+//! - [`commands`]: what `serve`, `render`, `info` and `bench` do.
 
 pub mod app;
+pub mod cli;
 pub mod commands;
 pub mod dataset;
 pub mod encode;

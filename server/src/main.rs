@@ -1,9 +1,10 @@
 //! The `voxserve` binary: parses the command line and runs a subcommand.
 
+use std::io::IsTerminal;
 use std::process::ExitCode;
 
 use clap::Parser;
-use server::commands::{Cli, Command};
+use server::cli::{Cli, Command};
 use tracing_subscriber::EnvFilter;
 
 fn main() -> ExitCode {
@@ -13,6 +14,7 @@ fn main() -> ExitCode {
                 .unwrap_or_else(|_| EnvFilter::new("info,wgpu=warn,naga=warn")),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
@@ -20,6 +22,7 @@ fn main() -> ExitCode {
             .map_err(anyhow::Error::from)
             .and_then(|rt| rt.block_on(server::commands::serve(args))),
         Command::Render(args) => server::commands::render(args),
+        Command::Info(args) => server::commands::info(&args),
         Command::Bench(args) => server::commands::bench(&args),
     };
     match result {

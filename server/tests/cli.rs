@@ -96,7 +96,7 @@ fn bad_flags_are_refused_with_the_flag_named() {
     let out = voxserve(&["render", "engine.raw"]);
     assert!(!out.status.success());
     assert!(
-        text(&out.stderr).contains("unknown dataset 'engine.raw'"),
+        text(&out.stderr).contains("dataset 'engine.raw': no such file or folder"),
         "{}",
         text(&out.stderr)
     );
@@ -243,4 +243,77 @@ async fn serve_prints_its_url_and_renders_the_phantom() {
         .await
         .expect("GET");
     assert_eq!(again.status(), 200, "still serving after a bad request");
+}
+
+#[test]
+fn info_prints_what_a_file_holds_as_text_and_json() {
+    let Some(data) =
+        voxserve_tests::data::shared_data("info_prints_what_a_file_holds_as_text_and_json")
+    else {
+        return;
+    };
+    let engine = data.join("raw/engine_256x256x128_uint8.raw");
+    let out = voxserve(&["info", engine.to_str().expect("utf-8")]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    for line in [
+        "format:      raw",
+        "dims:        256 × 256 × 128 voxels",
+        "voxel type:  uint8",
+        "values:      0 … 255",
+    ] {
+        assert!(stdout.contains(line), "missing '{line}' in:\n{stdout}");
+    }
+    let vhf = data.join("dicom/vhf_head");
+    let out = voxserve(&["info", "--json", vhf.to_str().expect("utf-8")]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(json["dims"], serde_json::json!([512, 512, 234]));
+    assert_eq!(json["voxel_type"], "int16");
+    assert_eq!(json["unit"], "HU");
+    assert_eq!(json["value_range"][0], -1024.0);
+    assert_eq!(json["series"].as_array().map(Vec::len), Some(1));
+
+    let out = voxserve(&[
+        "info",
+        data.join("raw/cthead_256x256x113_uint16be.raw")
+            .to_str()
+            .expect("utf-8"),
+        "--raw-endian",
+        "little",
+    ]);
+    assert!(out.status.success(), "the flag overrides the name");
+    let missing = voxserve(&["info", "/no/such/volume.nrrd"]);
+    assert!(!missing.status.success());
+    assert!(
+        text(&missing.stderr).contains("/no/such/volume.nrrd"),
+        "{}",
+        text(&missing.stderr)
+    );
+}
+
+#[test]
+fn render_reads_a_volume_file() {
+    let Some(data) = voxserve_tests::data::shared_data("render_reads_a_volume_file") else {
+        return;
+    };
+    let nucleon = data.join("nrrd/nucleon.nrrd");
+    let out_path = temp_path("nucleon.png");
+    let out = voxserve(&[
+        "render",
+        nucleon.to_str().expect("utf-8"),
+        "--cpu",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--out",
+        out_path.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let img = image::open(&out_path).expect("PNG").to_rgba8();
+    assert!(
+        voxserve_tests::checks::coverage(&img) > 0.05,
+        "the nucleon is in the frame"
+    );
 }

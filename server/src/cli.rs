@@ -1,0 +1,316 @@
+//! The `voxserve` command line: its subcommands and flags (clap).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use blocks::Preset;
+use blocks::ingest::OpenOptions;
+use blocks::ingest::raw::{self, RawOptions};
+use clap::builder::PossibleValuesParser;
+use clap::{Args, Parser, Subcommand};
+use shaders::frame::MAX_IMAGE_EDGE;
+use shaders::{Shading, camera};
+
+use crate::dataset::PHANTOM_ID;
+
+/// Remote viewing of large 3D scans and simulations in a browser.
+///
+/// voxserve renders volumes on the GPU (through wgpu: Vulkan, Metal, DX12 or GL;
+/// Mesa's lavapipe where there is no GPU) and serves the frames to a thin web
+/// client. Without a dataset it serves a built-in CT head phantom.
+///
+/// Environment: WGPU_BACKEND picks the graphics backend (vulkan, gl, metal, dx12),
+/// WGPU_ADAPTER_NAME picks an adapter by part of its name, RUST_LOG sets the log
+/// level (default info).
+#[derive(Debug, Parser)]
+#[command(name = "voxserve", version)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Serve the web client and the render API, and print the URL to open.
+    Serve(ServeArgs),
+    /// Render one frame to a PNG file.
+    Render(RenderArgs),
+    /// Read a volume file or DICOM folder and print what it holds.
+    Info(InfoArgs),
+    /// Measure phantom generation, frame rendering and slab reading; prints JSON lines.
+    Bench(BenchArgs),
+}
+
+/// Where the volume comes from.
+#[derive(Debug, Clone, Args)]
+pub struct DataArgs {
+    /// Edge length in voxels of the built-in phantom (16 to 512); it is generated at start.
+    #[arg(long, default_value_t = blocks::phantom::DEFAULT_SIZE,
+          value_parser = clap::value_parser!(u32).range(
+              i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
+    pub phantom_size: u32,
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// How to read a volume file where its headers leave choices.
+#[derive(Debug, Clone, Default, Args)]
+pub struct InputArgs {
+    /// The DICOM series to read from a folder that holds several (an id as
+    /// `voxserve info FOLDER` lists them).
+    #[arg(long, value_name = "UID")]
+    pub series: Option<String>,
+    /// Raw files: dimensions as XxYxZ, e.g. 256x256x128 [default: from the file name].
+    #[arg(long, value_name = "XxYxZ", value_parser = parse_dims)]
+    pub raw_dims: Option<[u64; 3]>,
+    /// Raw files: the voxel type [default: from the file name].
+    #[arg(long, value_name = "TYPE", value_parser = PossibleValuesParser::new(
+        ["uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64"]))]
+    pub raw_type: Option<String>,
+    /// Raw files: the byte order [default: from the file name (…be/…le), else little].
+    #[arg(long, value_name = "ORDER", value_parser = PossibleValuesParser::new(["little", "big"]))]
+    pub raw_endian: Option<String>,
+    /// Raw files: bytes to skip at the start (a header voxserve does not read).
+    #[arg(long, value_name = "BYTES", default_value_t = 0)]
+    pub raw_offset: u64,
+    /// Raw files: voxel spacing in mm as X,Y,Z [default: 1,1,1].
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_spacing)]
+    pub raw_spacing: Option<[f64; 3]>,
+}
+
+impl InputArgs {
+    /// The reader options these flags give.
+    pub fn open_options(&self) -> OpenOptions {
+        OpenOptions {
+            series: self.series.clone(),
+            raw: RawOptions {
+                dims: self.raw_dims,
+                sample: self.raw_type.as_deref().and_then(raw::sample_type),
+                big_endian: self.raw_endian.as_deref().map(|e| e == "big"),
+                offset: self.raw_offset,
+                spacing: self.raw_spacing,
+            },
+        }
+    }
+}
+
+/// `voxserve info`.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// A volume file (raw, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd, .dcm) or a folder of DICOM files.
+    pub path: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// `voxserve serve`.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// The dataset to serve: `phantom` (the built-in CT head phantom), a volume
+    /// file, or a folder of DICOM files (read into memory).
+    #[arg(default_value = PHANTOM_ID)]
+    pub dataset: String,
+    /// Address and port to listen on; port 0 picks a free port.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub addr: SocketAddr,
+    #[command(flatten)]
+    pub data: DataArgs,
+}
+
+/// `voxserve render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// The dataset to render: `phantom` (the built-in CT head phantom), a volume
+    /// file, or a folder of DICOM files.
+    #[arg(default_value = PHANTOM_ID)]
+    pub dataset: String,
+    /// The PNG file to write [default: DATASET.png].
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+    /// Camera azimuth in degrees about the vertical axis: 0 looks at the face (from
+    /// anterior), 90 from the patient's left.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true,
+          value_parser = finite_in(-3600.0, 3600.0))]
+    pub azimuth: f32,
+    /// Camera elevation in degrees above the horizontal, -90 to 90.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true,
+          value_parser = finite_in(-camera::MAX_ELEVATION_DEG, camera::MAX_ELEVATION_DEG))]
+    pub elevation: f32,
+    /// Camera distance from the volume's centre, in radii of its bounding sphere
+    /// (0.05 to 100; below 1 the camera is inside the volume).
+    #[arg(long, default_value_t = 3.0,
+          value_parser = finite_in(camera::MIN_DISTANCE, camera::MAX_DISTANCE))]
+    pub distance: f32,
+    /// Vertical field of view in degrees (1 to 120).
+    #[arg(long, default_value_t = 30.0,
+          value_parser = finite_in(camera::FOV_RANGE_DEG.0, camera::FOV_RANGE_DEG.1))]
+    pub fov: f32,
+    /// Image width in pixels (1 to 4096).
+    #[arg(long, default_value_t = 512,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
+    pub width: u32,
+    /// Image height in pixels (1 to 4096).
+    #[arg(long, default_value_t = 512,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
+    pub height: u32,
+    /// Transfer-function preset [default: ct-bone for CT, mr for MR, else generic].
+    #[arg(long, value_parser = PossibleValuesParser::new(Preset::ALL.map(Preset::name)))]
+    pub preset: Option<String>,
+    /// Shading: gradient (Blinn–Phong from the data's gradient) or unshaded.
+    #[arg(long, default_value = "gradient",
+          value_parser = PossibleValuesParser::new(Shading::ALL.map(Shading::name)))]
+    pub shading: String,
+    /// Distance between samples along a ray, in voxels (0.05 to 4); smaller is finer.
+    #[arg(long, default_value_t = 0.5,
+          value_parser = finite_in(shaders::frame::STEP_RANGE_VOXELS.0, shaders::frame::STEP_RANGE_VOXELS.1))]
+    pub step: f32,
+    /// Render on the CPU with the ray caster's CPU twin instead of the GPU (slow;
+    /// for checking, or where no GPU driver is installed).
+    #[arg(long)]
+    pub cpu: bool,
+    #[command(flatten)]
+    pub data: DataArgs,
+}
+
+/// `voxserve bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Image edges to render, in pixels (square images), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [256u32, 512, 1024],
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
+    pub sizes: Vec<u32>,
+    /// Frames timed per size (after one untimed warm-up frame).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub frames: u32,
+    /// Also time the CPU twin (slow).
+    #[arg(long)]
+    pub cpu: bool,
+    /// Instead of rendering: write a generated raw volume of this many GiB to a
+    /// temporary file and read it back slab by slab, reporting MB/s and peak memory.
+    #[arg(long, value_name = "GIB", value_parser = finite_in(0.01, 1024.0))]
+    pub read_gib: Option<f32>,
+    #[command(flatten)]
+    pub data: DataArgs,
+}
+
+/// A clap value parser for a finite number in `lo..=hi`.
+pub fn finite_in(
+    lo: f32,
+    hi: f32,
+) -> impl Fn(&str) -> Result<f32, String> + Clone + Send + Sync + 'static {
+    move |text| {
+        let expected = || format!("expected a number from {lo} to {hi}, got '{text}'");
+        let value: f32 = text.trim().parse().map_err(|_| expected())?;
+        if value.is_finite() && (lo..=hi).contains(&value) {
+            Ok(value)
+        } else {
+            Err(expected())
+        }
+    }
+}
+
+/// Parses `XxYxZ` dimensions.
+fn parse_dims(text: &str) -> Result<[u64; 3], String> {
+    let parts: Vec<&str> = text.split('x').collect();
+    let parsed: Option<Vec<u64>> = parts.iter().map(|p| p.trim().parse().ok()).collect();
+    match parsed {
+        Some(v) if v.len() == 3 && v.iter().all(|&d| d > 0) => Ok([v[0], v[1], v[2]]),
+        _ => Err(format!(
+            "expected three positive whole numbers like 256x256x128, got '{text}'"
+        )),
+    }
+}
+
+/// Parses `X,Y,Z` spacing in mm.
+fn parse_spacing(text: &str) -> Result<[f64; 3], String> {
+    let parsed: Option<Vec<f64>> = text.split(',').map(|p| p.trim().parse().ok()).collect();
+    match parsed {
+        Some(v) if v.len() == 3 && v.iter().all(|s| s.is_finite() && *s > 0.0) => {
+            Ok([v[0], v[1], v[2]])
+        }
+        _ => Err(format!(
+            "expected three positive numbers of mm like 1,1,2.5, got '{text}'"
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn the_cli_is_well_formed() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn render_flags_parse_and_bad_values_are_refused_with_the_flag_named() {
+        let cli = Cli::try_parse_from([
+            "voxserve",
+            "render",
+            "--azimuth",
+            "-45",
+            "--width",
+            "64",
+            "--preset",
+            "ct-angio",
+        ])
+        .expect("valid");
+        let Command::Render(args) = cli.command else {
+            panic!("expected render");
+        };
+        assert_eq!(args.azimuth, -45.0);
+        assert_eq!(args.width, 64);
+        for bad in [
+            ["--width", "0"],
+            ["--width", "100000"],
+            ["--azimuth", "north"],
+            ["--elevation", "NaN"],
+            ["--preset", "bone"],
+            ["--shading", "phong"],
+            ["--raw-dims", "256x256"],
+            ["--raw-spacing", "1,0,1"],
+            ["--raw-type", "uint12"],
+        ] {
+            let err = Cli::try_parse_from(["voxserve", "render", bad[0], bad[1]])
+                .expect_err("invalid")
+                .to_string();
+            assert!(err.contains(bad[0]), "{bad:?}: {err}");
+        }
+    }
+
+    #[test]
+    fn raw_flags_become_open_options() {
+        let cli = Cli::try_parse_from([
+            "voxserve",
+            "info",
+            "x.bin",
+            "--raw-dims",
+            "4x5x6",
+            "--raw-type",
+            "int16",
+            "--raw-endian",
+            "big",
+            "--raw-offset",
+            "12",
+            "--raw-spacing",
+            "1,1,2.5",
+        ])
+        .expect("valid");
+        let Command::Info(args) = cli.command else {
+            panic!("expected info");
+        };
+        let o = args.input.open_options();
+        assert_eq!(o.raw.dims, Some([4, 5, 6]));
+        assert_eq!(o.raw.sample, raw::sample_type("int16"));
+        assert_eq!(o.raw.big_endian, Some(true));
+        assert_eq!(o.raw.offset, 12);
+        assert_eq!(o.raw.spacing, Some([1.0, 1.0, 2.5]));
+    }
+}
