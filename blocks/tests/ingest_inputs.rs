@@ -675,6 +675,17 @@ fn absurd_header_dimensions_are_refused_before_allocating() {
         "{msg}"
     );
 
+    // NIfTI dims are 16-bit: the largest it can claim, 65535³, is refused too.
+    let nii = dir.path().join("huge.nii");
+    let mut bytes = nifti_header(2, 8, 1.0, 0.0);
+    for i in 1..=3 {
+        bytes[40 + 2 * i..42 + 2 * i].copy_from_slice(&65535u16.to_le_bytes());
+    }
+    bytes.extend([0u8; 16]);
+    write(&nii, &bytes);
+    let msg = message_naming(open(&nii), "huge.nii");
+    assert!(msg.contains("dim: 65535 × 65535 × 65535"), "{msg}");
+
     let raw = dir.path().join("huge_1000000x1000000x1000000_uint8.raw");
     write(&raw, &[0; 8]);
     let msg = message_naming(open(&raw), "huge_1000000x1000000x1000000_uint8.raw");

@@ -18,6 +18,16 @@ pub fn open_file(path: &Path) -> Result<std::fs::File, Error> {
     })
 }
 
+/// The size of a file in bytes, naming it in the error.
+pub fn file_len(path: &Path) -> Result<u64, Error> {
+    std::fs::metadata(path)
+        .map(|m| m.len())
+        .map_err(|source| Error::Io {
+            path: path.to_owned(),
+            source,
+        })
+}
+
 /// The first `n` bytes of a file (fewer if it is shorter).
 pub fn read_prefix(path: &Path, n: usize) -> Result<Vec<u8>, Error> {
     let mut buf = Vec::with_capacity(n);

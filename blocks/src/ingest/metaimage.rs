@@ -14,7 +14,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use super::header::{boolean, field, numbers, read_text_header, three};
-use super::stream::{Compression, SampleType, StreamLayout, StreamSource};
+use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
 use super::{Format, VolumeInfo, check_dims, check_spacing};
 use crate::{Error, ValueMap, VoxelType};
 
@@ -182,21 +182,10 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     } else {
         (path.parent().unwrap_or(Path::new(".")).join(data_file), 0)
     };
-    let total = u64::from(dims[0]) * u64::from(dims[1]) * u64::from(dims[2]) * sample.size() as u64;
     match get("HeaderSize") {
         None => {}
         Some("-1") if !compressed => {
-            let size = std::fs::metadata(&data_path)
-                .map_err(|source| Error::Io {
-                    path: data_path.clone(),
-                    source,
-                })?
-                .len();
-            file_offset = size.checked_sub(total).ok_or(Error::Truncated {
-                path: data_path.clone(),
-                expected: total,
-                got: size,
-            })?;
+            file_offset = trailing_data_offset(&data_path, dims, sample)?;
         }
         Some(n) => {
             file_offset += n.parse::<u64>().map_err(|_| {

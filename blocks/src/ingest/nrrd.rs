@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use super::header::{self, field, numbers, read_text_header, three, vector};
-use super::stream::{Compression, SampleType, StreamLayout, StreamSource};
+use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
 use super::{Format, VolumeInfo, check_dims, check_spacing, spacing_and_direction};
 use crate::{Error, ValueMap, VoxelType};
 
@@ -214,22 +214,11 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             .map_err(|_| field(path, "line skip", "expected a whole number"))?;
         file_offset = skip_lines(&data_path, file_offset, lines)?;
     }
-    let total = u64::from(dims[0]) * u64::from(dims[1]) * u64::from(dims[2]) * sample.size() as u64;
     let mut skip = 0;
     match get("byte skip").or(get("byteskip")) {
         None => {}
         Some("-1") if compression == Compression::None => {
-            let size = std::fs::metadata(&data_path)
-                .map_err(|source| Error::Io {
-                    path: data_path.clone(),
-                    source,
-                })?
-                .len();
-            file_offset = size.checked_sub(total).ok_or(Error::Truncated {
-                path: data_path.clone(),
-                expected: total,
-                got: size,
-            })?;
+            file_offset = trailing_data_offset(&data_path, dims, sample)?;
         }
         Some(n) => {
             let n: u64 = n.parse().map_err(|_| {

@@ -116,13 +116,8 @@ pub fn open(path: &Path, options: &RawOptions) -> Result<StreamSource, Error> {
     check_spacing(path, "spacing", spacing)?;
     let dims = check_dims(path, "dims", dims, sample.size() as u64)?;
 
-    let size = std::fs::metadata(path)
-        .map_err(|source| Error::Io {
-            path: path.to_owned(),
-            source,
-        })?
-        .len();
-    let needed = dims.iter().map(|&d| u64::from(d)).product::<u64>() * sample.size() as u64;
+    let size = super::header::file_len(path)?;
+    let needed = super::stream::volume_bytes(dims, sample);
     let available = size.saturating_sub(options.offset);
     if available != needed {
         return Err(field(

@@ -8,7 +8,7 @@
 
 use std::fs::File;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use flate2::bufread::{MultiGzDecoder, ZlibDecoder};
 
@@ -264,10 +264,30 @@ impl StreamSource {
     }
 }
 
+/// Bytes of `sample`s in a volume of `dims`.
+pub fn volume_bytes(dims: [u32; 3], sample: SampleType) -> u64 {
+    dims.iter().map(|&d| u64::from(d)).product::<u64>() * sample.size() as u64
+}
+
+/// The offset of voxels stored at the very end of an uncompressed file (NRRD's
+/// `byte skip: -1`, MetaImage's `HeaderSize = -1`).
+pub fn trailing_data_offset(
+    data_path: &Path,
+    dims: [u32; 3],
+    sample: SampleType,
+) -> Result<u64, Error> {
+    let size = super::header::file_len(data_path)?;
+    let total = volume_bytes(dims, sample);
+    size.checked_sub(total).ok_or(Error::Truncated {
+        path: data_path.to_owned(),
+        expected: total,
+        got: size,
+    })
+}
+
 /// Bytes of samples in the whole volume.
 fn sample_bytes(info: &VolumeInfo, layout: &StreamLayout) -> u64 {
-    let [nx, ny, nz] = info.dims.map(u64::from);
-    nx * ny * nz * layout.sample.size() as u64
+    volume_bytes(info.dims, layout.sample)
 }
 
 /// Reads until `buf` is full or the stream ends; returns the bytes read.
