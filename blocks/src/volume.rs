@@ -145,6 +145,17 @@ macro_rules! with_voxels {
 }
 pub(crate) use with_voxels;
 
+macro_rules! impl_from_vec {
+    ($($t:ty => $variant:ident),*) => {$(
+        impl From<Vec<$t>> for VoxelData {
+            fn from(v: Vec<$t>) -> VoxelData {
+                VoxelData::$variant(v)
+            }
+        }
+    )*};
+}
+impl_from_vec!(u8 => U8, i8 => I8, u16 => U16, i16 => I16, u32 => U32, i32 => I32, f32 => F32);
+
 impl VoxelData {
     /// `len` zero voxels of type `ty`.
     pub fn zeros(ty: VoxelType, len: usize) -> VoxelData {
@@ -226,6 +237,30 @@ impl VoxelData {
         with_voxels!(self, v => bytemuck::cast_slice(v))
     }
 
+    /// The voxels' memory as bytes, to be filled in place.
+    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+        with_voxels!(self, v => bytemuck::cast_slice_mut(v))
+    }
+
+    /// Reverses the byte order of every voxel (for data stored in the other order).
+    pub fn swap_bytes(&mut self) {
+        match self {
+            VoxelData::U8(_) | VoxelData::I8(_) => {}
+            VoxelData::U16(v) => v.iter_mut().for_each(|x| *x = x.swap_bytes()),
+            VoxelData::I16(v) => v.iter_mut().for_each(|x| *x = x.swap_bytes()),
+            VoxelData::U32(v) => v.iter_mut().for_each(|x| *x = x.swap_bytes()),
+            VoxelData::I32(v) => v.iter_mut().for_each(|x| *x = x.swap_bytes()),
+            VoxelData::F32(v) => v
+                .iter_mut()
+                .for_each(|x| *x = f32::from_bits(x.to_bits().swap_bytes())),
+        }
+    }
+
+    /// A copy of the voxels in `range` (linear indices).
+    pub fn slice(&self, range: std::ops::Range<usize>) -> VoxelData {
+        with_voxels!(self, v => VoxelData::from(v[range].to_vec()))
+    }
+
     /// Appends `other`, which must hold the same voxel type.
     pub fn append(&mut self, other: VoxelData) -> Result<(), Error> {
         let (want, got) = (self.voxel_type(), other.voxel_type());
@@ -254,7 +289,7 @@ impl VoxelData {
 
 /// The linear map from stored values to physical values
 /// (DICOM's RescaleSlope and RescaleIntercept): `physical = stored * slope + intercept`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ValueMap {
     /// Physical units per stored unit.
     pub slope: f32,

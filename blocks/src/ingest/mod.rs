@@ -288,6 +288,63 @@ pub fn scan(
     })
 }
 
+/// A volume already in memory as a source (for ingesting the phantom or a
+/// volume built in code).
+#[derive(Debug, Clone)]
+pub struct MemorySource {
+    info: VolumeInfo,
+    volume: std::sync::Arc<Volume>,
+}
+
+impl MemorySource {
+    /// A source over `volume`, named `name` in listings.
+    pub fn new(volume: std::sync::Arc<Volume>, name: &str) -> MemorySource {
+        let f64s = |v: [f32; 3]| v.map(f64::from);
+        MemorySource {
+            info: VolumeInfo {
+                path: PathBuf::from(name),
+                format: Format::Raw,
+                dims: volume.dims,
+                voxel_type: volume.voxel_type(),
+                spacing: f64s(volume.spacing),
+                origin: f64s(volume.origin),
+                direction: volume.direction.map(f64s),
+                value_map: volume.value_map,
+                unit: volume.unit.clone(),
+                modality: volume.modality.clone(),
+                description: None,
+                notes: Vec::new(),
+            },
+            volume,
+        }
+    }
+}
+
+impl VolumeSource for MemorySource {
+    fn info(&self) -> &VolumeInfo {
+        &self.info
+    }
+
+    fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
+        let [nx, ny, nz] = self.info.dims;
+        if depth == 0 || z0.checked_add(depth).is_none_or(|end| end > nz) {
+            return Err(Error::Field {
+                path: self.info.path.clone(),
+                field: "slab".into(),
+                message: format!(
+                    "slices {z0}..{}: expected a range within 0..{nz}",
+                    u64::from(z0) + u64::from(depth)
+                ),
+            });
+        }
+        let slice = nx as usize * ny as usize;
+        Ok(self
+            .volume
+            .voxels
+            .slice(z0 as usize * slice..(z0 + depth) as usize * slice))
+    }
+}
+
 /// The largest volume [`load`] reads into memory, in bytes.
 pub const MAX_LOAD_BYTES: u64 = 8 << 30;
 

@@ -208,6 +208,13 @@ impl StreamSource {
 
     /// Reads `len` bytes at `start` of the decompressed stream (after `skip`).
     fn read_bytes(&mut self, start: u64, len: usize) -> Result<Vec<u8>, Error> {
+        let mut buf = vec![0u8; len];
+        self.read_into(start, &mut buf)?;
+        Ok(buf)
+    }
+
+    /// Fills `buf` from `start` of the decompressed stream (after `skip`).
+    fn read_into(&mut self, start: u64, buf: &mut [u8]) -> Result<(), Error> {
         if self.layout.compression == Compression::None {
             // Uncompressed: seek straight there, no decoder state to keep.
             let path = &self.layout.data_path;
@@ -218,9 +225,8 @@ impl StreamSource {
             let mut file: File = open_file(path)?;
             file.seek(SeekFrom::Start(self.layout.file_offset + start))
                 .map_err(io_err)?;
-            let mut buf = vec![0u8; len];
-            let got = read_full(&mut file, &mut buf).map_err(io_err)?;
-            return self.complete(buf, got, start);
+            let got = read_full(&mut file, buf).map_err(io_err)?;
+            return self.complete(buf.len(), got, start);
         }
         let mut cursor = match self.cursor.take() {
             Some(c) if c.position <= start => c,
@@ -233,8 +239,7 @@ impl StreamSource {
         if skipped < gap {
             return Err(self.truncated(cursor.position));
         }
-        let mut buf = vec![0u8; len];
-        let got = read_full(&mut cursor.reader, &mut buf).map_err(|e| self.stream_error(e))?;
+        let got = read_full(&mut cursor.reader, buf).map_err(|e| self.stream_error(e))?;
         cursor.position += got as u64;
         if cursor.position == self.layout.skip + sample_bytes(&self.info, &self.layout) {
             // The last voxel is read: run the decoder to the end of the stream so
@@ -244,14 +249,14 @@ impl StreamSource {
         } else {
             self.cursor = Some(cursor);
         }
-        self.complete(buf, got, start)
+        self.complete(buf.len(), got, start)
     }
 
-    fn complete(&self, buf: Vec<u8>, got: usize, start: u64) -> Result<Vec<u8>, Error> {
-        if got < buf.len() {
+    fn complete(&self, wanted: usize, got: usize, start: u64) -> Result<(), Error> {
+        if got < wanted {
             Err(self.truncated(start + got as u64))
         } else {
-            Ok(buf)
+            Ok(())
         }
     }
 
@@ -330,8 +335,17 @@ impl VolumeSource for StreamSource {
                 format!("{depth} slices do not fit in memory"),
             )
         })?;
-        let bytes = self.read_bytes(start, len)?;
         let big = self.layout.big_endian;
+        if let SampleType::Voxel(t) = self.layout.sample {
+            // Read straight into the voxels' memory, then fix the byte order there.
+            let mut voxels = VoxelData::zeros(t, len / t.size());
+            self.read_into(start, voxels.as_bytes_mut())?;
+            if big != cfg!(target_endian = "big") {
+                voxels.swap_bytes();
+            }
+            return Ok(voxels);
+        }
+        let bytes = self.read_bytes(start, len)?;
         Ok(match self.layout.sample {
             SampleType::Voxel(t) => VoxelData::from_bytes(t, &bytes, big),
             SampleType::F64 => VoxelData::F32(

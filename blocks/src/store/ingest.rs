@@ -1,0 +1,569 @@
+//! The writer: any [`VolumeSource`] into a brick store, slab by slab.
+//!
+//! Two passes over the source. The first finds the stored-value range (the
+//! histograms' bins divide it). The second reads 16-slice slabs; for each it
+//! computes every level's box averages ([`super::pyramid`]), the statistics of
+//! that row of blocks at every level, and hands the voxels to `zarrs`, which
+//! writes the inner chunks into their shards as they come (partial shard
+//! encoding), so memory holds about one slab whatever the volume's size. Coarse
+//! levels collect 16 of their own slices before writing, so each inner chunk is
+//! written once.
+
+use std::borrow::Cow;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use zarrs::array::codec::ZstdCodec;
+use zarrs::array::codec::api::CodecOptions;
+use zarrs::array::{Array, ArrayBuilder, ArrayBytes, ArraySubset, data_type};
+use zarrs::filesystem::FilesystemStore;
+use zarrs::group::GroupBuilder;
+
+use super::pyramid::{self, LEVELS, level_dims};
+use super::stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
+use super::{FORMAT_VERSION, SHARD, StoreMeta, store_error};
+use crate::ingest::{self, VolumeSource};
+use crate::{Error, VoxelData, VoxelType};
+
+/// How to ingest.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IngestOptions {
+    /// Replace an existing store at the destination.
+    pub overwrite: bool,
+    /// zstd compression level (1 fast … 19 small).
+    pub zstd_level: i32,
+    /// Fault injection for tests: abort the process after this many slabs, as a
+    /// crash or a kill would.
+    pub abort_after_slabs: Option<u32>,
+}
+
+impl Default for IngestOptions {
+    fn default() -> IngestOptions {
+        IngestOptions {
+            overwrite: false,
+            zstd_level: 3,
+            abort_after_slabs: None,
+        }
+    }
+}
+
+/// Where an ingest is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum IngestProgress {
+    /// First pass (value range): slices read of the total.
+    Scanning(u32, u32),
+    /// Second pass (writing): slices written of the total.
+    Writing(u32, u32),
+}
+
+/// What an ingest did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IngestSummary {
+    /// Level-0 dims.
+    pub dims: [u32; 3],
+    /// Voxel type.
+    pub voxel_type: VoxelType,
+    /// Bytes of level-0 voxels in the source.
+    pub source_bytes: u64,
+    /// Bytes of the store on disk (all levels and statistics).
+    pub store_bytes: u64,
+    /// Blocks of the level-0 grid.
+    pub blocks: usize,
+    /// Blocks whose voxels all hold one value (e.g. air or padding).
+    pub uniform_blocks: usize,
+    /// Seconds of the first pass.
+    pub scan_seconds: f64,
+    /// Seconds of the whole ingest.
+    pub seconds: f64,
+}
+
+impl IngestSummary {
+    /// Source bytes per store byte.
+    pub fn compression_ratio(&self) -> f64 {
+        self.source_bytes as f64 / self.store_bytes.max(1) as f64
+    }
+
+    /// Megabytes of source voxels per second, both passes included.
+    pub fn mb_per_s(&self) -> f64 {
+        self.source_bytes as f64 / 1e6 / self.seconds.max(1e-9)
+    }
+}
+
+/// Removes the temporary folder unless the ingest completed.
+struct TempDir {
+    path: PathBuf,
+    keep: bool,
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        if !self.keep {
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
+    }
+}
+
+fn zarr_error(path: &Path, what: &str, e: impl std::fmt::Display) -> Error {
+    store_error(path, what, e.to_string())
+}
+
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
+    move |source| Error::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// The zarr data type and zero fill value of a voxel type.
+fn zarr_type(t: VoxelType) -> (zarrs::array::DataType, zarrs::array::FillValue) {
+    use zarrs::array::FillValue;
+    match t {
+        VoxelType::U8 => (data_type::uint8(), FillValue::from(0u8)),
+        VoxelType::I8 => (data_type::int8(), FillValue::from(0i8)),
+        VoxelType::U16 => (data_type::uint16(), FillValue::from(0u16)),
+        VoxelType::I16 => (data_type::int16(), FillValue::from(0i16)),
+        VoxelType::U32 => (data_type::uint32(), FillValue::from(0u32)),
+        VoxelType::I32 => (data_type::int32(), FillValue::from(0i32)),
+        VoxelType::F32 => (data_type::float32(), FillValue::from(0.0f32)),
+    }
+}
+
+/// Writes `source` as a brick store at `out`.
+pub fn ingest(
+    source: &mut dyn VolumeSource,
+    out: &Path,
+    options: &IngestOptions,
+    progress: &mut dyn FnMut(IngestProgress),
+) -> Result<IngestSummary, Error> {
+    let start = Instant::now();
+    let info = source.info().clone();
+    if out.exists() && !options.overwrite {
+        return Err(store_error(
+            out,
+            "output",
+            "exists: expected a new path (or --force to replace it)",
+        ));
+    }
+    let name = out
+        .file_name()
+        .ok_or_else(|| store_error(out, "output", "expected a folder name"))?
+        .to_string_lossy()
+        .into_owned();
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    if !parent.is_dir() {
+        return Err(store_error(
+            out,
+            "output",
+            format!(
+                "{} is not a folder: expected the store's parent folder to exist",
+                parent.display()
+            ),
+        ));
+    }
+
+    // First pass: the stored-value range.
+    let nz = info.dims[2];
+    let stats = ingest::scan(source, |z| progress(IngestProgress::Scanning(z, nz)))?;
+    let range = stats.stored_range;
+    let scan_seconds = start.elapsed().as_secs_f64();
+
+    remove_stale_partials(&parent, &name);
+    let temp = TempDir {
+        path: parent.join(format!(".{name}.partial-{}", std::process::id())),
+        keep: false,
+    };
+    if temp.path.exists() {
+        std::fs::remove_dir_all(&temp.path).map_err(io_error(&temp.path))?;
+    }
+    std::fs::create_dir(&temp.path).map_err(io_error(&temp.path))?;
+    let storage =
+        Arc::new(FilesystemStore::new(&temp.path).map_err(|e| zarr_error(&temp.path, "store", e))?);
+
+    let (zarr_dtype, fill) = zarr_type(info.voxel_type);
+    let mut arrays = Vec::with_capacity(LEVELS);
+    for level in 0..LEVELS {
+        let [nx, ny, nz] = level_dims(info.dims, level).map(u64::from);
+        let array = ArrayBuilder::new(
+            vec![nz, ny, nx],
+            vec![u64::from(SHARD); 3],
+            zarr_dtype.clone(),
+            fill.clone(),
+        )
+        .subchunk_shape(vec![u64::from(BLOCK); 3])
+        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(options.zstd_level, true))])
+        .dimension_names(["z", "y", "x"].into())
+        .build(storage.clone(), &format!("/{level}"))
+        .map_err(|e| zarr_error(&temp.path, "array", e))?;
+        array
+            .store_metadata()
+            .map_err(|e| zarr_error(&temp.path, "array metadata", e))?;
+        arrays.push(array);
+    }
+    let grid = info.dims.map(|n| n.div_ceil(BLOCK));
+    let (min_max, histogram) = stats_arrays(&storage, &temp.path, grid)?;
+
+    // Reading and averaging run on this thread while a writer thread hands the
+    // previous slab to zarrs: the two overlap, with at most one slab waiting.
+    let writer = SlabWriter {
+        arrays: &arrays,
+        min_max: &min_max,
+        histogram: &histogram,
+        dims: info.dims,
+        voxel_type: info.voxel_type,
+        path: &temp.path,
+        last_row: grid[2] - 1,
+        abort_after_slabs: options.abort_after_slabs,
+    };
+    let uniform_blocks = std::thread::scope(|scope| -> Result<usize, Error> {
+        let (send, receive) = std::sync::mpsc::sync_channel::<Slab>(1);
+        let written = scope.spawn(move || writer.run(receive));
+        let mut uniform_blocks = 0;
+        let mut produced = Ok(());
+        for bz in 0..grid[2] {
+            let z0 = bz * BLOCK;
+            let depth = BLOCK.min(nz - z0);
+            let slab = match source.read_slab(z0, depth) {
+                Ok(slab) => slab,
+                Err(e) => {
+                    produced = Err(e);
+                    break;
+                }
+            };
+            let slab_dims = [info.dims[0], info.dims[1], depth];
+            let levels = pyramid::levels(slab, slab_dims);
+            let mut stats = BlockStats::new([grid[0], grid[1], 1], range);
+            stats.fill_row(0, &levels, slab_dims);
+            uniform_blocks += (0..stats.block_count())
+                .filter(|&b| {
+                    let [lo, hi] = stats.min_max(0, b);
+                    lo == hi
+                })
+                .count();
+            if send.send(Slab { bz, levels, stats }).is_err() {
+                break; // the writer failed; its error is returned below
+            }
+            progress(IngestProgress::Writing(z0 + depth, nz));
+        }
+        drop(send);
+        let written = written
+            .join()
+            .map_err(|_| store_error(&temp.path, "writer", "the writer thread panicked"))?;
+        produced.and(written).map(|()| uniform_blocks)
+    })?;
+
+    // Root metadata last: only now does the folder describe a complete store.
+    let meta = StoreMeta {
+        format_version: FORMAT_VERSION,
+        complete: true,
+        name: info.name(),
+        dims: info.dims,
+        voxel_type: info.voxel_type.name().to_owned(),
+        spacing: info.spacing,
+        origin: info.origin,
+        direction: info.direction,
+        value_map: info.value_map,
+        unit: info.unit.clone(),
+        modality: info.modality.clone(),
+        description: info.description.clone(),
+        stored_range: range,
+        block_size: BLOCK,
+        levels: LEVELS as u32,
+        histogram_bins: HISTOGRAM_BINS as u32,
+        blocks: grid,
+        source: info.path.display().to_string(),
+        source_format: info.format.to_string(),
+        notes: info.notes.clone(),
+    };
+    let mut attributes = serde_json::Map::new();
+    attributes.insert("ome".into(), ome_multiscales(&meta));
+    attributes.insert(
+        "voxserve".into(),
+        serde_json::to_value(&meta).map_err(|e| zarr_error(&temp.path, "metadata", e))?,
+    );
+    GroupBuilder::new()
+        .attributes(attributes)
+        .build(storage.clone(), "/")
+        .and_then(|g| g.store_metadata().map_err(Into::into))
+        .map_err(|e| zarr_error(&temp.path, "root metadata", e))?;
+
+    // Into place: move an old store aside first, so the destination always holds
+    // a complete store (old or new).
+    if out.exists() {
+        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        std::fs::rename(out, &old).map_err(io_error(out))?;
+        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
+        std::fs::remove_dir_all(&old).map_err(io_error(&old))?;
+    } else {
+        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
+    }
+    let mut temp = temp;
+    temp.keep = true;
+    Ok(IngestSummary {
+        dims: info.dims,
+        voxel_type: info.voxel_type,
+        source_bytes: info.total_bytes(),
+        store_bytes: folder_bytes(out),
+        blocks: grid.iter().map(|&g| g as usize).product(),
+        uniform_blocks,
+        scan_seconds,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// One slab's output on its way to the writer.
+struct Slab {
+    bz: u32,
+    levels: Vec<VoxelData>,
+    stats: BlockStats,
+}
+
+/// Writes slabs into the level arrays and the statistics arrays.
+struct SlabWriter<'a> {
+    arrays: &'a [Array<FilesystemStore>],
+    min_max: &'a Array<FilesystemStore>,
+    histogram: &'a Array<FilesystemStore>,
+    dims: [u32; 3],
+    voxel_type: VoxelType,
+    path: &'a Path,
+    last_row: u32,
+    abort_after_slabs: Option<u32>,
+}
+
+impl SlabWriter<'_> {
+    fn run(self, slabs: std::sync::mpsc::Receiver<Slab>) -> Result<(), Error> {
+        let mut codec_options = CodecOptions::default();
+        codec_options.set_experimental_partial_encoding(true);
+        // Per level: voxels waiting for 16 of that level's slices, and where they start.
+        let mut pending: Vec<(u32, VoxelData)> = (0..LEVELS)
+            .map(|_| (0, VoxelData::zeros(self.voxel_type, 0)))
+            .collect();
+        let mut written = 0;
+        for slab in slabs {
+            write_stats_row(
+                self.min_max,
+                self.histogram,
+                &slab.stats,
+                slab.bz,
+                self.path,
+            )?;
+            let last = slab.bz == self.last_row;
+            for (level, data) in slab.levels.into_iter().enumerate() {
+                let (pending_z0, buffer) = &mut pending[level];
+                if buffer.is_empty() {
+                    *pending_z0 = (slab.bz * BLOCK) >> level;
+                    *buffer = data; // no copy while nothing waits (always so at level 0)
+                } else {
+                    buffer.append(data)?;
+                }
+                let dims = level_dims(self.dims, level);
+                let plane = dims[0] as usize * dims[1] as usize;
+                let slices = (buffer.len() / plane.max(1)) as u32;
+                if slices >= BLOCK || (last && slices > 0) {
+                    let full = std::mem::replace(buffer, VoxelData::zeros(self.voxel_type, 0));
+                    let subset = ArraySubset::new_with_ranges(&[
+                        u64::from(*pending_z0)..u64::from(*pending_z0 + slices),
+                        0..u64::from(dims[1]),
+                        0..u64::from(dims[0]),
+                    ]);
+                    self.arrays[level]
+                        .store_array_subset_opt(
+                            &subset,
+                            ArrayBytes::new_flen(Cow::Borrowed(full.as_bytes())),
+                            &codec_options,
+                        )
+                        .map_err(|e| zarr_error(&self.path.join(level.to_string()), "write", e))?;
+                }
+            }
+            written += 1;
+            if self.abort_after_slabs == Some(written) {
+                std::process::abort();
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The two statistics arrays under `/voxserve`, one chunk per level and block row.
+fn stats_arrays(
+    storage: &Arc<FilesystemStore>,
+    path: &Path,
+    grid: [u32; 3],
+) -> Result<(Array<FilesystemStore>, Array<FilesystemStore>), Error> {
+    GroupBuilder::new()
+        .build(storage.clone(), "/voxserve")
+        .and_then(|g| g.store_metadata().map_err(Into::into))
+        .map_err(|e| zarr_error(path, "voxserve group", e))?;
+    let [gx, gy, gz] = grid.map(u64::from);
+    let levels = LEVELS as u64;
+    let build = |name: &str, dtype, fill: zarrs::array::FillValue, last: u64| {
+        let array = ArrayBuilder::new(
+            vec![levels, gz, gy, gx, last],
+            vec![1, 1, gy, gx, last],
+            dtype,
+            fill,
+        )
+        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(3, true))])
+        .dimension_names(["level", "bz", "by", "bx", name].into())
+        .build(storage.clone(), &format!("/voxserve/{name}"))
+        .map_err(|e| zarr_error(path, name, e))?;
+        array
+            .store_metadata()
+            .map_err(|e| zarr_error(path, name, e))?;
+        Ok::<_, Error>(array)
+    };
+    Ok((
+        build(
+            "block_min_max",
+            data_type::float64(),
+            zarrs::array::FillValue::from(f64::NAN),
+            2,
+        )?,
+        build(
+            "block_histogram",
+            data_type::uint16(),
+            zarrs::array::FillValue::from(0u16),
+            HISTOGRAM_BINS as u64,
+        )?,
+    ))
+}
+
+/// Stores the statistics of block row `bz` (a one-row [`BlockStats`]).
+fn write_stats_row(
+    min_max: &Array<FilesystemStore>,
+    histogram: &Array<FilesystemStore>,
+    row: &BlockStats,
+    bz: u32,
+    path: &Path,
+) -> Result<(), Error> {
+    let per_level = row.block_count();
+    for level in 0..LEVELS {
+        let chunk = [level as u64, u64::from(bz), 0, 0, 0];
+        min_max
+            .store_chunk(
+                &chunk,
+                &row.minmax[level * per_level * 2..][..per_level * 2],
+            )
+            .map_err(|e| zarr_error(path, "block_min_max", e))?;
+        histogram
+            .store_chunk(
+                &chunk,
+                &row.histogram[level * per_level * HISTOGRAM_BINS..][..per_level * HISTOGRAM_BINS],
+            )
+            .map_err(|e| zarr_error(path, "block_histogram", e))?;
+    }
+    Ok(())
+}
+
+/// Reads the statistics arrays of a store into memory.
+pub(super) fn read_stats(
+    storage: &Arc<FilesystemStore>,
+    path: &Path,
+    meta: &StoreMeta,
+) -> Result<BlockStats, Error> {
+    let open = |name: &str| {
+        Array::open(storage.clone(), &format!("/voxserve/{name}"))
+            .map_err(|e| zarr_error(&path.join("voxserve").join(name), "zarr.json", e))
+    };
+    let (min_max, histogram) = (open("block_min_max")?, open("block_histogram")?);
+    let mut stats = BlockStats::new(meta.blocks, meta.stored_range);
+    let whole = |a: &Array<FilesystemStore>| ArraySubset::new_with_shape(a.shape().to_vec());
+    let read_error = |name: &str, e: zarrs::array::ArrayError| Error::Corrupt {
+        path: path.join("voxserve").join(name),
+        codec: "zarr array".into(),
+        detail: e.to_string(),
+    };
+    let mm: Vec<f64> = min_max
+        .retrieve_array_subset_opt(&whole(&min_max), &CodecOptions::default())
+        .map_err(|e| read_error("block_min_max", e))?;
+    let hist: Vec<u16> = histogram
+        .retrieve_array_subset_opt(&whole(&histogram), &CodecOptions::default())
+        .map_err(|e| read_error("block_histogram", e))?;
+    if mm.len() != stats.minmax.len() || hist.len() != stats.histogram.len() {
+        return Err(store_error(
+            path,
+            "voxserve statistics",
+            "sizes do not match the block grid",
+        ));
+    }
+    stats.minmax = mm;
+    stats.histogram = hist;
+    Ok(stats)
+}
+
+/// The OME-Zarr 0.5 `multiscales` attribute: per level, scale = spacing · 2^l and
+/// the centre of its first voxel (a box average's centre).
+fn ome_multiscales(meta: &StoreMeta) -> serde_json::Value {
+    let axis =
+        |name: &str| serde_json::json!({ "name": name, "type": "space", "unit": "millimeter" });
+    let datasets: Vec<serde_json::Value> = (0..LEVELS)
+        .map(|level| {
+            let factor = f64::from(1u32 << level);
+            let scale = [2, 1, 0].map(|a| meta.spacing[a] * factor);
+            let translation =
+                [2, 1, 0].map(|a| meta.origin[a] + (factor - 1.0) / 2.0 * meta.spacing[a]);
+            serde_json::json!({
+                "path": level.to_string(),
+                "coordinateTransformations": [
+                    { "type": "scale", "scale": scale },
+                    { "type": "translation", "translation": translation },
+                ],
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "version": "0.5",
+        "multiscales": [{
+            "name": meta.name,
+            "axes": [axis("z"), axis("y"), axis("x")],
+            "datasets": datasets,
+            "type": "mean",
+            "metadata": { "description": "box average over 2^l voxels per axis" },
+        }],
+    })
+}
+
+/// Removes temporary folders that ingests to the same destination left behind
+/// when they were killed: `.NAME.partial-PID` whose process no longer runs
+/// (checked in /proc; elsewhere nothing is removed).
+fn remove_stale_partials(parent: &Path, name: &str) {
+    let prefix = format!(".{name}.partial-");
+    let Ok(entries) = std::fs::read_dir(parent) else {
+        return;
+    };
+    for entry in entries.filter_map(Result::ok) {
+        let file_name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = file_name
+            .strip_prefix(&prefix)
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let alive = Path::new(&format!("/proc/{pid}")).exists();
+        if Path::new("/proc/self").exists() && !alive {
+            tracing::info!(
+                "removing {}, left by an ingest that did not finish",
+                entry.path().display()
+            );
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
+/// Bytes of all files under `path`.
+pub fn folder_bytes(path: &Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(path) else {
+        return 0;
+    };
+    entries
+        .filter_map(Result::ok)
+        .map(|e| match e.file_type() {
+            Ok(t) if t.is_dir() => folder_bytes(&e.path()),
+            Ok(_) => e.metadata().map_or(0, |m| m.len()),
+            Err(_) => 0,
+        })
+        .sum()
+}

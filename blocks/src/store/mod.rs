@@ -1,0 +1,372 @@
+//! The brick store: a volume cut into 16³ blocks, kept at every level of detail,
+//! compressed on disk as OME-Zarr 0.5 (Zarr v3), written and read with `zarrs`.
+//!
+//! # Layout on disk
+//! ```text
+//! STORE/zarr.json                 root group: OME `multiscales` + `voxserve` metadata
+//! STORE/0 … STORE/4/zarr.json     one array per level, shape [z, y, x] = ceil(dims / 2^l)
+//! STORE/L/c/Z/Y/X                 shards of 128³ voxels holding inner chunks of 16³,
+//!                                 each zstd-compressed with its content checksum;
+//!                                 the shard index carries a crc32c
+//! STORE/voxserve/block_min_max    f64 [level, bz, by, bx, 2]: stored min and max
+//! STORE/voxserve/block_histogram  u16 [level, bz, by, bx, 32]: over the stored range
+//! ```
+//! Level l is the volume averaged over boxes of 2^l voxels. A flat-blocking block
+//! at level l — the 16³ region of the full volume seen at (16 / 2^l)³ voxels — is
+//! the matching sub-cube of a level-l inner chunk: block b lies in chunk b >> l.
+//! Any Zarr v3 reader (zarr-python, napari, neuroglancer) can read the levels.
+//!
+//! # Crash safety
+//! A store is written under a hidden temporary name beside its destination and
+//! renamed into place only when complete; its root metadata, written last,
+//! carries `"complete": true`. An interrupted ingest leaves at most the
+//! temporary folder, which [`Store::open`] refuses. Corruption is caught by the
+//! checksums: a damaged shard index or chunk reads as [`Error::Corrupt`] naming
+//! the shard file, never as garbage voxels.
+//!
+//! # Layout of this module
+//! - [`pyramid`]: box averages of a slab for every level.
+//! - [`stats`]: [`BlockStats`], per-block min, max and histogram.
+//! - [`ingest`]: the writer, slab by slab from any [`crate::VolumeSource`].
+
+pub mod ingest;
+pub mod pyramid;
+pub mod stats;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use zarrs::array::codec::api::CodecOptions;
+use zarrs::array::{
+    Array, ArrayBytes, ArrayError, ArrayShardedReadableExt, ArrayShardedReadableExtCache,
+};
+use zarrs::filesystem::FilesystemStore;
+
+pub use ingest::{IngestOptions, IngestProgress, IngestSummary, ingest};
+pub use pyramid::{LEVELS, level_dims};
+pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
+
+use crate::{Error, ValueMap, VoxelData, VoxelType};
+
+/// The version of the `voxserve` metadata this code writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Shard edge in voxels (8 inner chunks per axis).
+pub const SHARD: u32 = 128;
+
+/// What the root metadata says about the volume, under the `voxserve` key.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StoreMeta {
+    /// [`FORMAT_VERSION`] of the writer.
+    pub format_version: u32,
+    /// Written last: a store without it is incomplete.
+    pub complete: bool,
+    /// Display name.
+    pub name: String,
+    /// Level-0 voxels along x, y, z.
+    pub dims: [u32; 3],
+    /// Voxel type name (`uint16`, …).
+    pub voxel_type: String,
+    /// Level-0 spacing, mm.
+    pub spacing: [f64; 3],
+    /// LPS position of voxel (0, 0, 0)'s centre, mm.
+    pub origin: [f64; 3],
+    /// Index axes' unit vectors in LPS.
+    pub direction: [[f64; 3]; 3],
+    /// Stored → physical values.
+    pub value_map: ValueMap,
+    /// Unit of physical values.
+    pub unit: Option<String>,
+    /// Imaging modality.
+    pub modality: Option<String>,
+    /// Description from the source.
+    pub description: Option<String>,
+    /// Smallest and largest stored value (NaNs left out); the histogram range.
+    pub stored_range: [f64; 2],
+    /// Block edge (16).
+    pub block_size: u32,
+    /// Levels of detail (5).
+    pub levels: u32,
+    /// Histogram bins per block and level.
+    pub histogram_bins: u32,
+    /// Blocks along x, y, z.
+    pub blocks: [u32; 3],
+    /// The file or folder ingested.
+    pub source: String,
+    /// Its format.
+    pub source_format: String,
+    /// What the reader assumed or corrected.
+    pub notes: Vec<String>,
+}
+
+impl StoreMeta {
+    /// The voxel type.
+    pub fn voxel_type(&self) -> Result<VoxelType, String> {
+        VoxelType::from_name(&self.voxel_type)
+            .ok_or_else(|| format!("voxel_type '{}': expected uint8 … float32", self.voxel_type))
+    }
+
+    /// The physical value range.
+    pub fn value_range(&self) -> [f64; 2] {
+        let [a, b] = self.stored_range.map(|v| self.value_map.physical(v));
+        [a.min(b), a.max(b)]
+    }
+}
+
+/// An open brick store.
+pub struct Store {
+    path: PathBuf,
+    meta: StoreMeta,
+    voxel_type: VoxelType,
+    levels: Vec<Array<FilesystemStore>>,
+    shard_indexes: Vec<ArrayShardedReadableExtCache>,
+    stats: BlockStats,
+}
+
+impl std::fmt::Debug for Store {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Store")
+            .field("path", &self.path)
+            .field("meta", &self.meta)
+            .finish_non_exhaustive()
+    }
+}
+
+/// A [`Error::Field`] about the store at `path`.
+fn store_error(path: &Path, field: &str, message: impl Into<String>) -> Error {
+    Error::Field {
+        path: path.to_owned(),
+        field: field.to_owned(),
+        message: message.into(),
+    }
+}
+
+impl Store {
+    /// Opens a complete store, loading its metadata and block statistics.
+    pub fn open(path: &Path) -> Result<Store, Error> {
+        let root = path.join("zarr.json");
+        if !root.is_file() {
+            let partial = path
+                .file_name()
+                .is_some_and(|n| n.to_string_lossy().contains(".partial-"));
+            return Err(store_error(
+                path,
+                "zarr.json",
+                if partial {
+                    "missing: this is the temporary folder of an ingest that did not finish; expected a complete store (ingest again)"
+                } else {
+                    "missing: expected a voxserve brick store (made by `voxserve ingest`)"
+                },
+            ));
+        }
+        let text = std::fs::read_to_string(&root).map_err(|source| Error::Io {
+            path: root.clone(),
+            source,
+        })?;
+        let json: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| store_error(&root, "json", format!("{e}: expected JSON")))?;
+        let meta_json = json.pointer("/attributes/voxserve").ok_or_else(|| {
+            store_error(
+                &root,
+                "attributes.voxserve",
+                "missing: expected a voxserve brick store",
+            )
+        })?;
+        let meta: StoreMeta = serde_json::from_value(meta_json.clone())
+            .map_err(|e| store_error(&root, "attributes.voxserve", format!("{e}")))?;
+        if meta.format_version != FORMAT_VERSION {
+            return Err(store_error(
+                &root,
+                "attributes.voxserve.format_version",
+                format!("{}: expected {FORMAT_VERSION}", meta.format_version),
+            ));
+        }
+        if !meta.complete {
+            return Err(store_error(
+                &root,
+                "attributes.voxserve.complete",
+                "false: the ingest did not finish",
+            ));
+        }
+        let voxel_type = meta
+            .voxel_type()
+            .map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
+        let storage = Arc::new(
+            FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?,
+        );
+        let mut levels = Vec::with_capacity(LEVELS);
+        let mut shard_indexes = Vec::with_capacity(LEVELS);
+        for level in 0..LEVELS {
+            let array = Array::open(storage.clone(), &format!("/{level}")).map_err(|e| {
+                store_error(&path.join(level.to_string()), "zarr.json", format!("{e}"))
+            })?;
+            shard_indexes.push(ArrayShardedReadableExtCache::new(&array));
+            levels.push(array);
+        }
+        let stats = ingest::read_stats(&storage, path, &meta)?;
+        Ok(Store {
+            path: path.to_owned(),
+            meta,
+            voxel_type,
+            levels,
+            shard_indexes,
+            stats,
+        })
+    }
+
+    /// The store's folder.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The root metadata.
+    pub fn meta(&self) -> &StoreMeta {
+        &self.meta
+    }
+
+    /// The voxel type.
+    pub fn voxel_type(&self) -> VoxelType {
+        self.voxel_type
+    }
+
+    /// Per-block statistics.
+    pub fn stats(&self) -> &BlockStats {
+        &self.stats
+    }
+
+    /// Inner chunks along x, y, z at `level`.
+    pub fn chunk_grid(&self, level: usize) -> [u32; 3] {
+        level_dims(self.meta.dims, level).map(|n| n.div_ceil(BLOCK))
+    }
+
+    /// The shard file that holds inner chunk `chunk` (x, y, z) of `level`.
+    pub fn shard_path(&self, level: usize, chunk: [u32; 3]) -> PathBuf {
+        let per_shard = SHARD / BLOCK;
+        let [x, y, z] = chunk.map(|c| c / per_shard);
+        self.path.join(format!("{level}/c/{z}/{y}/{x}"))
+    }
+
+    /// The decoded 16³ inner chunk `chunk` (x, y, z) of `level`; voxels beyond the
+    /// volume's edge hold 0.
+    pub fn read_chunk(&self, level: usize, chunk: [u32; 3]) -> Result<VoxelData, Error> {
+        let grid = self.chunk_grid(level.min(LEVELS - 1));
+        if level >= LEVELS || chunk.iter().zip(grid).any(|(&c, g)| c >= g) {
+            return Err(store_error(
+                &self.path,
+                "chunk",
+                format!(
+                    "level {level} chunk {chunk:?}: expected a level below {LEVELS} and a chunk within {grid:?}"
+                ),
+            ));
+        }
+        let [x, y, z] = chunk.map(u64::from);
+        let bytes: ArrayBytes<'static> = self.levels[level]
+            .retrieve_subchunk_opt(
+                &self.shard_indexes[level],
+                &[z, y, x],
+                &CodecOptions::default(),
+            )
+            .map_err(|e| self.read_error(level, chunk, e))?;
+        let raw = bytes
+            .into_fixed()
+            .map_err(|e| store_error(&self.shard_path(level, chunk), "chunk", format!("{e}")))?;
+        Ok(VoxelData::from_bytes(self.voxel_type, &raw, false))
+    }
+
+    /// Block `block` (x, y, z in the block grid) at `level`: (16 / 2^l)³ voxels,
+    /// the matching sub-cube of the level's inner chunk.
+    pub fn read_block(&self, level: usize, block: [u32; 3]) -> Result<VoxelData, Error> {
+        let chunk = block.map(|b| b >> level);
+        let data = self.read_chunk(level, chunk)?;
+        Ok(sub_cube(&data, block, level))
+    }
+
+    /// Whether `path` holds a brick store (its root metadata names one).
+    pub fn is_store(path: &Path) -> bool {
+        std::fs::read_to_string(path.join("zarr.json")).is_ok_and(|t| t.contains("\"voxserve\""))
+    }
+
+    /// A whole level in memory as a [`Volume`](crate::Volume) (for data that fits;
+    /// refused over [`crate::ingest::MAX_LOAD_BYTES`]).
+    pub fn load_level(&self, level: usize) -> Result<crate::Volume, Error> {
+        let dims = level_dims(self.meta.dims, level.min(LEVELS - 1));
+        let bytes =
+            dims.iter().map(|&d| u64::from(d)).product::<u64>() * self.voxel_type.size() as u64;
+        if level >= LEVELS || bytes > crate::ingest::MAX_LOAD_BYTES {
+            return Err(store_error(
+                &self.path,
+                "level",
+                format!(
+                    "level {level} ({bytes} bytes): expected a level below {LEVELS} of at most {} bytes",
+                    crate::ingest::MAX_LOAD_BYTES
+                ),
+            ));
+        }
+        let whole = zarrs::array::ArraySubset::new_with_shape(
+            [dims[2], dims[1], dims[0]].map(u64::from).to_vec(),
+        );
+        let raw: ArrayBytes<'static> = self.levels[level]
+            .retrieve_array_subset_opt(&whole, &CodecOptions::default())
+            .map_err(|e| self.read_error(level, [0; 3], e))?;
+        let raw = raw
+            .into_fixed()
+            .map_err(|e| store_error(&self.path, "level", format!("{e}")))?;
+        let voxels = VoxelData::from_bytes(self.voxel_type, &raw, false);
+        let factor = f64::from(1u32 << level);
+        let spacing = self.meta.spacing.map(|s| (s * factor) as f32);
+        let mut volume = crate::Volume::new(
+            self.meta.name.clone(),
+            dims,
+            spacing,
+            voxels,
+            self.meta.value_map,
+        )?;
+        // The first voxel of level l is the centre of a 2^l box.
+        let d = self.meta.direction;
+        let shift = (factor - 1.0) / 2.0;
+        volume.origin = std::array::from_fn(|i| {
+            (self.meta.origin[i]
+                + (0..3)
+                    .map(|a| shift * self.meta.spacing[a] * d[a][i])
+                    .sum::<f64>()) as f32
+        });
+        volume.direction = d.map(|c| c.map(|x| x as f32));
+        volume.unit = self.meta.unit.clone();
+        volume.modality = self.meta.modality.clone();
+        Ok(volume)
+    }
+
+    fn read_error(&self, level: usize, chunk: [u32; 3], e: ArrayError) -> Error {
+        let shard = self.shard_path(level, chunk);
+        match e {
+            ArrayError::CodecError(codec) => Error::Corrupt {
+                path: shard,
+                codec: "zarr shard".into(),
+                detail: format!("inner chunk {chunk:?} of level {level}: {codec}"),
+            },
+            other => store_error(
+                &shard,
+                "shard",
+                format!("inner chunk {chunk:?} of level {level}: {other}"),
+            ),
+        }
+    }
+}
+
+/// The (16 / 2^l)³ sub-cube of a 16³ level-l chunk that is block `block`.
+pub fn sub_cube(chunk: &VoxelData, block: [u32; 3], level: usize) -> VoxelData {
+    let edge = (BLOCK >> level) as usize;
+    let n = BLOCK as usize;
+    let offset = block.map(|b| (b as usize & ((1 << level) - 1)) * edge);
+    let pick = |z: usize, y: usize| ((offset[2] + z) * n + offset[1] + y) * n + offset[0];
+    crate::volume::with_voxels!(chunk, v => {
+        let mut out = Vec::with_capacity(edge * edge * edge);
+        for z in 0..edge {
+            for y in 0..edge {
+                let start = pick(z, y);
+                out.extend_from_slice(&v[start..start + edge]);
+            }
+        }
+        VoxelData::from(out)
+    })
+}
