@@ -9,13 +9,22 @@
 //!   (Hounsfield units for CT).
 //! - [`phantom`]: the built-in dataset, a deterministic procedural CT head phantom
 //!   (a 3D Shepp–Logan head with Hounsfield-like values).
+//! - [`store`]: the brick store: OME-Zarr 0.5 written with `zarrs`, 16³ blocks at
+//!   five levels of detail, per-block statistics, crash-safe ingest.
+//! - [`cache`]: [`cache::BlockCache`], decoded chunks under a byte budget.
+//! - [`lod`]: transfer-function based level-of-detail selection under a budget.
+//! - [`packing`]: the atlas layout by level and the block index, for the GPU.
 //! - [`transfer_function`]: [`TransferFunction`] (control points in physical units),
 //!   its named presets and the 1D RGBA table that the GPU stages sample.
 //! - [`error`]: [`Error`], this crate's one error type.
 
+pub mod cache;
 pub mod error;
 pub mod ingest;
+pub mod lod;
+pub mod packing;
 pub mod phantom;
+pub mod store;
 pub mod transfer_function;
 pub mod volume;
 

@@ -1,0 +1,335 @@
+//! Transfer-function based level-of-detail selection (flat blocking, after Ljung,
+//! Lundström, Ynnerman, Museth 2004), from the per-block statistics alone.
+//!
+//! 1. **Empty blocks.** A block whose level-0 value range maps to zero opacity
+//!    under the transfer function contributes nothing: it gets no level and no
+//!    room on the GPU.
+//! 2. **Error of a level, in the transfer-function domain.** Showing level l
+//!    instead of level 0 replaces every voxel by a box average; the classified
+//!    values move. Their mean displacement is at least the earth mover's
+//!    distance between the level-0 and level-l value distributions measured
+//!    along the transfer function's curve: with `T(v)` the arc length of the
+//!    opacity-weighted RGBA curve (r·α, g·α, b·α, α) up to value `v`, it is
+//!    `∫ |F₀(v) − F_l(v)| dT(v)`, where F are the distributions' cumulative
+//!    histograms. With the stored histograms it is a sum over bins: cheap, and
+//!    zero wherever the transfer function is flat over the values at stake.
+//! 3. **Selection under a budget.** Every non-empty block starts at level 4 (one
+//!    voxel). A refinement l → l − 1 removes error (times the block's voxels) and
+//!    adds voxels; refinements are taken most error removed per added voxel
+//!    first, each block's in order, and the first one that would exceed the
+//!    budget ends the selection. Because the order does not depend on the budget,
+//!    a larger budget only takes more of the same list: it never coarsens a block.
+//!
+//! The list is built by sorting all refinements once by their gain (made
+//! non-increasing along each block's sequence, so the sort keeps the sequence),
+//! which is faster than a priority queue for tens of thousands of blocks.
+
+use rayon::prelude::*;
+
+use crate::TransferFunction;
+use crate::ValueMap;
+use crate::store::{BLOCK, BlockStats, HISTOGRAM_BINS, LEVELS};
+
+/// [`LodSelection::lod`] of a block that is not stored.
+pub const EMPTY: u8 = u8::MAX;
+
+/// Samples per histogram bin when measuring the transfer function's arc length.
+const ARC_SAMPLES: usize = 8;
+
+/// The level of every block and what it costs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LodSelection {
+    /// Per block (in [`BlockStats`] order): its level 0..=4, or [`EMPTY`].
+    pub lod: Vec<u8>,
+    /// Voxels of the selected blocks (a level-l block counts (16 / 2^l)³).
+    pub kept_voxels: u64,
+    /// The budget it was selected under.
+    pub budget_voxels: u64,
+    /// Voxels of the full-resolution volume.
+    pub full_voxels: u64,
+    /// Blocks with a level.
+    pub non_empty: usize,
+    /// True when even every non-empty block at level 4 exceeds the budget
+    /// (the selection then keeps them all at level 4).
+    pub over_budget: bool,
+    /// The estimated error left, summed over blocks (transfer-function units × voxels).
+    pub error: f64,
+}
+
+impl LodSelection {
+    /// Full-volume voxels per kept voxel: the paper's "data reduction".
+    pub fn reduction(&self) -> f64 {
+        self.full_voxels as f64 / self.kept_voxels.max(1) as f64
+    }
+
+    /// Blocks whose level differs from `old`'s: (block, old level, new level).
+    pub fn changes_from(&self, old: &LodSelection) -> Vec<(usize, u8, u8)> {
+        self.lod
+            .iter()
+            .zip(&old.lod)
+            .enumerate()
+            .filter(|(_, (new, old))| new != old)
+            .map(|(b, (&new, &old))| (b, old, new))
+            .collect()
+    }
+
+    /// How many blocks sit at each level.
+    pub fn level_counts(&self) -> [usize; LEVELS] {
+        let mut counts = [0; LEVELS];
+        for &l in &self.lod {
+            if (l as usize) < LEVELS {
+                counts[l as usize] += 1;
+            }
+        }
+        counts
+    }
+}
+
+/// Voxels of a block at `level`.
+pub fn block_voxels(level: usize) -> u64 {
+    u64::from(BLOCK >> level).pow(3)
+}
+
+/// Per histogram bin, the arc length of the opacity-weighted transfer function
+/// across the bin's physical values.
+fn bin_arc_lengths(
+    stats: &BlockStats,
+    value_map: ValueMap,
+    tf: &TransferFunction,
+) -> [f64; HISTOGRAM_BINS] {
+    let weighted = |v: f64| {
+        let [r, g, b, a] = tf.evaluate(v as f32).map(f64::from);
+        [r * a, g * a, b * a, a]
+    };
+    std::array::from_fn(|k| {
+        let [lo, hi] = stats.bin_edges(k).map(|v| value_map.physical(v));
+        let mut previous = weighted(lo);
+        let mut length = 0.0;
+        for s in 1..=ARC_SAMPLES {
+            let next = weighted(lo + (hi - lo) * s as f64 / ARC_SAMPLES as f64);
+            length += (0..4)
+                .map(|c| (next[c] - previous[c]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            previous = next;
+        }
+        length
+    })
+}
+
+/// The error of each level of block `b` (level 0 has none), times its voxels.
+fn block_errors(stats: &BlockStats, b: usize, arc: &[f64; HISTOGRAM_BINS]) -> [f64; LEVELS] {
+    let cumulative = |level: usize| {
+        let h = stats.histogram(level, b);
+        let total = h.iter().map(|&c| f64::from(c)).sum::<f64>().max(1.0);
+        let mut sum = 0.0;
+        let mut c = [0.0; HISTOGRAM_BINS];
+        for (k, &count) in h.iter().enumerate() {
+            sum += f64::from(count);
+            c[k] = sum / total;
+        }
+        (c, total)
+    };
+    let (c0, voxels) = cumulative(0);
+    let mut errors = [0.0; LEVELS];
+    for (level, e) in errors.iter_mut().enumerate().skip(1) {
+        let (cl, _) = cumulative(level);
+        *e = voxels
+            * (0..HISTOGRAM_BINS)
+                .map(|k| (c0[k] - cl[k]).abs() * arc[k])
+                .sum::<f64>();
+    }
+    errors
+}
+
+/// Selects every block's level under `budget_voxels`; see the module docs.
+pub fn select(
+    stats: &BlockStats,
+    value_map: ValueMap,
+    tf: &TransferFunction,
+    full_voxels: u64,
+    budget_voxels: u64,
+) -> LodSelection {
+    let blocks = stats.block_count();
+    let arc = bin_arc_lengths(stats, value_map, tf);
+    // Empty test and errors, block by block.
+    let per_block: Vec<Option<[f64; LEVELS]>> = (0..blocks)
+        .into_par_iter()
+        .map(|b| {
+            let [lo, hi] = stats.min_max(0, b);
+            if lo.is_nan() {
+                return None;
+            }
+            let (a, z) = (value_map.physical(lo), value_map.physical(hi));
+            let opacity = tf.max_opacity(a.min(z) as f32, a.max(z) as f32);
+            (opacity > 0.0).then(|| block_errors(stats, b, &arc))
+        })
+        .collect();
+
+    let mut lod: Vec<u8> = per_block
+        .iter()
+        .map(|e| {
+            if e.is_some() {
+                (LEVELS - 1) as u8
+            } else {
+                EMPTY
+            }
+        })
+        .collect();
+    let non_empty = lod.iter().filter(|&&l| l != EMPTY).count();
+    let mut kept = non_empty as u64 * block_voxels(LEVELS - 1);
+    let mut error: f64 = per_block.iter().flatten().map(|e| e[LEVELS - 1]).sum();
+
+    // Every refinement, keyed so an ascending sort gives descending gain, and for
+    // equal gains a block's coarser step first. Gains are made non-increasing
+    // along each block's steps, so the sort never puts a step before its predecessor.
+    let mut steps: Vec<u64> = per_block
+        .par_iter()
+        .enumerate()
+        .filter_map(|(b, e)| e.map(|e| (b, e)))
+        .flat_map_iter(|(b, e)| {
+            let mut cap = f32::INFINITY;
+            (0..LEVELS - 1).map(move |step| {
+                let from = LEVELS - 1 - step;
+                let removed = e[from] - e[from - 1];
+                let added = (block_voxels(from - 1) - block_voxels(from)) as f64;
+                let gain = ((removed / added).max(0.0) as f32).min(cap);
+                cap = gain;
+                // Positive f32s order like their bits; inverted for a descending sort.
+                (u64::from(!gain.to_bits()) << 32) | ((step as u64) << 28) | b as u64
+            })
+        })
+        .collect();
+    steps.par_sort_unstable();
+
+    let over_budget = kept > budget_voxels;
+    if !over_budget {
+        for key in steps {
+            let b = (key & 0x0fff_ffff) as usize;
+            let from = lod[b] as usize;
+            let added = block_voxels(from - 1) - block_voxels(from);
+            if kept + added > budget_voxels {
+                break;
+            }
+            kept += added;
+            if let Some(e) = per_block[b] {
+                error += e[from - 1] - e[from];
+            }
+            lod[b] = (from - 1) as u8;
+        }
+    }
+    LodSelection {
+        lod,
+        kept_voxels: kept,
+        budget_voxels,
+        full_voxels,
+        non_empty,
+        over_budget,
+        error,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Preset, TfPoint};
+
+    /// Four blocks: air (0), a sharp 0/200 edge, uniform 100, and a smooth ramp.
+    fn stats() -> BlockStats {
+        let mut s = BlockStats::new([4, 1, 1], [0.0, 256.0]);
+        let per_level = 4;
+        for b in 0..4 {
+            for level in 0..LEVELS {
+                let n = block_voxels(level) as u16;
+                let i = (level * per_level + b) * 2;
+                let h =
+                    &mut s.histogram[(level * per_level + b) * HISTOGRAM_BINS..][..HISTOGRAM_BINS];
+                let (lo, hi) = match b {
+                    0 => {
+                        h[0] = n;
+                        (0.0, 0.0)
+                    }
+                    1 if level == 0 => {
+                        h[0] = n / 2;
+                        h[25] = n / 2;
+                        (0.0, 200.0)
+                    }
+                    1 => {
+                        h[12] = n; // averaged across the edge: all 100
+                        (100.0, 100.0)
+                    }
+                    2 => {
+                        h[12] = n;
+                        (100.0, 100.0)
+                    }
+                    _ => {
+                        for k in 0..8 {
+                            h[8 + k] = n.div_ceil(8).min(n);
+                        }
+                        (64.0, 127.0)
+                    }
+                };
+                s.minmax[i] = lo;
+                s.minmax[i + 1] = hi;
+            }
+        }
+        s
+    }
+
+    fn bone() -> TransferFunction {
+        TransferFunction::new(vec![
+            TfPoint::new(150.0, [1.0; 3], 0.0),
+            TfPoint::new(160.0, [1.0; 3], 1.0),
+        ])
+        .expect("tf")
+    }
+
+    #[test]
+    fn blocks_transparent_over_their_range_are_empty() {
+        let sel = select(&stats(), ValueMap::IDENTITY, &bone(), 4 * 4096, u64::MAX);
+        // Air and the uniform 100 block and the 64..127 ramp are clear under a 150+ TF.
+        assert_eq!(sel.lod[0], EMPTY);
+        assert_eq!(sel.lod[2], EMPTY);
+        assert_eq!(sel.lod[3], EMPTY);
+        assert_eq!(
+            sel.lod[1], 0,
+            "the edge block refines fully with no budget limit"
+        );
+        assert_eq!(sel.non_empty, 1);
+    }
+
+    #[test]
+    fn the_budget_is_respected_and_larger_budgets_never_coarsen() {
+        let s = stats();
+        let tf = Preset::Generic.transfer_function([0.0, 255.0]);
+        let mut previous: Option<LodSelection> = None;
+        for budget in [4, 40, 300, 600, 4200, 9000, 20_000] {
+            let sel = select(&s, ValueMap::IDENTITY, &tf, 4 * 4096, budget);
+            assert!(
+                sel.kept_voxels <= budget || sel.over_budget,
+                "{budget}: {sel:?}"
+            );
+            if let Some(p) = &previous {
+                for (b, (&new, &old)) in sel.lod.iter().zip(&p.lod).enumerate() {
+                    if new != EMPTY {
+                        assert!(
+                            new <= old,
+                            "budget {budget}: block {b} went from level {old} to {new}"
+                        );
+                    }
+                }
+            }
+            previous = Some(sel);
+        }
+    }
+
+    #[test]
+    fn the_block_whose_classification_changes_most_refines_first() {
+        let s = stats();
+        let tf = Preset::Generic.transfer_function([0.0, 255.0]);
+        // Room for one step beyond level 4 everywhere, then a little more.
+        let sel = select(&s, ValueMap::IDENTITY, &tf, 4 * 4096, 3 + 4 * 7 + 56);
+        // The sharp edge loses most when averaged; the uniform block loses nothing.
+        assert!(sel.lod[1] < sel.lod[2], "{:?}", sel.lod);
+    }
+}
