@@ -39,6 +39,9 @@ pub enum Command {
     Render(RenderArgs),
     /// Read a volume file or DICOM folder and print what it holds.
     Info(InfoArgs),
+    /// Write a volume file or DICOM folder as a brick store (OME-Zarr, 16³ blocks
+    /// at every level of detail), slab by slab in bounded memory.
+    Ingest(IngestArgs),
     /// Measure phantom generation, frame rendering and slab reading; prints JSON lines.
     Bench(BenchArgs),
 }
@@ -94,6 +97,24 @@ impl InputArgs {
             },
         }
     }
+}
+
+/// `voxserve ingest`.
+#[derive(Debug, Args)]
+pub struct IngestArgs {
+    /// A volume file (raw, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd, .dcm) or a folder of DICOM files.
+    pub input: PathBuf,
+    /// The store to write (a folder; written under a temporary name and renamed when complete).
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Replace the store if it exists (the old one stays until the new one is complete).
+    #[arg(long)]
+    pub force: bool,
+    /// zstd compression level, 1 (fast) to 19 (small).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(i32).range(1..=19))]
+    pub zstd_level: i32,
+    #[command(flatten)]
+    pub input_options: InputArgs,
 }
 
 /// `voxserve info`.
@@ -180,6 +201,26 @@ pub struct RenderArgs {
 /// `voxserve bench`.
 #[derive(Debug, Args)]
 pub struct BenchArgs {
+    /// What to measure.
+    #[command(subcommand)]
+    pub what: BenchCommand,
+}
+
+/// The benchmarks.
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Phantom generation, and frame rendering on the GPU (and the CPU twin with --cpu).
+    Render(BenchRenderArgs),
+    /// Reading a generated raw volume slab by slab: MB/s and peak memory.
+    Read(BenchReadArgs),
+    /// The brick store: ingest MB/s and peak memory, random block reads (cold,
+    /// warm, cached), LOD selection time and the reduction reached.
+    Blocks(BenchBlocksArgs),
+}
+
+/// `voxserve bench render`.
+#[derive(Debug, Args)]
+pub struct BenchRenderArgs {
     /// Image edges to render, in pixels (square images), comma separated.
     #[arg(long, value_delimiter = ',', default_values_t = [256u32, 512, 1024],
           value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
@@ -190,12 +231,34 @@ pub struct BenchArgs {
     /// Also time the CPU twin (slow).
     #[arg(long)]
     pub cpu: bool,
-    /// Instead of rendering: write a generated raw volume of this many GiB to a
-    /// temporary file and read it back slab by slab, reporting MB/s and peak memory.
-    #[arg(long, value_name = "GIB", value_parser = finite_in(0.01, 1024.0))]
-    pub read_gib: Option<f32>,
     #[command(flatten)]
     pub data: DataArgs,
+}
+
+/// `voxserve bench read`.
+#[derive(Debug, Args)]
+pub struct BenchReadArgs {
+    /// Size of the generated volume, GiB.
+    #[arg(long, default_value_t = 2.0, value_parser = finite_in(0.01, 1024.0))]
+    pub gib: f32,
+}
+
+/// `voxserve bench blocks`.
+#[derive(Debug, Args)]
+pub struct BenchBlocksArgs {
+    /// Size of the generated 16-bit CT-like volume to ingest, GiB.
+    #[arg(long, default_value_t = 2.0, value_parser = finite_in(0.01, 1024.0))]
+    pub gib: f32,
+    /// Random block reads per measurement.
+    #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
+    pub reads: u32,
+    /// Threads reading blocks.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub threads: u32,
+    /// Where the real datasets are (the engine and CT head are ingested and
+    /// selected on when present).
+    #[arg(long, default_value = "../shared/data")]
+    pub data: PathBuf,
 }
 
 /// A clap value parser for a finite number in `lo..=hi`.

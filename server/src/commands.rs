@@ -7,16 +7,16 @@ use std::time::Instant;
 use anyhow::Context;
 use blocks::ingest::dicom::FolderScan;
 use blocks::ingest::{self, VolumeSource};
-use shaders::{Camera, FrameRequest, GpuContext, Renderer, Shading};
+use shaders::{Camera, FrameRequest, GpuContext, Renderer};
 use tokio::net::TcpListener;
 
-use crate::cli::{BenchArgs, DataArgs, InfoArgs, RenderArgs, ServeArgs};
+use crate::cli::{DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs};
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
 
 /// The adapter features the CPU twin assumes: 16-bit volumes in `r16unorm`
 /// textures, as on every Vulkan, Metal and DX12 adapter voxserve has met.
-const CPU_TWIN_FEATURES: shaders::wgpu::Features =
+pub const CPU_TWIN_FEATURES: shaders::wgpu::Features =
     shaders::wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
 
 /// Loads the dataset named on the command line: the phantom, or a volume file
@@ -50,7 +50,7 @@ pub fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
 }
 
 /// Writes a line to standard output (the command's result, not a log line).
-fn say(line: &str) -> anyhow::Result<()> {
+pub fn say(line: &str) -> anyhow::Result<()> {
     let mut out = std::io::stdout().lock();
     writeln!(out, "{line}")?;
     out.flush()?;
@@ -136,110 +136,12 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
     ))
 }
 
-/// `voxserve bench`: JSON lines with the settings that produced them.
-pub fn bench(args: &BenchArgs) -> anyhow::Result<()> {
-    if let Some(gib) = args.read_gib {
-        return bench_read(gib);
-    }
-    let size = args.data.phantom_size;
-    let mut generation_ms = Vec::new();
-    let mut dataset = None;
-    for _ in 0..3 {
-        let start = Instant::now();
-        dataset = Some(Dataset::phantom(size)?);
-        generation_ms.push(start.elapsed().as_secs_f64() * 1e3);
-    }
-    let Some(dataset) = dataset else {
-        anyhow::bail!("the phantom was never generated");
-    };
-    let threads = std::thread::available_parallelism().map_or(1, usize::from);
-    say(&serde_json::json!({
-        "bench": "phantom",
-        "size": size,
-        "voxels": dataset.volume.voxel_count(),
-        "threads": threads,
-        "runs": generation_ms.len(),
-        "ms_min": min(&generation_ms),
-        "ms_mean": mean(&generation_ms),
-    })
-    .to_string())?;
-
-    let gpu = GpuContext::new()?;
-    let info = gpu.info.clone();
-    let mut renderer = Renderer::new(gpu, &dataset.volume)?;
-    let preset = dataset.default_preset();
-    let texel_format = format!("{:?}", renderer.volume_texture().format);
-    for &edge in &args.sizes {
-        for shading in Shading::ALL {
-            let request = FrameRequest {
-                camera: Camera {
-                    azimuth_deg: 30.0,
-                    elevation_deg: 15.0,
-                    ..Camera::default()
-                },
-                shading,
-                ..FrameRequest::new(
-                    edge,
-                    edge,
-                    preset.transfer_function(dataset.volume.value_range),
-                )
-            };
-            let mut times = Vec::new();
-            renderer.render(&request)?;
-            for _ in 0..args.frames {
-                let start = Instant::now();
-                renderer.render(&request)?;
-                times.push(start.elapsed().as_secs_f64() * 1e3);
-            }
-            let mut line = serde_json::json!({
-                "bench": "render",
-                "renderer": "gpu",
-                "adapter": info.name,
-                "backend": info.backend.to_string(),
-                "device_type": format!("{:?}", info.device_type),
-                "dataset": dataset.id,
-                "dims": dataset.volume.dims,
-                "texel_format": texel_format,
-                "preset": preset.name(),
-                "shading": shading.name(),
-                "step_voxels": request.step_voxels,
-                "width": edge,
-                "height": edge,
-                "frames": times.len(),
-                "ms_min": min(&times),
-                "ms_mean": mean(&times),
-                "mpix_per_s": f64::from(edge * edge) / 1e3 / mean(&times),
-            });
-            say(&line.to_string())?;
-            if args.cpu {
-                let start = Instant::now();
-                shaders::cpu::render(&dataset.volume, &request, CPU_TWIN_FEATURES)?;
-                let ms = start.elapsed().as_secs_f64() * 1e3;
-                line["renderer"] = "cpu-twin".into();
-                line["adapter"] = serde_json::Value::Null;
-                line["threads"] = threads.into();
-                line["frames"] = 1.into();
-                line["ms_min"] = ms.into();
-                line["ms_mean"] = ms.into();
-                line["mpix_per_s"] = (f64::from(edge * edge) / 1e3 / ms).into();
-                say(&line.to_string())?;
-            }
-        }
-    }
-    Ok(())
-}
-
-fn min(v: &[f64]) -> f64 {
-    v.iter().copied().fold(f64::INFINITY, f64::min)
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len().max(1) as f64
-}
-
 /// `voxserve info`: what a file or DICOM folder holds, and its value statistics
 /// (a full read, slab by slab).
 pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
+    if blocks::store::Store::is_store(&args.path) {
+        return store_info(args);
+    }
     let options = args.input.open_options();
     let mut series = None;
     let mut source: Box<dyn VolumeSource> = if args.path.is_dir() {
@@ -350,6 +252,120 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
     say(&lines.join("\n"))
 }
 
+/// `voxserve ingest`: a brick store from a volume file or DICOM folder.
+pub fn ingest(args: &IngestArgs) -> anyhow::Result<()> {
+    let mut source = ingest::open(&args.input, &args.input_options.open_options())?;
+    let nz = u64::from(source.info().dims[2]);
+    let options = blocks::store::IngestOptions {
+        overwrite: args.force,
+        zstd_level: args.zstd_level,
+        abort_after_slabs: std::env::var("VOXSERVE_FAULT_ABORT_AFTER_SLABS")
+            .ok()
+            .and_then(|v| v.parse().ok()),
+    };
+    let bar = progress_bar(nz, "value range");
+    let summary = blocks::store::ingest(source.as_mut(), &args.out, &options, &mut |p| match p {
+        blocks::store::IngestProgress::Scanning(z, _) => bar.set_position(u64::from(z)),
+        blocks::store::IngestProgress::Writing(z, _) => {
+            if bar.message() != "writing" {
+                bar.set_message("writing");
+            }
+            bar.set_position(u64::from(z));
+        }
+    })?;
+    bar.finish_and_clear();
+    let [x, y, z] = summary.dims;
+    say(&format!(
+        "wrote {}: {x} × {y} × {z} {} voxels, {} blocks of 16³ ({} uniform) at 5 levels; \
+         {:.1} MB of voxels in {:.1} MB (compression {:.2}:1); {:.1} s, {:.0} MB/s",
+        args.out.display(),
+        summary.voxel_type.name(),
+        summary.blocks,
+        summary.uniform_blocks,
+        summary.source_bytes as f64 / 1e6,
+        summary.store_bytes as f64 / 1e6,
+        summary.compression_ratio(),
+        summary.seconds,
+        summary.mb_per_s(),
+    ))
+}
+
+/// `voxserve info STORE`: the store's metadata and block statistics, no voxels read.
+fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
+    let store = blocks::store::Store::open(&args.path)?;
+    let m = store.meta();
+    let stats = store.stats();
+    let uniform = (0..stats.block_count())
+        .filter(|&b| {
+            let [lo, hi] = stats.min_max(0, b);
+            lo == hi
+        })
+        .count();
+    let bytes = blocks::store::ingest::folder_bytes(&args.path);
+    let source_bytes =
+        m.dims.iter().map(|&d| f64::from(d)).product::<f64>() * store.voxel_type().size() as f64;
+    if args.json {
+        return say(&serde_json::to_string_pretty(&serde_json::json!({
+            "path": args.path,
+            "format": "voxserve brick store (OME-Zarr 0.5)",
+            "meta": m,
+            "uniform_blocks": uniform,
+            "store_bytes": bytes,
+            "value_range": m.value_range(),
+        }))?);
+    }
+    let v3 = |v: [f64; 3]| format!("({}, {}, {})", g(v[0]), g(v[1]), g(v[2]));
+    let [lo, hi] = m.value_range();
+    let mut lines = vec![
+        format!("path:        {}", args.path.display()),
+        "format:      voxserve brick store (OME-Zarr 0.5, 16³ blocks, 5 levels)".to_owned(),
+        format!("source:      {} ({})", m.source, m.source_format),
+        format!(
+            "dims:        {} × {} × {} voxels",
+            m.dims[0], m.dims[1], m.dims[2]
+        ),
+        format!("voxel type:  {}", m.voxel_type),
+        format!(
+            "spacing:     {} × {} × {} mm",
+            g(m.spacing[0]),
+            g(m.spacing[1]),
+            g(m.spacing[2])
+        ),
+        format!("origin:      {} mm (LPS)", v3(m.origin)),
+        format!(
+            "direction:   x {}  y {}  z {}",
+            v3(m.direction[0]),
+            v3(m.direction[1]),
+            v3(m.direction[2])
+        ),
+        format!(
+            "values:      {} … {}{}",
+            g(lo),
+            g(hi),
+            m.unit
+                .as_deref()
+                .map(|u| format!(" {u}"))
+                .unwrap_or_default()
+        ),
+        format!(
+            "blocks:      {} × {} × {} ({} uniform)",
+            m.blocks[0], m.blocks[1], m.blocks[2], uniform
+        ),
+        format!(
+            "size:        {:.1} MB on disk for {:.1} MB of voxels ({:.2}:1)",
+            bytes as f64 / 1e6,
+            source_bytes / 1e6,
+            source_bytes / bytes.max(1) as f64
+        ),
+        format!(
+            "modality:    {}",
+            m.modality.as_deref().unwrap_or("unknown")
+        ),
+    ];
+    lines.extend(m.notes.iter().map(|n| format!("note:        {n}")));
+    say(&lines.join("\n"))
+}
+
 /// A number in its shortest form with at most 6 significant digits.
 fn g(x: f64) -> String {
     let x = if x == 0.0 { 0.0 } else { x }; // no "-0"
@@ -362,7 +378,7 @@ fn g(x: f64) -> String {
 }
 
 /// A progress bar on standard error, hidden when it is not a terminal.
-fn progress_bar(len: u64, message: &'static str) -> indicatif::ProgressBar {
+pub fn progress_bar(len: u64, message: &'static str) -> indicatif::ProgressBar {
     let bar = indicatif::ProgressBar::new(len).with_message(message);
     if let Ok(style) =
         indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} {elapsed}")
@@ -370,102 +386,4 @@ fn progress_bar(len: u64, message: &'static str) -> indicatif::ProgressBar {
         bar.set_style(style);
     }
     bar
-}
-
-/// `voxserve bench --read-gib N`: writes a generated uint16 volume of N GiB to a
-/// temporary raw file, reads it back slab by slab through the raw reader, checks
-/// every voxel's value, and reports MB/s and the process's peak memory.
-fn bench_read(gib: f32) -> anyhow::Result<()> {
-    const NX: u32 = 2048;
-    const NY: u32 = 2048;
-    let slice_bytes = u64::from(NX) * u64::from(NY) * 2;
-    let nz = ((f64::from(gib) * f64::from(1u32 << 30)) / slice_bytes as f64)
-        .ceil()
-        .max(1.0) as u32;
-    let path = std::env::temp_dir().join(format!(
-        "voxserve-bench-{}_{NX}x{NY}x{nz}_uint16.raw",
-        std::process::id()
-    ));
-    // The file goes away however this function ends.
-    struct Remove(PathBuf);
-    impl Drop for Remove {
-        fn drop(&mut self) {
-            let _ = std::fs::remove_file(&self.0);
-        }
-    }
-    let _remove = Remove(path.clone());
-    // Voxel (x, y, z) holds (x + 3y + 7z) mod 65536: cheap to generate and to check.
-    let value =
-        |x: u32, y: u32, z: u32| (x.wrapping_add(3 * y).wrapping_add(7 * z) & 0xffff) as u16;
-    let start = Instant::now();
-    {
-        let file = std::fs::File::create(&path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        let mut out = std::io::BufWriter::with_capacity(8 << 20, file);
-        let mut slice = Vec::with_capacity(slice_bytes as usize);
-        for z in 0..nz {
-            slice.clear();
-            for y in 0..NY {
-                for x in 0..NX {
-                    slice.extend_from_slice(&value(x, y, z).to_le_bytes());
-                }
-            }
-            out.write_all(&slice)?;
-        }
-        out.flush()?;
-    }
-    let write_s = start.elapsed().as_secs_f64();
-    let total = slice_bytes * u64::from(nz);
-
-    let mut source = ingest::open(&path, &ingest::OpenOptions::default())?;
-    let depth = ingest::slab_depth(source.info());
-    let start = Instant::now();
-    let mut z = 0;
-    let mut mismatches = 0u64;
-    while z < nz {
-        let d = depth.min(nz - z);
-        let slab = source.read_slab(z, d)?;
-        let blocks::VoxelData::U16(v) = slab else {
-            anyhow::bail!(
-                "the raw reader returned {} voxels, expected uint16",
-                slab.voxel_type().name()
-            );
-        };
-        for (i, &got) in v.iter().enumerate() {
-            let i = i as u64;
-            let (x, y, zz) = (
-                (i % u64::from(NX)) as u32,
-                ((i / u64::from(NX)) % u64::from(NY)) as u32,
-                z + (i / (u64::from(NX) * u64::from(NY))) as u32,
-            );
-            mismatches += u64::from(got != value(x, y, zz));
-        }
-        z += d;
-    }
-    let read_s = start.elapsed().as_secs_f64();
-    if mismatches > 0 {
-        anyhow::bail!("{mismatches} voxels read back wrong");
-    }
-    let mb = total as f64 / 1e6;
-    say(&serde_json::json!({
-        "bench": "read",
-        "format": "raw",
-        "dims": [NX, NY, nz],
-        "voxel_type": "uint16",
-        "bytes": total,
-        "slab_bytes": u64::from(depth) * slice_bytes,
-        "write_mb_s": mb / write_s,
-        "read_mb_s": mb / read_s,
-        "verified_voxels": total / 2,
-        "peak_rss_mib": peak_rss_mib(),
-    })
-    .to_string())
-}
-
-/// The process's peak resident memory in MiB (Linux: VmHWM), if known.
-fn peak_rss_mib() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib / 1024.0)
 }

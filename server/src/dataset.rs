@@ -66,11 +66,15 @@ impl Dataset {
         })
     }
 
-    /// A volume file or DICOM folder read into memory, under an id made from its
-    /// name (`engine_256x256x128_uint8.raw` → `engine_256x256x128_uint8`).
+    /// A volume file, DICOM folder or brick store read into memory, under an id
+    /// made from its name (`engine_256x256x128_uint8.raw` → `engine_256x256x128_uint8`).
     pub fn load(path: &Path, options: &OpenOptions) -> Result<Dataset, blocks::Error> {
-        let mut source = ingest::open(path, options)?;
-        let volume = ingest::load(source.as_mut())?;
+        let volume = if blocks::store::Store::is_store(path) {
+            blocks::store::Store::open(path)?.load_level(0)?
+        } else {
+            let mut source = ingest::open(path, options)?;
+            ingest::load(source.as_mut())?
+        };
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())

@@ -13,9 +13,11 @@
 //! - [`encode`]: frame → PNG.
 //! - [`web`]: the static web client from `web/`, compiled into the binary.
 //! - [`cli`]: the command line's subcommands and flags.
-//! - [`commands`]: what `serve`, `render`, `info` and `bench` do.
+//! - [`commands`]: what `serve`, `render`, `info` and `ingest` do.
+//! - [`bench`]: `voxserve bench render | read | blocks`, JSON lines.
 
 pub mod app;
+pub mod bench;
 pub mod cli;
 pub mod commands;
 pub mod dataset;

@@ -4,7 +4,7 @@ use std::io::IsTerminal;
 use std::process::ExitCode;
 
 use clap::Parser;
-use server::cli::{Cli, Command};
+use server::cli::{BenchCommand, Cli, Command};
 use tracing_subscriber::EnvFilter;
 
 fn main() -> ExitCode {
@@ -23,7 +23,12 @@ fn main() -> ExitCode {
             .and_then(|rt| rt.block_on(server::commands::serve(args))),
         Command::Render(args) => server::commands::render(args),
         Command::Info(args) => server::commands::info(&args),
-        Command::Bench(args) => server::commands::bench(&args),
+        Command::Ingest(args) => server::commands::ingest(&args),
+        Command::Bench(args) => match &args.what {
+            BenchCommand::Render(a) => server::bench::render(a),
+            BenchCommand::Read(a) => server::bench::read(a),
+            BenchCommand::Blocks(a) => server::bench::blocks(a),
+        },
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

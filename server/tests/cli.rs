@@ -317,3 +317,69 @@ fn render_reads_a_volume_file() {
         "the nucleon is in the frame"
     );
 }
+
+#[test]
+fn ingest_writes_a_store_and_a_killed_ingest_leaves_none() {
+    let dir = tempfile::tempdir().expect("temp");
+    // A 40 × 30 × 70 uint16 raw volume, five slabs of 16 slices.
+    let raw = dir.path().join("scan_40x30x70_uint16.raw");
+    let bytes: Vec<u8> = (0..40 * 30 * 70u32)
+        .flat_map(|i| (((i * 7) % 4000) as u16).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).expect("raw");
+    let store = dir.path().join("scan.zarr");
+    let (raw_arg, store_arg) = (raw.to_str().expect("utf-8"), store.to_str().expect("utf-8"));
+
+    // Killed after two slabs (the process aborts as a crash or SIGKILL would).
+    let out = Command::new(VOXSERVE)
+        .args(["ingest", raw_arg, "--out", store_arg])
+        .env("VOXSERVE_FAULT_ABORT_AFTER_SLABS", "2")
+        .output()
+        .expect("run");
+    assert!(!out.status.success(), "the ingest was aborted");
+    assert!(!store.exists(), "no store at the destination");
+    let partial: Vec<_> = std::fs::read_dir(dir.path())
+        .expect("dir")
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().contains(".partial-"))
+        .collect();
+    assert_eq!(
+        partial.len(),
+        1,
+        "the crash left its temporary folder behind"
+    );
+    let err = blocks::store::Store::open(&partial[0].path())
+        .expect_err("an unfinished store does not open");
+    assert!(err.to_string().contains("did not finish"), "{err}");
+
+    // A complete ingest, then a refused overwrite, then --force.
+    let out = voxserve(&["ingest", raw_arg, "--out", store_arg]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let summary = text(&out.stdout);
+    assert!(
+        summary.contains("40 × 30 × 70 uint16 voxels")
+            && summary.contains("compression")
+            && summary.contains("MB/s"),
+        "{summary}"
+    );
+    let store_ok = blocks::store::Store::open(&store).expect("opens");
+    assert_eq!(store_ok.meta().dims, [40, 30, 70]);
+    let left = std::fs::read_dir(dir.path())
+        .expect("dir")
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().contains(".partial-"))
+        .count();
+    assert_eq!(
+        left, 0,
+        "the next ingest removed the dead one's temporary folder"
+    );
+    let again = voxserve(&["ingest", raw_arg, "--out", store_arg]);
+    assert!(!again.status.success());
+    assert!(
+        text(&again.stderr).contains("--force"),
+        "{}",
+        text(&again.stderr)
+    );
+    let forced = voxserve(&["ingest", raw_arg, "--out", store_arg, "--force"]);
+    assert!(forced.status.success(), "{}", text(&forced.stderr));
+}
