@@ -1,0 +1,206 @@
+//! The brick store on real scans: every block of every level of the engine and
+//! the CT head read back equal to the source (level 0) or to its 2^l box average
+//! (level l), and LOD selection on their statistics: within budget, monotone,
+//! never storing a block the transfer function makes transparent. The
+//! reductions reached at 9:1 and 35:1 budgets are printed.
+
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
+
+use std::path::Path;
+
+use blocks::ingest::raw::RawOptions;
+use blocks::ingest::{self, OpenOptions};
+use blocks::lod::{self, EMPTY};
+use blocks::store::{self, BLOCK, IngestOptions, LEVELS, Store, level_dims};
+use blocks::{TfPoint, TransferFunction, Volume};
+use voxserve_tests::data::shared_data;
+
+/// Reads a file into memory and ingests it into a store under `dir`.
+fn volume_and_store(path: &Path, spacing: [f64; 3], dir: &Path) -> (Volume, Store) {
+    let options = OpenOptions {
+        raw: RawOptions {
+            spacing: Some(spacing),
+            ..RawOptions::default()
+        },
+        ..OpenOptions::default()
+    };
+    let mut source = ingest::open(path, &options).unwrap_or_else(|e| panic!("{e}"));
+    let volume = ingest::load(source.as_mut()).expect("load");
+    let out = dir.join("store");
+    let summary = store::ingest(
+        source.as_mut(),
+        &out,
+        &IngestOptions::default(),
+        &mut |_| {},
+    )
+    .expect("ingest");
+    println!(
+        "{}: {} blocks ({} uniform), {:.2}:1 compression, {:.0} MB/s",
+        path.display(),
+        summary.blocks,
+        summary.uniform_blocks,
+        summary.compression_ratio(),
+        summary.mb_per_s()
+    );
+    (volume, Store::open(&out).expect("open"))
+}
+
+/// Level `level` of `v` by direct box averaging (rounded half away from zero).
+fn box_averages(v: &Volume, level: usize) -> Vec<f64> {
+    let f = 1u32 << level;
+    let [nx, ny, nz] = v.dims;
+    let [lx, ly, lz] = level_dims(v.dims, level);
+    let mut out = Vec::with_capacity((lx * ly * lz) as usize);
+    for z in 0..lz {
+        for y in 0..ly {
+            for x in 0..lx {
+                let (mut sum, mut n) = (0.0, 0.0);
+                for zz in z * f..((z + 1) * f).min(nz) {
+                    for yy in y * f..((y + 1) * f).min(ny) {
+                        for xx in x * f..((x + 1) * f).min(nx) {
+                            sum += v.voxels.get(v.index(xx, yy, zz));
+                            n += 1.0;
+                        }
+                    }
+                }
+                out.push((sum / n).round());
+            }
+        }
+    }
+    out
+}
+
+/// Every block at every level equals the expected voxels.
+fn assert_round_trip(volume: &Volume, store: &Store) {
+    for level in 0..LEVELS {
+        let expected = if level == 0 {
+            (0..volume.voxel_count())
+                .map(|i| volume.voxels.get(i))
+                .collect()
+        } else {
+            box_averages(volume, level)
+        };
+        let ld = level_dims(volume.dims, level);
+        let edge = BLOCK >> level;
+        let grid = store.meta().blocks;
+        for bz in 0..grid[2] {
+            for by in 0..grid[1] {
+                for bx in 0..grid[0] {
+                    let block = store.read_block(level, [bx, by, bz]).expect("block");
+                    for z in 0..edge {
+                        for y in 0..edge {
+                            for x in 0..edge {
+                                let p = [bx * edge + x, by * edge + y, bz * edge + z];
+                                if (0..3).any(|a| p[a] >= ld[a]) {
+                                    continue;
+                                }
+                                let want =
+                                    expected[((p[2] * ld[1] + p[1]) * ld[0] + p[0]) as usize];
+                                let got = block.get(((z * edge + y) * edge + x) as usize);
+                                assert_eq!(got, want, "level {level} voxel {p:?}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Budgets for 9:1 and 35:1 and a sweep: within budget, monotone, no empty block stored.
+fn check_selection(name: &str, store: &Store, tf: &TransferFunction) {
+    let meta = store.meta();
+    let full: u64 = meta.dims.iter().map(|&d| u64::from(d)).product();
+    let mut previous: Option<lod::LodSelection> = None;
+    for ratio in [200.0, 35.0, 20.0, 9.0, 4.0, 1.0] {
+        let budget = (full as f64 / ratio) as u64;
+        let start = std::time::Instant::now();
+        let sel = lod::select(store.stats(), meta.value_map, tf, full, budget);
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        assert!(
+            sel.kept_voxels <= budget || sel.over_budget,
+            "{name} {ratio}:1"
+        );
+        for (b, &l) in sel.lod.iter().enumerate() {
+            if l != EMPTY {
+                let [lo, hi] = store
+                    .stats()
+                    .min_max(0, b)
+                    .map(|v| meta.value_map.physical(v) as f32);
+                assert!(
+                    tf.max_opacity(lo, hi) > 0.0,
+                    "{name}: block {b} stored but transparent"
+                );
+            }
+        }
+        if let Some(p) = &previous {
+            for (b, (&new, &old)) in sel.lod.iter().zip(&p.lod).enumerate() {
+                assert!(
+                    new <= old,
+                    "{name}: budget {budget} coarsened block {b} from {old} to {new}"
+                );
+            }
+        }
+        println!(
+            "{name}: budget {ratio}:1 → reduction {:.1}:1, levels {:?}, {} of {} blocks non-empty, {ms:.2} ms",
+            sel.reduction(),
+            sel.level_counts(),
+            sel.non_empty,
+            sel.lod.len()
+        );
+        if ratio == 9.0 || ratio == 35.0 {
+            assert!(
+                sel.reduction() >= ratio * 0.99,
+                "{name}: {ratio}:1 budget gave {:.2}:1",
+                sel.reduction()
+            );
+        }
+        previous = Some(sel);
+    }
+}
+
+#[test]
+fn the_engine_round_trips_and_selects_levels() {
+    let Some(data) = shared_data("the_engine_round_trips_and_selects_levels") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp");
+    let (volume, store) = volume_and_store(
+        &data.join("raw/engine_256x256x128_uint8.raw"),
+        [1.0; 3],
+        dir.path(),
+    );
+    assert_round_trip(&volume, &store);
+    // The engine's metal is above ~40/255.
+    let tf = TransferFunction::new(vec![
+        TfPoint::new(40.0, [0.6, 0.6, 0.7], 0.0),
+        TfPoint::new(80.0, [0.8, 0.8, 0.9], 0.3),
+        TfPoint::new(255.0, [1.0, 1.0, 1.0], 0.9),
+    ])
+    .expect("tf");
+    check_selection("engine", &store, &tf);
+}
+
+#[test]
+fn the_ct_head_round_trips_and_selects_levels() {
+    let Some(data) = shared_data("the_ct_head_round_trips_and_selects_levels") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp");
+    let (volume, store) = volume_and_store(
+        &data.join("raw/cthead_256x256x113_uint16be.raw"),
+        [1.0, 1.0, 2.0],
+        dir.path(),
+    );
+    assert_round_trip(&volume, &store);
+    assert_eq!(store.meta().spacing, [1.0, 1.0, 2.0]);
+    // Skin around 600 raw units, bone above 1200.
+    let tf = TransferFunction::new(vec![
+        TfPoint::new(500.0, [0.9, 0.6, 0.5], 0.0),
+        TfPoint::new(700.0, [0.9, 0.6, 0.5], 0.15),
+        TfPoint::new(1100.0, [0.9, 0.6, 0.5], 0.05),
+        TfPoint::new(1300.0, [1.0, 1.0, 0.9], 0.9),
+    ])
+    .expect("tf");
+    check_selection("cthead", &store, &tf);
+}
