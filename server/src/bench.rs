@@ -130,22 +130,7 @@ pub fn read(args: &BenchReadArgs) -> anyhow::Result<()> {
     let value =
         |x: u32, y: u32, z: u32| (x.wrapping_add(3 * y).wrapping_add(7 * z) & 0xffff) as u16;
     let start = Instant::now();
-    {
-        let file = std::fs::File::create(&path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        let mut out = std::io::BufWriter::with_capacity(8 << 20, file);
-        let mut slice = Vec::with_capacity(slice_bytes as usize);
-        for z in 0..nz {
-            slice.clear();
-            for y in 0..NY {
-                for x in 0..NX {
-                    slice.extend_from_slice(&value(x, y, z).to_le_bytes());
-                }
-            }
-            out.write_all(&slice)?;
-        }
-        out.flush()?;
-    }
+    write_uint16_raw(&path, [NX, NY, nz], value)?;
     let write_s = start.elapsed().as_secs_f64();
     let total = slice_bytes * u64::from(nz);
 
@@ -239,39 +224,52 @@ fn write_ct_like(dir: &Path, gib: f32) -> anyhow::Result<PathBuf> {
         .ceil()
         .max(1.0) as u32;
     let path = dir.join(format!("ct_{N}x{N}x{nz}_uint16.raw"));
-    let file = std::fs::File::create(&path)
-        .with_context(|| format!("cannot create {}", path.display()))?;
-    let mut out = std::io::BufWriter::with_capacity(8 << 20, file);
-    let mut slice = Vec::with_capacity(slice_bytes as usize);
-    for z in 0..nz {
-        slice.clear();
+    write_uint16_raw(&path, [N, N, nz], |x, y, z| {
         let t = f64::from(z) / f64::from(nz.max(2) - 1);
         let (a, b) = (0.35 + 0.08 * (t * std::f64::consts::PI).sin(), 0.42);
-        for y in 0..N {
-            for x in 0..N {
-                let u = (f64::from(x) / f64::from(N) - 0.5) / a;
-                let v = (f64::from(y) / f64::from(N) - 0.5) / b;
-                let r = (u * u + v * v).sqrt();
-                let hu = if r < 0.88 {
-                    40.0
-                } else if r < 0.95 {
-                    1000.0
-                } else if r < 1.0 {
-                    0.0
-                } else {
-                    -1000.0
-                };
-                let h = (u64::from(x) << 40 ^ u64::from(y) << 20 ^ u64::from(z))
-                    .wrapping_mul(0x9e37_79b9_7f4a_7c15)
-                    >> 58;
-                let stored = (hu + 1024.0 + h as f64 - 32.0).clamp(0.0, 65535.0) as u16;
-                slice.extend_from_slice(&stored.to_le_bytes());
+        let u = (f64::from(x) / f64::from(N) - 0.5) / a;
+        let v = (f64::from(y) / f64::from(N) - 0.5) / b;
+        let r = (u * u + v * v).sqrt();
+        let hu = if r < 0.88 {
+            40.0
+        } else if r < 0.95 {
+            1000.0
+        } else if r < 1.0 {
+            0.0
+        } else {
+            -1000.0
+        };
+        let h = (u64::from(x) << 40 ^ u64::from(y) << 20 ^ u64::from(z))
+            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            >> 58;
+        (hu + 1024.0 + h as f64 - 32.0).clamp(0.0, 65535.0) as u16
+    })?;
+    Ok(path)
+}
+
+/// Writes a little-endian uint16 raw volume of `dims`, voxel (x, y, z) =
+/// `value(x, y, z)`, one slice in memory at a time.
+fn write_uint16_raw(
+    path: &Path,
+    dims: [u32; 3],
+    value: impl Fn(u32, u32, u32) -> u16,
+) -> anyhow::Result<()> {
+    let [nx, ny, nz] = dims;
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    let mut out = std::io::BufWriter::with_capacity(8 << 20, file);
+    let mut slice = Vec::with_capacity(nx as usize * ny as usize * 2);
+    for z in 0..nz {
+        slice.clear();
+        for y in 0..ny {
+            for x in 0..nx {
+                slice.extend_from_slice(&value(x, y, z).to_le_bytes());
             }
         }
         out.write_all(&slice)?;
     }
     out.flush()?;
-    Ok(path)
+    Ok(())
 }
 
 /// Random level-0 block positions in `grid` (a fixed-seed LCG, so runs compare).

@@ -193,7 +193,6 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
         });
         return say(&serde_json::to_string_pretty(&json)?);
     }
-    let v3 = |v: [f64; 3]| format!("({}, {}, {})", g(v[0]), g(v[1]), g(v[2]));
     let unit = info
         .unit
         .as_deref()
@@ -202,24 +201,15 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
     let mut lines = vec![
         format!("path:        {}", info.path.display()),
         format!("format:      {}", info.format),
-        format!(
-            "dims:        {} × {} × {} voxels",
-            info.dims[0], info.dims[1], info.dims[2]
-        ),
-        format!("voxel type:  {}", info.voxel_type.name()),
-        format!(
-            "spacing:     {} × {} × {} mm",
-            g(info.spacing[0]),
-            g(info.spacing[1]),
-            g(info.spacing[2])
-        ),
-        format!("origin:      {} mm (LPS)", v3(info.origin)),
-        format!(
-            "direction:   x {}  y {}  z {}",
-            v3(info.direction[0]),
-            v3(info.direction[1]),
-            v3(info.direction[2])
-        ),
+    ];
+    lines.extend(geometry_lines(
+        info.dims,
+        info.voxel_type.name(),
+        info.spacing,
+        info.origin,
+        info.direction,
+    ));
+    lines.extend([
         format!(
             "value map:   physical = stored × {} + {}",
             g(f64::from(info.value_map.slope)),
@@ -237,7 +227,7 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
             "modality:    {}",
             info.modality.as_deref().unwrap_or("unknown")
         ),
-    ];
+    ]);
     if stats.nans > 0 {
         lines.push(format!("NaN voxels:  {}", stats.nans));
     }
@@ -314,30 +304,20 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
             "value_range": m.value_range(),
         }))?);
     }
-    let v3 = |v: [f64; 3]| format!("({}, {}, {})", g(v[0]), g(v[1]), g(v[2]));
     let [lo, hi] = m.value_range();
     let mut lines = vec![
         format!("path:        {}", args.path.display()),
         "format:      voxserve brick store (OME-Zarr 0.5, 16³ blocks, 5 levels)".to_owned(),
         format!("source:      {} ({})", m.source, m.source_format),
-        format!(
-            "dims:        {} × {} × {} voxels",
-            m.dims[0], m.dims[1], m.dims[2]
-        ),
-        format!("voxel type:  {}", m.voxel_type),
-        format!(
-            "spacing:     {} × {} × {} mm",
-            g(m.spacing[0]),
-            g(m.spacing[1]),
-            g(m.spacing[2])
-        ),
-        format!("origin:      {} mm (LPS)", v3(m.origin)),
-        format!(
-            "direction:   x {}  y {}  z {}",
-            v3(m.direction[0]),
-            v3(m.direction[1]),
-            v3(m.direction[2])
-        ),
+    ];
+    lines.extend(geometry_lines(
+        m.dims,
+        &m.voxel_type,
+        m.spacing,
+        m.origin,
+        m.direction,
+    ));
+    lines.extend([
         format!(
             "values:      {} … {}{}",
             g(lo),
@@ -361,9 +341,40 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
             "modality:    {}",
             m.modality.as_deref().unwrap_or("unknown")
         ),
-    ];
+    ]);
     lines.extend(m.notes.iter().map(|n| format!("note:        {n}")));
     say(&lines.join("\n"))
+}
+
+/// The geometry lines of `info`'s text output.
+fn geometry_lines(
+    dims: [u32; 3],
+    voxel_type: &str,
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    direction: [[f64; 3]; 3],
+) -> Vec<String> {
+    let v3 = |v: [f64; 3]| format!("({}, {}, {})", g(v[0]), g(v[1]), g(v[2]));
+    vec![
+        format!(
+            "dims:        {} × {} × {} voxels",
+            dims[0], dims[1], dims[2]
+        ),
+        format!("voxel type:  {voxel_type}"),
+        format!(
+            "spacing:     {} × {} × {} mm",
+            g(spacing[0]),
+            g(spacing[1]),
+            g(spacing[2])
+        ),
+        format!("origin:      {} mm (LPS)", v3(origin)),
+        format!(
+            "direction:   x {}  y {}  z {}",
+            v3(direction[0]),
+            v3(direction[1]),
+            v3(direction[2])
+        ),
+    ]
 }
 
 /// A number in its shortest form with at most 6 significant digits.

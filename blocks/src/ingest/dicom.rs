@@ -714,17 +714,7 @@ impl VolumeSource for DicomSeries {
     }
 
     fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
-        let nz = self.info.dims[2];
-        if depth == 0 || z0.checked_add(depth).is_none_or(|end| end > nz) {
-            return Err(field(
-                &self.info.path,
-                "slab",
-                format!(
-                    "slices {z0}..{}: expected a range within 0..{nz}",
-                    u64::from(z0) + u64::from(depth)
-                ),
-            ));
-        }
+        super::check_slab(&self.info, z0, depth)?;
         let slices: Vec<VoxelData> = (z0..z0 + depth)
             .into_par_iter()
             .map(|z| self.slice(z as usize))

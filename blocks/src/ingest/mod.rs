@@ -189,6 +189,22 @@ pub fn open(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>,
     }
 }
 
+/// Checks that slices `z0 .. z0 + depth` are a non-empty range within the volume.
+pub fn check_slab(info: &VolumeInfo, z0: u32, depth: u32) -> Result<(), Error> {
+    let nz = info.dims[2];
+    if depth == 0 || z0.checked_add(depth).is_none_or(|end| end > nz) {
+        return Err(Error::Field {
+            path: info.path.clone(),
+            field: "slab".into(),
+            message: format!(
+                "slices {z0}..{}: expected a non-empty range within 0..{nz}",
+                u64::from(z0) + u64::from(depth)
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Checks dimensions from a header before anything is allocated for them:
 /// every axis at least 1, a slice at most [`MAX_SLICE_BYTES`], the volume at most
 /// [`MAX_VOXELS`].
@@ -326,17 +342,8 @@ impl VolumeSource for MemorySource {
     }
 
     fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
-        let [nx, ny, nz] = self.info.dims;
-        if depth == 0 || z0.checked_add(depth).is_none_or(|end| end > nz) {
-            return Err(Error::Field {
-                path: self.info.path.clone(),
-                field: "slab".into(),
-                message: format!(
-                    "slices {z0}..{}: expected a range within 0..{nz}",
-                    u64::from(z0) + u64::from(depth)
-                ),
-            });
-        }
+        check_slab(&self.info, z0, depth)?;
+        let [nx, ny, _] = self.info.dims;
         let slice = nx as usize * ny as usize;
         Ok(self
             .volume

@@ -315,17 +315,8 @@ impl VolumeSource for StreamSource {
     }
 
     fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
-        let [nx, ny, nz] = self.info.dims;
-        if depth == 0 || z0.checked_add(depth).is_none_or(|end| end > nz) {
-            return Err(field(
-                &self.info.path,
-                "slab",
-                format!(
-                    "slices {z0}..{}: expected a non-empty range within 0..{nz}",
-                    u64::from(z0) + u64::from(depth)
-                ),
-            ));
-        }
+        super::check_slab(&self.info, z0, depth)?;
+        let [nx, ny, _] = self.info.dims;
         let slice = u64::from(nx) * u64::from(ny) * self.layout.sample.size() as u64;
         let start = self.layout.skip + u64::from(z0) * slice;
         let len = usize::try_from(u64::from(depth) * slice).map_err(|_| {
