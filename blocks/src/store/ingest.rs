@@ -19,6 +19,8 @@ use zarrs::array::codec::api::CodecOptions;
 use zarrs::array::{Array, ArrayBuilder, ArrayBytes, ArraySubset, data_type};
 use zarrs::filesystem::FilesystemStore;
 use zarrs::group::GroupBuilder;
+use zarrs::storage::store::MemoryStore;
+use zarrs::storage::{ReadableStorageTraits, ReadableWritableStorageTraits};
 
 use super::pyramid::{self, LEVELS, level_dims};
 use super::stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
@@ -129,7 +131,8 @@ fn zarr_type(t: VoxelType) -> (zarrs::array::DataType, zarrs::array::FillValue) 
     }
 }
 
-/// Writes `source` as a brick store at `out`.
+/// Writes `source` as a brick store in the folder `out` (see the module docs of
+/// [`super`] for crash safety).
 pub fn ingest(
     source: &mut dyn VolumeSource,
     out: &Path,
@@ -137,13 +140,8 @@ pub fn ingest(
     progress: &mut dyn FnMut(IngestProgress),
 ) -> Result<IngestSummary, Error> {
     let start = Instant::now();
-    let info = source.info().clone();
     if out.exists() && !options.overwrite {
-        return Err(store_error(
-            out,
-            "output",
-            "exists: expected a new path (or --force to replace it)",
-        ));
+        return Err(store_error(out, "output", "exists: expected a new path (or --force to replace it)"));
     }
     let name = out
         .file_name()
@@ -155,22 +153,8 @@ pub fn ingest(
         _ => PathBuf::from("."),
     };
     if !parent.is_dir() {
-        return Err(store_error(
-            out,
-            "output",
-            format!(
-                "{} is not a folder: expected the store's parent folder to exist",
-                parent.display()
-            ),
-        ));
+        return Err(store_error(out, "output", format!("{} is not a folder: expected the store's parent folder to exist", parent.display())));
     }
-
-    // First pass: the stored-value range.
-    let nz = info.dims[2];
-    let stats = ingest::scan(source, |z| progress(IngestProgress::Scanning(z, nz)))?;
-    let range = stats.stored_range;
-    let scan_seconds = start.elapsed().as_secs_f64();
-
     remove_stale_partials(&parent, &name);
     let temp = TempDir {
         path: parent.join(format!(".{name}.partial-{}", std::process::id())),
@@ -180,9 +164,57 @@ pub fn ingest(
         std::fs::remove_dir_all(&temp.path).map_err(io_error(&temp.path))?;
     }
     std::fs::create_dir(&temp.path).map_err(io_error(&temp.path))?;
-    let storage =
-        Arc::new(FilesystemStore::new(&temp.path).map_err(|e| zarr_error(&temp.path, "store", e))?);
+    let storage = Arc::new(FilesystemStore::new(&temp.path).map_err(|e| zarr_error(&temp.path, "store", e))?);
+    let written = write_store(source, storage, &temp.path, options, progress)?;
 
+    // Into place: move an old store aside first, so the destination always holds
+    // a complete store (old or new).
+    if out.exists() {
+        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        std::fs::rename(out, &old).map_err(io_error(out))?;
+        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
+        std::fs::remove_dir_all(&old).map_err(io_error(&old))?;
+    } else {
+        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
+    }
+    let mut temp = temp;
+    temp.keep = true;
+    Ok(IngestSummary {
+        store_bytes: folder_bytes(out),
+        seconds: start.elapsed().as_secs_f64(),
+        ..written
+    })
+}
+
+/// Bricks `source` into a store held in memory (compressed as on disk), for
+/// volumes rendered without an ingest: the built-in phantom, files given to
+/// `render` and `serve`.
+pub fn ingest_in_memory(source: &mut dyn VolumeSource, options: &IngestOptions) -> Result<super::Store, Error> {
+    let name = source.info().name();
+    let path = PathBuf::from(format!("memory:{name}"));
+    let storage = Arc::new(MemoryStore::new());
+    write_store(source, storage.clone(), &path, options, &mut |_| {})?;
+    let readable: Arc<dyn ReadableStorageTraits> = storage;
+    super::Store::from_storage(readable, &path)
+}
+
+/// Writes every level, the statistics and the root metadata of `source` into
+/// `storage`; `path` names it in messages. The root metadata goes last.
+fn write_store(
+    source: &mut dyn VolumeSource,
+    storage: Arc<dyn ReadableWritableStorageTraits>,
+    path: &Path,
+    options: &IngestOptions,
+    progress: &mut dyn FnMut(IngestProgress),
+) -> Result<IngestSummary, Error> {
+    let start = Instant::now();
+    let info = source.info().clone();
+
+    // First pass: the stored-value range.
+    let nz = info.dims[2];
+    let stats = ingest::scan(source, |z| progress(IngestProgress::Scanning(z, nz)))?;
+    let range = stats.stored_range;
+    let scan_seconds = start.elapsed().as_secs_f64();
     let (zarr_dtype, fill) = zarr_type(info.voxel_type);
     let mut arrays = Vec::with_capacity(LEVELS);
     for level in 0..LEVELS {
@@ -197,14 +229,14 @@ pub fn ingest(
         .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(options.zstd_level, true))])
         .dimension_names(["z", "y", "x"].into())
         .build(storage.clone(), &format!("/{level}"))
-        .map_err(|e| zarr_error(&temp.path, "array", e))?;
+        .map_err(|e| zarr_error(path, "array", e))?;
         array
             .store_metadata()
-            .map_err(|e| zarr_error(&temp.path, "array metadata", e))?;
+            .map_err(|e| zarr_error(path, "array metadata", e))?;
         arrays.push(array);
     }
     let grid = info.dims.map(|n| n.div_ceil(BLOCK));
-    let (min_max, histogram) = stats_arrays(&storage, &temp.path, grid)?;
+    let (min_max, histogram) = stats_arrays(&storage, path, grid)?;
 
     // Reading and averaging run on this thread while a writer thread hands the
     // previous slab to zarrs: the two overlap, with at most one slab waiting.
@@ -214,7 +246,7 @@ pub fn ingest(
         histogram: &histogram,
         dims: info.dims,
         voxel_type: info.voxel_type,
-        path: &temp.path,
+        path: path,
         last_row: grid[2] - 1,
         abort_after_slabs: options.abort_after_slabs,
     };
@@ -251,7 +283,7 @@ pub fn ingest(
         drop(send);
         let written = written
             .join()
-            .map_err(|_| store_error(&temp.path, "writer", "the writer thread panicked"))?;
+            .map_err(|_| store_error(path, "writer", "the writer thread panicked"))?;
         produced.and(written).map(|()| uniform_blocks)
     })?;
 
@@ -282,31 +314,19 @@ pub fn ingest(
     attributes.insert("ome".into(), ome_multiscales(&meta));
     attributes.insert(
         "voxserve".into(),
-        serde_json::to_value(&meta).map_err(|e| zarr_error(&temp.path, "metadata", e))?,
+        serde_json::to_value(&meta).map_err(|e| zarr_error(path, "metadata", e))?,
     );
     GroupBuilder::new()
         .attributes(attributes)
         .build(storage.clone(), "/")
         .and_then(|g| g.store_metadata().map_err(Into::into))
-        .map_err(|e| zarr_error(&temp.path, "root metadata", e))?;
+        .map_err(|e| zarr_error(path, "root metadata", e))?;
 
-    // Into place: move an old store aside first, so the destination always holds
-    // a complete store (old or new).
-    if out.exists() {
-        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-        std::fs::rename(out, &old).map_err(io_error(out))?;
-        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
-        std::fs::remove_dir_all(&old).map_err(io_error(&old))?;
-    } else {
-        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
-    }
-    let mut temp = temp;
-    temp.keep = true;
     Ok(IngestSummary {
         dims: info.dims,
         voxel_type: info.voxel_type,
         source_bytes: info.total_bytes(),
-        store_bytes: folder_bytes(out),
+        store_bytes: 0,
         blocks: grid.iter().map(|&g| g as usize).product(),
         uniform_blocks,
         scan_seconds,
@@ -323,9 +343,9 @@ struct Slab {
 
 /// Writes slabs into the level arrays and the statistics arrays.
 struct SlabWriter<'a> {
-    arrays: &'a [Array<FilesystemStore>],
-    min_max: &'a Array<FilesystemStore>,
-    histogram: &'a Array<FilesystemStore>,
+    arrays: &'a [Array<dyn ReadableWritableStorageTraits>],
+    min_max: &'a Array<dyn ReadableWritableStorageTraits>,
+    histogram: &'a Array<dyn ReadableWritableStorageTraits>,
     dims: [u32; 3],
     voxel_type: VoxelType,
     path: &'a Path,
@@ -388,11 +408,13 @@ impl SlabWriter<'_> {
 }
 
 /// The two statistics arrays under `/voxserve`, one chunk per level and block row.
+type WritableArray = Array<dyn ReadableWritableStorageTraits>;
+
 fn stats_arrays(
-    storage: &Arc<FilesystemStore>,
+    storage: &Arc<dyn ReadableWritableStorageTraits>,
     path: &Path,
     grid: [u32; 3],
-) -> Result<(Array<FilesystemStore>, Array<FilesystemStore>), Error> {
+) -> Result<(WritableArray, WritableArray), Error> {
     GroupBuilder::new()
         .build(storage.clone(), "/voxserve")
         .and_then(|g| g.store_metadata().map_err(Into::into))
@@ -433,8 +455,8 @@ fn stats_arrays(
 
 /// Stores the statistics of block row `bz` (a one-row [`BlockStats`]).
 fn write_stats_row(
-    min_max: &Array<FilesystemStore>,
-    histogram: &Array<FilesystemStore>,
+    min_max: &WritableArray,
+    histogram: &WritableArray,
     row: &BlockStats,
     bz: u32,
     path: &Path,
@@ -460,7 +482,7 @@ fn write_stats_row(
 
 /// Reads the statistics arrays of a store into memory.
 pub(super) fn read_stats(
-    storage: &Arc<FilesystemStore>,
+    storage: &Arc<dyn ReadableStorageTraits>,
     path: &Path,
     meta: &StoreMeta,
 ) -> Result<BlockStats, Error> {
@@ -470,7 +492,7 @@ pub(super) fn read_stats(
     };
     let (min_max, histogram) = (open("block_min_max")?, open("block_histogram")?);
     let mut stats = BlockStats::new(meta.blocks, meta.stored_range);
-    let whole = |a: &Array<FilesystemStore>| ArraySubset::new_with_shape(a.shape().to_vec());
+    let whole = |a: &Array<dyn ReadableStorageTraits>| ArraySubset::new_with_shape(a.shape().to_vec());
     let read_error = |name: &str, e: zarrs::array::ArrayError| Error::Corrupt {
         path: path.join("voxserve").join(name),
         codec: "zarr array".into(),

@@ -42,8 +42,10 @@ use zarrs::array::{
     Array, ArrayBytes, ArrayError, ArrayShardedReadableExt, ArrayShardedReadableExtCache,
 };
 use zarrs::filesystem::FilesystemStore;
+use zarrs::group::Group;
+use zarrs::storage::ReadableStorageTraits;
 
-pub use ingest::{IngestOptions, IngestProgress, IngestSummary, ingest};
+pub use ingest::{IngestOptions, IngestProgress, IngestSummary, ingest, ingest_in_memory};
 pub use pyramid::{LEVELS, level_dims};
 pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
 
@@ -113,12 +115,13 @@ impl StoreMeta {
     }
 }
 
-/// An open brick store.
+/// An open brick store: on disk, or in memory (the phantom, files rendered
+/// without an ingest).
 pub struct Store {
     path: PathBuf,
     meta: StoreMeta,
     voxel_type: VoxelType,
-    levels: Vec<Array<FilesystemStore>>,
+    levels: Vec<Array<dyn ReadableStorageTraits>>,
     shard_indexes: Vec<ArrayShardedReadableExtCache>,
     stats: BlockStats,
 }
@@ -142,7 +145,7 @@ fn store_error(path: &Path, field: &str, message: impl Into<String>) -> Error {
 }
 
 impl Store {
-    /// Opens a complete store, loading its metadata and block statistics.
+    /// Opens a complete store on disk, loading its metadata and block statistics.
     pub fn open(path: &Path) -> Result<Store, Error> {
         let root = path.join("zarr.json");
         if !root.is_file() {
@@ -159,19 +162,18 @@ impl Store {
                 },
             ));
         }
-        let text = std::fs::read_to_string(&root).map_err(|source| Error::Io {
-            path: root.clone(),
-            source,
-        })?;
-        let json: serde_json::Value = serde_json::from_str(&text)
-            .map_err(|e| store_error(&root, "json", format!("{e}: expected JSON")))?;
-        let meta_json = json.pointer("/attributes/voxserve").ok_or_else(|| {
-            store_error(
-                &root,
-                "attributes.voxserve",
-                "missing: expected a voxserve brick store",
-            )
-        })?;
+        let storage = Arc::new(FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?);
+        Store::from_storage(storage, path)
+    }
+
+    /// Opens a complete store in any zarrs storage; `path` names it in messages.
+    pub fn from_storage(storage: Arc<dyn ReadableStorageTraits>, path: &Path) -> Result<Store, Error> {
+        let root = path.join("zarr.json");
+        let group = Group::open(storage.clone(), "/").map_err(|e| store_error(&root, "zarr.json", format!("{e}")))?;
+        let meta_json = group
+            .attributes()
+            .get("voxserve")
+            .ok_or_else(|| store_error(&root, "attributes.voxserve", "missing: expected a voxserve brick store"))?;
         let meta: StoreMeta = serde_json::from_value(meta_json.clone())
             .map_err(|e| store_error(&root, "attributes.voxserve", format!("{e}")))?;
         if meta.format_version != FORMAT_VERSION {
@@ -182,24 +184,14 @@ impl Store {
             ));
         }
         if !meta.complete {
-            return Err(store_error(
-                &root,
-                "attributes.voxserve.complete",
-                "false: the ingest did not finish",
-            ));
+            return Err(store_error(&root, "attributes.voxserve.complete", "false: the ingest did not finish"));
         }
-        let voxel_type = meta
-            .voxel_type()
-            .map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
-        let storage = Arc::new(
-            FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?,
-        );
+        let voxel_type = meta.voxel_type().map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
         let mut levels = Vec::with_capacity(LEVELS);
         let mut shard_indexes = Vec::with_capacity(LEVELS);
         for level in 0..LEVELS {
-            let array = Array::open(storage.clone(), &format!("/{level}")).map_err(|e| {
-                store_error(&path.join(level.to_string()), "zarr.json", format!("{e}"))
-            })?;
+            let array = Array::open(storage.clone(), &format!("/{level}"))
+                .map_err(|e| store_error(&path.join(level.to_string()), "zarr.json", format!("{e}")))?;
             shard_indexes.push(ArrayShardedReadableExtCache::new(&array));
             levels.push(array);
         }
@@ -281,7 +273,7 @@ impl Store {
         Ok(sub_cube(&data, block, level))
     }
 
-    /// Whether `path` holds a brick store (its root metadata names one).
+    /// Whether `path` is a folder holding a brick store (its root metadata names one).
     pub fn is_store(path: &Path) -> bool {
         std::fs::read_to_string(path.join("zarr.json")).is_ok_and(|t| t.contains("\"voxserve\""))
     }
