@@ -15,6 +15,9 @@ const canvas = document.getElementById('view');
 const context = canvas.getContext('2d');
 const presetSelect = document.getElementById('preset');
 const shadingSelect = document.getElementById('shading');
+const projectionSelect = document.getElementById('projection');
+const reductionSelect = document.getElementById('reduction');
+const clipBox = document.getElementById('clip');
 const errorBox = document.getElementById('error');
 const fidelity = document.getElementById('fidelity');
 
@@ -29,7 +32,8 @@ const fetcher = new FrameFetcher(
     context.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
     bitmap.close();
     fidelity.textContent =
-      `${info.width}×${info.height} · render ${info.renderMs.toFixed(0)} ms · ` +
+      `${info.width}×${info.height} · reduction ${info.reduction.toFixed(1)}:1 · ` +
+      `blocks per level ${info.levels} · render ${info.renderMs.toFixed(0)} ms · ` +
       `encode ${info.encodeMs.toFixed(0)} ms · round trip ${info.roundTripMs.toFixed(0)} ms`;
   },
   (message) => {
@@ -54,6 +58,40 @@ function frameSize(interacting) {
   };
 }
 
+// Clip sliders: [axis][0 = min, 1 = max], values 0..1000.
+const clipSliders = ['x', 'y', 'z'].map((axis) => {
+  const row = document.createElement('div');
+  row.className = 'clip-axis';
+  row.append(axis);
+  const pair = [0, 1000].map((value, i) => {
+    const slider = document.createElement('input');
+    slider.type = 'range';
+    slider.min = 0;
+    slider.max = 1000;
+    slider.value = value;
+    slider.title = `${axis} ${i === 0 ? 'from' : 'to'}`;
+    row.append(slider);
+    return slider;
+  });
+  clipBox.append(row);
+  return pair;
+});
+
+// The clip box parameter, or nothing when the whole volume shows. Keeps each
+// axis's min below its max.
+function clipParam() {
+  const lo = [];
+  const hi = [];
+  for (const [min, max] of clipSliders) {
+    const a = Math.min(Number(min.value), 999);
+    const b = Math.max(Number(max.value), a + 1);
+    lo.push(a / 1000);
+    hi.push(b / 1000);
+  }
+  const whole = lo.every((v) => v === 0) && hi.every((v) => v === 1);
+  return whole ? {} : { clip: [...lo, ...hi].join(',') };
+}
+
 function requestFrame(interacting) {
   if (!dataset) return;
   fetcher.request({
@@ -62,6 +100,9 @@ function requestFrame(interacting) {
     ...frameSize(interacting),
     preset: presetSelect.value,
     shading: shadingSelect.value,
+    proj: projectionSelect.value,
+    reduction: reductionSelect.value,
+    ...clipParam(),
   });
   clearTimeout(idleTimer);
   if (interacting) idleTimer = setTimeout(() => requestFrame(false), IDLE_MS);
@@ -89,7 +130,12 @@ async function start() {
 
   attachGestures(canvas, camera, requestFrame);
   presetSelect.addEventListener('change', () => requestFrame(false));
-  shadingSelect.addEventListener('change', () => requestFrame(false));
+  for (const select of [shadingSelect, projectionSelect, reductionSelect]) {
+    select.addEventListener('change', () => requestFrame(false));
+  }
+  for (const slider of clipSliders.flat()) {
+    slider.addEventListener('input', () => requestFrame(true));
+  }
   document.getElementById('reset').addEventListener('click', () => {
     camera.reset();
     requestFrame(false);

@@ -36,6 +36,8 @@ export class FrameFetcher {
           height: bitmap.height,
           renderMs: Number(response.headers.get('x-render-ms')),
           encodeMs: Number(response.headers.get('x-encode-ms')),
+          reduction: Number(response.headers.get('x-reduction')),
+          levels: response.headers.get('x-levels') || '',
           roundTripMs: performance.now() - started,
         });
       }

@@ -3,7 +3,7 @@
 //! | route | answer |
 //! |---|---|
 //! | `GET /` and other paths | the web client (`web/`) |
-//! | `GET /api/render?…` | a PNG of one frame; parameters in [`crate::frame_query`] |
+//! | `GET /api/render?…` | a PNG of one frame; parameters in [`crate::frame_query`]; headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4) |
 //! | `GET /api/datasets` | the datasets offered, as JSON |
 //! | `GET /healthz` | `{"status":"ok","adapter":…}` |
 
@@ -94,6 +94,16 @@ async fn render(
             (
                 header::HeaderName::from_static("x-encode-ms"),
                 timing(encode_ms),
+            ),
+            (
+                header::HeaderName::from_static("x-reduction"),
+                HeaderValue::from_str(&format!("{:.2}", rendered.stats.reduction))
+                    .unwrap_or(HeaderValue::from_static("0")),
+            ),
+            (
+                header::HeaderName::from_static("x-levels"),
+                HeaderValue::from_str(&format!("{:?}", rendered.stats.level_counts))
+                    .unwrap_or(HeaderValue::from_static("[]")),
             ),
         ],
         png,

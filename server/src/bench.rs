@@ -7,100 +7,171 @@ use std::time::Instant;
 
 use anyhow::Context;
 use blocks::ingest;
-use shaders::{Camera, FrameRequest, GpuContext, Renderer, Shading};
+use shaders::colour_difference::colour_difference;
+use shaders::{Camera, Frame, FrameRequest, GpuContext, ReferenceRenderer, Renderer};
 
 use crate::Dataset;
 use crate::cli::{BenchBlocksArgs, BenchReadArgs, BenchRenderArgs};
 use crate::commands::{CPU_TWIN_FEATURES, say};
+use crate::dataset::PHANTOM_ID;
+use crate::reference_data::{self, reference_dataset};
 
-/// `voxserve bench render`: phantom generation and frame times.
+/// `voxserve bench render`: for each dataset, the packed renderer at every
+/// image size and data reduction, with and without empty-block skipping, against
+/// the full-resolution reference renderer (time and colour difference).
 pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
-    let size = args.data.phantom_size;
-    let mut generation_ms = Vec::new();
-    let mut dataset = None;
-    for _ in 0..3 {
-        let start = Instant::now();
-        dataset = Some(Dataset::phantom(size)?);
-        generation_ms.push(start.elapsed().as_secs_f64() * 1e3);
-    }
-    let Some(dataset) = dataset else {
-        anyhow::bail!("the phantom was never generated");
-    };
-    let threads = std::thread::available_parallelism().map_or(1, usize::from);
-    say(&serde_json::json!({
-        "bench": "phantom",
-        "size": size,
-        "voxels": dataset.volume.voxel_count(),
-        "threads": threads,
-        "runs": generation_ms.len(),
-        "ms_min": min(&generation_ms),
-        "ms_mean": mean(&generation_ms),
-    })
-    .to_string())?;
-
     let gpu = GpuContext::new()?;
     let info = gpu.info.clone();
-    let mut renderer = Renderer::new(gpu, &dataset.volume)?;
-    let preset = dataset.default_preset();
-    let texel_format = format!("{:?}", renderer.volume_texture().format);
-    for &edge in &args.sizes {
-        for shading in Shading::ALL {
-            let request = FrameRequest {
-                camera: Camera {
-                    azimuth_deg: 30.0,
-                    elevation_deg: 15.0,
-                    ..Camera::default()
-                },
-                shading,
-                ..FrameRequest::new(
-                    edge,
-                    edge,
-                    preset.transfer_function(dataset.volume.value_range),
-                )
+    let threads = std::thread::available_parallelism().map_or(1, usize::from);
+    for name in &args.datasets {
+        let start = Instant::now();
+        let (dataset, tf) = if name == PHANTOM_ID {
+            let dataset = Dataset::phantom(args.data.phantom_size, args.data.cache_bytes())?;
+            let tf = dataset
+                .default_preset()
+                .transfer_function(dataset.value_range());
+            (dataset, tf)
+        } else {
+            let Some(reference) = reference_dataset(&args.data_dir, name) else {
+                anyhow::bail!(
+                    "--datasets: unknown dataset '{name}': expected {PHANTOM_ID} or one of {}",
+                    reference_data::NAMES.join(", ")
+                );
             };
-            let mut times = Vec::new();
-            renderer.render(&request)?;
-            for _ in 0..args.frames {
-                let start = Instant::now();
-                renderer.render(&request)?;
-                times.push(start.elapsed().as_secs_f64() * 1e3);
+            if !reference.path.exists() {
+                tracing::warn!("{} not found: skipping {name}", reference.path.display());
+                continue;
             }
-            let mut line = serde_json::json!({
-                "bench": "render",
-                "renderer": "gpu",
-                "adapter": info.name,
-                "backend": info.backend.to_string(),
-                "device_type": format!("{:?}", info.device_type),
-                "dataset": dataset.id,
-                "dims": dataset.volume.dims,
-                "texel_format": texel_format,
-                "preset": preset.name(),
-                "shading": shading.name(),
-                "step_voxels": request.step_voxels,
-                "width": edge,
-                "height": edge,
-                "frames": times.len(),
-                "ms_min": min(&times),
-                "ms_mean": mean(&times),
-                "mpix_per_s": f64::from(edge * edge) / 1e3 / mean(&times),
-            });
-            say(&line.to_string())?;
-            if args.cpu {
-                let start = Instant::now();
-                shaders::cpu::render(&dataset.volume, &request, CPU_TWIN_FEATURES)?;
-                let ms = start.elapsed().as_secs_f64() * 1e3;
-                line["renderer"] = "cpu-twin".into();
-                line["adapter"] = serde_json::Value::Null;
-                line["threads"] = threads.into();
-                line["frames"] = 1.into();
-                line["ms_min"] = ms.into();
-                line["ms_mean"] = ms.into();
-                line["mpix_per_s"] = (f64::from(edge * edge) / 1e3 / ms).into();
-                say(&line.to_string())?;
+            let dataset =
+                Dataset::load(&reference.path, &reference.options, args.data.cache_bytes())?;
+            (dataset, reference.transfer_function)
+        };
+        let bricked_ms = start.elapsed().as_secs_f64() * 1e3;
+        let volume = dataset.store.load_level(0)?;
+        let mut reference = ReferenceRenderer::new(gpu.clone(), &volume)?;
+        drop(volume);
+        let mut renderer = Renderer::new(
+            gpu.clone(),
+            dataset.cache.clone(),
+            args.data.gpu_budget_bytes(),
+        )?;
+        say(&serde_json::json!({
+            "bench": "dataset",
+            "dataset": name,
+            "dims": dataset.dims(),
+            "blocks": dataset.store.meta().blocks,
+            "opened_and_bricked_ms": bricked_ms,
+            "texel_format": format!("{:?}", renderer.volume_texture().format),
+        })
+        .to_string())?;
+        for &edge in &args.sizes {
+            for &shading in &args.shadings {
+                let base = FrameRequest {
+                    camera: Camera {
+                        azimuth_deg: 30.0,
+                        elevation_deg: 15.0,
+                        ..Camera::default()
+                    },
+                    shading,
+                    ..FrameRequest::new(edge, edge, tf.clone())
+                };
+                let (reference_frame, reference_ms) =
+                    timed(args.frames, || reference.render(&base))?;
+                for &reduction in &args.reductions {
+                    let request = FrameRequest {
+                        reduction,
+                        ..base.clone()
+                    };
+                    // The first frame selects levels and uploads blocks: timed apart.
+                    let first = Instant::now();
+                    renderer.render(&request)?;
+                    let first_ms = first.elapsed().as_secs_f64() * 1e3;
+                    let stats = renderer.last_stats().clone();
+                    let (frame, skip_ms) = timed(args.frames, || renderer.render(&request))?;
+                    let no_skip = FrameRequest {
+                        skip_empty: false,
+                        ..request.clone()
+                    };
+                    let (_, no_skip_ms) = timed(args.frames, || renderer.render(&no_skip))?;
+                    let error =
+                        colour_difference(&frame, &reference_frame).map_err(anyhow::Error::msg)?;
+                    let selection = renderer.selection();
+                    let mut line = serde_json::json!({
+                        "bench": "render",
+                        "renderer": "gpu",
+                        "adapter": info.name,
+                        "backend": info.backend.to_string(),
+                        "device_type": format!("{:?}", info.device_type),
+                        "dataset": name,
+                        "dims": dataset.dims(),
+                        "shading": shading.name(),
+                        "step_voxels": request.step_voxels,
+                        "width": edge,
+                        "height": edge,
+                        "requested_reduction": reduction,
+                        "reduction": stats.reduction,
+                        "levels": stats.level_counts,
+                        "non_empty_blocks": selection.map(|s| s.non_empty),
+                        "blocks": selection.map(|s| s.lod.len()),
+                        "first_frame_ms": first_ms,
+                        "select_ms": stats.select_ms,
+                        "upload_ms": stats.upload_ms,
+                        "uploaded_blocks": stats.uploaded_blocks,
+                        "frames": args.frames,
+                        "ms_mean": skip_ms,
+                        "no_skip_ms_mean": no_skip_ms,
+                        "skip_speedup": no_skip_ms / skip_ms,
+                        "reference_ms_mean": reference_ms,
+                        "packed_vs_reference_speedup": reference_ms / skip_ms,
+                        "mpix_per_s": f64::from(edge * edge) / 1e3 / skip_ms,
+                        "delta_e_vs_reference": error,
+                    });
+                    say(&line.to_string())?;
+                    if args.cpu {
+                        let start = Instant::now();
+                        let max_edge = gpu.device.limits().max_texture_dimension_3d;
+                        shaders::cpu::render_packed(
+                            &dataset.cache,
+                            &request,
+                            CPU_TWIN_FEATURES,
+                            max_edge,
+                        )?;
+                        let ms = start.elapsed().as_secs_f64() * 1e3;
+                        line = serde_json::json!({
+                            "bench": "render",
+                            "renderer": "cpu-twin",
+                            "threads": threads,
+                            "dataset": name,
+                            "shading": shading.name(),
+                            "width": edge,
+                            "height": edge,
+                            "requested_reduction": reduction,
+                            "frames": 1,
+                            "ms_mean": ms,
+                            "note": "includes level selection and atlas assembly",
+                        });
+                        say(&line.to_string())?;
+                    }
+                }
             }
         }
     }
     Ok(())
+}
+
+/// Renders `frames` times and returns the last frame and the mean milliseconds.
+fn timed(
+    frames: u32,
+    mut render: impl FnMut() -> Result<Frame, shaders::GpuError>,
+) -> anyhow::Result<(Frame, f64)> {
+    let mut last = None;
+    let start = Instant::now();
+    for _ in 0..frames.max(1) {
+        last = Some(render()?);
+    }
+    let ms = start.elapsed().as_secs_f64() * 1e3 / f64::from(frames.max(1));
+    let frame = last.ok_or_else(|| anyhow::anyhow!("no frame was rendered"))?;
+    Ok((frame, ms))
 }
 
 /// `voxserve bench read`: writes a generated uint16 volume of N GiB to a
@@ -185,14 +256,6 @@ fn peak_rss_mib() -> Option<f64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib / 1024.0)
-}
-
-fn min(v: &[f64]) -> f64 {
-    v.iter().copied().fold(f64::INFINITY, f64::min)
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
 /// A temporary folder for a benchmark's files, removed when dropped.

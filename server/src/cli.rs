@@ -8,8 +8,8 @@ use blocks::ingest::OpenOptions;
 use blocks::ingest::raw::{self, RawOptions};
 use clap::builder::PossibleValuesParser;
 use clap::{Args, Parser, Subcommand};
-use shaders::frame::MAX_IMAGE_EDGE;
-use shaders::{Shading, camera};
+use shaders::frame::{MAX_IMAGE_EDGE, MAX_REDUCTION, parse_colour};
+use shaders::{ClipBox, Projection, Shading, camera};
 
 use crate::dataset::PHANTOM_ID;
 
@@ -54,8 +54,29 @@ pub struct DataArgs {
           value_parser = clap::value_parser!(u32).range(
               i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
     pub phantom_size: u32,
+    /// Decoded blocks kept in memory, MiB (the two coarsest levels stay resident on top).
+    #[arg(long, default_value_t = 1024, value_name = "MIB",
+          value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
+    pub cache_mib: u64,
+    /// Voxels kept on the GPU at most, MiB: a volume whose selected blocks need
+    /// more renders at coarser levels of detail.
+    #[arg(long, default_value_t = 2048, value_name = "MIB",
+          value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
+    pub gpu_budget_mib: u64,
     #[command(flatten)]
     pub input: InputArgs,
+}
+
+impl DataArgs {
+    /// `--cache-mib` in bytes.
+    pub fn cache_bytes(&self) -> u64 {
+        self.cache_mib << 20
+    }
+
+    /// `--gpu-budget-mib` in bytes.
+    pub fn gpu_budget_bytes(&self) -> u64 {
+        self.gpu_budget_mib << 20
+    }
 }
 
 /// How to read a volume file where its headers leave choices.
@@ -132,8 +153,9 @@ pub struct InfoArgs {
 /// `voxserve serve`.
 #[derive(Debug, Args)]
 pub struct ServeArgs {
-    /// The dataset to serve: `phantom` (the built-in CT head phantom), a volume
-    /// file, or a folder of DICOM files (read into memory).
+    /// The dataset to serve: `phantom` (the built-in CT head phantom), a brick
+    /// store (`voxserve ingest`), a volume file or a folder of DICOM files
+    /// (bricked in memory at start).
     #[arg(default_value = PHANTOM_ID)]
     pub dataset: String,
     /// Address and port to listen on; port 0 picks a free port.
@@ -146,8 +168,8 @@ pub struct ServeArgs {
 /// `voxserve render`.
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// The dataset to render: `phantom` (the built-in CT head phantom), a volume
-    /// file, or a folder of DICOM files.
+    /// The dataset to render: `phantom` (the built-in CT head phantom), a brick
+    /// store (`voxserve ingest`), a volume file or a folder of DICOM files.
     #[arg(default_value = PHANTOM_ID)]
     pub dataset: String,
     /// The PNG file to write [default: DATASET.png].
@@ -167,10 +189,15 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 3.0,
           value_parser = finite_in(camera::MIN_DISTANCE, camera::MAX_DISTANCE))]
     pub distance: f32,
-    /// Vertical field of view in degrees (1 to 120).
+    /// Vertical field of view in degrees (1 to 120); orthographic views are as
+    /// tall as perspective ones at the volume's centre.
     #[arg(long, default_value_t = 30.0,
           value_parser = finite_in(camera::FOV_RANGE_DEG.0, camera::FOV_RANGE_DEG.1))]
     pub fov: f32,
+    /// Camera projection.
+    #[arg(long, default_value = "perspective",
+          value_parser = PossibleValuesParser::new(Projection::ALL.map(Projection::name)))]
+    pub projection: String,
     /// Image width in pixels (1 to 4096).
     #[arg(long, default_value_t = 512,
           value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
@@ -182,7 +209,8 @@ pub struct RenderArgs {
     /// Transfer-function preset [default: ct-bone for CT, mr for MR, else generic].
     #[arg(long, value_parser = PossibleValuesParser::new(Preset::ALL.map(Preset::name)))]
     pub preset: Option<String>,
-    /// Shading: gradient (Blinn–Phong from the data's gradient) or unshaded.
+    /// Shading: gradient (Blinn–Phong from the data's gradient), unshaded,
+    /// mip (maximum intensity projection) or minip (minimum intensity projection).
     #[arg(long, default_value = "gradient",
           value_parser = PossibleValuesParser::new(Shading::ALL.map(Shading::name)))]
     pub shading: String,
@@ -190,6 +218,17 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 0.5,
           value_parser = finite_in(shaders::frame::STEP_RANGE_VOXELS.0, shaders::frame::STEP_RANGE_VOXELS.1))]
     pub step: f32,
+    /// Show only this box of the volume: six fractions of its extent x0,y0,z0,x1,y1,z1.
+    #[arg(long, value_name = "X0,Y0,Z0,X1,Y1,Z1", default_value = "0,0,0,1,1,1",
+          value_parser = |t: &str| t.parse::<ClipBox>())]
+    pub clip: ClipBox,
+    /// Data reduction: full-volume voxels per voxel kept on the GPU (1 to 10000);
+    /// levels of detail are chosen from the transfer function to meet it.
+    #[arg(long, default_value_t = 1.0, value_parser = finite_in(1.0, MAX_REDUCTION))]
+    pub reduction: f32,
+    /// Background colour as six hex digits rrggbb.
+    #[arg(long, value_name = "RRGGBB", default_value = "000000", value_parser = parse_colour)]
+    pub background: [f32; 3],
     /// Render on the CPU with the ray caster's CPU twin instead of the GPU (slow;
     /// for checking, or where no GPU driver is installed).
     #[arg(long)]
@@ -209,8 +248,10 @@ pub struct BenchArgs {
 /// The benchmarks.
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
-    /// Phantom generation, and frame rendering on the GPU (and the CPU twin with --cpu).
-    Render(BenchRenderArgs),
+    /// Frame rendering from packed blocks per dataset, image size and data
+    /// reduction: with and without empty-block skipping, and against the
+    /// full-resolution reference (time and ΔE colour difference).
+    Render(Box<BenchRenderArgs>),
     /// Reading a generated raw volume slab by slab: MB/s and peak memory.
     Read(BenchReadArgs),
     /// The brick store: ingest MB/s and peak memory, random block reads (cold,
@@ -221,14 +262,29 @@ pub enum BenchCommand {
 /// `voxserve bench render`.
 #[derive(Debug, Args)]
 pub struct BenchRenderArgs {
+    /// Datasets: `phantom`, and the real datasets engine, bonsai, cthead, vhf
+    /// (from --data-dir; skipped with a warning when missing), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = ["phantom", "engine", "bonsai", "cthead", "vhf"].map(String::from))]
+    pub datasets: Vec<String>,
+    /// Where the real datasets are.
+    #[arg(long, default_value = "../shared/data")]
+    pub data_dir: PathBuf,
     /// Image edges to render, in pixels (square images), comma separated.
-    #[arg(long, value_delimiter = ',', default_values_t = [256u32, 512, 1024],
+    #[arg(long, value_delimiter = ',', default_values_t = [512u32, 1024],
           value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
     pub sizes: Vec<u32>,
-    /// Frames timed per size (after one untimed warm-up frame).
-    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    /// Data reductions to render at (full voxels per voxel on the GPU), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0f32, 9.0, 35.0],
+          value_parser = finite_in(1.0, MAX_REDUCTION))]
+    pub reductions: Vec<f32>,
+    /// Shading modes, comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [Shading::Gradient],
+          value_parser = |t: &str| t.parse::<Shading>())]
+    pub shadings: Vec<Shading>,
+    /// Frames timed per measurement (after the frame that selects and uploads).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub frames: u32,
-    /// Also time the CPU twin (slow).
+    /// Also time the packed CPU twin (slow).
     #[arg(long)]
     pub cpu: bool,
     #[command(flatten)]
@@ -337,6 +393,11 @@ mod tests {
             ["--elevation", "NaN"],
             ["--preset", "bone"],
             ["--shading", "phong"],
+            ["--projection", "fisheye"],
+            ["--clip", "0,0,0,1,1"],
+            ["--reduction", "0.5"],
+            ["--background", "blue"],
+            ["--gpu-budget-mib", "0"],
             ["--raw-dims", "256x256"],
             ["--raw-spacing", "1,0,1"],
             ["--raw-type", "uint12"],

@@ -19,14 +19,17 @@ use crate::{AppState, Dataset, RenderService, encode};
 pub const CPU_TWIN_FEATURES: shaders::wgpu::Features =
     shaders::wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
 
-/// Loads the dataset named on the command line: the phantom, or a volume file
-/// or DICOM folder read into memory.
+/// The atlas edge limit the CPU twin packs to (what Vulkan adapters commonly allow).
+pub const CPU_TWIN_MAX_EDGE: u32 = 2048;
+
+/// Loads the dataset named on the command line: the phantom, a brick store, or
+/// a volume file or DICOM folder bricked in memory.
 pub fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
     let start = Instant::now();
     if name == PHANTOM_ID {
-        let dataset = Dataset::phantom(data.phantom_size)?;
+        let dataset = Dataset::phantom(data.phantom_size, data.cache_bytes())?;
         tracing::info!(
-            "generated the {n}³ phantom in {:.0} ms",
+            "generated and bricked the {n}³ phantom in {:.0} ms",
             start.elapsed().as_secs_f64() * 1e3,
             n = data.phantom_size
         );
@@ -36,14 +39,14 @@ pub fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
     if !path.exists() {
         anyhow::bail!(
             "dataset '{name}': no such file or folder: expected '{PHANTOM_ID}' (the built-in CT \
-             head phantom), a volume file or a folder of DICOM files"
+             head phantom), a brick store, a volume file or a folder of DICOM files"
         );
     }
-    let dataset = Dataset::load(path, &data.input.open_options())?;
+    let dataset = Dataset::load(path, &data.input.open_options(), data.cache_bytes())?;
     tracing::info!(
-        "read {} ({:?} voxels) in {:.0} ms",
+        "opened {} ({:?} voxels) in {:.0} ms",
         path.display(),
-        dataset.volume.dims,
+        dataset.dims(),
         start.elapsed().as_secs_f64() * 1e3
     );
     Ok(dataset)
@@ -61,7 +64,7 @@ pub fn say(line: &str) -> anyhow::Result<()> {
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let dataset = load_dataset(&args.dataset, &args.data)?;
     let gpu = GpuContext::new()?;
-    let renderer = RenderService::start(gpu, &dataset)?;
+    let renderer = RenderService::start(gpu, &dataset, args.data.gpu_budget_bytes())?;
     let listener = TcpListener::bind(args.addr)
         .await
         .with_context(|| format!("cannot listen on {}", args.addr))?;
@@ -71,8 +74,8 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     }
     say(&format!(
         "voxserve: serving the {} ({:?} voxels) on {} at http://{addr}/",
-        dataset.volume.name,
-        dataset.volume.dims,
+        dataset.name(),
+        dataset.dims(),
         renderer.adapter()
     ))?;
     let state = AppState { dataset, renderer };
@@ -100,26 +103,40 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
             elevation_deg: args.elevation,
             distance: args.distance,
             fov_y_deg: args.fov,
+            projection: args.projection.parse().map_err(anyhow::Error::msg)?,
         },
         shading: args.shading.parse().map_err(anyhow::Error::msg)?,
         step_voxels: args.step,
+        clip: args.clip,
+        reduction: args.reduction,
+        background: args.background,
         ..FrameRequest::new(
             args.width,
             args.height,
-            preset.transfer_function(dataset.volume.value_range),
+            preset.transfer_function(dataset.value_range()),
         )
     };
     let start = Instant::now();
-    let (frame, device) = if args.cpu {
+    let (frame, reduction, levels, device) = if args.cpu {
+        let (frame, selection) = shaders::cpu::render_packed(
+            &dataset.cache,
+            &request,
+            CPU_TWIN_FEATURES,
+            CPU_TWIN_MAX_EDGE,
+        )?;
         (
-            shaders::cpu::render(&dataset.volume, &request, CPU_TWIN_FEATURES)?,
+            frame,
+            selection.reduction(),
+            selection.level_counts(),
             "the CPU twin".to_owned(),
         )
     } else {
         let gpu = GpuContext::new()?;
         let device = gpu.describe();
-        let mut renderer = Renderer::new(gpu, &dataset.volume)?;
-        (renderer.render(&request)?, device)
+        let mut renderer = Renderer::new(gpu, dataset.cache.clone(), args.data.gpu_budget_bytes())?;
+        let frame = renderer.render(&request)?;
+        let stats = renderer.last_stats();
+        (frame, stats.reduction, stats.level_counts, device)
     };
     let ms = start.elapsed().as_secs_f64() * 1e3;
     let out = args
@@ -128,7 +145,8 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
     let png = encode::png(&frame)?;
     std::fs::write(&out, png).with_context(|| format!("cannot write {}", out.display()))?;
     say(&format!(
-        "wrote {} ({}x{}, {preset}, {}) in {ms:.0} ms on {device}",
+        "wrote {} ({}x{}, {preset}, {}; reduction {reduction:.1}:1, blocks per level {levels:?}) \
+         in {ms:.0} ms on {device}",
         out.display(),
         frame.width,
         frame.height,

@@ -1,24 +1,32 @@
-//! [`Dataset`]: a volume the server offers under an id, and [`DatasetInfo`], what
-//! clients learn about it.
+//! [`Dataset`]: a brick store the server offers under an id, and [`DatasetInfo`],
+//! what clients learn about it.
+//!
+//! Every dataset is rendered from a brick store: a store on disk (`voxserve
+//! ingest`) is opened and read block by block as views need; the built-in phantom
+//! and volume files named directly are bricked into a store held in memory
+//! (compressed as on disk) when the server starts.
 
 use std::path::Path;
 use std::sync::Arc;
 
-use blocks::ingest::{self, OpenOptions};
-
-use blocks::{Preset, Volume};
+use blocks::cache::BlockCache;
+use blocks::ingest::{self, MemorySource, OpenOptions};
+use blocks::store::{IngestOptions, Store, ingest_in_memory};
+use blocks::{Preset, ValueMap};
 use serde::Serialize;
 
 /// The id of the built-in phantom.
 pub const PHANTOM_ID: &str = "phantom";
 
-/// A volume offered under an id.
+/// A brick store offered under an id, with the cache its blocks are read through.
 #[derive(Debug, Clone)]
 pub struct Dataset {
     /// The id in URLs (`dataset=ID`).
     pub id: String,
-    /// The volume.
-    pub volume: Arc<Volume>,
+    /// The store.
+    pub store: Arc<Store>,
+    /// Decoded blocks of the store, shared by every renderer of it.
+    pub cache: Arc<BlockCache>,
 }
 
 /// A transfer-function preset as clients list it.
@@ -39,14 +47,16 @@ pub struct DatasetInfo {
     pub name: String,
     /// Voxels along x, y, z.
     pub dims: [u32; 3],
+    /// 16³ blocks along x, y, z.
+    pub blocks: [u32; 3],
     /// Voxel spacing (mm).
-    pub spacing: [f32; 3],
+    pub spacing: [f64; 3],
     /// Position of the first voxel's centre (mm).
-    pub origin: [f32; 3],
+    pub origin: [f64; 3],
     /// `uint8`, `uint16`, …
-    pub voxel_type: &'static str,
+    pub voxel_type: String,
     /// Smallest and largest physical value.
-    pub value_range: [f32; 2],
+    pub value_range: [f64; 2],
     /// Unit of the physical values, when known.
     pub unit: Option<String>,
     /// Imaging modality, when known.
@@ -58,43 +68,77 @@ pub struct DatasetInfo {
 }
 
 impl Dataset {
-    /// The built-in head phantom at `size`³ voxels.
-    pub fn phantom(size: u32) -> Result<Dataset, blocks::Error> {
+    /// A dataset over `store`, caching at most `cache_bytes` of decoded blocks
+    /// beyond the coarsest levels, which stay resident.
+    pub fn new(id: String, store: Store, cache_bytes: u64) -> Result<Dataset, blocks::Error> {
+        let store = Arc::new(store);
+        let mut cache = BlockCache::new(store.clone(), cache_bytes);
+        cache.make_resident(&[3, 4])?;
         Ok(Dataset {
-            id: PHANTOM_ID.to_owned(),
-            volume: Arc::new(blocks::phantom::head(size)?),
+            id,
+            store,
+            cache: Arc::new(cache),
         })
     }
 
-    /// A volume file, DICOM folder or brick store read into memory, under an id
-    /// made from its name (`engine_256x256x128_uint8.raw` → `engine_256x256x128_uint8`).
-    pub fn load(path: &Path, options: &OpenOptions) -> Result<Dataset, blocks::Error> {
-        let volume = if blocks::store::Store::is_store(path) {
-            blocks::store::Store::open(path)?.load_level(0)?
+    /// The built-in head phantom at `size`³ voxels, bricked in memory.
+    pub fn phantom(size: u32, cache_bytes: u64) -> Result<Dataset, blocks::Error> {
+        let volume = Arc::new(blocks::phantom::head(size)?);
+        let mut source = MemorySource::new(volume, "phantom");
+        let store = ingest_in_memory(&mut source, &IngestOptions::default())?;
+        Dataset::new(PHANTOM_ID.to_owned(), store, cache_bytes)
+    }
+
+    /// A brick store, or a volume file or DICOM folder bricked in memory, under an
+    /// id made from its name (`engine_256x256x128_uint8.raw` → `engine_256x256x128_uint8`).
+    pub fn load(
+        path: &Path,
+        options: &OpenOptions,
+        cache_bytes: u64,
+    ) -> Result<Dataset, blocks::Error> {
+        let store = if Store::is_store(path) {
+            Store::open(path)?
         } else {
             let mut source = ingest::open(path, options)?;
-            ingest::load(source.as_mut())?
+            ingest_in_memory(source.as_mut(), &IngestOptions::default())?
         };
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "volume".to_owned());
         let id = [
-            ".nii.gz", ".raw", ".nrrd", ".nhdr", ".nii", ".mha", ".mhd", ".dcm",
+            ".nii.gz", ".raw", ".nrrd", ".nhdr", ".nii", ".mha", ".mhd", ".dcm", ".zarr",
         ]
         .iter()
         .find_map(|ext| name.strip_suffix(ext))
         .unwrap_or(&name)
         .to_owned();
-        Ok(Dataset {
-            id,
-            volume: Arc::new(volume),
-        })
+        Dataset::new(id, store, cache_bytes)
+    }
+
+    /// The display name.
+    pub fn name(&self) -> &str {
+        &self.store.meta().name
+    }
+
+    /// Level-0 voxels along x, y, z.
+    pub fn dims(&self) -> [u32; 3] {
+        self.store.meta().dims
+    }
+
+    /// The physical value range (what transfer-function presets are laid over).
+    pub fn value_range(&self) -> [f32; 2] {
+        self.store.meta().value_range().map(|v| v as f32)
+    }
+
+    /// Stored → physical values.
+    pub fn value_map(&self) -> ValueMap {
+        self.store.meta().value_map
     }
 
     /// The preset to start with: CT bone for CT, MR for MR, generic otherwise.
     pub fn default_preset(&self) -> Preset {
-        match self.volume.modality.as_deref() {
+        match self.store.meta().modality.as_deref() {
             Some("CT") => Preset::CtBone,
             Some("MR") => Preset::Mr,
             _ => Preset::Generic,
@@ -103,17 +147,18 @@ impl Dataset {
 
     /// The public description.
     pub fn info(&self) -> DatasetInfo {
-        let v = &self.volume;
+        let m = self.store.meta();
         DatasetInfo {
             id: self.id.clone(),
-            name: v.name.clone(),
-            dims: v.dims,
-            spacing: v.spacing,
-            origin: v.origin,
-            voxel_type: v.voxel_type().name(),
-            value_range: v.value_range,
-            unit: v.unit.clone(),
-            modality: v.modality.clone(),
+            name: m.name.clone(),
+            dims: m.dims,
+            blocks: m.blocks,
+            spacing: m.spacing,
+            origin: m.origin,
+            voxel_type: m.voxel_type.clone(),
+            value_range: m.value_range(),
+            unit: m.unit.clone(),
+            modality: m.modality.clone(),
             presets: Preset::ALL
                 .iter()
                 .map(|p| PresetInfo {

@@ -9,8 +9,12 @@
 //! | `fov` | vertical field of view, degrees, 1..=120 | 30 |
 //! | `w`, `h` | image size, pixels, 1..=4096 | 512 |
 //! | `preset` | transfer-function preset | the dataset's default |
-//! | `shading` | `gradient` or `unshaded` | `gradient` |
+//! | `proj` | `perspective` or `orthographic` | `perspective` |
+//! | `shading` | `gradient`, `unshaded`, `mip` or `minip` | `gradient` |
 //! | `step` | sample step, voxels, 0.05..=4 | 0.5 |
+//! | `clip` | clip box as six fractions of the volume's extent, `x0,y0,z0,x1,y1,z1` | `0,0,0,1,1,1` |
+//! | `reduction` | data reduction (full voxels per voxel on the GPU), 1..=10000 | 1 (the device budget may force more) |
+//! | `bg` | background colour, `rrggbb` hex | `000000` |
 //!
 //! Every parameter is checked before anything renders; a bad one is refused
 //! with a message that names it, the value given and what was expected. Unknown
@@ -20,14 +24,27 @@
 use std::str::FromStr;
 
 use blocks::Preset;
-use shaders::frame::{MAX_IMAGE_EDGE, STEP_RANGE_VOXELS};
-use shaders::{Camera, FrameRequest, Shading, camera};
+use shaders::frame::{MAX_IMAGE_EDGE, MAX_REDUCTION, STEP_RANGE_VOXELS, parse_colour};
+use shaders::{Camera, ClipBox, FrameRequest, Projection, Shading, camera};
 
 use crate::Dataset;
 
 /// The parameters `GET /api/render` accepts.
-pub const PARAMETERS: [&str; 10] = [
-    "dataset", "az", "el", "dist", "fov", "w", "h", "preset", "shading", "step",
+pub const PARAMETERS: [&str; 14] = [
+    "dataset",
+    "az",
+    "el",
+    "dist",
+    "fov",
+    "proj",
+    "w",
+    "h",
+    "preset",
+    "shading",
+    "step",
+    "clip",
+    "reduction",
+    "bg",
 ];
 
 /// The default image edge in pixels.
@@ -137,6 +154,7 @@ pub fn parse<'d>(
             camera::FOV_RANGE_DEG.1,
             DEGREES,
         )?,
+        projection: params.named("proj", Projection::default())?,
     };
     let width = params.ranged("w", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, PIXELS)?;
     let height = params.ranged("h", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, PIXELS)?;
@@ -149,14 +167,29 @@ pub fn parse<'d>(
         STEP_RANGE_VOXELS.1,
         "a number of voxels",
     )?;
+    let reduction = params.ranged(
+        "reduction",
+        1.0,
+        1.0,
+        MAX_REDUCTION,
+        "a data reduction ratio",
+    )?;
+    let clip: ClipBox = params.named("clip", ClipBox::default())?;
+    let background = match params.get("bg") {
+        None => [0.0; 3],
+        Some(text) => parse_colour(text).map_err(|e| format!("query parameter bg: {e}"))?,
+    };
     let request = FrameRequest {
         camera,
         shading,
         step_voxels,
+        clip,
+        reduction,
+        background,
         ..FrameRequest::new(
             width,
             height,
-            preset.transfer_function(dataset.volume.value_range),
+            preset.transfer_function(dataset.value_range()),
         )
     };
     request.validate()?;
@@ -168,7 +201,7 @@ mod tests {
     use super::*;
 
     fn datasets() -> Vec<Dataset> {
-        vec![Dataset::phantom(16).expect("phantom")]
+        vec![Dataset::phantom(16, 1 << 20).expect("phantom")]
     }
 
     fn query(q: &str) -> Vec<(String, String)> {
@@ -199,16 +232,27 @@ mod tests {
     #[test]
     fn every_parameter_is_read() {
         let ds = datasets();
-        let q = "dataset=phantom&az=30&el=-10&dist=2.5&fov=40&w=64&h=32&preset=ct-soft-tissue&shading=unshaded&step=1";
+        let q = "dataset=phantom&az=30&el=-10&dist=2.5&fov=40&w=64&h=32&preset=ct-soft-tissue\
+                 &shading=mip&step=1&proj=orthographic&clip=0,0.25,0,1,1,0.5&reduction=9&bg=#ff8000";
         let (_, r) = parse(&query(q), &ds).expect("valid");
         assert_eq!(r.camera.azimuth_deg, 30.0);
         assert_eq!(r.camera.elevation_deg, -10.0);
         assert_eq!(r.camera.distance, 2.5);
         assert_eq!(r.camera.fov_y_deg, 40.0);
         assert_eq!((r.width, r.height), (64, 32));
-        assert_eq!(r.shading, Shading::Unshaded);
+        assert_eq!(r.shading, Shading::Mip);
         assert_eq!(r.step_voxels, 1.0);
-        let tf = Preset::CtSoftTissue.transfer_function(ds[0].volume.value_range);
+        assert_eq!(r.camera.projection, Projection::Orthographic);
+        assert_eq!(
+            r.clip,
+            ClipBox {
+                min: [0.0, 0.25, 0.0],
+                max: [1.0, 1.0, 0.5]
+            }
+        );
+        assert_eq!(r.reduction, 9.0);
+        assert_eq!(r.background, [1.0, 128.0 / 255.0, 0.0]);
+        let tf = Preset::CtSoftTissue.transfer_function(ds[0].value_range());
         assert_eq!(r.transfer_function, tf);
     }
 
@@ -233,6 +277,25 @@ mod tests {
             ("zoom=2", "unknown query parameter 'zoom'"),
             ("az=1&az=2", "'az' is given twice"),
             ("step=0", "step=\"0\""),
+            ("proj=fisheye", "unknown projection 'fisheye'"),
+            (
+                "clip=0,0,0,1,1",
+                "clip: clip box '0,0,0,1,1': expected six fractions",
+            ),
+            ("clip=0.5,0,0,0.4,1,1", "each min below its max"),
+            ("clip=0,0,0,1,1,2", "from 0 to 1"),
+            ("clip=a,0,0,1,1,1", "clip box 'a,0,0,1,1,1'"),
+            (
+                "reduction=0.5",
+                "reduction=\"0.5\": expected a data reduction ratio from 1 to 10000",
+            ),
+            ("reduction=NaN", "reduction=\"NaN\""),
+            ("bg=red", "bg: colour 'red': expected six hex digits rrggbb"),
+            ("bg=ff00zz", "colour 'ff00zz'"),
+            (
+                "shading=mip&reduction=1&reduction=2",
+                "'reduction' is given twice",
+            ),
         ];
         for (q, want) in cases {
             let msg = error(q);

@@ -9,12 +9,15 @@
 //! - [`frame_query`]: the query string of `GET /api/render` → a [`shaders::FrameRequest`].
 //! - [`render_service`]: [`RenderService`], one worker thread that owns the GPU
 //!   renderer and serves render jobs from all requests in arrival order.
-//! - [`dataset`]: [`Dataset`], a volume the server offers, and its public description.
+//! - [`dataset`]: [`Dataset`], a brick store the server offers (on disk, or bricked
+//!   in memory at start), and its public description.
 //! - [`encode`]: frame → PNG.
 //! - [`web`]: the static web client from `web/`, compiled into the binary.
 //! - [`cli`]: the command line's subcommands and flags.
 //! - [`commands`]: what `serve`, `render`, `info` and `ingest` do.
 //! - [`bench`]: `voxserve bench render | read | blocks`, JSON lines.
+//! - [`reference_data`]: the real datasets of `../shared/data` that tests and
+//!   benchmarks use, with how to read them and a transfer function for each.
 
 pub mod app;
 pub mod bench;
@@ -24,6 +27,7 @@ pub mod dataset;
 pub mod encode;
 pub mod error;
 pub mod frame_query;
+pub mod reference_data;
 pub mod render_service;
 pub mod web;
 

@@ -9,7 +9,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use shaders::{Frame, FrameRequest, GpuContext, GpuError, Renderer};
+use shaders::{Frame, FrameRequest, GpuContext, GpuError, RenderStats, Renderer};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::{AppError, Dataset};
@@ -24,6 +24,8 @@ pub struct RenderedFrame {
     pub frame: Frame,
     /// Milliseconds from the worker taking the job to the pixels being read back.
     pub render_ms: f64,
+    /// What the frame took and showed: data reduction, levels, uploads.
+    pub stats: RenderStats,
 }
 
 struct Job {
@@ -47,10 +49,15 @@ impl std::fmt::Debug for Job {
 }
 
 impl RenderService {
-    /// Uploads `dataset` to `gpu` and starts the worker thread.
-    pub fn start(gpu: GpuContext, dataset: &Dataset) -> Result<RenderService, GpuError> {
+    /// Starts the worker thread rendering `dataset` on `gpu`, keeping at most
+    /// `gpu_budget_bytes` of its blocks on the device.
+    pub fn start(
+        gpu: GpuContext,
+        dataset: &Dataset,
+        gpu_budget_bytes: u64,
+    ) -> Result<RenderService, GpuError> {
         let adapter: Arc<str> = gpu.describe().into();
-        let mut renderer = Renderer::new(gpu, &dataset.volume)?;
+        let mut renderer = Renderer::new(gpu, dataset.cache.clone(), gpu_budget_bytes)?;
         let (jobs, mut queue) = mpsc::channel::<Job>(QUEUE_CAPACITY);
         std::thread::Builder::new()
             .name("render-worker".into())
@@ -61,6 +68,7 @@ impl RenderService {
                     let result = renderer.render(&job.request).map(|frame| RenderedFrame {
                         frame,
                         render_ms: start.elapsed().as_secs_f64() * 1e3,
+                        stats: renderer.last_stats().clone(),
                     });
                     if let Err(e) = &result {
                         tracing::warn!("render failed: {e}");

@@ -64,6 +64,13 @@ fn help_explains_every_subcommand_and_flag() {
         "--step",
         "--cpu",
         "--phantom-size",
+        "--projection",
+        "--clip",
+        "--reduction",
+        "--background",
+        "--gpu-budget-mib",
+        "--cache-mib",
+        "minip",
         "ct-bone",
         "DATASET",
     ] {
@@ -86,6 +93,10 @@ fn bad_flags_are_refused_with_the_flag_named() {
         (vec!["render", "--azimuth", "north"], "--azimuth"),
         (vec!["render", "--preset", "bone"], "--preset"),
         (vec!["render", "--phantom-size", "8"], "--phantom-size"),
+        (vec!["render", "--clip", "0,0,0,1,1"], "--clip"),
+        (vec!["render", "--reduction", "0"], "--reduction"),
+        (vec!["render", "--projection", "fisheye"], "--projection"),
+        (vec!["render", "--background", "white"], "--background"),
         (vec!["serve", "--addr", "localhost"], "--addr"),
     ] {
         let out = voxserve(&args);
@@ -113,6 +124,14 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
         "80",
         "--azimuth",
         "25",
+        "--reduction",
+        "9",
+        "--projection",
+        "orthographic",
+        "--clip",
+        "0,0,0,1,0.7,1",
+        "--background",
+        "102030",
     ];
     let cpu_path = temp_path("cpu.png");
     let out = voxserve(
@@ -128,7 +147,14 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
         .concat(),
     );
     assert!(out.status.success(), "render --cpu: {}", text(&out.stderr));
-    assert!(text(&out.stdout).contains("wrote"), "{}", text(&out.stdout));
+    let said = text(&out.stdout);
+    let reduction: f64 = said
+        .split("reduction ")
+        .nth(1)
+        .and_then(|rest| rest.split(':').next())
+        .and_then(|r| r.parse().ok())
+        .unwrap_or_else(|| panic!("no reduction in: {said}"));
+    assert!(said.contains("wrote") && reduction >= 9.0, "{said}");
     let cpu = image::open(&cpu_path).expect("CPU PNG").to_rgba8();
     assert_eq!(cpu.dimensions(), (96, 80));
     assert!(

@@ -20,7 +20,44 @@ pub const MAX_DISTANCE: f32 = 100.0;
 /// The accepted vertical fields of view, degrees.
 pub const FOV_RANGE_DEG: (f32, f32) = (1.0, 120.0);
 
-/// An orbit camera with a perspective projection.
+/// How the camera projects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Projection {
+    /// Rays fan out from the eye.
+    #[default]
+    Perspective,
+    /// Parallel rays; the view is as tall as the perspective view's at the
+    /// volume's centre, so switching keeps the framing.
+    Orthographic,
+}
+
+impl Projection {
+    /// Both projections.
+    pub const ALL: [Projection; 2] = [Projection::Perspective, Projection::Orthographic];
+
+    /// The name in URLs and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Projection::Perspective => "perspective",
+            Projection::Orthographic => "orthographic",
+        }
+    }
+}
+
+impl std::str::FromStr for Projection {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Projection, String> {
+        Projection::ALL
+            .into_iter()
+            .find(|p| p.name() == name)
+            .ok_or_else(|| {
+                format!("unknown projection '{name}': expected perspective or orthographic")
+            })
+    }
+}
+
+/// An orbit camera.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Camera {
     /// Rotation about the z axis, degrees; 0 looks from −y (anterior).
@@ -31,6 +68,8 @@ pub struct Camera {
     pub distance: f32,
     /// Vertical field of view, degrees.
     pub fov_y_deg: f32,
+    /// Perspective or orthographic.
+    pub projection: Projection,
 }
 
 impl Default for Camera {
@@ -41,6 +80,7 @@ impl Default for Camera {
             elevation_deg: 0.0,
             distance: 3.0,
             fov_y_deg: 30.0,
+            projection: Projection::Perspective,
         }
     }
 }
@@ -81,16 +121,29 @@ impl Camera {
     pub fn view_proj(&self, radius: f32, aspect: f32) -> Mat4 {
         let b = self.basis(radius);
         let view = glam::camera::rh::view::look_to_mat4(b.eye, b.forward, b.up);
-        // Near and far enclose the bounding sphere; near stays positive inside it.
-        let near = ((self.distance - 1.0) * radius * 0.5).max(radius * 0.01);
         let far = (self.distance + 1.0) * radius * 1.01;
         // WebGPU clip space: depth 0..1 and y up, the Direct3D convention.
-        let proj = glam::camera::rh::proj::directx::perspective(
-            self.fov_y_deg.to_radians(),
-            aspect,
-            near,
-            far,
-        );
+        let proj = match self.projection {
+            Projection::Perspective => {
+                // Near and far enclose the bounding sphere; near stays positive inside it.
+                let near = ((self.distance - 1.0) * radius * 0.5).max(radius * 0.01);
+                glam::camera::rh::proj::directx::perspective(
+                    self.fov_y_deg.to_radians(),
+                    aspect,
+                    near,
+                    far,
+                )
+            }
+            Projection::Orthographic => {
+                // Rays may start behind the eye: the whole sphere is in view.
+                let near = (self.distance - 1.01) * radius;
+                let half_h = self.distance * radius * (self.fov_y_deg.to_radians() * 0.5).tan();
+                let half_w = half_h * aspect;
+                glam::camera::rh::proj::directx::orthographic(
+                    -half_w, half_w, -half_h, half_h, near, far,
+                )
+            }
+        };
         proj * view
     }
 
@@ -157,6 +210,35 @@ mod tests {
         let ndc = clip.truncate() / clip.w;
         assert!(ndc.x.abs() < 1e-5 && ndc.y.abs() < 1e-5);
         assert!(ndc.z > 0.0 && ndc.z < 1.0);
+    }
+
+    #[test]
+    fn orthographic_rays_are_parallel_and_frame_like_perspective() {
+        let cam = Camera {
+            projection: Projection::Orthographic,
+            ..Camera::default()
+        };
+        let inv = cam.view_proj(1.0, 1.0).inverse();
+        let ray = |x: f32, y: f32| {
+            let near = inv.project_point3(Vec3::new(x, y, 0.0));
+            let far = inv.project_point3(Vec3::new(x, y, 1.0));
+            (near, (far - near).normalize())
+        };
+        let (a, da) = ray(-0.9, 0.3);
+        let (b, db) = ray(0.5, -0.7);
+        assert!((da - db).length() < 1e-5, "parallel");
+        assert!((da - Vec3::Y).length() < 1e-5, "along the view");
+        assert!((a - b).length() > 0.1, "from different points");
+        // The top of the view is as high as perspective's at the centre.
+        let top = inv.project_point3(Vec3::new(0.0, 1.0, 0.5));
+        assert!(
+            (top.z - 3.0 * (15f32).to_radians().tan()).abs() < 1e-4,
+            "{top}"
+        );
+        assert_eq!(
+            "orthographic".parse::<Projection>(),
+            Ok(Projection::Orthographic)
+        );
     }
 
     #[test]

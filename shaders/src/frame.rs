@@ -10,25 +10,37 @@ use crate::Camera;
 /// The largest image edge in pixels.
 pub const MAX_IMAGE_EDGE: u32 = 4096;
 
-/// How samples are lit.
+/// How samples make a pixel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum Shading {
-    /// Transfer-function colour only (emission–absorption).
+    /// Emission–absorption compositing of transfer-function colours.
     Unshaded,
-    /// Gradient Blinn–Phong with a light above and to the left of the eye.
+    /// Compositing with gradient Blinn–Phong, a light above and left of the eye.
     #[default]
     Gradient,
+    /// Maximum intensity projection: the transfer function of the largest value
+    /// met among visible ones.
+    Mip,
+    /// Minimum intensity projection: the smallest visible value.
+    MinIp,
 }
 
 impl Shading {
     /// Every shading mode.
-    pub const ALL: [Shading; 2] = [Shading::Unshaded, Shading::Gradient];
+    pub const ALL: [Shading; 4] = [
+        Shading::Unshaded,
+        Shading::Gradient,
+        Shading::Mip,
+        Shading::MinIp,
+    ];
 
     /// The mode's name in URLs and on the command line.
     pub fn name(self) -> &'static str {
         match self {
             Shading::Unshaded => "unshaded",
             Shading::Gradient => "gradient",
+            Shading::Mip => "mip",
+            Shading::MinIp => "minip",
         }
     }
 }
@@ -46,7 +58,92 @@ impl FromStr for Shading {
         Shading::ALL
             .into_iter()
             .find(|s| s.name() == name)
-            .ok_or_else(|| format!("unknown shading '{name}': expected unshaded or gradient"))
+            .ok_or_else(|| {
+                format!("unknown shading '{name}': expected unshaded, gradient, mip or minip")
+            })
+    }
+}
+
+/// An axis-aligned clip box in the volume's index space, as fractions of its
+/// extent along x, y, z (0..1 keeps everything).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClipBox {
+    /// Lower corner.
+    pub min: [f32; 3],
+    /// Upper corner.
+    pub max: [f32; 3],
+}
+
+impl Default for ClipBox {
+    fn default() -> ClipBox {
+        ClipBox {
+            min: [0.0; 3],
+            max: [1.0; 3],
+        }
+    }
+}
+
+impl FromStr for ClipBox {
+    type Err = String;
+
+    /// `x0,y0,z0,x1,y1,z1`, each a fraction 0..1 of the volume's extent.
+    fn from_str(text: &str) -> Result<ClipBox, String> {
+        let refuse = || {
+            format!(
+                "clip box '{text}': expected six fractions x0,y0,z0,x1,y1,z1 from 0 to 1 with each \
+                 min below its max"
+            )
+        };
+        let values: Vec<f32> = text
+            .split(',')
+            .map(|v| v.trim().parse::<f32>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| refuse())?;
+        let [x0, y0, z0, x1, y1, z1] = values[..] else {
+            return Err(refuse());
+        };
+        let clip = ClipBox {
+            min: [x0, y0, z0],
+            max: [x1, y1, z1],
+        };
+        clip.validate().map_err(|_| refuse())?;
+        Ok(clip)
+    }
+}
+
+/// A colour written as six hex digits `rrggbb` (an optional leading `#`) →
+/// channels in 0..=1.
+pub fn parse_colour(text: &str) -> Result<[f32; 3], String> {
+    let hex = text.strip_prefix('#').unwrap_or(text);
+    let channel = |i: usize| {
+        hex.get(i..i + 2)
+            .and_then(|h| u8::from_str_radix(h, 16).ok())
+    };
+    match (hex.len(), channel(0), channel(2), channel(4)) {
+        (6, Some(r), Some(g), Some(b)) => Ok([r, g, b].map(|c| f32::from(c) / 255.0)),
+        _ => Err(format!("colour '{text}': expected six hex digits rrggbb")),
+    }
+}
+
+impl ClipBox {
+    /// Checks the corners: finite, within 0..1, min below max on every axis.
+    pub fn validate(&self) -> Result<(), String> {
+        let ok = (0..3).all(|a| {
+            let (lo, hi) = (self.min[a], self.max[a]);
+            lo.is_finite()
+                && hi.is_finite()
+                && (0.0..=1.0).contains(&lo)
+                && (0.0..=1.0).contains(&hi)
+                && lo < hi
+        });
+        if ok {
+            Ok(())
+        } else {
+            Err(format!(
+                "clip box {:?}..{:?}: expected fractions 0..1 with min below max on every axis",
+                self.min, self.max
+            ))
+        }
     }
 }
 
@@ -67,7 +164,17 @@ pub struct FrameRequest {
     pub step_voxels: f32,
     /// Background colour (sRGB, 0..=1).
     pub background: [f32; 3],
+    /// The part of the volume shown.
+    pub clip: ClipBox,
+    /// Data reduction to render at (full-volume voxels per voxel kept on the
+    /// GPU), 1 or more; the device budget may force more.
+    pub reduction: f32,
+    /// Jump over empty blocks (turned off only to measure what skipping saves).
+    pub skip_empty: bool,
 }
+
+/// The largest data reduction a request may ask for.
+pub const MAX_REDUCTION: f32 = 10_000.0;
 
 /// The accepted sample steps, in voxels.
 pub const STEP_RANGE_VOXELS: (f32, f32) = (0.05, 4.0);
@@ -83,6 +190,9 @@ impl FrameRequest {
             shading: Shading::default(),
             step_voxels: 0.5,
             background: [0.0, 0.0, 0.0],
+            clip: ClipBox::default(),
+            reduction: 1.0,
+            skip_empty: true,
         }
     }
 
@@ -101,6 +211,13 @@ impl FrameRequest {
             return Err(format!(
                 "step = {}: expected {lo} to {hi} voxels",
                 self.step_voxels
+            ));
+        }
+        self.clip.validate()?;
+        if !(self.reduction.is_finite() && (1.0..=MAX_REDUCTION).contains(&self.reduction)) {
+            return Err(format!(
+                "reduction = {}: expected 1 to {MAX_REDUCTION}",
+                self.reduction
             ));
         }
         if !self.background.iter().all(|c| (0.0..=1.0).contains(c)) {
@@ -160,6 +277,32 @@ mod tests {
         r.width = 64;
         r.step_voxels = f32::NAN;
         assert!(r.validate().expect_err("NaN step").contains("step"));
+    }
+
+    #[test]
+    fn clip_boxes_and_colours_parse_or_say_what_was_expected() {
+        let clip: ClipBox = "0, 0.25, 0, 1, 1, 0.5".parse().expect("valid");
+        assert_eq!(clip.min, [0.0, 0.25, 0.0]);
+        assert_eq!(clip.max, [1.0, 1.0, 0.5]);
+        for bad in [
+            "",
+            "0,0,0,1,1",
+            "0,0,0,1,1,1,1",
+            "0.5,0,0,0.5,1,1",
+            "0,0,0,1,1,1.5",
+            "x,0,0,1,1,1",
+        ] {
+            let e = bad.parse::<ClipBox>().expect_err(bad);
+            assert!(e.contains("expected six fractions"), "{bad}: {e}");
+        }
+        assert_eq!(parse_colour("#ff8000"), Ok([1.0, 128.0 / 255.0, 0.0]));
+        assert_eq!(parse_colour("000000"), Ok([0.0; 3]));
+        for bad in ["red", "fff", "ff00zz", "#ff80000", "ffé000"] {
+            assert!(
+                parse_colour(bad).expect_err(bad).contains("six hex digits"),
+                "{bad}"
+            );
+        }
     }
 
     #[test]

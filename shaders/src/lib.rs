@@ -6,24 +6,36 @@
 //! - [`gpu`]: [`GpuContext`], adapter selection (`WGPU_BACKEND`, `WGPU_ADAPTER_NAME`,
 //!   hardware before software), the device with the adapter's own limits, error
 //!   scopes turned into [`GpuError`], waiting and readback.
-//! - [`camera`]: [`Camera`], an orbit camera around the volume, and its matrices.
-//! - [`frame`]: [`FrameRequest`] (what to draw) and [`Frame`] (RGBA8 pixels).
-//! - [`volume_texture`]: how a [`blocks::Volume`] becomes a 3D texture (format and
-//!   the texel value → transfer-function coordinate map), shared by GPU and CPU.
-//! - [`raycast`]: the `raycast` stage: [`RaycastParams`] (mirrored in WGSL) and
-//!   [`RaycastPipeline`].
-//! - [`renderer`]: [`Renderer`], a volume resident on the GPU rendered frame by frame.
-//! - [`cpu`]: the CPU twins (`cpu::raycast`) and [`cpu::render`].
+//! - [`camera`]: [`Camera`], an orbit camera around the volume with a
+//!   perspective or orthographic [`Projection`], and its matrices.
+//! - [`frame`]: [`FrameRequest`] (what to draw: camera, transfer function,
+//!   [`Shading`], [`ClipBox`], data reduction) and [`Frame`] (RGBA8 pixels).
+//! - [`volume_texture`]: how voxels become texels (format and the texel value →
+//!   transfer-function coordinate map), shared by the atlas, the reference
+//!   texture and the CPU twins.
+//! - [`raycast`]: the ray-marching stages `raycast` (packed blocks) and
+//!   `reference` (one plain texture): [`RaycastParams`] (mirrored in WGSL) and
+//!   [`MarchPipeline`].
+//! - [`packed`]: the atlas and block index on the GPU ([`packed::GpuAtlas`]),
+//!   uploaded in rows of slots and updated block by block.
+//! - [`renderer`]: [`Renderer`] (a brick store rendered from its packed blocks,
+//!   frame by frame) and [`ReferenceRenderer`] (tests and benchmarks).
+//! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`) and whole-frame
+//!   CPU renders.
+//! - [`colour_difference`]: CIE ΔE*uv between a frame and its reference (mean,
+//!   RMS, 99th percentile, ΔE₆), for tests and benchmarks.
 //! - [`error`]: [`GpuError`], this crate's one error type.
 //!
 //! The WGSL sources are in `shaders/wgsl/`: one file per stage, shared structs and
 //! helpers in `shaders/wgsl/shared/`, concatenated ahead of the stage by [`wgsl`].
 
 pub mod camera;
+pub mod colour_difference;
 pub mod cpu;
 pub mod error;
 pub mod frame;
 pub mod gpu;
+pub mod packed;
 pub mod raycast;
 pub mod renderer;
 pub mod volume_texture;
@@ -32,9 +44,9 @@ pub mod wgsl;
 /// The wgpu this crate is built on, for callers that name its types.
 pub use wgpu;
 
-pub use camera::Camera;
+pub use camera::{Camera, Projection};
 pub use error::GpuError;
-pub use frame::{Frame, FrameRequest, Shading};
+pub use frame::{ClipBox, Frame, FrameRequest, Shading};
 pub use gpu::GpuContext;
-pub use raycast::{RaycastParams, RaycastPipeline};
-pub use renderer::Renderer;
+pub use raycast::{MarchPipeline, RaycastParams, Stage};
+pub use renderer::{ReferenceRenderer, RenderStats, Renderer};

@@ -1,9 +1,12 @@
-//! The `raycast` stage: direct volume rendering of one 3D texture with a 1D RGBA
-//! transfer function (`shaders/wgsl/raycast.wgsl`; CPU twin [`crate::cpu::raycast`]).
+//! The ray-marching stages and their uniforms: `raycast` renders packed blocks
+//! through the block index (`shaders/wgsl/raycast.wgsl`; CPU twin
+//! [`crate::cpu::raycast`]), `reference` renders one plain full-resolution
+//! texture (`shaders/wgsl/reference.wgsl`; CPU twin [`crate::cpu::reference`]).
+//! Both share the march of `shaders/wgsl/shared/march.wgsl`.
 //!
 //! [`RaycastParams`] is built once per frame from the [`FrameRequest`] and the
-//! volume's geometry by [`RaycastParams::new`], and both the GPU pipeline and the
-//! CPU twin read exactly that struct, so they differ only in arithmetic.
+//! volume's geometry by [`RaycastParams::new`]; GPU stages and CPU twins read
+//! exactly that struct, so they differ only in arithmetic.
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
 
@@ -24,10 +27,18 @@ const GRADIENT_THRESHOLD_PER_VOXEL: f32 = 0.002;
 
 /// [`RaycastParams::flags`] bit: jitter each ray's first sample.
 pub const FLAG_JITTER: u32 = 1;
-/// [`RaycastParams::flags`] bit: gradient Blinn–Phong shading.
+/// [`RaycastParams::flags`] bit: gradient Blinn–Phong shading of composited samples.
 pub const FLAG_SHADED: u32 = 2;
+/// [`RaycastParams::flags`] bit: jump over empty blocks.
+pub const FLAG_SKIP_EMPTY: u32 = 4;
+/// [`RaycastParams::mode`]: front-to-back compositing.
+pub const MODE_COMPOSITE: u32 = 0;
+/// [`RaycastParams::mode`]: maximum intensity projection.
+pub const MODE_MIP: u32 = 1;
+/// [`RaycastParams::mode`]: minimum intensity projection.
+pub const MODE_MINIP: u32 = 2;
 
-/// The per-frame uniforms of `raycast`.
+/// The per-frame uniforms of the ray-marching stages.
 // keep in sync with shaders/wgsl/shared/raycast_params.wgsl `RaycastParams`
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -38,7 +49,7 @@ pub struct RaycastParams {
     pub texture_from_model: [[f32; 4]; 4],
     /// Texture-space derivatives → model-space gradients (upper 3×3 used).
     pub gradient_from_texture: [[f32; 4]; 4],
-    /// One texel in texture coordinates: 1 / dims.
+    /// One level-0 voxel in texture coordinates: 1 / dims.
     pub texel: [f32; 3],
     /// Distance between samples (mm).
     pub step: f32,
@@ -46,18 +57,28 @@ pub struct RaycastParams {
     pub light_dir: [f32; 3],
     /// The step transfer-function opacities refer to (mm).
     pub reference_step: f32,
+    /// Clip box lower corner, texture space.
+    pub clip_min: [f32; 3],
+    /// Accumulated opacity at which a ray stops.
+    pub early_termination: f32,
+    /// Clip box upper corner, texture space.
+    pub clip_max: [f32; 3],
+    /// Gradient magnitude (transfer-function units per mm) under which samples stay unshaded.
+    pub gradient_threshold: f32,
+    /// Level-0 voxels along x, y, z.
+    pub volume_dims: [f32; 3],
+    /// Texel value → transfer-function coordinate: scale.
+    pub value_scale: f32,
+    /// Atlas size in texels (packed stage).
+    pub atlas_size: [f32; 3],
+    /// Texel value → transfer-function coordinate: offset.
+    pub value_offset: f32,
     /// Background colour (rgb, a unused).
     pub background: [f32; 4],
     /// Blinn–Phong ambient, diffuse, specular, shininess.
     pub phong: [f32; 4],
-    /// Texel value → transfer-function coordinate: scale.
-    pub value_scale: f32,
-    /// Texel value → transfer-function coordinate: offset.
-    pub value_offset: f32,
-    /// Gradient magnitude (transfer-function units per mm) under which samples stay unshaded.
-    pub gradient_threshold: f32,
-    /// Accumulated opacity at which a ray stops.
-    pub early_termination: f32,
+    /// Blocks along x, y, z (packed stage).
+    pub block_grid: [u32; 3],
     /// Upper bound on samples per ray.
     pub max_steps: u32,
     /// Entries in the transfer-function table.
@@ -68,6 +89,8 @@ pub struct RaycastParams {
     pub height: u32,
     /// `FLAG_*` bits.
     pub flags: u32,
+    /// `MODE_*`.
+    pub mode: u32,
     /// Padding to a multiple of 16 bytes.
     pub _pad: [u32; 3],
 }
@@ -103,10 +126,25 @@ impl VolumePlacement {
     }
 }
 
+/// What the packed stage needs beyond the volume: the atlas and block grid sizes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PackedLayout {
+    /// Atlas size in texels.
+    pub atlas_dims: [u32; 3],
+    /// Blocks along x, y, z.
+    pub block_grid: [u32; 3],
+}
+
 impl RaycastParams {
     /// The uniforms for rendering `request` of the volume stored as `texture`, with
-    /// a transfer-function table of `tf_len` entries.
-    pub fn new(texture: &VolumeTexture, request: &FrameRequest, tf_len: u32) -> RaycastParams {
+    /// a transfer-function table of `tf_len` entries, from packed blocks laid out
+    /// as `packed` (zeros for the reference stage).
+    pub fn new(
+        texture: &VolumeTexture,
+        request: &FrameRequest,
+        tf_len: u32,
+        packed: PackedLayout,
+    ) -> RaycastParams {
         let placement = VolumePlacement::of(texture);
         let radius = placement.radius();
         let texture_from_model_linear = placement.model_from_texture.inverse();
@@ -130,6 +168,14 @@ impl RaycastParams {
         if request.shading == Shading::Gradient {
             flags |= FLAG_SHADED;
         }
+        if request.skip_empty {
+            flags |= FLAG_SKIP_EMPTY;
+        }
+        let mode = match request.shading {
+            Shading::Unshaded | Shading::Gradient => MODE_COMPOSITE,
+            Shading::Mip => MODE_MIP,
+            Shading::MinIp => MODE_MINIP,
+        };
         let [r, g, b] = request.background;
         RaycastParams {
             inv_view_proj: inv_view_proj.to_cols_array_2d(),
@@ -139,17 +185,23 @@ impl RaycastParams {
             step,
             light_dir: light.normalize().into(),
             reference_step: min_spacing,
+            clip_min: request.clip.min,
+            early_termination: EARLY_TERMINATION,
+            clip_max: request.clip.max,
+            gradient_threshold: GRADIENT_THRESHOLD_PER_VOXEL / min_spacing,
+            volume_dims: texture.dims.map(|d| d as f32),
+            value_scale: texture.value_scale,
+            atlas_size: packed.atlas_dims.map(|d| d.max(1) as f32),
+            value_offset: texture.value_offset,
             background: [r, g, b, 1.0],
             phong: PHONG,
-            value_scale: texture.value_scale,
-            value_offset: texture.value_offset,
-            gradient_threshold: GRADIENT_THRESHOLD_PER_VOXEL / min_spacing,
-            early_termination: EARLY_TERMINATION,
+            block_grid: packed.block_grid,
             max_steps,
             tf_len,
             width: request.width,
             height: request.height,
             flags,
+            mode,
             _pad: [0; 3],
         }
     }
@@ -163,35 +215,63 @@ impl RaycastParams {
     }
 }
 
-/// The compiled `raycast` compute pipeline and its bind group layout.
+/// Which ray-marching stage a pipeline runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Packed blocks through the block index.
+    Raycast,
+    /// One plain texture.
+    Reference,
+}
+
+impl Stage {
+    fn name(self) -> &'static str {
+        match self {
+            Stage::Raycast => "raycast",
+            Stage::Reference => "reference",
+        }
+    }
+
+    fn source(self) -> &'static str {
+        match self {
+            Stage::Raycast => crate::wgsl::RAYCAST,
+            Stage::Reference => crate::wgsl::REFERENCE,
+        }
+    }
+}
+
+/// A compiled ray-marching stage and its bind group layout.
 #[derive(Debug)]
-pub struct RaycastPipeline {
+pub struct MarchPipeline {
+    stage: Stage,
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     sampler: wgpu::Sampler,
 }
 
-/// The resources `raycast` binds, in binding order.
+/// The resources a ray-marching stage binds, in binding order.
 #[derive(Debug, Clone, Copy)]
-pub struct RaycastBindings<'a> {
+pub struct MarchBindings<'a> {
     /// 0: uniform [`RaycastParams`].
     pub params: &'a wgpu::Buffer,
-    /// 1: the volume texture.
-    pub volume: &'a wgpu::TextureView,
+    /// 1: the atlas (raycast) or the volume (reference).
+    pub voxels: &'a wgpu::TextureView,
     /// 3: the transfer-function table, `array<vec4<f32>>`.
     pub transfer_function: &'a wgpu::Buffer,
     /// 4: the rgba8unorm output texture.
     pub output: &'a wgpu::TextureView,
+    /// 5: the block index (raycast only).
+    pub block_index: Option<&'a wgpu::TextureView>,
 }
 
-impl RaycastPipeline {
-    /// Compiles the stage (every voxel format voxserve uses filters linearly).
-    pub fn new(gpu: &GpuContext) -> Result<RaycastPipeline, GpuError> {
-        gpu.scoped("building the raycast pipeline", || {
+impl MarchPipeline {
+    /// Compiles `stage` (every voxel format voxserve uses filters linearly).
+    pub fn new(gpu: &GpuContext, stage: Stage) -> Result<MarchPipeline, GpuError> {
+        gpu.scoped(&format!("building the {} pipeline", stage.name()), || {
             let device = &gpu.device;
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some("raycast"),
-                source: wgpu::ShaderSource::Wgsl(crate::wgsl::RAYCAST.into()),
+                label: Some(stage.name()),
+                source: wgpu::ShaderSource::Wgsl(stage.source().into()),
             });
             let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
                 binding,
@@ -199,56 +279,65 @@ impl RaycastPipeline {
                 ty,
                 count: None,
             };
+            let mut entries = vec![
+                entry(
+                    0,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: wgpu::BufferSize::new(size_of::<RaycastParams>() as u64),
+                    },
+                ),
+                entry(
+                    1,
+                    wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D3,
+                        multisampled: false,
+                    },
+                ),
+                entry(
+                    2,
+                    wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                ),
+                entry(
+                    3,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                ),
+                entry(
+                    4,
+                    wgpu::BindingType::StorageTexture {
+                        access: wgpu::StorageTextureAccess::WriteOnly,
+                        format: wgpu::TextureFormat::Rgba8Unorm,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                    },
+                ),
+            ];
+            if stage == Stage::Raycast {
+                entries.push(entry(
+                    5,
+                    wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Uint,
+                        view_dimension: wgpu::TextureViewDimension::D3,
+                        multisampled: false,
+                    },
+                ));
+            }
             let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("raycast"),
-                entries: &[
-                    entry(
-                        0,
-                        wgpu::BindingType::Buffer {
-                            ty: wgpu::BufferBindingType::Uniform,
-                            has_dynamic_offset: false,
-                            min_binding_size: wgpu::BufferSize::new(
-                                size_of::<RaycastParams>() as u64
-                            ),
-                        },
-                    ),
-                    entry(
-                        1,
-                        wgpu::BindingType::Texture {
-                            sample_type: wgpu::TextureSampleType::Float { filterable: true },
-                            view_dimension: wgpu::TextureViewDimension::D3,
-                            multisampled: false,
-                        },
-                    ),
-                    entry(
-                        2,
-                        wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
-                    ),
-                    entry(
-                        3,
-                        wgpu::BindingType::Buffer {
-                            ty: wgpu::BufferBindingType::Storage { read_only: true },
-                            has_dynamic_offset: false,
-                            min_binding_size: None,
-                        },
-                    ),
-                    entry(
-                        4,
-                        wgpu::BindingType::StorageTexture {
-                            access: wgpu::StorageTextureAccess::WriteOnly,
-                            format: wgpu::TextureFormat::Rgba8Unorm,
-                            view_dimension: wgpu::TextureViewDimension::D2,
-                        },
-                    ),
-                ],
+                label: Some(stage.name()),
+                entries: &entries,
             });
             let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("raycast"),
+                label: Some(stage.name()),
                 bind_group_layouts: &[Some(&layout)],
                 immediate_size: 0,
             });
             let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some("raycast"),
+                label: Some(stage.name()),
                 layout: Some(&pipeline_layout),
                 module: &module,
                 entry_point: Some("main"),
@@ -256,7 +345,7 @@ impl RaycastPipeline {
                 cache: None,
             });
             let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-                label: Some("volume"),
+                label: Some("voxels"),
                 address_mode_u: wgpu::AddressMode::ClampToEdge,
                 address_mode_v: wgpu::AddressMode::ClampToEdge,
                 address_mode_w: wgpu::AddressMode::ClampToEdge,
@@ -264,7 +353,8 @@ impl RaycastPipeline {
                 min_filter: wgpu::FilterMode::Linear,
                 ..Default::default()
             });
-            RaycastPipeline {
+            MarchPipeline {
+                stage,
                 pipeline,
                 layout,
                 sampler,
@@ -273,33 +363,47 @@ impl RaycastPipeline {
     }
 
     /// A bind group over `bindings`.
-    pub fn bind_group(&self, gpu: &GpuContext, bindings: RaycastBindings<'_>) -> wgpu::BindGroup {
-        gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("raycast"),
+    pub fn bind_group(
+        &self,
+        gpu: &GpuContext,
+        bindings: MarchBindings<'_>,
+    ) -> Result<wgpu::BindGroup, GpuError> {
+        let mut entries = vec![
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: bindings.params.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: wgpu::BindingResource::TextureView(bindings.voxels),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::Sampler(&self.sampler),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: bindings.transfer_function.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 4,
+                resource: wgpu::BindingResource::TextureView(bindings.output),
+            },
+        ];
+        if self.stage == Stage::Raycast {
+            let index = bindings.block_index.ok_or_else(|| {
+                GpuError::InvalidRequest("the raycast stage needs a block index".into())
+            })?;
+            entries.push(wgpu::BindGroupEntry {
+                binding: 5,
+                resource: wgpu::BindingResource::TextureView(index),
+            });
+        }
+        Ok(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(self.stage.name()),
             layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: bindings.params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: wgpu::BindingResource::TextureView(bindings.volume),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::Sampler(&self.sampler),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: bindings.transfer_function.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: wgpu::BindingResource::TextureView(bindings.output),
-                },
-            ],
-        })
+            entries: &entries,
+        }))
     }
 
     /// Records the dispatch for an image of `params.width` × `params.height`.
@@ -310,7 +414,7 @@ impl RaycastPipeline {
         params: &RaycastParams,
     ) {
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("raycast"),
+            label: Some(self.stage.name()),
             timestamp_writes: None,
         });
         pass.set_pipeline(&self.pipeline);
@@ -326,9 +430,9 @@ mod tests {
 
     #[test]
     fn params_are_a_multiple_of_16_bytes_like_the_wgsl_struct() {
-        // WGSL: three mat4x4 (64 each), two vec3 + scalar pairs and two vec4s (16
-        // each), twelve scalars.
-        assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 4 * 16 + 12 * 4);
+        // WGSL: three mat4x4 (64 each), six vec3 + scalar pairs, two vec4s and
+        // one vec3<u32> + scalar (16 each), eight scalars.
+        assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 9 * 16 + 8 * 4);
         assert_eq!(size_of::<RaycastParams>() % 16, 0);
     }
 
@@ -339,12 +443,19 @@ mod tests {
             spacing: [1.0, 0.5, 2.0],
             direction: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
             format: crate::volume_texture::TexelFormat::R8Unorm,
+            voxel_type: blocks::VoxelType::U8,
+            value_map: blocks::ValueMap::IDENTITY,
             tf_domain: [0.0, 1.0],
             value_scale: 1.0,
             value_offset: 0.0,
         };
         let tf = blocks::Preset::Generic.transfer_function([0.0, 1.0]);
-        let p = RaycastParams::new(&texture, &FrameRequest::new(8, 8, tf), 16);
+        let p = RaycastParams::new(
+            &texture,
+            &FrameRequest::new(8, 8, tf),
+            16,
+            PackedLayout::default(),
+        );
         let m = Mat4::from_cols_array_2d(&p.texture_from_model);
         // Texture x runs along model −y over 10 mm; texture y along model +x over 10 mm.
         let tc = |v: Vec3| m.transform_point3(v);
@@ -357,13 +468,15 @@ mod tests {
     }
 
     #[test]
-    fn the_wgsl_parses_and_validates() {
-        let module = naga::front::wgsl::parse_str(crate::wgsl::RAYCAST).expect("WGSL parses");
-        naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::empty(),
-        )
-        .validate(&module)
-        .expect("WGSL validates");
+    fn both_stages_parse_and_validate() {
+        for source in [crate::wgsl::RAYCAST, crate::wgsl::REFERENCE] {
+            let module = naga::front::wgsl::parse_str(source).expect("WGSL parses");
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::empty(),
+            )
+            .validate(&module)
+            .expect("WGSL validates");
+        }
     }
 }

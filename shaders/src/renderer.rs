@@ -1,19 +1,33 @@
-//! [`Renderer`]: one volume resident on the GPU, rendered frame by frame through
-//! the `raycast` stage and read back as RGBA8.
+//! The renderers: [`Renderer`] draws from packed blocks (the volume as the
+//! level-of-detail selection keeps it on the GPU), [`ReferenceRenderer`] from
+//! one plain full-resolution texture (tests and benchmarks only).
 //!
-//! The transfer-function table is uploaded only when the transfer function
-//! changes; the output texture and its readback buffer are kept while the image
-//! size stays the same.
+//! [`Renderer`] keeps the blocks resident between frames. A frame whose transfer
+//! function or data reduction differs from the last re-selects levels (a few
+//! milliseconds from the block statistics) and uploads only the blocks that
+//! changed; a camera change uploads nothing. The transfer-function table is
+//! written only when it changes; the output texture and readback buffer stay
+//! while the image size does.
 
+use std::sync::Arc;
+use std::time::Instant;
+
+use blocks::cache::BlockCache;
+use blocks::lod::{self, LodSelection};
+use blocks::packing::Packing;
+use blocks::store::{LEVELS, Store};
 use blocks::transfer_function::TABLE_LEN;
 use blocks::{TransferFunction, Volume};
 
-use crate::raycast::RaycastBindings;
-use crate::volume_texture::{GpuVolume, VolumeTexture};
-use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams, RaycastPipeline};
+use crate::packed::GpuAtlas;
+use crate::raycast::{MarchBindings, MarchPipeline, PackedLayout, Stage};
+use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
+use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
 /// Rows of a texture-to-buffer copy are padded to this many bytes.
 const ROW_ALIGN: u32 = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+/// Selections tried before a device budget is declared too small.
+const MAX_SELECTIONS: usize = 12;
 
 /// The output texture of one image size and the buffer it is read back through.
 #[derive(Debug)]
@@ -26,103 +40,92 @@ struct Target {
     padded_row: u32,
 }
 
-/// A volume on the GPU and the pipeline that renders it.
+/// What every renderer needs beside its voxels: uniforms, the transfer-function
+/// table and the output.
 #[derive(Debug)]
-pub struct Renderer {
-    gpu: GpuContext,
-    pipeline: RaycastPipeline,
-    volume: GpuVolume,
+struct FrameResources {
     params: wgpu::Buffer,
     transfer_function: wgpu::Buffer,
     uploaded_tf: Option<TransferFunction>,
     target: Option<Target>,
 }
 
-impl Renderer {
-    /// Compiles the pipeline and uploads `volume`.
-    pub fn new(gpu: GpuContext, volume: &Volume) -> Result<Renderer, GpuError> {
-        let pipeline = RaycastPipeline::new(&gpu)?;
-        let volume = GpuVolume::upload(&gpu, volume)?;
-        let (params, transfer_function) = gpu.scoped("creating renderer buffers", || {
-            let params = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+impl FrameResources {
+    fn new(gpu: &GpuContext) -> Result<FrameResources, GpuError> {
+        gpu.scoped("creating frame buffers", || FrameResources {
+            params: gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("raycast params"),
                 size: size_of::<RaycastParams>() as u64,
                 usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
-            });
-            let transfer_function = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            }),
+            transfer_function: gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("transfer function"),
                 size: (TABLE_LEN * size_of::<[f32; 4]>()) as u64,
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
-            });
-            (params, transfer_function)
-        })?;
-        Ok(Renderer {
-            gpu,
-            pipeline,
-            volume,
-            params,
-            transfer_function,
+            }),
             uploaded_tf: None,
             target: None,
         })
     }
 
-    /// The GPU this renderer runs on.
-    pub fn gpu(&self) -> &GpuContext {
-        &self.gpu
-    }
-
-    /// How the volume is stored on the GPU.
-    pub fn volume_texture(&self) -> &VolumeTexture {
-        &self.volume.desc
-    }
-
-    /// Renders one frame and reads it back.
-    pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+    /// Checks the request against the device, writes the table if it changed.
+    fn prepare(
+        &mut self,
+        gpu: &GpuContext,
+        request: &FrameRequest,
+        desc: &VolumeTexture,
+    ) -> Result<(), GpuError> {
         request.validate().map_err(GpuError::InvalidRequest)?;
-        let max = self.gpu.device.limits().max_texture_dimension_2d;
+        let max = gpu.device.limits().max_texture_dimension_2d;
         if request.width > max || request.height > max {
             return Err(GpuError::Unsupported {
                 what: format!("a {}x{} image", request.width, request.height),
                 limit: format!(
                     "adapter '{}' allows at most {max} pixels per side",
-                    self.gpu.info.name
+                    gpu.info.name
                 ),
             });
         }
         if self.uploaded_tf.as_ref() != Some(&request.transfer_function) {
-            let table = request
-                .transfer_function
-                .table(self.volume.desc.tf_domain, TABLE_LEN)?;
-            self.gpu
-                .queue
+            let table = request.transfer_function.table(desc.tf_domain, TABLE_LEN)?;
+            gpu.queue
                 .write_buffer(&self.transfer_function, 0, bytemuck::cast_slice(&table));
             self.uploaded_tf = Some(request.transfer_function.clone());
         }
-        let params = RaycastParams::new(&self.volume.desc, request, TABLE_LEN as u32);
-        self.gpu
-            .queue
-            .write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        let gpu = &self.gpu;
-        let target = ensure_target(gpu, &mut self.target, request.width, request.height)?;
+        Ok(())
+    }
+
+    /// Runs `pipeline` with `params` over `voxels` (and `block_index`) and reads the frame back.
+    fn draw(
+        &mut self,
+        gpu: &GpuContext,
+        pipeline: &MarchPipeline,
+        params: &RaycastParams,
+        voxels: &wgpu::TextureView,
+        block_index: Option<&wgpu::TextureView>,
+    ) -> Result<Frame, GpuError> {
+        gpu.queue
+            .write_buffer(&self.params, 0, bytemuck::bytes_of(params));
+        let target = ensure_target(gpu, &mut self.target, params.width, params.height)?;
+        let bind_group = pipeline.bind_group(
+            gpu,
+            MarchBindings {
+                params: &self.params,
+                voxels,
+                transfer_function: &self.transfer_function,
+                output: &target.view,
+                block_index,
+            },
+        )?;
         gpu.scoped("rendering a frame", || {
-            let bind_group = self.pipeline.bind_group(
-                gpu,
-                RaycastBindings {
-                    params: &self.params,
-                    volume: &self.volume.view,
-                    transfer_function: &self.transfer_function,
-                    output: &target.view,
-                },
-            );
             let mut encoder = gpu
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("frame"),
                 });
-            self.pipeline.dispatch(&mut encoder, &bind_group, &params);
+            pipeline.dispatch(&mut encoder, &bind_group, params);
             encoder.copy_texture_to_buffer(
                 target.texture.as_image_copy(),
                 wgpu::TexelCopyBufferInfo {
@@ -155,6 +158,366 @@ impl Renderer {
             rgba,
         })
     }
+}
+
+/// What the last frame of a [`Renderer`] took and showed.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RenderStats {
+    /// Full-volume voxels per voxel kept on the GPU.
+    pub reduction: f64,
+    /// Blocks per level on the GPU (levels 0 to 4).
+    pub level_counts: [usize; LEVELS],
+    /// Blocks uploaded for this frame (0 when only the camera moved).
+    pub uploaded_blocks: usize,
+    /// Whether the atlas was laid out anew.
+    pub relayout: bool,
+    /// Milliseconds spent selecting levels (0 when nothing was re-selected).
+    pub select_ms: f64,
+    /// Milliseconds spent uploading blocks and index.
+    pub upload_ms: f64,
+    /// Milliseconds from dispatch to pixels read back.
+    pub draw_ms: f64,
+}
+
+/// The blocks on the GPU and what they were selected for.
+#[derive(Debug)]
+struct Resident {
+    atlas: GpuAtlas,
+    selection: LodSelection,
+    tf: TransferFunction,
+    budget_voxels: u64,
+}
+
+/// Renders a brick store from the blocks its level-of-detail selection keeps on
+/// the GPU; see the module docs.
+pub struct Renderer {
+    gpu: GpuContext,
+    pipeline: MarchPipeline,
+    cache: Arc<BlockCache>,
+    desc: VolumeTexture,
+    full_voxels: u64,
+    device_budget_bytes: u64,
+    resident: Option<Resident>,
+    frame: FrameResources,
+    last: RenderStats,
+}
+
+impl std::fmt::Debug for Renderer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Renderer")
+            .field("adapter", &self.gpu.info.name)
+            .field("store", &self.cache.store().path())
+            .field("last", &self.last)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Renderer {
+    /// A renderer of the store behind `cache` on `gpu`, keeping at most
+    /// `budget_bytes` of voxels on the device.
+    pub fn new(
+        gpu: GpuContext,
+        cache: Arc<BlockCache>,
+        budget_bytes: u64,
+    ) -> Result<Renderer, GpuError> {
+        let store = cache.store();
+        let desc = VolumeTexture::new(
+            VolumeDescription::of_store(store.meta(), store.voxel_type()),
+            gpu.device.features(),
+        );
+        let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+        let pipeline = MarchPipeline::new(&gpu, Stage::Raycast)?;
+        let frame = FrameResources::new(&gpu)?;
+        Ok(Renderer {
+            gpu,
+            pipeline,
+            cache,
+            desc,
+            full_voxels,
+            device_budget_bytes: budget_bytes,
+            resident: None,
+            frame,
+            last: RenderStats::default(),
+        })
+    }
+
+    /// The GPU this renderer runs on.
+    pub fn gpu(&self) -> &GpuContext {
+        &self.gpu
+    }
+
+    /// How voxels become texels.
+    pub fn volume_texture(&self) -> &VolumeTexture {
+        &self.desc
+    }
+
+    /// What the last frame took and showed.
+    pub fn last_stats(&self) -> &RenderStats {
+        &self.last
+    }
+
+    /// The level-of-detail selection in use, once a frame was rendered.
+    pub fn selection(&self) -> Option<&LodSelection> {
+        self.resident.as_ref().map(|r| &r.selection)
+    }
+
+    /// The packing in use, once a frame was rendered.
+    pub fn packing(&self) -> Option<&Packing> {
+        self.resident.as_ref().map(|r| &r.atlas.packing)
+    }
+
+    /// Renders one frame and reads it back.
+    pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.frame.prepare(&self.gpu, request, &self.desc)?;
+        let budget = budget_voxels(self.full_voxels, request.reduction);
+        let mut stats = RenderStats::default();
+        self.make_resident(&request.transfer_function, budget, &mut stats)?;
+        let Some(resident) = &self.resident else {
+            return Err(GpuError::InvalidRequest("no blocks are resident".into()));
+        };
+        let params =
+            RaycastParams::new(&self.desc, request, TABLE_LEN as u32, resident.atlas.layout);
+        let start = Instant::now();
+        let frame = self.frame.draw(
+            &self.gpu,
+            &self.pipeline,
+            &params,
+            &resident.atlas.atlas_view,
+            Some(&resident.atlas.index_view),
+        )?;
+        stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
+        stats.reduction = resident.selection.reduction();
+        stats.level_counts = resident.selection.level_counts();
+        self.last = stats;
+        Ok(frame)
+    }
+
+    /// Selects levels for `tf` under `budget` voxels and brings the GPU up to date.
+    fn make_resident(
+        &mut self,
+        tf: &TransferFunction,
+        budget: u64,
+        stats: &mut RenderStats,
+    ) -> Result<(), GpuError> {
+        if self
+            .resident
+            .as_ref()
+            .is_some_and(|r| r.tf == *tf && r.budget_voxels == budget)
+        {
+            return Ok(());
+        }
+        let max_edge = self.gpu.device.limits().max_texture_dimension_3d;
+        let start = Instant::now();
+        let device = DeviceBudget {
+            bytes: self.device_budget_bytes,
+            texel_bytes: self.desc.format.size() as u64,
+            max_edge,
+        };
+        let (selection, fresh) = select_levels(self.cache.store(), tf, budget, device)?;
+        stats.select_ms = start.elapsed().as_secs_f64() * 1e3;
+        let start = Instant::now();
+        match self.resident.take() {
+            Some(mut r) => {
+                let update = r.atlas.packing.update(&selection, max_edge)?;
+                stats.uploaded_blocks = update.uploads.len();
+                stats.relayout = update.relayout;
+                if update.relayout {
+                    drop(r);
+                    let atlas =
+                        GpuAtlas::upload(&self.gpu, &self.cache, update.packing, &self.desc)?;
+                    r = Resident {
+                        atlas,
+                        selection: selection.clone(),
+                        tf: tf.clone(),
+                        budget_voxels: budget,
+                    };
+                } else {
+                    r.atlas.update(
+                        &self.gpu,
+                        &self.cache,
+                        update.packing,
+                        &update.uploads,
+                        &self.desc,
+                    )?;
+                }
+                r.selection = selection;
+                r.tf = tf.clone();
+                r.budget_voxels = budget;
+                self.resident = Some(r);
+            }
+            None => {
+                stats.uploaded_blocks = selection.non_empty;
+                stats.relayout = true;
+                let atlas = GpuAtlas::upload(&self.gpu, &self.cache, fresh, &self.desc)?;
+                self.resident = Some(Resident {
+                    atlas,
+                    selection,
+                    tf: tf.clone(),
+                    budget_voxels: budget,
+                });
+            }
+        }
+        stats.upload_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(())
+    }
+}
+
+/// Renders one plain full-resolution texture: the reference the packed renderer
+/// is checked and priced against.
+#[derive(Debug)]
+pub struct ReferenceRenderer {
+    gpu: GpuContext,
+    pipeline: MarchPipeline,
+    volume: GpuVolume,
+    frame: FrameResources,
+}
+
+impl ReferenceRenderer {
+    /// Compiles the pipeline and uploads `volume`.
+    pub fn new(gpu: GpuContext, volume: &Volume) -> Result<ReferenceRenderer, GpuError> {
+        let pipeline = MarchPipeline::new(&gpu, Stage::Reference)?;
+        let volume = GpuVolume::upload(&gpu, volume)?;
+        let frame = FrameResources::new(&gpu)?;
+        Ok(ReferenceRenderer {
+            gpu,
+            pipeline,
+            volume,
+            frame,
+        })
+    }
+
+    /// How the volume is stored on the GPU.
+    pub fn volume_texture(&self) -> &VolumeTexture {
+        &self.volume.desc
+    }
+
+    /// Renders one frame and reads it back (`reduction` and `skip_empty` do not apply).
+    pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.frame.prepare(&self.gpu, request, &self.volume.desc)?;
+        let params = RaycastParams::new(
+            &self.volume.desc,
+            request,
+            TABLE_LEN as u32,
+            PackedLayout::default(),
+        );
+        self.frame
+            .draw(&self.gpu, &self.pipeline, &params, &self.volume.view, None)
+    }
+}
+
+/// What the GPU can hold: a byte budget for the atlas, the texel size, and the
+/// largest 3D texture edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DeviceBudget {
+    /// Atlas bytes allowed.
+    pub bytes: u64,
+    /// Bytes per texel.
+    pub texel_bytes: u64,
+    /// The adapter's largest 3D texture edge.
+    pub max_edge: u32,
+}
+
+impl DeviceBudget {
+    /// No limit but the texture edge: the CPU twin's.
+    pub fn unlimited(max_edge: u32) -> DeviceBudget {
+        DeviceBudget {
+            bytes: u64::MAX,
+            texel_bytes: 1,
+            max_edge,
+        }
+    }
+}
+
+/// Selects every block's level of detail for `tf` keeping at most
+/// `budget_voxels` voxels (the data reduction asked for). When a fresh packing
+/// of that selection (slots with aprons, whole layers per level) would not fit
+/// `device`, the voxel budget shrinks until it fits, then grows back by
+/// bisection to use as much of the device as it can. Returns the selection and
+/// its fresh packing.
+pub fn select_levels(
+    store: &Store,
+    tf: &TransferFunction,
+    budget_voxels: u64,
+    device: DeviceBudget,
+) -> Result<(LodSelection, Packing), GpuError> {
+    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    // The selection under `budget` and its packing, if that fits the device.
+    let attempt = |budget: u64| {
+        let selection = lod::select(
+            store.stats(),
+            store.meta().value_map,
+            tf,
+            full_voxels,
+            budget,
+        );
+        // A packing that does not fit the texture edge counts as too big.
+        let packing = Packing::new(&selection, device.max_edge).ok();
+        let bytes = packing.as_ref().map_or(u64::MAX, |p| {
+            p.atlas_dims.iter().map(|&d| u64::from(d)).product::<u64>() * device.texel_bytes
+        });
+        let fits = packing.filter(|_| bytes <= device.bytes);
+        (selection, fits, bytes)
+    };
+    let (selection, fits, mut bytes) = attempt(budget_voxels);
+    if let Some(packing) = fits {
+        return Ok((selection, packing));
+    }
+    // Shrink until a selection fits; `too_big` is the smallest budget known not to.
+    let mut too_big = budget_voxels.min(selection.kept_voxels);
+    let mut best = None;
+    let mut over_budget = selection.over_budget;
+    for _ in 0..MAX_SELECTIONS {
+        if over_budget || too_big <= 1 {
+            break;
+        }
+        let shrink = if bytes == u64::MAX {
+            0.5
+        } else {
+            (device.bytes as f64 / bytes as f64).min(0.9)
+        };
+        let budget = ((too_big as f64 * shrink) as u64).max(1);
+        let (selection, fits, b) = attempt(budget);
+        bytes = b;
+        over_budget = selection.over_budget;
+        match fits {
+            Some(packing) => {
+                best = Some((budget, selection, packing));
+                break;
+            }
+            None => too_big = budget,
+        }
+    }
+    let Some((mut fitting, mut selection, mut packing)) = best else {
+        let coarsest = lod::select(store.stats(), store.meta().value_map, tf, full_voxels, 0);
+        return Err(GpuError::Unsupported {
+            what: format!(
+                "the {} blocks the transfer function shows, even all at level 4 ({} voxels)",
+                coarsest.non_empty, coarsest.kept_voxels
+            ),
+            limit: format!(
+                "they do not fit the GPU budget of {} bytes in 3D textures of at most {} texels per side",
+                device.bytes, device.max_edge
+            ),
+        });
+    };
+    // Grow back towards the smallest budget known too big.
+    for _ in 0..MAX_SELECTIONS / 2 {
+        if too_big - fitting <= too_big / 64 {
+            break;
+        }
+        let budget = fitting + (too_big - fitting) / 2;
+        match attempt(budget) {
+            (s, Some(p), _) => (fitting, selection, packing) = (budget, s, p),
+            _ => too_big = budget,
+        }
+    }
+    Ok((selection, packing))
+}
+
+/// The voxels a frame may keep for `reduction` (full-volume voxels per kept
+/// voxel) of a volume of `full_voxels`.
+pub fn budget_voxels(full_voxels: u64, reduction: f32) -> u64 {
+    (full_voxels as f64 / f64::from(reduction.max(1.0))).ceil() as u64
 }
 
 /// The output texture and readback buffer for `width` × `height`: the one in `slot`

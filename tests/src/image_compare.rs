@@ -128,6 +128,42 @@ pub fn compare(
     ))
 }
 
+/// Compares two rendered frames under `tol`; on failure writes
+/// `tests/golden/NAME-actual.png` and `NAME-diff.png` and panics saying so.
+///
+/// # Panics
+/// When the frames differ beyond `tol`.
+pub fn assert_similar(name: &str, actual: &Frame, expected: &Frame, tol: &Tolerance) -> ImageDiff {
+    compare(
+        name,
+        &to_image(actual),
+        &to_image(expected),
+        tol,
+        &golden_dir(),
+    )
+    .unwrap_or_else(|msg| panic!("{msg}"))
+}
+
+/// Compares a rendered frame with the golden image `tests/golden/NAME.png`
+/// without ever rewriting it (renders other than the blessing one).
+///
+/// # Panics
+/// When the golden is missing or the frame differs beyond `tol`.
+pub fn assert_matches_golden(name: &str, actual: &Frame, tol: &Tolerance) -> ImageDiff {
+    let dir = golden_dir();
+    let expected = image::open(dir.join(format!("{name}.png")))
+        .unwrap_or_else(|e| panic!("golden image {name}.png cannot be read: {e}"))
+        .to_rgba8();
+    compare(
+        &format!("{name}-check"),
+        &to_image(actual),
+        &expected,
+        tol,
+        &dir,
+    )
+    .unwrap_or_else(|msg| panic!("{msg}"))
+}
+
 /// The folder of golden images: `tests/golden/`.
 pub fn golden_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("golden")

@@ -5,7 +5,10 @@
 //!   skip; with `VOXSERVE_REQUIRE_GPU=1` (set by `.ci/run`) a missing adapter fails.
 //! - [`image_compare`]: compare a rendered frame with another or with a golden PNG
 //!   under a tolerance, writing `*-actual.png` and `*-diff.png` on failure.
-//! - [`phantom`]: the phantom at test sizes, generated once per test binary.
+//! - [`phantom`]: the phantom at test sizes, generated once per test binary, as a
+//!   volume and as a bricked dataset.
+//! - [`render`]: packed and reference renders of a dataset on the GPU and the
+//!   CPU twins, set up alike.
 //! - [`data`]: the real datasets in `../shared/data`, or a printed reason to skip.
 //! - [`checks`]: facts that show a volume is really in an image (coverage,
 //!   left–right symmetry, centroid).
@@ -16,6 +19,7 @@ pub mod data;
 pub mod gpu;
 pub mod image_compare;
 pub mod phantom;
+pub mod render;
 pub mod server;
 
 pub use gpu::{gpu_or_skip, require_gpu};

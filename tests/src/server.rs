@@ -19,8 +19,9 @@ impl TestServer {
     /// # Panics
     /// When the server cannot start.
     pub async fn start(gpu: &GpuContext, phantom_size: u32) -> TestServer {
-        let dataset = Dataset::phantom(phantom_size).expect("phantom");
-        let renderer = RenderService::start(gpu.clone(), &dataset).expect("render worker");
+        let dataset = Dataset::phantom(phantom_size, 256 << 20).expect("phantom");
+        let renderer =
+            RenderService::start(gpu.clone(), &dataset, 512 << 20).expect("render worker");
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind port 0");
         let addr = listener.local_addr().expect("local address");
         let (stop, stopped) = oneshot::channel::<()>();

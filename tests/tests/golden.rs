@@ -1,15 +1,17 @@
 //! Golden images: small lossless PNGs in `tests/golden/`, compared with a tolerance.
 //!
-//! The CPU twin renders every golden on every machine (it needs no GPU), and the
-//! GPU renders it too when an adapter exists. Regenerate with `VOXSERVE_BLESS=1`
+//! Every golden is a packed render of the phantom's brick store (64³, bricked in
+//! memory). The packed CPU twin renders every golden on every machine (it needs
+//! no GPU), and the GPU renders it too when an adapter exists. Regenerate with `VOXSERVE_BLESS=1`
 //! after an intended change, and look at the new images before committing them.
 
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
 use blocks::Preset;
-use shaders::{Camera, FrameRequest, Renderer, Shading};
-use voxserve_tests::image_compare::{assert_golden, to_image};
-use voxserve_tests::phantom::phantom_64;
+use shaders::{Camera, ClipBox, FrameRequest, Projection, Shading};
+use voxserve_tests::image_compare::{assert_golden, assert_matches_golden, to_image};
+use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
+use voxserve_tests::render::{cpu_packed, gpu_renderer};
 use voxserve_tests::{Tolerance, gpu_or_skip};
 
 /// Renders differ from the golden by rounding only: a mean below 0.5 of 255 and
@@ -49,18 +51,53 @@ fn goldens() -> Vec<(&'static str, FrameRequest)> {
                 ..FrameRequest::new(96, 128, Preset::Generic.transfer_function(range))
             },
         ),
+        (
+            "phantom-mip-orthographic",
+            FrameRequest {
+                camera: Camera {
+                    azimuth_deg: 20.0,
+                    elevation_deg: 10.0,
+                    projection: Projection::Orthographic,
+                    ..Camera::default()
+                },
+                shading: Shading::Mip,
+                ..FrameRequest::new(96, 96, Preset::CtSoftTissue.transfer_function(range))
+            },
+        ),
+        (
+            "phantom-minip-side",
+            FrameRequest {
+                camera: Camera {
+                    azimuth_deg: 90.0,
+                    ..Camera::default()
+                },
+                shading: Shading::MinIp,
+                background: [0.2, 0.25, 0.3],
+                ..FrameRequest::new(96, 96, Preset::Generic.transfer_function(range))
+            },
+        ),
+        (
+            "phantom-bone-clipped",
+            FrameRequest {
+                camera: Camera {
+                    azimuth_deg: -35.0,
+                    elevation_deg: 30.0,
+                    ..Camera::default()
+                },
+                clip: ClipBox {
+                    min: [0.0, 0.0, 0.0],
+                    max: [1.0, 0.5, 0.6],
+                },
+                ..FrameRequest::new(96, 96, Preset::CtSoftTissue.transfer_function(range))
+            },
+        ),
     ]
 }
 
 #[test]
 fn cpu_twin_matches_the_golden_images() {
     for (name, request) in goldens() {
-        let frame = shaders::cpu::render(
-            phantom_64(),
-            &request,
-            wgpu::Features::TEXTURE_FORMAT_16BIT_NORM,
-        )
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let frame = cpu_packed(None, phantom_64_dataset(), &request);
         let diff = assert_golden(name, &to_image(&frame), &GOLDEN_TOLERANCE);
         println!("{name}: CPU twin vs golden: {diff:?}");
     }
@@ -71,22 +108,13 @@ fn gpu_matches_the_golden_images() {
     let Some(gpu) = gpu_or_skip("gpu_matches_the_golden_images") else {
         return;
     };
-    let mut renderer = Renderer::new(gpu.clone(), phantom_64()).expect("renderer");
+    let mut renderer = gpu_renderer(gpu, phantom_64_dataset());
     for (name, request) in goldens() {
         let frame = renderer
             .render(&request)
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         // The GPU result is compared, never blessed: the CPU twin writes goldens.
-        let diff = voxserve_tests::image_compare::compare(
-            &format!("{name}-gpu"),
-            &to_image(&frame),
-            &image::open(voxserve_tests::image_compare::golden_dir().join(format!("{name}.png")))
-                .unwrap_or_else(|e| panic!("{name}: golden missing: {e}"))
-                .to_rgba8(),
-            &GOLDEN_TOLERANCE,
-            &voxserve_tests::image_compare::golden_dir(),
-        )
-        .unwrap_or_else(|msg| panic!("{msg}"));
+        let diff = assert_matches_golden(name, &frame, &GOLDEN_TOLERANCE);
         println!("{name}: GPU vs golden: {diff:?}");
     }
 }

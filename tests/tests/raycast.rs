@@ -1,4 +1,6 @@
-//! The `raycast` stage on the GPU against its CPU twin `shaders::cpu::raycast`.
+//! The ray-marching stages on the GPU against their CPU twins: `raycast` over
+//! packed blocks (`shaders::cpu::raycast`) and `reference` over one plain
+//! texture (`shaders::cpu::reference`).
 //!
 //! Tolerance: the two differ only in arithmetic (hardware texture filtering keeps
 //! fewer fraction bits than f32 trilinear interpolation, and transcendental
@@ -11,9 +13,11 @@
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
 use blocks::{Preset, Volume, VoxelData};
-use shaders::{Camera, FrameRequest, Renderer, Shading};
-use voxserve_tests::image_compare::{compare, golden_dir, to_image};
-use voxserve_tests::phantom::phantom_64;
+use server::Dataset;
+use shaders::{Camera, ClipBox, Frame, FrameRequest, GpuError, Projection, Shading};
+use voxserve_tests::image_compare::assert_similar;
+use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
+use voxserve_tests::render::{cpu_packed, cpu_reference, dataset_of, gpu_reference, gpu_renderer};
 use voxserve_tests::{Tolerance, gpu_or_skip};
 
 const TWIN_TOLERANCE: Tolerance = Tolerance {
@@ -22,36 +26,37 @@ const TWIN_TOLERANCE: Tolerance = Tolerance {
     max_differing_fraction: 0.01,
 };
 
-/// The same requests through the GPU and the CPU twin, compared.
-fn compare_twins(test: &str, volume: &Volume, requests: &[(&str, FrameRequest)]) {
+fn check_twins(name: &str, gpu_frame: &Frame, cpu_frame: &Frame) {
+    let diff = assert_similar(
+        &format!("twin-{name}"),
+        gpu_frame,
+        cpu_frame,
+        &TWIN_TOLERANCE,
+    );
+    println!("{name}: GPU vs CPU twin: {diff:?}");
+}
+
+/// The same requests through the packed GPU renderer and the packed CPU twin.
+fn compare_packed_twins(test: &str, dataset: &Dataset, requests: &[(&str, FrameRequest)]) {
     let Some(gpu) = gpu_or_skip(test) else {
         return;
     };
-    let mut renderer =
-        Renderer::new(gpu.clone(), volume).unwrap_or_else(|e| panic!("{test}: renderer: {e}"));
-    let features = gpu.device.features();
+    let mut renderer = gpu_renderer(gpu, dataset);
     for (name, request) in requests {
         let gpu_frame = renderer
             .render(request)
             .unwrap_or_else(|e| panic!("{name}: GPU render: {e}"));
-        let cpu_frame = shaders::cpu::render(volume, request, features)
-            .unwrap_or_else(|e| panic!("{name}: CPU render: {e}"));
-        let diff = compare(
-            &format!("twin-{name}"),
-            &to_image(&gpu_frame),
-            &to_image(&cpu_frame),
-            &TWIN_TOLERANCE,
-            &golden_dir(),
-        )
-        .unwrap_or_else(|msg| panic!("{msg}"));
-        println!("{name}: GPU vs CPU twin: {diff:?}");
-        to_image(&gpu_frame)
-            .save(format!("/tmp/{name}-gpu.png"))
-            .ok();
+        let cpu_frame = cpu_packed(Some(gpu), dataset, request);
+        check_twins(name, &gpu_frame, &cpu_frame);
     }
 }
 
-fn request(preset: Preset, shading: Shading, camera: Camera, size: (u32, u32)) -> FrameRequest {
+fn phantom_request(
+    preset: Preset,
+    shading: Shading,
+    camera: Camera,
+    size: (u32, u32),
+) -> FrameRequest {
     let range = phantom_64().value_range;
     FrameRequest {
         camera,
@@ -60,8 +65,10 @@ fn request(preset: Preset, shading: Shading, camera: Camera, size: (u32, u32)) -
     }
 }
 
-#[test]
-fn gpu_and_cpu_twin_agree_on_the_phantom() {
+/// Views that exercise every branch of the march: shading modes, both
+/// projections, a camera inside the volume, a clip box, a background colour,
+/// and mixed levels of detail.
+fn phantom_requests() -> Vec<(&'static str, FrameRequest)> {
     let oblique = Camera {
         azimuth_deg: 35.0,
         elevation_deg: 20.0,
@@ -71,34 +78,96 @@ fn gpu_and_cpu_twin_agree_on_the_phantom() {
         distance: 0.3,
         ..Camera::default()
     };
-    compare_twins(
-        "gpu_and_cpu_twin_agree_on_the_phantom",
-        phantom_64(),
-        &[
-            (
-                "bone-shaded",
-                request(
-                    Preset::CtBone,
-                    Shading::Gradient,
-                    Camera::default(),
-                    (96, 96),
-                ),
+    let ortho = Camera {
+        azimuth_deg: -50.0,
+        elevation_deg: 10.0,
+        projection: Projection::Orthographic,
+        ..Camera::default()
+    };
+    vec![
+        (
+            "bone-shaded",
+            phantom_request(
+                Preset::CtBone,
+                Shading::Gradient,
+                Camera::default(),
+                (96, 96),
             ),
-            (
-                "soft-tissue-unshaded-wide",
-                request(Preset::CtSoftTissue, Shading::Unshaded, oblique, (128, 72)),
-            ),
-            (
-                "generic-inside",
-                request(Preset::Generic, Shading::Gradient, inside, (64, 80)),
-            ),
-        ],
+        ),
+        (
+            "soft-tissue-unshaded-wide",
+            phantom_request(Preset::CtSoftTissue, Shading::Unshaded, oblique, (128, 72)),
+        ),
+        (
+            "generic-inside",
+            phantom_request(Preset::Generic, Shading::Gradient, inside, (64, 80)),
+        ),
+        (
+            "mip-orthographic",
+            phantom_request(Preset::CtSoftTissue, Shading::Mip, ortho, (80, 80)),
+        ),
+        (
+            "minip-oblique",
+            phantom_request(Preset::Generic, Shading::MinIp, oblique, (64, 64)),
+        ),
+        (
+            "bone-clipped-grey-background",
+            FrameRequest {
+                clip: ClipBox {
+                    min: [0.1, 0.0, 0.2],
+                    max: [0.9, 0.55, 0.8],
+                },
+                background: [0.3, 0.3, 0.35],
+                ..phantom_request(Preset::CtBone, Shading::Gradient, oblique, (96, 96))
+            },
+        ),
+        (
+            "soft-tissue-reduced-9",
+            FrameRequest {
+                reduction: 9.0,
+                ..phantom_request(Preset::CtSoftTissue, Shading::Gradient, oblique, (96, 96))
+            },
+        ),
+        (
+            "bone-reduced-35-orthographic",
+            FrameRequest {
+                reduction: 35.0,
+                ..phantom_request(Preset::CtBone, Shading::Gradient, ortho, (96, 96))
+            },
+        ),
+    ]
+}
+
+#[test]
+fn packed_gpu_and_cpu_twin_agree_on_the_phantom() {
+    compare_packed_twins(
+        "packed_gpu_and_cpu_twin_agree_on_the_phantom",
+        phantom_64_dataset(),
+        &phantom_requests(),
     );
 }
 
 #[test]
-fn gpu_and_cpu_twin_agree_on_an_8bit_volume() {
-    // A bright sphere in a dark cube, 8-bit: exercises the r8unorm path.
+fn reference_gpu_and_cpu_twin_agree_on_the_phantom() {
+    let Some(gpu) = gpu_or_skip("reference_gpu_and_cpu_twin_agree_on_the_phantom") else {
+        return;
+    };
+    let mut reference = gpu_reference(gpu, phantom_64());
+    for (name, request) in phantom_requests()
+        .into_iter()
+        .filter(|(_, r)| r.reduction == 1.0)
+    {
+        let gpu_frame = reference
+            .render(&request)
+            .unwrap_or_else(|e| panic!("{name}: GPU render: {e}"));
+        let cpu_frame = cpu_reference(Some(gpu), phantom_64(), &request);
+        check_twins(&format!("reference-{name}"), &gpu_frame, &cpu_frame);
+    }
+}
+
+/// A bright sphere in a dark 40³ cube of 8-bit voxels: the r8unorm path, and
+/// blocks cut short by the volume's edge (40 is not a multiple of 16).
+fn sphere_u8() -> Volume {
     let n = 40u32;
     let voxels = (0..n * n * n)
         .map(|i| {
@@ -108,26 +177,99 @@ fn gpu_and_cpu_twin_agree_on_an_8bit_volume() {
             (255.0 * (1.0 - r / (n as f32 * 0.4)).clamp(0.0, 1.0)) as u8
         })
         .collect();
-    let volume = Volume::new(
+    Volume::new(
         "sphere",
         [n, n, n],
         [1.0, 1.0, 1.5],
         VoxelData::U8(voxels),
         blocks::ValueMap::IDENTITY,
     )
-    .expect("valid volume");
+    .expect("valid volume")
+}
+
+#[test]
+fn packed_gpu_and_cpu_twin_agree_on_an_8bit_volume_with_partial_blocks() {
+    let volume = sphere_u8();
     let tf = Preset::Generic.transfer_function(volume.value_range);
-    let req = FrameRequest {
-        camera: Camera {
-            azimuth_deg: -60.0,
-            elevation_deg: 45.0,
-            ..Camera::default()
-        },
+    let camera = Camera {
+        azimuth_deg: -60.0,
+        elevation_deg: 45.0,
+        ..Camera::default()
+    };
+    let request = FrameRequest {
+        camera,
         ..FrameRequest::new(80, 80, tf)
     };
-    compare_twins(
-        "gpu_and_cpu_twin_agree_on_an_8bit_volume",
-        &volume,
-        &[("sphere-u8", req)],
+    let dataset = dataset_of(volume);
+    compare_packed_twins(
+        "packed_gpu_and_cpu_twin_agree_on_an_8bit_volume_with_partial_blocks",
+        &dataset,
+        &[
+            ("sphere-u8", request.clone()),
+            (
+                "sphere-u8-mip",
+                FrameRequest {
+                    shading: Shading::Mip,
+                    ..request.clone()
+                },
+            ),
+            (
+                "sphere-u8-reduced",
+                FrameRequest {
+                    reduction: 6.0,
+                    ..request
+                },
+            ),
+        ],
     );
+}
+
+#[test]
+fn skipping_empty_blocks_changes_no_pixel() {
+    let dataset = phantom_64_dataset();
+    let gpu = gpu_or_skip("skipping_empty_blocks_changes_no_pixel");
+    let mut renderer = gpu.map(|g| gpu_renderer(g, dataset));
+    for (name, request) in phantom_requests() {
+        let without = FrameRequest {
+            skip_empty: false,
+            ..request.clone()
+        };
+        assert_eq!(
+            cpu_packed(gpu, dataset, &request),
+            cpu_packed(gpu, dataset, &without),
+            "{name}: the CPU twin's image changed with skipping"
+        );
+        if let Some(r) = renderer.as_mut() {
+            let with = r.render(&request).expect("GPU render");
+            let without = r.render(&without).expect("GPU render");
+            assert_eq!(with, without, "{name}: the GPU image changed with skipping");
+        }
+    }
+}
+
+#[test]
+fn image_sizes_outside_1_to_4096_are_refused_before_rendering() {
+    let dataset = phantom_64_dataset();
+    let tf = Preset::CtBone.transfer_function(phantom_64().value_range);
+    let gpu = gpu_or_skip("image_sizes_outside_1_to_4096_are_refused_before_rendering");
+    let mut renderer = gpu.map(|g| gpu_renderer(g, dataset));
+    for (w, h) in [(0, 64), (64, 0), (4097, 64), (64, 100_000)] {
+        let request = FrameRequest::new(w, h, tf.clone());
+        let cpu =
+            shaders::cpu::render_packed(&dataset.cache, &request, wgpu::Features::empty(), 2048);
+        let Err(GpuError::InvalidRequest(message)) = cpu else {
+            panic!("{w}x{h}: expected a refusal from the CPU twin, got {cpu:?}");
+        };
+        assert!(message.contains("1 to 4096"), "{message}");
+        if let Some(r) = renderer.as_mut() {
+            let gpu_result = r.render(&request);
+            assert!(
+                matches!(&gpu_result, Err(GpuError::InvalidRequest(m)) if m.contains("1 to 4096")),
+                "{w}x{h}: {gpu_result:?}"
+            );
+        }
+    }
+    // The largest size is accepted (checked on the request only: a 4096² software
+    // frame belongs in a benchmark).
+    assert!(FrameRequest::new(4096, 4096, tf).validate().is_ok());
 }

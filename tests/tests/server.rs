@@ -84,6 +84,11 @@ async fn bad_queries_get_400_with_a_message_and_the_server_keeps_serving() {
         ("dataset=engine", "dataset=\"engine\""),
         ("colour=red", "unknown query parameter 'colour'"),
         ("w=64&w=64", "given twice"),
+        ("clip=0,0,0,1,1", "clip box '0,0,0,1,1'"),
+        ("reduction=0", "reduction=\"0\""),
+        ("proj=fisheye", "unknown projection 'fisheye'"),
+        ("bg=xyz", "colour 'xyz'"),
+        ("shading=phong", "unknown shading 'phong'"),
     ];
     for (query, expected) in cases {
         let response = get(&server.url(&format!("/api/render?{query}"))).await;
@@ -98,6 +103,39 @@ async fn bad_queries_get_400_with_a_message_and_the_server_keeps_serving() {
         200,
         "the server still renders after bad requests"
     );
+}
+
+#[tokio::test]
+async fn every_shading_projection_clip_and_reduction_renders() {
+    let Some(gpu) = gpu_or_skip("every_shading_projection_clip_and_reduction_renders") else {
+        return;
+    };
+    let server = TestServer::start(gpu, 64).await;
+    for query in [
+        "shading=mip&proj=orthographic",
+        "shading=minip&bg=203040",
+        "shading=unshaded&clip=0,0,0,1,0.5,1",
+        "shading=gradient&reduction=9",
+    ] {
+        let response = get(&server.url(&format!("/api/render?w=64&h=48&{query}"))).await;
+        assert_eq!(response.status(), 200, "{query}");
+        let reduction: f64 = response.headers()["x-reduction"]
+            .to_str()
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{query}: X-Reduction"));
+        let levels = response.headers()["x-levels"]
+            .to_str()
+            .unwrap_or_default()
+            .to_owned();
+        let bytes = response.bytes().await.expect("body");
+        let img = image::load_from_memory(&bytes).expect("PNG").to_rgba8();
+        assert_eq!(img.dimensions(), (64, 48), "{query}");
+        println!("{query}: reduction {reduction}:1, levels {levels}");
+        if query.contains("reduction=9") {
+            assert!(reduction >= 8.5, "{query}: {reduction}");
+        }
+    }
 }
 
 #[tokio::test]

@@ -141,7 +141,11 @@ pub fn ingest(
 ) -> Result<IngestSummary, Error> {
     let start = Instant::now();
     if out.exists() && !options.overwrite {
-        return Err(store_error(out, "output", "exists: expected a new path (or --force to replace it)"));
+        return Err(store_error(
+            out,
+            "output",
+            "exists: expected a new path (or --force to replace it)",
+        ));
     }
     let name = out
         .file_name()
@@ -153,7 +157,14 @@ pub fn ingest(
         _ => PathBuf::from("."),
     };
     if !parent.is_dir() {
-        return Err(store_error(out, "output", format!("{} is not a folder: expected the store's parent folder to exist", parent.display())));
+        return Err(store_error(
+            out,
+            "output",
+            format!(
+                "{} is not a folder: expected the store's parent folder to exist",
+                parent.display()
+            ),
+        ));
     }
     remove_stale_partials(&parent, &name);
     let temp = TempDir {
@@ -164,8 +175,9 @@ pub fn ingest(
         std::fs::remove_dir_all(&temp.path).map_err(io_error(&temp.path))?;
     }
     std::fs::create_dir(&temp.path).map_err(io_error(&temp.path))?;
-    let storage = Arc::new(FilesystemStore::new(&temp.path).map_err(|e| zarr_error(&temp.path, "store", e))?);
-    let written = write_store(source, storage, &temp.path, options, progress)?;
+    let storage: Arc<dyn ReadableWritableStorageTraits> =
+        Arc::new(FilesystemStore::new(&temp.path).map_err(|e| zarr_error(&temp.path, "store", e))?);
+    let written = write_store(source, &storage, &temp.path, options, progress)?;
 
     // Into place: move an old store aside first, so the destination always holds
     // a complete store (old or new).
@@ -189,20 +201,24 @@ pub fn ingest(
 /// Bricks `source` into a store held in memory (compressed as on disk), for
 /// volumes rendered without an ingest: the built-in phantom, files given to
 /// `render` and `serve`.
-pub fn ingest_in_memory(source: &mut dyn VolumeSource, options: &IngestOptions) -> Result<super::Store, Error> {
+pub fn ingest_in_memory(
+    source: &mut dyn VolumeSource,
+    options: &IngestOptions,
+) -> Result<super::Store, Error> {
     let name = source.info().name();
     let path = PathBuf::from(format!("memory:{name}"));
     let storage = Arc::new(MemoryStore::new());
-    write_store(source, storage.clone(), &path, options, &mut |_| {})?;
+    let writable: Arc<dyn ReadableWritableStorageTraits> = storage.clone();
+    write_store(source, &writable, &path, options, &mut |_| {})?;
     let readable: Arc<dyn ReadableStorageTraits> = storage;
-    super::Store::from_storage(readable, &path)
+    super::Store::from_storage(&readable, &path)
 }
 
 /// Writes every level, the statistics and the root metadata of `source` into
 /// `storage`; `path` names it in messages. The root metadata goes last.
 fn write_store(
     source: &mut dyn VolumeSource,
-    storage: Arc<dyn ReadableWritableStorageTraits>,
+    storage: &Arc<dyn ReadableWritableStorageTraits>,
     path: &Path,
     options: &IngestOptions,
     progress: &mut dyn FnMut(IngestProgress),
@@ -236,7 +252,7 @@ fn write_store(
         arrays.push(array);
     }
     let grid = info.dims.map(|n| n.div_ceil(BLOCK));
-    let (min_max, histogram) = stats_arrays(&storage, path, grid)?;
+    let (min_max, histogram) = stats_arrays(storage, path, grid)?;
 
     // Reading and averaging run on this thread while a writer thread hands the
     // previous slab to zarrs: the two overlap, with at most one slab waiting.
@@ -246,7 +262,7 @@ fn write_store(
         histogram: &histogram,
         dims: info.dims,
         voxel_type: info.voxel_type,
-        path: path,
+        path,
         last_row: grid[2] - 1,
         abort_after_slabs: options.abort_after_slabs,
     };
@@ -492,7 +508,8 @@ pub(super) fn read_stats(
     };
     let (min_max, histogram) = (open("block_min_max")?, open("block_histogram")?);
     let mut stats = BlockStats::new(meta.blocks, meta.stored_range);
-    let whole = |a: &Array<dyn ReadableStorageTraits>| ArraySubset::new_with_shape(a.shape().to_vec());
+    let whole =
+        |a: &Array<dyn ReadableStorageTraits>| ArraySubset::new_with_shape(a.shape().to_vec());
     let read_error = |name: &str, e: zarrs::array::ArrayError| Error::Corrupt {
         path: path.join("voxserve").join(name),
         codec: "zarr array".into(),

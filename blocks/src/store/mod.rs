@@ -162,18 +162,28 @@ impl Store {
                 },
             ));
         }
-        let storage = Arc::new(FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?);
-        Store::from_storage(storage, path)
+        let storage = Arc::new(
+            FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?,
+        );
+        let storage: Arc<dyn ReadableStorageTraits> = storage;
+        Store::from_storage(&storage, path)
     }
 
     /// Opens a complete store in any zarrs storage; `path` names it in messages.
-    pub fn from_storage(storage: Arc<dyn ReadableStorageTraits>, path: &Path) -> Result<Store, Error> {
+    pub fn from_storage(
+        storage: &Arc<dyn ReadableStorageTraits>,
+        path: &Path,
+    ) -> Result<Store, Error> {
         let root = path.join("zarr.json");
-        let group = Group::open(storage.clone(), "/").map_err(|e| store_error(&root, "zarr.json", format!("{e}")))?;
-        let meta_json = group
-            .attributes()
-            .get("voxserve")
-            .ok_or_else(|| store_error(&root, "attributes.voxserve", "missing: expected a voxserve brick store"))?;
+        let group = Group::open(storage.clone(), "/")
+            .map_err(|e| store_error(&root, "zarr.json", format!("{e}")))?;
+        let meta_json = group.attributes().get("voxserve").ok_or_else(|| {
+            store_error(
+                &root,
+                "attributes.voxserve",
+                "missing: expected a voxserve brick store",
+            )
+        })?;
         let meta: StoreMeta = serde_json::from_value(meta_json.clone())
             .map_err(|e| store_error(&root, "attributes.voxserve", format!("{e}")))?;
         if meta.format_version != FORMAT_VERSION {
@@ -184,18 +194,25 @@ impl Store {
             ));
         }
         if !meta.complete {
-            return Err(store_error(&root, "attributes.voxserve.complete", "false: the ingest did not finish"));
+            return Err(store_error(
+                &root,
+                "attributes.voxserve.complete",
+                "false: the ingest did not finish",
+            ));
         }
-        let voxel_type = meta.voxel_type().map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
+        let voxel_type = meta
+            .voxel_type()
+            .map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
         let mut levels = Vec::with_capacity(LEVELS);
         let mut shard_indexes = Vec::with_capacity(LEVELS);
         for level in 0..LEVELS {
-            let array = Array::open(storage.clone(), &format!("/{level}"))
-                .map_err(|e| store_error(&path.join(level.to_string()), "zarr.json", format!("{e}")))?;
+            let array = Array::open(storage.clone(), &format!("/{level}")).map_err(|e| {
+                store_error(&path.join(level.to_string()), "zarr.json", format!("{e}"))
+            })?;
             shard_indexes.push(ArrayShardedReadableExtCache::new(&array));
             levels.push(array);
         }
-        let stats = ingest::read_stats(&storage, path, &meta)?;
+        let stats = ingest::read_stats(storage, path, &meta)?;
         Ok(Store {
             path: path.to_owned(),
             meta,

@@ -3,40 +3,93 @@
 //! test can run a scene through both and compare. They are also the renderer of
 //! last resort (`voxserve render --cpu`).
 //!
-//! - [`raycast`](mod@raycast): twin of `shaders/wgsl/raycast.wgsl`.
+//! - [`raycast`](mod@raycast): twin of `shaders/wgsl/raycast.wgsl` (packed blocks).
+//! - [`reference`](mod@reference): twin of `shaders/wgsl/reference.wgsl` (one
+//!   plain texture).
+//! - [`march`]: twin of `shaders/wgsl/shared/march.wgsl`, the ray march both share.
 //! - [`texture`]: [`Texture3d`], a 3D texture sampled like the GPU samples one.
 //! - [`hash`]: twin of `shaders/wgsl/shared/hash.wgsl`.
+//!
+//! [`render_packed`] and [`render_reference`] render whole frames the way
+//! [`crate::Renderer`] and [`crate::ReferenceRenderer`] do on the GPU.
 
 pub mod hash;
+pub mod march;
 pub mod raycast;
+pub mod reference;
 pub mod texture;
 
-pub use raycast::raycast;
+pub use raycast::{PackedTexture, raycast};
+pub use reference::reference;
 pub use texture::Texture3d;
 
 use blocks::Volume;
+use blocks::cache::BlockCache;
+use blocks::lod::LodSelection;
+use blocks::transfer_function::TABLE_LEN;
 
-use crate::raycast::RaycastParams;
-use crate::volume_texture::VolumeTexture;
+use crate::packed::assemble_cpu;
+use crate::raycast::{PackedLayout, RaycastParams};
+use crate::renderer::{DeviceBudget, budget_voxels, select_levels};
+use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuError};
 
-/// Renders `request` of `volume` on the CPU through the twin of `raycast`, with
-/// the texel format the GPU would use given `features` (the format decides the
-/// value precision the shader sees).
-pub fn render(
+/// Renders `request` of the store behind `cache` on the CPU through the twin of
+/// `raycast`: levels selected for the request's data reduction, blocks packed
+/// into an atlas of at most `max_edge` texels per axis, texels in the format the
+/// GPU would use given `features`. Returns the frame and the selection.
+pub fn render_packed(
+    cache: &BlockCache,
+    request: &FrameRequest,
+    features: wgpu::Features,
+    max_edge: u32,
+) -> Result<(Frame, LodSelection), GpuError> {
+    request.validate().map_err(GpuError::InvalidRequest)?;
+    let store = cache.store();
+    let desc = VolumeTexture::new(
+        VolumeDescription::of_store(store.meta(), store.voxel_type()),
+        features,
+    );
+    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let budget = budget_voxels(full_voxels, request.reduction);
+    let (selection, packing) = select_levels(
+        store,
+        &request.transfer_function,
+        budget,
+        DeviceBudget::unlimited(max_edge),
+    )?;
+    let packed = assemble_cpu(cache, &packing, &desc)?;
+    let table = request.transfer_function.table(desc.tf_domain, TABLE_LEN)?;
+    let layout = PackedLayout {
+        atlas_dims: packing.atlas_dims,
+        block_grid: store.meta().blocks,
+    };
+    let params = RaycastParams::new(&desc, request, table.len() as u32, layout);
+    let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
+    raycast(&params, &packed, &table, &mut rgba);
+    let frame = Frame {
+        width: request.width,
+        height: request.height,
+        rgba,
+    };
+    Ok((frame, selection))
+}
+
+/// Renders `request` of `volume` on the CPU through the twin of `reference`:
+/// the whole volume at full resolution, texels in the format the GPU would use
+/// given `features` (`reduction` and `skip_empty` do not apply).
+pub fn render_reference(
     volume: &Volume,
     request: &FrameRequest,
     features: wgpu::Features,
 ) -> Result<Frame, GpuError> {
     request.validate().map_err(GpuError::InvalidRequest)?;
     let desc = VolumeTexture::for_volume(volume, features);
-    let texture = Texture3d::new(desc.dims, desc.texel_values(volume));
-    let table = request
-        .transfer_function
-        .table(desc.tf_domain, blocks::transfer_function::TABLE_LEN)?;
-    let params = RaycastParams::new(&desc, request, table.len() as u32);
+    let texture = Texture3d::new(desc.dims, desc.texel_values(&volume.voxels));
+    let table = request.transfer_function.table(desc.tf_domain, TABLE_LEN)?;
+    let params = RaycastParams::new(&desc, request, table.len() as u32, PackedLayout::default());
     let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
-    raycast(&params, &texture, &table, &mut rgba);
+    reference(&params, &texture, &table, &mut rgba);
     Ok(Frame {
         width: request.width,
         height: request.height,

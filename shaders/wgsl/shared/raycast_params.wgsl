@@ -1,10 +1,10 @@
-// RaycastParams: the per-frame uniforms of the `raycast` stage.
+// RaycastParams: the per-frame uniforms of the `raycast` and `reference` stages.
 // keep in sync with shaders/src/raycast.rs `RaycastParams`
 //
 // Model space is physical millimetres in patient LPS, shifted so the volume's
 // centre is the origin. The volume occupies a parallelepiped there (its index
 // axes follow the direction matrix, possibly sheared). Texture space maps that
-// parallelepiped to 0..1 on each axis (texel centres at (i + 0.5) / n).
+// parallelepiped to 0..1 on each axis (level-0 voxel i's centre at (i + 0.5) / n).
 struct RaycastParams {
     // Clip space (x, y in -1..1, depth 0..1) to model space.
     inv_view_proj: mat4x4<f32>,
@@ -13,7 +13,7 @@ struct RaycastParams {
     // Texture-space derivatives (per unit of texture coordinate) to model-space
     // gradients (per mm): the transpose of texture_from_model's linear part.
     gradient_from_texture: mat4x4<f32>,
-    // One texel in texture coordinates (1 / dims), and the step between samples (mm).
+    // One level-0 voxel in texture coordinates (1 / dims), and the step between samples (mm).
     texel: vec3<f32>,
     step: f32,
     // Unit vector towards the light (model space), and the step that
@@ -21,24 +21,35 @@ struct RaycastParams {
     // step / reference_step.
     light_dir: vec3<f32>,
     reference_step: f32,
+    // The clip box in texture space (0..1 keeps everything), and the
+    // accumulated opacity at which a ray stops.
+    clip_min: vec3<f32>,
+    early_termination: f32,
+    clip_max: vec3<f32>,
+    // Gradient magnitude (transfer-function units per mm) under which a sample
+    // is left unshaded.
+    gradient_threshold: f32,
+    // Level-0 voxels along x, y, z, and texel value → transfer-function
+    // coordinate: u = value * value_scale + value_offset.
+    volume_dims: vec3<f32>,
+    value_scale: f32,
+    // Atlas size in texels (packed stage only).
+    atlas_size: vec3<f32>,
+    value_offset: f32,
     // Background colour behind the volume (rgb; a is ignored).
     background: vec4<f32>,
     // Blinn–Phong: ambient, diffuse, specular, shininess.
     phong: vec4<f32>,
-    // Texel value → transfer-function coordinate: u = value * value_scale + value_offset.
-    value_scale: f32,
-    value_offset: f32,
-    // Gradient magnitude (transfer-function units per mm) under which a sample
-    // is left unshaded, and the accumulated opacity at which a ray stops.
-    gradient_threshold: f32,
-    early_termination: f32,
-    // Upper bound on samples per ray, transfer-function entries, image size.
+    // Blocks along x, y, z (packed stage only), and the upper bound on samples per ray.
+    block_grid: vec3<u32>,
     max_steps: u32,
+    // Transfer-function entries, image size, FLAG_* bits.
     tf_len: u32,
     width: u32,
     height: u32,
-    // FLAG_* bits, padding.
     flags: u32,
+    // MODE_*, padding.
+    mode: u32,
     _pad0: u32,
     _pad1: u32,
     _pad2: u32,
@@ -46,5 +57,14 @@ struct RaycastParams {
 
 // Offset each ray's first sample by a per-pixel fraction of a step (hides wood-grain banding).
 const FLAG_JITTER: u32 = 1u;
-// Gradient Blinn–Phong shading; otherwise samples keep their transfer-function colour.
+// Gradient Blinn–Phong shading of composited samples.
 const FLAG_SHADED: u32 = 2u;
+// Jump over empty blocks instead of stepping through them.
+const FLAG_SKIP_EMPTY: u32 = 4u;
+
+// Front-to-back emission–absorption compositing.
+const MODE_COMPOSITE: u32 = 0u;
+// Maximum intensity projection: the largest value met (among visible ones).
+const MODE_MIP: u32 = 1u;
+// Minimum intensity projection: the smallest value met (among visible ones).
+const MODE_MINIP: u32 = 2u;

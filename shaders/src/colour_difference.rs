@@ -1,0 +1,145 @@
+//! How far one rendered image is from another, as a viewer sees it: the CIE 1976
+//! L*u*v* colour difference ΔE*uv per pixel (sRGB with a D65 white), and its
+//! mean, root mean square, 99th percentile and the fraction of pixels above 6
+//! (ΔE₆: clearly visible side by side). Used to report what a data reduction or
+//! an illumination approximation costs against its full-resolution reference.
+
+use crate::Frame;
+
+/// ΔE*uv statistics of one image against another.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ColourDifference {
+    /// Mean ΔE*uv over all pixels.
+    pub mean: f64,
+    /// Root mean square ΔE*uv (ΔE_RMS).
+    pub rms: f64,
+    /// 99th percentile ΔE*uv.
+    pub p99: f64,
+    /// Largest ΔE*uv.
+    pub max: f64,
+    /// Fraction of pixels with ΔE*uv above 6 (ΔE₆).
+    pub above_6: f64,
+}
+
+/// sRGB 8-bit → CIE L*u*v* (D65).
+pub fn srgb_to_luv(rgb: [u8; 3]) -> [f64; 3] {
+    let linear = rgb.map(|c| {
+        let c = f64::from(c) / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    });
+    let [r, g, b] = linear;
+    let x = 0.4124 * r + 0.3576 * g + 0.1805 * b;
+    let y = 0.2126 * r + 0.7152 * g + 0.0722 * b;
+    let z = 0.0193 * r + 0.1192 * g + 0.9505 * b;
+    // D65 white: Xn = 0.95047, Yn = 1, Zn = 1.08883.
+    let (un, vn) = (0.197_839_3, 0.468_336_3);
+    let l = if y > (6.0f64 / 29.0).powi(3) {
+        116.0 * y.cbrt() - 16.0
+    } else {
+        (29.0f64 / 3.0).powi(3) * y
+    };
+    let d = x + 15.0 * y + 3.0 * z;
+    if d <= 0.0 {
+        return [l, 0.0, 0.0];
+    }
+    let (u, v) = (4.0 * x / d, 9.0 * y / d);
+    [l, 13.0 * l * (u - un), 13.0 * l * (v - vn)]
+}
+
+/// ΔE*uv between two sRGB colours.
+pub fn delta_e(a: [u8; 3], b: [u8; 3]) -> f64 {
+    let (p, q) = (srgb_to_luv(a), srgb_to_luv(b));
+    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+}
+
+/// The per-pixel ΔE*uv of `actual` against `reference` (alpha ignored).
+///
+/// # Errors
+/// When the frames differ in size.
+pub fn per_pixel(actual: &Frame, reference: &Frame) -> Result<Vec<f64>, String> {
+    if (actual.width, actual.height) != (reference.width, reference.height) {
+        return Err(format!(
+            "cannot compare a {}x{} image with a {}x{} one",
+            actual.width, actual.height, reference.width, reference.height
+        ));
+    }
+    Ok(actual
+        .rgba
+        .chunks_exact(4)
+        .zip(reference.rgba.chunks_exact(4))
+        .map(|(a, r)| delta_e([a[0], a[1], a[2]], [r[0], r[1], r[2]]))
+        .collect())
+}
+
+/// The statistics of `actual` against `reference`.
+///
+/// # Errors
+/// When the frames differ in size.
+pub fn colour_difference(actual: &Frame, reference: &Frame) -> Result<ColourDifference, String> {
+    let mut d = per_pixel(actual, reference)?;
+    let n = d.len().max(1) as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let rms = (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    let above_6 = d.iter().filter(|&&x| x > 6.0).count() as f64 / n;
+    d.sort_by(f64::total_cmp);
+    let p99 = d
+        .get(((d.len() as f64 * 0.99).ceil() as usize).saturating_sub(1))
+        .copied()
+        .unwrap_or(0.0);
+    let max = d.last().copied().unwrap_or(0.0);
+    Ok(ColourDifference {
+        mean,
+        rms,
+        p99,
+        max,
+        above_6,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn white_and_black_are_100_apart_and_equal_colours_0() {
+        let w = srgb_to_luv([255; 3]);
+        assert!(
+            (w[0] - 100.0).abs() < 0.01 && w[1].abs() < 0.05 && w[2].abs() < 0.05,
+            "{w:?}"
+        );
+        assert_eq!(srgb_to_luv([0; 3]), [0.0; 3]);
+        assert!((delta_e([0; 3], [255; 3]) - 100.0).abs() < 0.05);
+        assert_eq!(delta_e([10, 200, 30], [10, 200, 30]), 0.0);
+        // Pure sRGB red in L*u*v*: about (53.2, 175.0, 37.8).
+        let red = srgb_to_luv([255, 0, 0]);
+        assert!(
+            (red[0] - 53.24).abs() < 0.1
+                && (red[1] - 175.0).abs() < 0.5
+                && (red[2] - 37.8).abs() < 0.5,
+            "{red:?}"
+        );
+    }
+
+    #[test]
+    fn statistics_count_the_pixels_that_differ() {
+        let frame = |px: &[[u8; 3]]| Frame {
+            width: px.len() as u32,
+            height: 1,
+            rgba: px.iter().flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
+        };
+        let mut a = vec![[100u8; 3]; 100];
+        let b = a.clone();
+        a[7] = [255; 3];
+        let d = colour_difference(&frame(&a), &frame(&b)).expect("same size");
+        let one = delta_e([255; 3], [100; 3]);
+        assert!((d.mean - one / 100.0).abs() < 1e-9);
+        assert!((d.max - one).abs() < 1e-9);
+        assert_eq!(d.p99, 0.0);
+        assert!((d.above_6 - 0.01).abs() < 1e-12);
+        assert!(colour_difference(&frame(&a[..3]), &frame(&b)).is_err());
+    }
+}

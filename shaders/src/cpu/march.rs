@@ -1,0 +1,209 @@
+//! CPU twin of `shaders/wgsl/shared/march.wgsl`, loop for loop: the ray march
+//! shared by the `raycast` and `reference` twins. Each twin supplies its voxel
+//! storage as a [`Storage`], the counterpart of the functions a WGSL stage
+//! defines (`locate`, `sample_at`, `sample_neighbour`, `empty_exit`).
+
+use glam::{Mat4, Vec2, Vec3, Vec4, Vec4Swizzles};
+use rayon::prelude::*;
+
+use super::hash::{pcg_hash, unit_from_hash};
+use crate::raycast::{
+    FLAG_JITTER, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP, RaycastParams,
+    WORKGROUP_SIZE,
+};
+
+/// Largest opacity fed to the opacity correction (as in the shader).
+const MAX_SAMPLE_OPACITY: f32 = 0.9999;
+
+/// Where voxels come from: the stage-specific functions of the march.
+pub trait Storage: Sync {
+    /// Where a sample falls (WGSL `Location`).
+    type Location: Copy;
+    /// WGSL `locate`.
+    fn locate(&self, p: &RaycastParams, tc: Vec3) -> Self::Location;
+    /// WGSL `Location.empty`.
+    fn is_empty(loc: &Self::Location) -> bool;
+    /// WGSL `sample_at`.
+    fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> f32;
+    /// WGSL `sample_neighbour`.
+    fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &Self::Location) -> f32;
+    /// WGSL `empty_exit`.
+    fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &Self::Location) -> f32;
+}
+
+/// Renders into `output` (RGBA8, `params.width * params.height * 4` bytes) as the
+/// GPU dispatch does: one call of `main` per invocation.
+pub fn march<S: Storage>(
+    params: &RaycastParams,
+    storage: &S,
+    transfer_function: &[[f32; 4]],
+    output: &mut [u8],
+) {
+    let width = params.width as usize;
+    let (groups_x, _) = params.workgroups();
+    output
+        .par_chunks_mut(width * 4)
+        .enumerate()
+        .for_each(|(y, row)| {
+            // The dispatch covers whole workgroups; invocations past the image return early.
+            for x in 0..groups_x * WORKGROUP_SIZE {
+                if let Some(rgba) = main(params, storage, transfer_function, [x, y as u32]) {
+                    row[x as usize * 4..x as usize * 4 + 4].copy_from_slice(&rgba);
+                }
+            }
+        });
+}
+
+/// WGSL `classify`.
+pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
+    let n = p.tf_len as i32;
+    let x = u.clamp(0.0, 1.0) * n as f32 - 0.5;
+    let i0f = x.floor();
+    let f = x - i0f;
+    let i0 = i0f as i32;
+    let a = Vec4::from(transfer_function[i0.clamp(0, n - 1) as usize]);
+    let b = Vec4::from(transfer_function[(i0 + 1).clamp(0, n - 1) as usize]);
+    a.lerp(b, f)
+}
+
+/// WGSL `gradient_at`.
+fn gradient_at<S: Storage>(s: &S, p: &RaycastParams, tc: Vec3, loc: &S::Location) -> Vec3 {
+    let h = Vec3::from(p.texel);
+    let dx = Vec3::new(h.x, 0.0, 0.0);
+    let dy = Vec3::new(0.0, h.y, 0.0);
+    let dz = Vec3::new(0.0, 0.0, h.z);
+    let differences = Vec3::new(
+        s.sample_neighbour(p, tc + dx, loc) - s.sample_neighbour(p, tc - dx, loc),
+        s.sample_neighbour(p, tc + dy, loc) - s.sample_neighbour(p, tc - dy, loc),
+        s.sample_neighbour(p, tc + dz, loc) - s.sample_neighbour(p, tc - dz, loc),
+    );
+    differences / (2.0 * h)
+}
+
+/// WGSL `shade`.
+fn shade(p: &RaycastParams, rgb: Vec3, g: Vec3, view_dir: Vec3) -> Vec3 {
+    let magnitude = g.length();
+    if magnitude < p.gradient_threshold {
+        return rgb;
+    }
+    let n = g / magnitude;
+    let l = Vec3::from(p.light_dir);
+    let h = (l - view_dir).normalize();
+    let diffuse = n.dot(l).abs();
+    let specular = n.dot(h).abs().powf(p.phong[3]);
+    let [ambient, kd, ks, _] = p.phong;
+    rgb * (ambient + kd * diffuse) + Vec3::splat(ks * specular)
+}
+
+/// WGSL `intersect_box`.
+pub fn intersect_box(origin: Vec3, dir: Vec3, lo: Vec3, hi: Vec3) -> Vec2 {
+    let tiny = dir.abs().cmplt(Vec3::splat(1e-12));
+    let safe_dir = Vec3::select(tiny, Vec3::splat(1e-12), dir);
+    let inv = 1.0 / safe_dir;
+    let t0 = (lo - origin) * inv;
+    let t1 = (hi - origin) * inv;
+    let near = t0.min(t1);
+    let far = t0.max(t1);
+    let enter = near.x.max(near.y).max(near.z.max(0.0));
+    let exit = far.x.min(far.y).min(far.z);
+    Vec2::new(enter, exit)
+}
+
+/// WGSL `main`: the pixel at `gid`, or `None` past the image's edge.
+fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) -> Option<[u8; 4]> {
+    if gid[0] >= p.width || gid[1] >= p.height {
+        return None;
+    }
+    let pixel = Vec2::new(gid[0] as f32 + 0.5, gid[1] as f32 + 0.5);
+    let ndc = Vec2::new(
+        pixel.x / p.width as f32 * 2.0 - 1.0,
+        1.0 - pixel.y / p.height as f32 * 2.0,
+    );
+    let inv_view_proj = Mat4::from_cols_array_2d(&p.inv_view_proj);
+    let near = inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
+    let far = inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
+    let origin = near.xyz() / near.w;
+    let dir = (far.xyz() / far.w - origin).normalize();
+    let texture_from_model = Mat4::from_cols_array_2d(&p.texture_from_model);
+    let tex_origin = (texture_from_model * origin.extend(1.0)).xyz();
+    let tex_dir = (texture_from_model * dir.extend(0.0)).xyz();
+
+    let span = intersect_box(
+        tex_origin,
+        tex_dir,
+        Vec3::from(p.clip_min),
+        Vec3::from(p.clip_max),
+    );
+    let mut color = Vec3::ZERO;
+    let mut alpha = 0.0f32;
+    let mut found = false;
+    let mut extreme = 0.0f32;
+    if span.x < span.y {
+        let mut jitter = 0.0;
+        if p.flags & FLAG_JITTER != 0 {
+            jitter = unit_from_hash(pcg_hash(gid[1] * p.width + gid[0]));
+        }
+        let exponent = p.step / p.reference_step;
+        let first = span.x + jitter * p.step;
+        let gradient_from_texture = Mat4::from_cols_array_2d(&p.gradient_from_texture);
+        let mut i = 0u32;
+        for _k in 0..p.max_steps {
+            let t = first + i as f32 * p.step;
+            if t > span.y {
+                break;
+            }
+            let tc = tex_origin + tex_dir * t;
+            let loc = s.locate(p, tc);
+            if S::is_empty(&loc) {
+                let mut next = i + 1;
+                if p.flags & FLAG_SKIP_EMPTY != 0 {
+                    let exit = s.empty_exit(p, tex_origin, tex_dir, &loc);
+                    // WGSL's f32 → u32 conversion saturates like Rust's `as`.
+                    next = next.max(((exit - first) / p.step).ceil() as u32);
+                }
+                i = next;
+                continue;
+            }
+            let u = s.sample_at(p, tc, &loc) * p.value_scale + p.value_offset;
+            let rgba = classify(p, tf, u);
+            if rgba.w > 0.0 {
+                if p.mode == MODE_COMPOSITE {
+                    let a = 1.0 - (1.0 - rgba.w.min(MAX_SAMPLE_OPACITY)).powf(exponent);
+                    let mut rgb = rgba.xyz();
+                    if p.flags & FLAG_SHADED != 0 {
+                        let g = (gradient_from_texture * gradient_at(s, p, tc, &loc).extend(0.0))
+                            .xyz()
+                            * p.value_scale;
+                        rgb = shade(p, rgb, g, dir);
+                    }
+                    color += (1.0 - alpha) * a * rgb;
+                    alpha += (1.0 - alpha) * a;
+                    if alpha >= p.early_termination {
+                        break;
+                    }
+                } else if !found {
+                    extreme = u;
+                    found = true;
+                } else if p.mode == MODE_MIP {
+                    extreme = extreme.max(u);
+                } else {
+                    extreme = extreme.min(u);
+                }
+            }
+            i += 1;
+        }
+    }
+    let background = Vec4::from(p.background).xyz();
+    let mut out = color + (1.0 - alpha) * background;
+    if p.mode != MODE_COMPOSITE {
+        out = background;
+        if found {
+            let c = classify(p, tf, extreme);
+            out = c.xyz() * c.w + (1.0 - c.w) * background;
+        }
+    }
+    let out = out.clamp(Vec3::ZERO, Vec3::ONE);
+    // rgba8unorm stores round(v * 255).
+    let unorm = |v: f32| (v * 255.0).round() as u8;
+    Some([unorm(out.x), unorm(out.y), unorm(out.z), 255])
+}

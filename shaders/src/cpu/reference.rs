@@ -1,0 +1,52 @@
+//! CPU twin of the `reference` stage (`shaders/wgsl/reference.wgsl`): the march
+//! over one plain full-resolution texture.
+
+use glam::Vec3;
+
+use super::Texture3d;
+use super::march::{Storage, march};
+use crate::raycast::RaycastParams;
+
+/// WGSL `Location` of the reference stage: nothing is ever empty.
+#[derive(Debug, Clone, Copy)]
+pub struct PlainLocation;
+
+impl Storage for Texture3d {
+    type Location = PlainLocation;
+
+    fn locate(&self, _p: &RaycastParams, _tc: Vec3) -> PlainLocation {
+        PlainLocation
+    }
+
+    fn is_empty(_loc: &PlainLocation) -> bool {
+        false
+    }
+
+    fn sample_at(&self, _p: &RaycastParams, tc: Vec3, _loc: &PlainLocation) -> f32 {
+        self.sample_level(tc)
+    }
+
+    fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &PlainLocation) -> f32 {
+        self.sample_at(p, tc, home)
+    }
+
+    fn empty_exit(
+        &self,
+        _p: &RaycastParams,
+        _origin: Vec3,
+        _dir: Vec3,
+        _loc: &PlainLocation,
+    ) -> f32 {
+        0.0
+    }
+}
+
+/// Renders like the `reference` dispatch: one volume texture, no blocks.
+pub fn reference(
+    params: &RaycastParams,
+    volume: &Texture3d,
+    transfer_function: &[[f32; 4]],
+    output: &mut [u8],
+) {
+    march(params, volume, transfer_function, output);
+}

@@ -1,0 +1,215 @@
+//! Packed blocks resident on the GPU: the atlas (one 3D texture of slots, each a
+//! block at its level with a one-voxel apron, see [`blocks::packing`]) and the
+//! block index (a small `rgba16uint` 3D texture), and the same atlas assembled
+//! in memory for the CPU twin.
+//!
+//! A full upload writes the atlas a row of slots at a time (a few MiB per write,
+//! whatever the atlas's size); after a transfer-function or budget change only
+//! the blocks [`blocks::packing::Packing::update`] lists are written, each into
+//! its slot, and the index is rewritten whole (8 bytes per block).
+
+use blocks::cache::BlockCache;
+use blocks::packing::{Packing, slot_edge};
+use blocks::store::LEVELS;
+use rayon::prelude::*;
+
+use crate::cpu::{PackedTexture, Texture3d};
+use crate::raycast::PackedLayout;
+use crate::volume_texture::{VolumeTexture, create_texture_3d, write_box};
+use crate::{GpuContext, GpuError};
+
+/// The atlas and index of one packing on the GPU.
+#[derive(Debug)]
+pub struct GpuAtlas {
+    /// The atlas texture.
+    pub atlas: wgpu::Texture,
+    /// A view of it.
+    pub atlas_view: wgpu::TextureView,
+    /// The block index texture.
+    pub index: wgpu::Texture,
+    /// A view of it.
+    pub index_view: wgpu::TextureView,
+    /// What the atlas holds.
+    pub packing: Packing,
+    /// Sizes the shader needs.
+    pub layout: PackedLayout,
+}
+
+/// The slot's voxels of block `b`: its level-`l` data with the apron, as texel bytes.
+fn slot_bytes(
+    cache: &BlockCache,
+    packing: &Packing,
+    desc: &VolumeTexture,
+    b: usize,
+) -> Result<Vec<u8>, GpuError> {
+    let level = usize::from(packing.lod[b]);
+    let block = cache.store().stats().block_position(b);
+    let voxels = cache.block_with_apron(level, block, blocks::packing::APRON)?;
+    Ok(desc.texel_bytes(&voxels).into_owned())
+}
+
+impl GpuAtlas {
+    /// Creates the textures for `packing` and uploads every selected block.
+    pub fn upload(
+        gpu: &GpuContext,
+        cache: &BlockCache,
+        packing: Packing,
+        desc: &VolumeTexture,
+    ) -> Result<GpuAtlas, GpuError> {
+        let grid = cache.store().meta().blocks;
+        let atlas = create_texture_3d(gpu, "atlas", packing.atlas_dims, desc.format.wgpu())?;
+        let index = gpu.scoped("creating the block index", || {
+            gpu.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("block index"),
+                size: wgpu::Extent3d {
+                    width: grid[0],
+                    height: grid[1],
+                    depth_or_array_layers: grid[2],
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D3,
+                format: wgpu::TextureFormat::Rgba16Uint,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            })
+        })?;
+        let texel = desc.format.size();
+        // Blocks by level and slot row, written a row of slots at a time.
+        for level in 0..LEVELS {
+            let region = packing.regions[level];
+            let edge = slot_edge(level);
+            let per_row = region.slots[0];
+            let mut rows: Vec<Vec<usize>> =
+                vec![Vec::new(); (region.slots[1] * region.slots[2]) as usize];
+            for b in (0..packing.lod.len()).filter(|&b| usize::from(packing.lod[b]) == level) {
+                rows[(packing.slot[b] / per_row) as usize].push(b);
+            }
+            for (row, members) in rows.iter().enumerate().filter(|(_, m)| !m.is_empty()) {
+                let width = per_row * edge;
+                let mut bytes = vec![0u8; width as usize * (edge as usize).pow(2) * texel];
+                let slots: Vec<(usize, Vec<u8>)> = members
+                    .par_iter()
+                    .map(|&b| slot_bytes(cache, &packing, desc, b).map(|s| (b, s)))
+                    .collect::<Result<_, _>>()?;
+                for (b, data) in slots {
+                    let x0 = (packing.slot[b] % per_row * edge) as usize;
+                    let e = edge as usize;
+                    for z in 0..e {
+                        for y in 0..e {
+                            let src = ((z * e + y) * e) * texel;
+                            let dst = ((z * e + y) * width as usize + x0) * texel;
+                            bytes[dst..dst + e * texel]
+                                .copy_from_slice(&data[src..src + e * texel]);
+                        }
+                    }
+                }
+                let row = row as u32;
+                let origin = [
+                    0,
+                    (row % region.slots[1]) * edge,
+                    region.z0 + (row / region.slots[1]) * edge,
+                ];
+                gpu.scoped("uploading atlas slots", || {
+                    write_box(gpu, &atlas, origin, [width, edge, edge], texel, &bytes);
+                    gpu.queue.submit([]);
+                })?;
+            }
+        }
+        let mut gpu_atlas = GpuAtlas {
+            atlas_view: atlas.create_view(&wgpu::TextureViewDescriptor::default()),
+            atlas,
+            index_view: index.create_view(&wgpu::TextureViewDescriptor::default()),
+            index,
+            layout: PackedLayout {
+                atlas_dims: packing.atlas_dims,
+                block_grid: grid,
+            },
+            packing,
+        };
+        gpu_atlas.write_index(gpu)?;
+        gpu.wait("uploading the atlas")?;
+        Ok(gpu_atlas)
+    }
+
+    /// Writes the blocks `uploads` of a new packing with the same layout into
+    /// their slots, and the new index.
+    pub fn update(
+        &mut self,
+        gpu: &GpuContext,
+        cache: &BlockCache,
+        packing: Packing,
+        uploads: &[usize],
+        desc: &VolumeTexture,
+    ) -> Result<(), GpuError> {
+        let texel = desc.format.size();
+        for chunk in uploads.chunks(256) {
+            let slots: Vec<(usize, Vec<u8>)> = chunk
+                .par_iter()
+                .map(|&b| slot_bytes(cache, &packing, desc, b).map(|s| (b, s)))
+                .collect::<Result<_, _>>()?;
+            gpu.scoped("uploading changed blocks", || {
+                for (b, data) in &slots {
+                    if let Some(origin) = packing.slot_origin(*b) {
+                        let e = slot_edge(usize::from(packing.lod[*b]));
+                        write_box(gpu, &self.atlas, origin, [e, e, e], texel, data);
+                    }
+                }
+                gpu.queue.submit([]);
+            })?;
+        }
+        self.packing = packing;
+        self.write_index(gpu)?;
+        gpu.wait("uploading changed blocks")
+    }
+
+    fn write_index(&mut self, gpu: &GpuContext) -> Result<(), GpuError> {
+        let grid = self.layout.block_grid;
+        let index = self.packing.block_index(grid);
+        gpu.scoped("writing the block index", || {
+            write_box(
+                gpu,
+                &self.index,
+                [0, 0, 0],
+                grid,
+                8,
+                bytemuck::cast_slice(&index.entries),
+            );
+            gpu.queue.submit([]);
+        })
+    }
+}
+
+/// The atlas of `packing` assembled in memory as the GPU samples it, with its
+/// index: the bindings of the `raycast` CPU twin.
+pub fn assemble_cpu(
+    cache: &BlockCache,
+    packing: &Packing,
+    desc: &VolumeTexture,
+) -> Result<PackedTexture, GpuError> {
+    let [ax, ay, az] = packing.atlas_dims.map(|d| d as usize);
+    let mut texels = vec![0.0f32; ax * ay * az];
+    for b in 0..packing.lod.len() {
+        let Some(origin) = packing.slot_origin(b) else {
+            continue;
+        };
+        let level = usize::from(packing.lod[b]);
+        let block = cache.store().stats().block_position(b);
+        let voxels = cache.block_with_apron(level, block, blocks::packing::APRON)?;
+        let values = desc.texel_values(&voxels);
+        let e = slot_edge(level) as usize;
+        let [ox, oy, oz] = origin.map(|o| o as usize);
+        for z in 0..e {
+            for y in 0..e {
+                let dst = ((oz + z) * ay + oy + y) * ax + ox;
+                texels[dst..dst + e].copy_from_slice(&values[(z * e + y) * e..][..e]);
+            }
+        }
+    }
+    let grid = cache.store().meta().blocks;
+    Ok(PackedTexture {
+        atlas: Texture3d::new(packing.atlas_dims, texels),
+        index: packing.block_index(grid).entries,
+        grid,
+    })
+}

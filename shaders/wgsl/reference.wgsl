@@ -1,0 +1,39 @@
+// reference: the same ray march over one plain 3D texture holding the whole
+// volume at full resolution — no blocks, no levels, nothing skipped. Used by
+// tests and benchmarks to check and price the packed `raycast` stage.
+//
+// Dispatch: one invocation per pixel, workgroups of 8×8, ceil(width / 8) × ceil(height / 8).
+// Bindings (group 0):
+//   0 params             uniform RaycastParams
+//   1 volume             texture_3d<f32>, one channel, the whole level-0 volume
+//   2 volume_sampler     linear filtering, clamp to edge
+//   3 transfer_function  storage array<vec4<f32>>, tf_len RGBA entries over u in 0..1
+//   4 output             storage texture rgba8unorm, width × height
+// CPU twin: shaders::cpu::reference (shaders/src/cpu/reference.rs), loop for loop.
+
+@group(0) @binding(0) var<uniform> params: RaycastParams;
+@group(0) @binding(1) var volume: texture_3d<f32>;
+@group(0) @binding(2) var volume_sampler: sampler;
+@group(0) @binding(3) var<storage, read> transfer_function: array<vec4<f32>>;
+@group(0) @binding(4) var output: texture_storage_2d<rgba8unorm, write>;
+
+struct Location {
+    empty: bool,
+}
+
+fn locate(tc: vec3<f32>) -> Location {
+    return Location(false);
+}
+
+fn sample_at(tc: vec3<f32>, loc: Location) -> f32 {
+    return textureSampleLevel(volume, volume_sampler, tc, 0.0).r;
+}
+
+fn sample_neighbour(tc: vec3<f32>, home: Location) -> f32 {
+    return sample_at(tc, home);
+}
+
+// Never called: nothing is empty in a plain texture.
+fn empty_exit(origin: vec3<f32>, dir: vec3<f32>, loc: Location) -> f32 {
+    return 0.0;
+}

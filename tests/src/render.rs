@@ -1,0 +1,81 @@
+//! Rendering a dataset for a test: packed on the GPU ([`shaders::Renderer`]),
+//! packed on the CPU twin, and the full-resolution reference on either, with the
+//! same atlas limit on both sides so their packings are identical.
+
+use std::sync::Arc;
+
+use blocks::Volume;
+use blocks::ingest::MemorySource;
+use blocks::store::{IngestOptions, ingest_in_memory};
+use server::Dataset;
+use server::commands::{CPU_TWIN_FEATURES, CPU_TWIN_MAX_EDGE};
+use shaders::{Frame, FrameRequest, GpuContext, ReferenceRenderer, Renderer};
+
+use crate::phantom::TEST_CACHE_BYTES;
+
+/// Device budget for test renderers: every test volume fits at level 0.
+pub const TEST_GPU_BUDGET_BYTES: u64 = 512 << 20;
+
+/// `volume` bricked into a store in memory, as the server does with files it is
+/// given directly.
+///
+/// # Panics
+/// When bricking fails.
+pub fn dataset_of(volume: Volume) -> Dataset {
+    let name = volume.name.clone();
+    let mut source = MemorySource::new(Arc::new(volume), &name);
+    let store = ingest_in_memory(&mut source, &IngestOptions::default())
+        .unwrap_or_else(|e| panic!("bricking {name}: {e}"));
+    Dataset::new(name, store, TEST_CACHE_BYTES).unwrap_or_else(|e| panic!("dataset: {e}"))
+}
+
+/// A packed renderer of `dataset` on `gpu`.
+///
+/// # Panics
+/// When it cannot be built.
+pub fn gpu_renderer(gpu: &GpuContext, dataset: &Dataset) -> Renderer {
+    Renderer::new(gpu.clone(), dataset.cache.clone(), TEST_GPU_BUDGET_BYTES)
+        .unwrap_or_else(|e| panic!("renderer of {}: {e}", dataset.id))
+}
+
+/// The features and atlas limit the CPU twin should assume to match `gpu` (or
+/// the defaults without one).
+pub fn cpu_twin_device(gpu: Option<&GpuContext>) -> (wgpu::Features, u32) {
+    match gpu {
+        Some(g) => (
+            g.device.features(),
+            g.device.limits().max_texture_dimension_3d,
+        ),
+        None => (CPU_TWIN_FEATURES, CPU_TWIN_MAX_EDGE),
+    }
+}
+
+/// `request` of `dataset` through the packed CPU twin, as on `gpu` (if any).
+///
+/// # Panics
+/// When rendering fails.
+pub fn cpu_packed(gpu: Option<&GpuContext>, dataset: &Dataset, request: &FrameRequest) -> Frame {
+    let (features, max_edge) = cpu_twin_device(gpu);
+    shaders::cpu::render_packed(&dataset.cache, request, features, max_edge)
+        .unwrap_or_else(|e| panic!("CPU packed render of {}: {e}", dataset.id))
+        .0
+}
+
+/// `request` of `volume` through the reference CPU twin, as on `gpu` (if any).
+///
+/// # Panics
+/// When rendering fails.
+pub fn cpu_reference(gpu: Option<&GpuContext>, volume: &Volume, request: &FrameRequest) -> Frame {
+    let (features, _) = cpu_twin_device(gpu);
+    shaders::cpu::render_reference(volume, request, features)
+        .unwrap_or_else(|e| panic!("CPU reference render of {}: {e}", volume.name))
+}
+
+/// A reference renderer of `volume` on `gpu`.
+///
+/// # Panics
+/// When it cannot be built.
+pub fn gpu_reference(gpu: &GpuContext, volume: &Volume) -> ReferenceRenderer {
+    ReferenceRenderer::new(gpu.clone(), volume)
+        .unwrap_or_else(|e| panic!("reference renderer of {}: {e}", volume.name))
+}

@@ -1,0 +1,150 @@
+//! Blocks resident on the GPU across frames: a camera change uploads nothing, a
+//! transfer-function change uploads only the blocks that changed (and renders
+//! what a fresh renderer renders), and a device budget too small for level 0
+//! renders at the coarser levels the selection chose.
+
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
+
+use blocks::Preset;
+use shaders::{Camera, FrameRequest, Renderer};
+use voxserve_tests::checks::coverage;
+use voxserve_tests::image_compare::{assert_similar, to_image};
+use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
+use voxserve_tests::render::gpu_renderer;
+use voxserve_tests::{Tolerance, gpu_or_skip};
+
+/// Two renderers of the same blocks in different atlas slots: rounding only.
+const SAME_BLOCKS: Tolerance = Tolerance {
+    max_mean: 0.1,
+    pixel_threshold: 4,
+    max_differing_fraction: 0.001,
+};
+
+#[test]
+fn camera_changes_upload_nothing_and_tf_changes_only_what_changed() {
+    let Some(gpu) = gpu_or_skip("camera_changes_upload_nothing_and_tf_changes_only_what_changed")
+    else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    let range = phantom_64().value_range;
+    let soft = FrameRequest::new(64, 64, Preset::CtSoftTissue.transfer_function(range));
+    let mut renderer = gpu_renderer(gpu, dataset);
+    renderer.render(&soft).expect("first frame");
+    let first = renderer.last_stats().clone();
+    assert!(first.relayout && first.uploaded_blocks > 0, "{first:?}");
+
+    let turned = FrameRequest {
+        camera: Camera {
+            azimuth_deg: 70.0,
+            ..Camera::default()
+        },
+        ..soft.clone()
+    };
+    renderer.render(&turned).expect("turned");
+    let stats = renderer.last_stats();
+    assert_eq!(
+        (stats.uploaded_blocks, stats.relayout, stats.select_ms),
+        (0, false, 0.0),
+        "{stats:?}"
+    );
+
+    // Bone is visible wherever soft tissue is: every bone block is already resident.
+    let bone = FrameRequest {
+        transfer_function: Preset::CtBone.transfer_function(range),
+        ..turned.clone()
+    };
+    let frame = renderer.render(&bone).expect("bone");
+    let stats = renderer.last_stats().clone();
+    println!("soft tissue → bone: {stats:?}");
+    assert!(!stats.relayout && stats.uploaded_blocks == 0, "{stats:?}");
+    let fresh = gpu_renderer(gpu, dataset).render(&bone).expect("fresh");
+    let diff = assert_similar("residency-bone", &frame, &fresh, &SAME_BLOCKS);
+    println!("updated vs fresh renderer: {diff:?}");
+
+    // A lower data reduction brings finer levels for some blocks, not all.
+    let reduced = FrameRequest {
+        reduction: 8.0,
+        ..bone.clone()
+    };
+    renderer.render(&reduced).expect("reduced");
+    let at_8 = renderer.last_stats().clone();
+    let finer = FrameRequest {
+        reduction: 4.0,
+        ..bone
+    };
+    let frame = renderer.render(&finer).expect("finer");
+    let stats = renderer.last_stats().clone();
+    println!("8:1 → 4:1: {stats:?}");
+    let resident: usize = stats.level_counts.iter().sum();
+    assert!(stats.uploaded_blocks > 0, "{stats:?}");
+    if !stats.relayout {
+        assert!(
+            stats.uploaded_blocks < resident,
+            "only changed blocks: {stats:?} after {at_8:?}"
+        );
+    }
+    let fresh = gpu_renderer(gpu, dataset).render(&finer).expect("fresh");
+    assert_similar("residency-finer", &frame, &fresh, &SAME_BLOCKS);
+}
+
+#[test]
+fn a_small_device_budget_renders_at_coarser_levels() {
+    let Some(gpu) = gpu_or_skip("a_small_device_budget_renders_at_coarser_levels") else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    // 48 KiB: 24k 16-bit texels for a volume of 262k voxels.
+    let budget_bytes = 48 << 10;
+    let mut renderer =
+        Renderer::new(gpu.clone(), dataset.cache.clone(), budget_bytes).expect("renderer");
+    let request = FrameRequest::new(
+        64,
+        64,
+        Preset::CtSoftTissue.transfer_function(phantom_64().value_range),
+    );
+    let frame = renderer.render(&request).expect("render within the budget");
+    let stats = renderer.last_stats();
+    let packing = renderer.packing().expect("packed");
+    let atlas_bytes = packing
+        .atlas_dims
+        .iter()
+        .map(|&d| u64::from(d))
+        .product::<u64>()
+        * 2;
+    println!(
+        "budget {budget_bytes} B: {stats:?}, atlas {:?} = {atlas_bytes} B",
+        packing.atlas_dims
+    );
+    assert!(stats.reduction >= 10.0, "{stats:?}");
+    assert!(stats.level_counts[0] < 64, "{stats:?}");
+    assert!(
+        atlas_bytes <= budget_bytes,
+        "the atlas ({atlas_bytes} B) exceeds the budget"
+    );
+    assert!(coverage(&to_image(&frame)) > 0.2, "the head is still drawn");
+}
+
+#[test]
+fn a_device_budget_too_small_for_every_block_at_level_4_is_refused_with_the_numbers() {
+    let Some(gpu) = gpu_or_skip(
+        "a_device_budget_too_small_for_every_block_at_level_4_is_refused_with_the_numbers",
+    ) else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    let mut renderer = Renderer::new(gpu.clone(), dataset.cache.clone(), 256).expect("renderer");
+    let request = FrameRequest::new(
+        64,
+        64,
+        Preset::CtSoftTissue.transfer_function(phantom_64().value_range),
+    );
+    let err = renderer
+        .render(&request)
+        .expect_err("256 bytes cannot hold the head")
+        .to_string();
+    assert!(
+        err.contains("GPU budget of 256 bytes") && err.contains("level 4"),
+        "{err}"
+    );
+}
