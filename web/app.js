@@ -18,12 +18,18 @@ const shadingSelect = document.getElementById('shading');
 const projectionSelect = document.getElementById('projection');
 const reductionSelect = document.getElementById('reduction');
 const clipBox = document.getElementById('clip');
+const lightPanel = document.getElementById('light-panel');
+const lightInputs = ['kind', 'azimuth', 'elevation', 'distance', 'bias', 'scatter'].map((name) =>
+  document.getElementById(`light-${name}`),
+);
 const errorBox = document.getElementById('error');
 const fidelity = document.getElementById('fidelity');
 
 const camera = new OrbitCamera();
 let dataset = null;
 let idleTimer = 0;
+// Whether the last frame asked for was an interactive (reduced) one.
+let interacting = false;
 
 const fetcher = new FrameFetcher(
   (bitmap, info) => {
@@ -31,10 +37,16 @@ const fetcher = new FrameFetcher(
     context.imageSmoothingEnabled = true;
     context.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
     bitmap.close();
+    const light = info.refinement ? ` · light ${info.refinement}` : '';
     fidelity.textContent =
       `${info.width}×${info.height} · reduction ${info.reduction.toFixed(1)}:1 · ` +
-      `blocks per level ${info.levels} · render ${info.renderMs.toFixed(0)} ms · ` +
+      `blocks per level ${info.levels}${light} · render ${info.renderMs.toFixed(0)} ms · ` +
       `encode ${info.encodeMs.toFixed(0)} ms · round trip ${info.roundTripMs.toFixed(0)} ms`;
+    // The server refines the light one direction per frame: ask again until all are in.
+    if (info.refinement && !interacting) {
+      const [done, all] = info.refinement.split('/').map(Number);
+      if (done < all) requestFrame(false);
+    }
   },
   (message) => {
     errorBox.textContent = message;
@@ -92,8 +104,27 @@ function clipParam() {
   return whole ? {} : { clip: [...lo, ...hi].join(',') };
 }
 
-function requestFrame(interacting) {
+// The light parameters of the light panel (global light only).
+function lightParams() {
+  if (shadingSelect.value !== 'global') return {};
+  const [kind, azimuth, elevation, distance, bias, scatter] = lightInputs;
+  const a = (Number(azimuth.value) * Math.PI) / 180;
+  const e = (Number(elevation.value) * Math.PI) / 180;
+  // Patient LPS: azimuth 0 is anterior (−y), 90 the patient's left (+x).
+  const v = [Math.sin(a) * Math.cos(e), -Math.cos(a) * Math.cos(e), Math.sin(e)];
+  let light;
+  if (kind.value === 'point') {
+    const r = Number(distance.value) / 200;
+    light = 'point:' + v.map((c) => (0.5 + c * r).toFixed(3)).join(',');
+  } else {
+    light = 'directional:' + v.map((c) => c.toFixed(3)).join(',');
+  }
+  return { light, bias: Number(bias.value) / 100, scatter_radius: scatter.value };
+}
+
+function requestFrame(isInteracting) {
   if (!dataset) return;
+  interacting = isInteracting;
   fetcher.request({
     dataset: dataset.id,
     ...camera.params(),
@@ -103,9 +134,10 @@ function requestFrame(interacting) {
     proj: projectionSelect.value,
     reduction: reductionSelect.value,
     ...clipParam(),
+    ...lightParams(),
   });
   clearTimeout(idleTimer);
-  if (interacting) idleTimer = setTimeout(() => requestFrame(false), IDLE_MS);
+  if (isInteracting) idleTimer = setTimeout(() => requestFrame(false), IDLE_MS);
 }
 
 async function start() {
@@ -135,6 +167,12 @@ async function start() {
   }
   for (const slider of clipSliders.flat()) {
     slider.addEventListener('input', () => requestFrame(true));
+  }
+  shadingSelect.addEventListener('change', () => {
+    lightPanel.hidden = shadingSelect.value !== 'global';
+  });
+  for (const input of lightInputs) {
+    input.addEventListener('change', () => requestFrame(false));
   }
   document.getElementById('reset').addEventListener('click', () => {
     camera.reset();

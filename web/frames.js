@@ -38,6 +38,7 @@ export class FrameFetcher {
           encodeMs: Number(response.headers.get('x-encode-ms')),
           reduction: Number(response.headers.get('x-reduction')),
           levels: response.headers.get('x-levels') || '',
+          refinement: response.headers.get('x-refinement'),
           roundTripMs: performance.now() - started,
         });
       }

@@ -3,7 +3,7 @@
 //! | route | answer |
 //! |---|---|
 //! | `GET /` and other paths | the web client (`web/`) |
-//! | `GET /api/render?…` | a PNG of one frame; parameters in [`crate::frame_query`]; headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4) |
+//! | `GET /api/render?…` | a PNG of one frame; parameters in [`crate::frame_query`]; headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
 //! | `GET /api/datasets` | the datasets offered, as JSON |
 //! | `GET /healthz` | `{"status":"ok","adapter":…}` |
 
@@ -80,33 +80,25 @@ async fn render(
         .map_err(|e| AppError::Internal(format!("PNG encoder task failed: {e}")))?
         .map_err(|e| AppError::Internal(format!("PNG encoding failed: {e}")))?;
     let encode_ms = encode_start.elapsed().as_secs_f64() * 1e3;
-    let timing = |ms: f64| {
-        HeaderValue::from_str(&format!("{ms:.1}")).unwrap_or(HeaderValue::from_static("0"))
+    let value =
+        |text: String| HeaderValue::from_str(&text).unwrap_or(HeaderValue::from_static("-"));
+    let stats = &rendered.stats;
+    let mut headers = axum::http::HeaderMap::new();
+    headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
+    headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    let mut set = |name: &'static str, text: String| {
+        headers.insert(header::HeaderName::from_static(name), value(text));
     };
-    Ok((
-        [
-            (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
-            (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
-            (
-                header::HeaderName::from_static("x-render-ms"),
-                timing(rendered.render_ms),
-            ),
-            (
-                header::HeaderName::from_static("x-encode-ms"),
-                timing(encode_ms),
-            ),
-            (
-                header::HeaderName::from_static("x-reduction"),
-                HeaderValue::from_str(&format!("{:.2}", rendered.stats.reduction))
-                    .unwrap_or(HeaderValue::from_static("0")),
-            ),
-            (
-                header::HeaderName::from_static("x-levels"),
-                HeaderValue::from_str(&format!("{:?}", rendered.stats.level_counts))
-                    .unwrap_or(HeaderValue::from_static("[]")),
-            ),
-        ],
-        png,
-    )
-        .into_response())
+    set("x-render-ms", format!("{:.1}", rendered.render_ms));
+    set("x-encode-ms", format!("{encode_ms:.1}"));
+    set("x-reduction", format!("{:.2}", stats.reduction));
+    set("x-levels", format!("{:?}", stats.level_counts));
+    if let Some(light) = &stats.light {
+        set(
+            "x-refinement",
+            format!("{}/{}", light.refined, light.directions),
+        );
+        set("x-light-ms", format!("{:.1}", light.total_ms));
+    }
+    Ok((headers, png).into_response())
 }

@@ -16,6 +16,9 @@ use crate::commands::{CPU_TWIN_FEATURES, say};
 use crate::dataset::PHANTOM_ID;
 use crate::reference_data::{self, reference_dataset};
 
+mod light;
+pub use light::light;
+
 /// `voxserve bench render`: for each dataset, the packed renderer at every
 /// image size and data reduction, with and without empty-block skipping, against
 /// the full-resolution reference renderer (time and colour difference).
@@ -25,26 +28,8 @@ pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
     let threads = std::thread::available_parallelism().map_or(1, usize::from);
     for name in &args.datasets {
         let start = Instant::now();
-        let (dataset, tf) = if name == PHANTOM_ID {
-            let dataset = Dataset::phantom(args.data.phantom_size, args.data.cache_bytes())?;
-            let tf = dataset
-                .default_preset()
-                .transfer_function(dataset.value_range());
-            (dataset, tf)
-        } else {
-            let Some(reference) = reference_dataset(&args.data_dir, name) else {
-                anyhow::bail!(
-                    "--datasets: unknown dataset '{name}': expected {PHANTOM_ID} or one of {}",
-                    reference_data::NAMES.join(", ")
-                );
-            };
-            if !reference.path.exists() {
-                tracing::warn!("{} not found: skipping {name}", reference.path.display());
-                continue;
-            }
-            let dataset =
-                Dataset::load(&reference.path, &reference.options, args.data.cache_bytes())?;
-            (dataset, reference.transfer_function)
+        let Some((dataset, tf)) = bench_dataset(name, &args.data_dir, &args.data)? else {
+            continue;
         };
         let bricked_ms = start.elapsed().as_secs_f64() * 1e3;
         let volume = dataset.store.load_level(0)?;
@@ -159,8 +144,37 @@ pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The dataset `name` of a benchmark (the phantom, or a real dataset from
+/// `data_dir`) and its transfer function; `None`, with a warning, when the
+/// dataset's file is missing.
+pub(crate) fn bench_dataset(
+    name: &str,
+    data_dir: &Path,
+    data: &crate::cli::DataArgs,
+) -> anyhow::Result<Option<(Dataset, blocks::TransferFunction)>> {
+    if name == PHANTOM_ID {
+        let dataset = Dataset::phantom(data.phantom_size, data.cache_bytes())?;
+        let tf = dataset
+            .default_preset()
+            .transfer_function(dataset.value_range());
+        return Ok(Some((dataset, tf)));
+    }
+    let Some(reference) = reference_dataset(data_dir, name) else {
+        anyhow::bail!(
+            "--datasets: unknown dataset '{name}': expected {PHANTOM_ID} or one of {}",
+            reference_data::NAMES.join(", ")
+        );
+    };
+    if !reference.path.exists() {
+        tracing::warn!("{} not found: skipping {name}", reference.path.display());
+        return Ok(None);
+    }
+    let dataset = Dataset::load(&reference.path, &reference.options, data.cache_bytes())?;
+    Ok(Some((dataset, reference.transfer_function)))
+}
+
 /// Renders `frames` times and returns the last frame and the mean milliseconds.
-fn timed(
+pub(crate) fn timed(
     frames: u32,
     mut render: impl FnMut() -> Result<Frame, shaders::GpuError>,
 ) -> anyhow::Result<(Frame, f64)> {

@@ -9,6 +9,7 @@ use blocks::ingest::raw::{self, RawOptions};
 use clap::builder::PossibleValuesParser;
 use clap::{Args, Parser, Subcommand};
 use shaders::frame::{MAX_IMAGE_EDGE, MAX_REDUCTION, parse_colour};
+use shaders::light::{self, LightSettings, LightSource};
 use shaders::{ClipBox, Projection, Shading, camera};
 
 use crate::dataset::PHANTOM_ID;
@@ -210,7 +211,9 @@ pub struct RenderArgs {
     #[arg(long, value_parser = PossibleValuesParser::new(Preset::ALL.map(Preset::name)))]
     pub preset: Option<String>,
     /// Shading: gradient (Blinn–Phong from the data's gradient), unshaded,
-    /// mip (maximum intensity projection) or minip (minimum intensity projection).
+    /// mip (maximum intensity projection), minip (minimum intensity projection)
+    /// or global (global light propagation: shadows and first-order scattering
+    /// from the light of --light; see the light flags).
     #[arg(long, default_value = "gradient",
           value_parser = PossibleValuesParser::new(Shading::ALL.map(Shading::name)))]
     pub shading: String,
@@ -229,12 +232,73 @@ pub struct RenderArgs {
     /// Background colour as six hex digits rrggbb.
     #[arg(long, value_name = "RRGGBB", default_value = "000000", value_parser = parse_colour)]
     pub background: [f32; 3],
+    #[command(flatten)]
+    pub light: LightArgs,
     /// Render on the CPU with the ray caster's CPU twin instead of the GPU (slow;
     /// for checking, or where no GPU driver is installed).
     #[arg(long)]
     pub cpu: bool,
     #[command(flatten)]
     pub data: DataArgs,
+}
+
+/// The light of `--shading global` (global light propagation with first-order
+/// scattering).
+#[derive(Debug, Clone, Args)]
+pub struct LightArgs {
+    /// The light: point:X,Y,Z (a point light at fractions of the volume's box:
+    /// 0..1 is inside it) or directional:X,Y,Z (towards the light, patient
+    /// LPS axes: x left, y posterior, z superior).
+    #[arg(long, value_name = "KIND:X,Y,Z", default_value = "directional:-0.6,-0.5,0.62",
+          value_parser = |t: &str| t.parse::<LightSource>())]
+    pub light: LightSource,
+    /// The light's colour as six hex digits rrggbb.
+    #[arg(long, value_name = "RRGGBB", default_value = "ffffff", value_parser = parse_colour)]
+    pub light_colour: [f32; 3],
+    /// The light's intensity I0 (0 to 16).
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true,
+          value_parser = finite_in(0.0, light::MAX_INTENSITY))]
+    pub light_intensity: f32,
+    /// The minimum light level I_bias (0 to 1): no region is darker.
+    #[arg(long, default_value_t = 0.15, allow_negative_numbers = true,
+          value_parser = finite_in(0.0, 1.0))]
+    pub light_bias: f32,
+    /// Length L of the local piecewise segments, in voxels (4 to 32).
+    #[arg(long, default_value_t = 8,
+          value_parser = clap::value_parser!(u32).range(i64::from(light::SEGMENT_RANGE.0)..=i64::from(light::SEGMENT_RANGE.1)))]
+    pub segment: u32,
+    /// Resolution of the shadow volume: one point per N³ voxels (1, 2, 4 or 8).
+    #[arg(long, default_value_t = 2, value_parser = parse_svr_scale)]
+    pub svr_scale: u32,
+    /// Radius R_Ω of the in-scattering sphere, in voxels (0 to 64; 0: no in-scattering).
+    #[arg(long, default_value_t = 8.0, allow_negative_numbers = true,
+          value_parser = finite_in(0.0, light::MAX_SCATTER_RADIUS))]
+    pub scatter_radius: f32,
+    /// In-scattering directions J (1 to 258), refined one per frame.
+    #[arg(long, default_value_t = 18,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(light::MAX_DIRECTIONS)))]
+    pub directions: u32,
+    /// Henyey–Greenstein asymmetry g of the phase function (-0.9 to 0.9; 0: isotropic).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true,
+          value_parser = finite_in(light::PHASE_G_RANGE.0, light::PHASE_G_RANGE.1))]
+    pub phase_g: f32,
+}
+
+impl LightArgs {
+    /// The light settings these flags give.
+    pub fn settings(&self) -> LightSettings {
+        LightSettings {
+            source: self.light,
+            colour: self.light_colour,
+            intensity: self.light_intensity,
+            segment_voxels: self.segment,
+            svr_scale: self.svr_scale,
+            scatter_radius_voxels: self.scatter_radius,
+            directions: self.directions,
+            phase_g: self.phase_g,
+            bias: self.light_bias,
+        }
+    }
 }
 
 /// `voxserve bench`.
@@ -257,6 +321,70 @@ pub enum BenchCommand {
     /// The brick store: ingest MB/s and peak memory, random block reads (cold,
     /// warm, cached), LOD selection time and the reduction reached.
     Blocks(BenchBlocksArgs),
+    /// Global light propagation: the colour difference ΔE of the piecewise
+    /// light against the brute-force reference per data reduction and SVR size,
+    /// and the paper's table 1: light update (A), one in-scattering refinement
+    /// (B) and a lit frame (C) per data reduction, and (A) per SVR size and
+    /// segment length.
+    Light(Box<BenchLightArgs>),
+}
+
+/// `voxserve bench light`.
+#[derive(Debug, Args)]
+pub struct BenchLightArgs {
+    /// Datasets: `phantom`, and the real datasets engine, bonsai, cthead, vhf
+    /// (from --data-dir; skipped with a warning when missing), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = ["cthead", "vhf"].map(String::from))]
+    pub datasets: Vec<String>,
+    /// Where the real datasets are.
+    #[arg(long, default_value = "../shared/data")]
+    pub data_dir: PathBuf,
+    /// Image edge in pixels (square) of the compared and timed frames.
+    #[arg(long, default_value_t = 1024,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
+    pub size: u32,
+    /// Data reductions (full voxels per voxel on the GPU), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0f32, 9.0, 35.0],
+          value_parser = finite_in(1.0, MAX_REDUCTION))]
+    pub reductions: Vec<f32>,
+    /// SVR scales (1, 2, 4 or 8 voxels per SVR point along each axis), comma
+    /// separated; the first one is used for (B) and (C).
+    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 4, 8],
+          value_parser = parse_svr_scale)]
+    pub svr_scales: Vec<u32>,
+    /// Segment lengths L in voxels for the table of (A) per SVR size and
+    /// segment length, comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [4u32, 8, 16, 32],
+          value_parser = clap::value_parser!(u32).range(i64::from(light::SEGMENT_RANGE.0)..=i64::from(light::SEGMENT_RANGE.1)))]
+    pub segments: Vec<u32>,
+    /// Segment lengths L in voxels of the colour difference, comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [8u32, 16],
+          value_parser = clap::value_parser!(u32).range(i64::from(light::SEGMENT_RANGE.0)..=i64::from(light::SEGMENT_RANGE.1)))]
+    pub quality_segments: Vec<u32>,
+    /// Segment length L in voxels of (A), (B) and (C) per data reduction (the
+    /// paper's: 8).
+    #[arg(long, default_value_t = 8,
+          value_parser = clap::value_parser!(u32).range(i64::from(light::SEGMENT_RANGE.0)..=i64::from(light::SEGMENT_RANGE.1)))]
+    pub segment: u32,
+    /// The data reduction of the table of (A) per SVR size and segment length
+    /// (the paper's is 8.9:1).
+    #[arg(long, default_value_t = 9.0, value_parser = finite_in(1.0, MAX_REDUCTION))]
+    pub table_reduction: f32,
+    /// Scattering radius R_Ω in voxels for (B).
+    #[arg(long, default_value_t = 16.0, value_parser = finite_in(0.5, light::MAX_SCATTER_RADIUS))]
+    pub scatter_radius: f32,
+    /// In-scattering directions J for (B).
+    #[arg(long, default_value_t = 18, value_parser = clap::value_parser!(u32).range(2..=i64::from(light::MAX_DIRECTIONS)))]
+    pub directions: u32,
+    /// Frames timed per frame measurement.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub frames: u32,
+    /// Also write, per compared pair, the piecewise and reference frames and a
+    /// ΔE error image (black 0, red 6 and above) as PNGs into this folder.
+    #[arg(long, value_name = "DIR")]
+    pub images: Option<PathBuf>,
+    #[command(flatten)]
+    pub data: DataArgs,
 }
 
 /// `voxserve bench render`.
@@ -331,6 +459,15 @@ pub fn finite_in(
             Err(expected())
         }
     }
+}
+
+/// Parses an SVR scale: 1, 2, 4 or 8.
+fn parse_svr_scale(text: &str) -> Result<u32, String> {
+    text.trim()
+        .parse::<u32>()
+        .ok()
+        .filter(|s| light::SVR_SCALES.contains(s))
+        .ok_or_else(|| format!("expected 1, 2, 4 or 8, got '{text}'"))
 }
 
 /// Parses `XxYxZ` dimensions.

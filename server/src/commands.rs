@@ -110,6 +110,7 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         clip: args.clip,
         reduction: args.reduction,
         background: args.background,
+        light: args.light.settings(),
         ..FrameRequest::new(
             args.width,
             args.height,
@@ -134,8 +135,20 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         let gpu = GpuContext::new()?;
         let device = gpu.describe();
         let mut renderer = Renderer::new(gpu, dataset.cache.clone(), args.data.gpu_budget_bytes())?;
-        let frame = renderer.render(&request)?;
+        // A still image: the light with every in-scattering direction in.
+        let frame = renderer.render_converged(&request)?;
         let stats = renderer.last_stats();
+        if let Some(light) = &stats.light {
+            tracing::info!(
+                "light: local_opacity {:.0} ms, global_opacity {:.0} ms, direct_light {:.0} ms, \
+                 in_scatter {:.0} ms ({} directions)",
+                light.local_opacity_ms,
+                light.global_opacity_ms,
+                light.direct_light_ms,
+                light.in_scatter_ms,
+                light.directions
+            );
+        }
         (frame, stats.reduction, stats.level_counts, device)
     };
     let ms = start.elapsed().as_secs_f64() * 1e3;

@@ -10,11 +10,24 @@
 //! | `w`, `h` | image size, pixels, 1..=4096 | 512 |
 //! | `preset` | transfer-function preset | the dataset's default |
 //! | `proj` | `perspective` or `orthographic` | `perspective` |
-//! | `shading` | `gradient`, `unshaded`, `mip` or `minip` | `gradient` |
+//! | `shading` | `gradient`, `unshaded`, `mip`, `minip` or `global` (global light propagation) | `gradient` |
 //! | `step` | sample step, voxels, 0.05..=4 | 0.5 |
 //! | `clip` | clip box as six fractions of the volume's extent, `x0,y0,z0,x1,y1,z1` | `0,0,0,1,1,1` |
 //! | `reduction` | data reduction (full voxels per voxel on the GPU), 1..=10000 | 1 (the device budget may force more) |
 //! | `bg` | background colour, `rrggbb` hex | `000000` |
+//! | `light` | `point:x,y,z` (fractions of the volume's box; inside is 0..1) or `directional:x,y,z` (towards the light, LPS) | `directional:-0.6,-0.5,0.62` |
+//! | `light_colour` | `rrggbb` hex | `ffffff` |
+//! | `light_intensity` | I0, 0..=16 | 1 |
+//! | `bias` | minimum light level I_bias, 0..=1 | 0.15 |
+//! | `segment` | local segment length L, voxels, 4..=32 | 8 |
+//! | `svr` | shadow volume scale: 1, 2, 4 or 8 (one point per N³ voxels) | 2 |
+//! | `scatter_radius` | in-scattering radius R_Ω, voxels, 0..=64 (0: none) | 8 |
+//! | `directions` | in-scattering directions J, 1..=258 | 18 |
+//! | `phase_g` | Henyey–Greenstein asymmetry, −0.9..=0.9 | 0 |
+//!
+//! The light parameters apply to `shading=global`. Each request with the same
+//! light refines the in-scattering by one more direction (`X-Refinement: j/J`)
+//! until all J are in; a camera change keeps the light.
 //!
 //! Every parameter is checked before anything renders; a bad one is refused
 //! with a message that names it, the value given and what was expected. Unknown
@@ -25,12 +38,13 @@ use std::str::FromStr;
 
 use blocks::Preset;
 use shaders::frame::{MAX_IMAGE_EDGE, MAX_REDUCTION, STEP_RANGE_VOXELS, parse_colour};
+use shaders::light::{self, LightSettings};
 use shaders::{Camera, ClipBox, FrameRequest, Projection, Shading, camera};
 
 use crate::Dataset;
 
 /// The parameters `GET /api/render` accepts.
-pub const PARAMETERS: [&str; 14] = [
+pub const PARAMETERS: [&str; 23] = [
     "dataset",
     "az",
     "el",
@@ -45,6 +59,15 @@ pub const PARAMETERS: [&str; 14] = [
     "clip",
     "reduction",
     "bg",
+    "light",
+    "light_colour",
+    "light_intensity",
+    "bias",
+    "segment",
+    "svr",
+    "scatter_radius",
+    "directions",
+    "phase_g",
 ];
 
 /// The default image edge in pixels.
@@ -179,6 +202,61 @@ pub fn parse<'d>(
         None => [0.0; 3],
         Some(text) => parse_colour(text).map_err(|e| format!("query parameter bg: {e}"))?,
     };
+    let defaults = LightSettings::default();
+    let light = LightSettings {
+        source: params.named("light", defaults.source)?,
+        colour: match params.get("light_colour") {
+            None => defaults.colour,
+            Some(text) => {
+                parse_colour(text).map_err(|e| format!("query parameter light_colour: {e}"))?
+            }
+        },
+        intensity: params.ranged(
+            "light_intensity",
+            defaults.intensity,
+            0.0,
+            light::MAX_INTENSITY,
+            "an intensity",
+        )?,
+        bias: params.ranged("bias", defaults.bias, 0.0, 1.0, "a light level")?,
+        segment_voxels: params.ranged(
+            "segment",
+            defaults.segment_voxels,
+            light::SEGMENT_RANGE.0,
+            light::SEGMENT_RANGE.1,
+            "a whole number of voxels",
+        )?,
+        svr_scale: match params.get("svr") {
+            None => defaults.svr_scale,
+            Some(text) => text
+                .trim()
+                .parse::<u32>()
+                .ok()
+                .filter(|s| light::SVR_SCALES.contains(s))
+                .ok_or_else(|| format!("query parameter svr={text:?}: expected 1, 2, 4 or 8"))?,
+        },
+        scatter_radius_voxels: params.ranged(
+            "scatter_radius",
+            defaults.scatter_radius_voxels,
+            0.0,
+            light::MAX_SCATTER_RADIUS,
+            "a number of voxels",
+        )?,
+        directions: params.ranged(
+            "directions",
+            defaults.directions,
+            1,
+            light::MAX_DIRECTIONS,
+            "a number of directions",
+        )?,
+        phase_g: params.ranged(
+            "phase_g",
+            defaults.phase_g,
+            light::PHASE_G_RANGE.0,
+            light::PHASE_G_RANGE.1,
+            "an asymmetry",
+        )?,
+    };
     let request = FrameRequest {
         camera,
         shading,
@@ -186,6 +264,7 @@ pub fn parse<'d>(
         clip,
         reduction,
         background,
+        light,
         ..FrameRequest::new(
             width,
             height,
@@ -257,6 +336,26 @@ mod tests {
     }
 
     #[test]
+    fn every_light_parameter_is_read() {
+        let ds = datasets();
+        let q = "shading=global&light=point:0.5,0.5,1.2&light_colour=ff8000&light_intensity=2&bias=0.3\
+                 &segment=16&svr=4&scatter_radius=20&directions=42&phase_g=0.4";
+        let (_, r) = parse(&query(q), &ds).expect("valid");
+        assert_eq!(r.shading, Shading::GlobalLight);
+        let l = r.light;
+        assert_eq!(l.source, shaders::LightSource::Point([0.5, 0.5, 1.2]));
+        assert_eq!(l.colour, [1.0, 128.0 / 255.0, 0.0]);
+        assert_eq!(
+            (l.intensity, l.bias, l.segment_voxels, l.svr_scale),
+            (2.0, 0.3, 16, 4)
+        );
+        assert_eq!(
+            (l.scatter_radius_voxels, l.directions, l.phase_g),
+            (20.0, 42, 0.4)
+        );
+    }
+
+    #[test]
     fn bad_values_name_the_parameter_and_the_expectation() {
         let cases = [
             (
@@ -273,6 +372,27 @@ mod tests {
             ("dist=0", "dist=\"0\""),
             ("preset=bone", "unknown transfer-function preset 'bone'"),
             ("shading=phong", "unknown shading 'phong'"),
+            ("light=sun:0,0,1", "light 'sun:0,0,1'"),
+            (
+                "light=point:1,2",
+                "expected point:x,y,z or directional:x,y,z",
+            ),
+            (
+                "light=directional:0,0,0&shading=global",
+                "light direction = [0.0, 0.0, 0.0]",
+            ),
+            ("svr=3", "svr=\"3\": expected 1, 2, 4 or 8"),
+            (
+                "segment=2",
+                "segment=\"2\": expected a whole number of voxels from 4 to 32",
+            ),
+            ("scatter_radius=-1", "scatter_radius=\"-1\""),
+            ("directions=0", "directions=\"0\""),
+            ("directions=1000", "from 1 to 258"),
+            ("bias=2", "bias=\"2\": expected a light level from 0 to 1"),
+            ("phase_g=NaN", "phase_g=\"NaN\""),
+            ("light_colour=white", "light_colour: colour 'white'"),
+            ("light_intensity=100", "light_intensity=\"100\""),
             ("dataset=lung", "dataset=\"lung\": expected one of phantom"),
             ("zoom=2", "unknown query parameter 'zoom'"),
             ("az=1&az=2", "'az' is given twice"),

@@ -15,7 +15,7 @@
 //! - [`web`]: the static web client from `web/`, compiled into the binary.
 //! - [`cli`]: the command line's subcommands and flags.
 //! - [`commands`]: what `serve`, `render`, `info` and `ingest` do.
-//! - [`bench`]: `voxserve bench render | read | blocks`, JSON lines.
+//! - [`bench`]: `voxserve bench render | read | blocks | light`, JSON lines.
 //! - [`reference_data`]: the real datasets of `../shared/data` that tests and
 //!   benchmarks use, with how to read them and a transfer function for each.
 

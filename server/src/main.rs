@@ -28,6 +28,7 @@ fn main() -> ExitCode {
             BenchCommand::Render(a) => server::bench::render(a),
             BenchCommand::Read(a) => server::bench::read(a),
             BenchCommand::Blocks(a) => server::bench::blocks(a),
+            BenchCommand::Light(a) => server::bench::light(a),
         },
     };
     match result {

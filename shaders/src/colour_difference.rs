@@ -80,7 +80,39 @@ pub fn per_pixel(actual: &Frame, reference: &Frame) -> Result<Vec<f64>, String> 
 /// # Errors
 /// When the frames differ in size.
 pub fn colour_difference(actual: &Frame, reference: &Frame) -> Result<ColourDifference, String> {
-    let mut d = per_pixel(actual, reference)?;
+    Ok(statistics(per_pixel(actual, reference)?))
+}
+
+/// The statistics of `actual` against `reference` over the object's pixels only:
+/// those where either image differs from the `background` colour. A large empty
+/// border then cannot dilute the figures.
+///
+/// # Errors
+/// When the frames differ in size.
+pub fn object_colour_difference(
+    actual: &Frame,
+    reference: &Frame,
+    background: [u8; 3],
+) -> Result<ColourDifference, String> {
+    let d = per_pixel(actual, reference)?;
+    let is_object = |p: &[u8]| p[..3] != background;
+    let object = d
+        .into_iter()
+        .zip(
+            actual
+                .rgba
+                .chunks_exact(4)
+                .zip(reference.rgba.chunks_exact(4)),
+        )
+        .filter(|(_, (a, r))| is_object(a) || is_object(r))
+        .map(|(d, _)| d)
+        .collect();
+    Ok(statistics(object))
+}
+
+/// Mean, RMS, 99th percentile, maximum and ΔE₆ of per-pixel differences (all 0
+/// for none).
+pub fn statistics(mut d: Vec<f64>) -> ColourDifference {
     let n = d.len().max(1) as f64;
     let mean = d.iter().sum::<f64>() / n;
     let rms = (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
@@ -91,13 +123,13 @@ pub fn colour_difference(actual: &Frame, reference: &Frame) -> Result<ColourDiff
         .copied()
         .unwrap_or(0.0);
     let max = d.last().copied().unwrap_or(0.0);
-    Ok(ColourDifference {
+    ColourDifference {
         mean,
         rms,
         p99,
         max,
         above_6,
-    })
+    }
 }
 
 #[cfg(test)]
@@ -141,5 +173,29 @@ mod tests {
         assert_eq!(d.p99, 0.0);
         assert!((d.above_6 - 0.01).abs() < 1e-12);
         assert!(colour_difference(&frame(&a[..3]), &frame(&b)).is_err());
+    }
+
+    #[test]
+    fn object_statistics_leave_the_background_out() {
+        let frame = |px: &[[u8; 3]]| Frame {
+            width: px.len() as u32,
+            height: 1,
+            rgba: px.iter().flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
+        };
+        // 8 background pixels in both; 2 object pixels, one of them differing.
+        let mut a = vec![[0u8; 3]; 10];
+        a[3] = [200; 3];
+        a[4] = [120; 3];
+        let mut b = a.clone();
+        b[4] = [60; 3];
+        let d = object_colour_difference(&frame(&a), &frame(&b), [0; 3]).expect("same size");
+        let one = delta_e([120; 3], [60; 3]);
+        assert!((d.mean - one / 2.0).abs() < 1e-9, "{d:?}");
+        assert!((d.above_6 - 0.5).abs() < 1e-12, "{d:?}");
+        // A pixel that only one image covers counts.
+        b[9] = [50; 3];
+        let d = object_colour_difference(&frame(&a), &frame(&b), [0; 3]).expect("same size");
+        assert!((d.above_6 - 2.0 / 3.0).abs() < 1e-12, "{d:?}");
+        assert_eq!(statistics(Vec::new()).rms, 0.0);
     }
 }

@@ -6,6 +6,7 @@ use std::str::FromStr;
 use blocks::TransferFunction;
 
 use crate::Camera;
+use crate::light::LightSettings;
 
 /// The largest image edge in pixels.
 pub const MAX_IMAGE_EDGE: u32 = 4096;
@@ -23,15 +24,19 @@ pub enum Shading {
     Mip,
     /// Minimum intensity projection: the smallest visible value.
     MinIp,
+    /// Compositing lit by global light propagation with first-order scattering
+    /// (shadows from a light anywhere, also inside the volume): see [`crate::light`].
+    GlobalLight,
 }
 
 impl Shading {
     /// Every shading mode.
-    pub const ALL: [Shading; 4] = [
+    pub const ALL: [Shading; 5] = [
         Shading::Unshaded,
         Shading::Gradient,
         Shading::Mip,
         Shading::MinIp,
+        Shading::GlobalLight,
     ];
 
     /// The mode's name in URLs and on the command line.
@@ -41,6 +46,7 @@ impl Shading {
             Shading::Gradient => "gradient",
             Shading::Mip => "mip",
             Shading::MinIp => "minip",
+            Shading::GlobalLight => "global",
         }
     }
 }
@@ -59,7 +65,9 @@ impl FromStr for Shading {
             .into_iter()
             .find(|s| s.name() == name)
             .ok_or_else(|| {
-                format!("unknown shading '{name}': expected unshaded, gradient, mip or minip")
+                format!(
+                    "unknown shading '{name}': expected unshaded, gradient, mip, minip or global"
+                )
             })
     }
 }
@@ -171,6 +179,8 @@ pub struct FrameRequest {
     pub reduction: f32,
     /// Jump over empty blocks (turned off only to measure what skipping saves).
     pub skip_empty: bool,
+    /// The light of [`Shading::GlobalLight`].
+    pub light: LightSettings,
 }
 
 /// The largest data reduction a request may ask for.
@@ -193,6 +203,7 @@ impl FrameRequest {
             clip: ClipBox::default(),
             reduction: 1.0,
             skip_empty: true,
+            light: LightSettings::default(),
         }
     }
 
@@ -219,6 +230,9 @@ impl FrameRequest {
                 "reduction = {}: expected 1 to {MAX_REDUCTION}",
                 self.reduction
             ));
+        }
+        if self.shading == Shading::GlobalLight {
+            self.light.validate()?;
         }
         if !self.background.iter().all(|c| (0.0..=1.0).contains(c)) {
             return Err(format!(

@@ -18,12 +18,17 @@
 //!   [`MarchPipeline`].
 //! - [`packed`]: the atlas and block index on the GPU ([`packed::GpuAtlas`]),
 //!   uploaded in rows of slots and updated block by block.
+//! - [`light`]: global light propagation (local piecewise integration, the
+//!   shadow volume, direct light, first-order in-scattering) in packed block
+//!   coordinates: [`light::LightSettings`], [`light::Illumination`].
+//! - [`pipeline`]: builders for compute stages and their bind group layouts.
 //! - [`renderer`]: [`Renderer`] (a brick store rendered from its packed blocks,
 //!   frame by frame) and [`ReferenceRenderer`] (tests and benchmarks).
-//! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`) and whole-frame
-//!   CPU renders.
+//! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`, `cpu::light`)
+//!   and whole-frame CPU renders.
 //! - [`colour_difference`]: CIE ΔE*uv between a frame and its reference (mean,
-//!   RMS, 99th percentile, ΔE₆), for tests and benchmarks.
+//!   RMS, 99th percentile, ΔE₆; over the image or the object's pixels), for
+//!   tests and benchmarks.
 //! - [`error`]: [`GpuError`], this crate's one error type.
 //!
 //! The WGSL sources are in `shaders/wgsl/`: one file per stage, shared structs and
@@ -35,7 +40,9 @@ pub mod cpu;
 pub mod error;
 pub mod frame;
 pub mod gpu;
+pub mod light;
 pub mod packed;
+pub mod pipeline;
 pub mod raycast;
 pub mod renderer;
 pub mod volume_texture;
@@ -48,5 +55,6 @@ pub use camera::{Camera, Projection};
 pub use error::GpuError;
 pub use frame::{ClipBox, Frame, FrameRequest, Shading};
 pub use gpu::GpuContext;
+pub use light::{LightSettings, LightSource};
 pub use raycast::{MarchPipeline, RaycastParams, Stage};
 pub use renderer::{ReferenceRenderer, RenderStats, Renderer};

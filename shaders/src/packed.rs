@@ -211,5 +211,6 @@ pub fn assemble_cpu(
         atlas: Texture3d::new(packing.atlas_dims, texels),
         index: packing.block_index(grid).entries,
         grid,
+        light: None,
     })
 }

@@ -10,6 +10,7 @@
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
 
+use crate::pipeline::ComputeStage;
 use crate::volume_texture::VolumeTexture;
 use crate::{FrameRequest, GpuContext, GpuError, Shading};
 
@@ -31,6 +32,8 @@ pub const FLAG_JITTER: u32 = 1;
 pub const FLAG_SHADED: u32 = 2;
 /// [`RaycastParams::flags`] bit: jump over empty blocks.
 pub const FLAG_SKIP_EMPTY: u32 = 4;
+/// [`RaycastParams::flags`] bit: light samples with the stored light volume (eq. 12).
+pub const FLAG_LIT: u32 = 8;
 /// [`RaycastParams::mode`]: front-to-back compositing.
 pub const MODE_COMPOSITE: u32 = 0;
 /// [`RaycastParams::mode`]: maximum intensity projection.
@@ -75,6 +78,8 @@ pub struct RaycastParams {
     pub value_offset: f32,
     /// Background colour (rgb, a unused).
     pub background: [f32; 4],
+    /// Light colour times intensity (rgb) and I_bias (a), for [`FLAG_LIT`].
+    pub light: [f32; 4],
     /// Blinn–Phong ambient, diffuse, specular, shininess.
     pub phong: [f32; 4],
     /// Blocks along x, y, z (packed stage).
@@ -171,8 +176,14 @@ impl RaycastParams {
         if request.skip_empty {
             flags |= FLAG_SKIP_EMPTY;
         }
+        let mut lit = [1.0, 1.0, 1.0, 0.0];
+        if request.shading == Shading::GlobalLight {
+            flags |= FLAG_LIT;
+            let [r, g, b] = request.light.colour.map(|c| c * request.light.intensity);
+            lit = [r, g, b, request.light.bias];
+        }
         let mode = match request.shading {
-            Shading::Unshaded | Shading::Gradient => MODE_COMPOSITE,
+            Shading::Unshaded | Shading::Gradient | Shading::GlobalLight => MODE_COMPOSITE,
             Shading::Mip => MODE_MIP,
             Shading::MinIp => MODE_MINIP,
         };
@@ -194,6 +205,7 @@ impl RaycastParams {
             atlas_size: packed.atlas_dims.map(|d| d.max(1) as f32),
             value_offset: texture.value_offset,
             background: [r, g, b, 1.0],
+            light: lit,
             phong: PHONG,
             block_grid: packed.block_grid,
             max_steps,
@@ -203,6 +215,16 @@ impl RaycastParams {
             flags,
             mode,
             _pad: [0; 3],
+        }
+    }
+
+    /// The sizes packed addressing needs (the CPU twins').
+    pub fn geometry(&self) -> crate::cpu::packed::PackedGeometry {
+        crate::cpu::packed::PackedGeometry {
+            volume_dims: Vec3::from(self.volume_dims),
+            block_grid: self.block_grid,
+            atlas_size: Vec3::from(self.atlas_size),
+            texel: Vec3::from(self.texel),
         }
     }
 
@@ -220,6 +242,8 @@ impl RaycastParams {
 pub enum Stage {
     /// Packed blocks through the block index.
     Raycast,
+    /// Packed blocks lit by a light volume (needs float32-filterable textures).
+    RaycastLit,
     /// One plain texture.
     Reference,
 }
@@ -228,6 +252,7 @@ impl Stage {
     fn name(self) -> &'static str {
         match self {
             Stage::Raycast => "raycast",
+            Stage::RaycastLit => "raycast (lit)",
             Stage::Reference => "reference",
         }
     }
@@ -235,6 +260,7 @@ impl Stage {
     fn source(self) -> &'static str {
         match self {
             Stage::Raycast => crate::wgsl::RAYCAST,
+            Stage::RaycastLit => crate::wgsl::RAYCAST_LIT,
             Stage::Reference => crate::wgsl::REFERENCE,
         }
     }
@@ -244,8 +270,7 @@ impl Stage {
 #[derive(Debug)]
 pub struct MarchPipeline {
     stage: Stage,
-    pipeline: wgpu::ComputePipeline,
-    layout: wgpu::BindGroupLayout,
+    compute: ComputeStage,
     sampler: wgpu::Sampler,
 }
 
@@ -262,103 +287,38 @@ pub struct MarchBindings<'a> {
     pub output: &'a wgpu::TextureView,
     /// 5: the block index (raycast only).
     pub block_index: Option<&'a wgpu::TextureView>,
+    /// 6: the light volume (lit raycast only).
+    pub light_volume: Option<&'a wgpu::TextureView>,
 }
 
 impl MarchPipeline {
     /// Compiles `stage` (every voxel format voxserve uses filters linearly).
     pub fn new(gpu: &GpuContext, stage: Stage) -> Result<MarchPipeline, GpuError> {
-        gpu.scoped(&format!("building the {} pipeline", stage.name()), || {
-            let device = &gpu.device;
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(stage.name()),
-                source: wgpu::ShaderSource::Wgsl(stage.source().into()),
-            });
-            let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty,
-                count: None,
-            };
-            let mut entries = vec![
-                entry(
-                    0,
-                    wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(size_of::<RaycastParams>() as u64),
-                    },
-                ),
-                entry(
-                    1,
-                    wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
-                        view_dimension: wgpu::TextureViewDimension::D3,
-                        multisampled: false,
-                    },
-                ),
-                entry(
-                    2,
-                    wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
-                ),
-                entry(
-                    3,
-                    wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                ),
-                entry(
-                    4,
-                    wgpu::BindingType::StorageTexture {
-                        access: wgpu::StorageTextureAccess::WriteOnly,
-                        format: wgpu::TextureFormat::Rgba8Unorm,
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                    },
-                ),
-            ];
-            if stage == Stage::Raycast {
-                entries.push(entry(
-                    5,
-                    wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Uint,
-                        view_dimension: wgpu::TextureViewDimension::D3,
-                        multisampled: false,
-                    },
-                ));
-            }
-            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some(stage.name()),
-                entries: &entries,
-            });
-            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(stage.name()),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
-            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(stage.name()),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some("main"),
-                compilation_options: Default::default(),
-                cache: None,
-            });
-            let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-                label: Some("voxels"),
-                address_mode_u: wgpu::AddressMode::ClampToEdge,
-                address_mode_v: wgpu::AddressMode::ClampToEdge,
-                address_mode_w: wgpu::AddressMode::ClampToEdge,
-                mag_filter: wgpu::FilterMode::Linear,
-                min_filter: wgpu::FilterMode::Linear,
-                ..Default::default()
-            });
-            MarchPipeline {
-                stage,
-                pipeline,
-                layout,
-                sampler,
-            }
+        use crate::pipeline::{
+            float_texture_3d, sampler, storage_buffer, storage_texture, uint_texture_3d, uniform,
+        };
+        let mut entries = vec![
+            uniform(0, size_of::<RaycastParams>()),
+            float_texture_3d(1),
+            sampler(2),
+            storage_buffer(3),
+            storage_texture(
+                4,
+                wgpu::TextureFormat::Rgba8Unorm,
+                wgpu::StorageTextureAccess::WriteOnly,
+                wgpu::TextureViewDimension::D2,
+            ),
+        ];
+        if stage != Stage::Reference {
+            entries.push(uint_texture_3d(5));
+        }
+        if stage == Stage::RaycastLit {
+            entries.push(float_texture_3d(6));
+        }
+        Ok(MarchPipeline {
+            stage,
+            compute: ComputeStage::new(gpu, stage.name(), stage.source(), &entries)?,
+            sampler: crate::pipeline::linear_sampler(gpu),
         })
     }
 
@@ -368,42 +328,26 @@ impl MarchPipeline {
         gpu: &GpuContext,
         bindings: MarchBindings<'_>,
     ) -> Result<wgpu::BindGroup, GpuError> {
-        let mut entries = vec![
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: bindings.params.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: wgpu::BindingResource::TextureView(bindings.voxels),
-            },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: wgpu::BindingResource::Sampler(&self.sampler),
-            },
-            wgpu::BindGroupEntry {
-                binding: 3,
-                resource: bindings.transfer_function.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 4,
-                resource: wgpu::BindingResource::TextureView(bindings.output),
-            },
+        let mut resources = vec![
+            bindings.params.as_entire_binding(),
+            wgpu::BindingResource::TextureView(bindings.voxels),
+            wgpu::BindingResource::Sampler(&self.sampler),
+            bindings.transfer_function.as_entire_binding(),
+            wgpu::BindingResource::TextureView(bindings.output),
         ];
-        if self.stage == Stage::Raycast {
+        if self.stage != Stage::Reference {
             let index = bindings.block_index.ok_or_else(|| {
                 GpuError::InvalidRequest("the raycast stage needs a block index".into())
             })?;
-            entries.push(wgpu::BindGroupEntry {
-                binding: 5,
-                resource: wgpu::BindingResource::TextureView(index),
-            });
+            resources.push(wgpu::BindingResource::TextureView(index));
         }
-        Ok(gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(self.stage.name()),
-            layout: &self.layout,
-            entries: &entries,
-        }))
+        if self.stage == Stage::RaycastLit {
+            let light = bindings.light_volume.ok_or_else(|| {
+                GpuError::InvalidRequest("the lit raycast stage needs a light volume".into())
+            })?;
+            resources.push(wgpu::BindingResource::TextureView(light));
+        }
+        Ok(self.compute.bind_group(gpu, &resources))
     }
 
     /// Records the dispatch for an image of `params.width` × `params.height`.
@@ -413,14 +357,8 @@ impl MarchPipeline {
         bind_group: &wgpu::BindGroup,
         params: &RaycastParams,
     ) {
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some(self.stage.name()),
-            timestamp_writes: None,
-        });
-        pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, bind_group, &[]);
         let (x, y) = params.workgroups();
-        pass.dispatch_workgroups(x, y, 1);
+        self.compute.dispatch(encoder, bind_group, [x, y, 1]);
     }
 }
 
@@ -430,9 +368,9 @@ mod tests {
 
     #[test]
     fn params_are_a_multiple_of_16_bytes_like_the_wgsl_struct() {
-        // WGSL: three mat4x4 (64 each), six vec3 + scalar pairs, two vec4s and
+        // WGSL: three mat4x4 (64 each), six vec3 + scalar pairs, three vec4s and
         // one vec3<u32> + scalar (16 each), eight scalars.
-        assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 9 * 16 + 8 * 4);
+        assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 10 * 16 + 8 * 4);
         assert_eq!(size_of::<RaycastParams>() % 16, 0);
     }
 
@@ -465,18 +403,5 @@ mod tests {
         assert!((tc(Vec3::new(0.0, 0.0, -5.0)) - Vec3::new(0.5, 0.5, 1.0)).length() < 1e-6);
         let radius = VolumePlacement::of(&texture).radius();
         assert!((radius - 75.0f32.sqrt()).abs() < 1e-4, "{radius}");
-    }
-
-    #[test]
-    fn both_stages_parse_and_validate() {
-        for source in [crate::wgsl::RAYCAST, crate::wgsl::REFERENCE] {
-            let module = naga::front::wgsl::parse_str(source).expect("WGSL parses");
-            naga::valid::Validator::new(
-                naga::valid::ValidationFlags::all(),
-                naga::valid::Capabilities::empty(),
-            )
-            .validate(&module)
-            .expect("WGSL validates");
-        }
     }
 }

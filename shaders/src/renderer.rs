@@ -19,10 +19,11 @@ use blocks::store::{LEVELS, Store};
 use blocks::transfer_function::TABLE_LEN;
 use blocks::{TransferFunction, Volume};
 
+use crate::light::{DirectLightMethod, Illumination, LightInputs, LightTimings};
 use crate::packed::GpuAtlas;
 use crate::raycast::{MarchBindings, MarchPipeline, PackedLayout, Stage};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
-use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
+use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams, Shading};
 
 /// Rows of a texture-to-buffer copy are padded to this many bytes.
 const ROW_ALIGN: u32 = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
@@ -97,7 +98,8 @@ impl FrameResources {
         Ok(())
     }
 
-    /// Runs `pipeline` with `params` over `voxels` (and `block_index`) and reads the frame back.
+    /// Runs `pipeline` with `params` over `voxels` (and `block_index`, and
+    /// `light_volume` when lit) and reads the frame back.
     fn draw(
         &mut self,
         gpu: &GpuContext,
@@ -105,6 +107,7 @@ impl FrameResources {
         params: &RaycastParams,
         voxels: &wgpu::TextureView,
         block_index: Option<&wgpu::TextureView>,
+        light_volume: Option<&wgpu::TextureView>,
     ) -> Result<Frame, GpuError> {
         gpu.queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(params));
@@ -117,6 +120,7 @@ impl FrameResources {
                 transfer_function: &self.transfer_function,
                 output: &target.view,
                 block_index,
+                light_volume,
             },
         )?;
         gpu.scoped("rendering a frame", || {
@@ -177,6 +181,8 @@ pub struct RenderStats {
     pub upload_ms: f64,
     /// Milliseconds from dispatch to pixels read back.
     pub draw_ms: f64,
+    /// The light stages of this frame (global light propagation only).
+    pub light: Option<LightTimings>,
 }
 
 /// The blocks on the GPU and what they were selected for.
@@ -198,6 +204,11 @@ pub struct Renderer {
     full_voxels: u64,
     device_budget_bytes: u64,
     resident: Option<Resident>,
+    /// Bumped whenever the resident blocks change: the light depends on them.
+    data_version: u64,
+    lit_pipeline: Option<MarchPipeline>,
+    illumination: Option<Illumination>,
+    light_method: DirectLightMethod,
     frame: FrameResources,
     last: RenderStats,
 }
@@ -236,6 +247,10 @@ impl Renderer {
             full_voxels,
             device_budget_bytes: budget_bytes,
             resident: None,
+            data_version: 0,
+            lit_pipeline: None,
+            illumination: None,
+            light_method: DirectLightMethod::Piecewise,
             frame,
             last: RenderStats::default(),
         })
@@ -266,24 +281,114 @@ impl Renderer {
         self.resident.as_ref().map(|r| &r.atlas.packing)
     }
 
-    /// Renders one frame and reads it back.
+    /// The light of global light propagation, once computed.
+    pub fn illumination(&self) -> Option<&Illumination> {
+        self.illumination.as_ref()
+    }
+
+    /// The resident atlas, once a frame was rendered.
+    pub fn atlas(&self) -> Option<&GpuAtlas> {
+        self.resident.as_ref().map(|r| &r.atlas)
+    }
+
+    /// How I_d is computed for [`Shading::GlobalLight`]: the paper's piecewise
+    /// method (the default) or the brute-force reference (tests, benchmarks).
+    pub fn set_light_method(&mut self, method: DirectLightMethod) {
+        self.light_method = method;
+    }
+
+    /// Renders one frame and reads it back. For [`Shading::GlobalLight`] the
+    /// light is brought up to date first: recomputed when the data, transfer
+    /// function or light changed, else refined by one more direction.
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        let mut stats = self.prepare(request)?;
+        if request.shading == Shading::GlobalLight {
+            stats.light = Some(self.update_light(request, false)?);
+        }
+        self.draw(request, stats)
+    }
+
+    /// Renders one frame with the light converged: every in-scattering
+    /// direction in (for still images and tests).
+    pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        let mut stats = self.prepare(request)?;
+        if request.shading == Shading::GlobalLight {
+            stats.light = Some(self.update_light(request, true)?);
+        }
+        self.draw(request, stats)
+    }
+
+    /// Checks the request and brings the resident blocks up to date.
+    fn prepare(&mut self, request: &FrameRequest) -> Result<RenderStats, GpuError> {
         self.frame.prepare(&self.gpu, request, &self.desc)?;
         let budget = budget_voxels(self.full_voxels, request.reduction);
         let mut stats = RenderStats::default();
         self.make_resident(&request.transfer_function, budget, &mut stats)?;
+        Ok(stats)
+    }
+
+    /// Brings the light up to date for `request` (all of it when `converge`).
+    fn update_light(
+        &mut self,
+        request: &FrameRequest,
+        converge: bool,
+    ) -> Result<LightTimings, GpuError> {
+        if self.illumination.is_none() {
+            self.illumination = Some(Illumination::new(&self.gpu)?);
+        }
+        if self.lit_pipeline.is_none() {
+            self.lit_pipeline = Some(MarchPipeline::new(&self.gpu, Stage::RaycastLit)?);
+        }
+        let (Some(resident), Some(illumination)) = (&self.resident, self.illumination.as_mut())
+        else {
+            return Err(GpuError::InvalidRequest("no blocks are resident".into()));
+        };
+        let inputs = LightInputs {
+            atlas: &resident.atlas,
+            transfer_function: &self.frame.transfer_function,
+            texture: &self.desc,
+            tf_len: TABLE_LEN as u32,
+        };
+        let mut timings = illumination.update(
+            &self.gpu,
+            inputs,
+            &request.transfer_function,
+            &request.light,
+            self.data_version,
+            self.light_method,
+        )?;
+        if converge {
+            timings.in_scatter_ms += illumination.converge(&self.gpu, inputs)?;
+            timings.refined = timings.directions;
+        }
+        Ok(timings)
+    }
+
+    /// Renders the frame of `request` from what is resident.
+    fn draw(&mut self, request: &FrameRequest, mut stats: RenderStats) -> Result<Frame, GpuError> {
         let Some(resident) = &self.resident else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
         let params =
             RaycastParams::new(&self.desc, request, TABLE_LEN as u32, resident.atlas.layout);
+        let lit = request.shading == Shading::GlobalLight;
+        let (pipeline, light) = match (
+            &self.lit_pipeline,
+            self.illumination
+                .as_ref()
+                .and_then(Illumination::light_volume),
+        ) {
+            (Some(p), Some(light)) if lit => (p, Some(light)),
+            _ => (&self.pipeline, None),
+        };
         let start = Instant::now();
         let frame = self.frame.draw(
             &self.gpu,
-            &self.pipeline,
+            pipeline,
             &params,
             &resident.atlas.atlas_view,
             Some(&resident.atlas.index_view),
+            light,
         )?;
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.reduction = resident.selection.reduction();
@@ -306,6 +411,7 @@ impl Renderer {
         {
             return Ok(());
         }
+        self.data_version += 1;
         let max_edge = self.gpu.device.limits().max_texture_dimension_3d;
         let start = Instant::now();
         let device = DeviceBudget {
@@ -400,8 +506,14 @@ impl ReferenceRenderer {
             TABLE_LEN as u32,
             PackedLayout::default(),
         );
-        self.frame
-            .draw(&self.gpu, &self.pipeline, &params, &self.volume.view, None)
+        self.frame.draw(
+            &self.gpu,
+            &self.pipeline,
+            &params,
+            &self.volume.view,
+            None,
+            None,
+        )
     }
 }
 

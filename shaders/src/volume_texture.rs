@@ -239,12 +239,31 @@ fn tf_domain(range: [f32; 2]) -> [f32; 2] {
     }
 }
 
-/// A 3D texture of one-channel texels on the GPU.
+/// A 3D texture of one-channel texels on the GPU, sampled by shaders and
+/// written by uploads.
 pub fn create_texture_3d(
     gpu: &GpuContext,
     label: &str,
     dims: [u32; 3],
     format: wgpu::TextureFormat,
+) -> Result<wgpu::Texture, GpuError> {
+    create_texture_3d_for(
+        gpu,
+        label,
+        dims,
+        format,
+        wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+    )
+}
+
+/// A 3D texture of one-channel texels on the GPU with `usage`; dimensions
+/// beyond the adapter's limit are refused with the numbers.
+pub fn create_texture_3d_for(
+    gpu: &GpuContext,
+    label: &str,
+    dims: [u32; 3],
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
 ) -> Result<wgpu::Texture, GpuError> {
     let max = gpu.device.limits().max_texture_dimension_3d;
     if dims.iter().any(|&d| d > max || d == 0) {
@@ -268,7 +287,7 @@ pub fn create_texture_3d(
             sample_count: 1,
             dimension: wgpu::TextureDimension::D3,
             format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            usage,
             view_formats: &[],
         })
     })

@@ -5,7 +5,7 @@
 // empty. Per sample: index lookup → atlas coordinate at the block's level →
 // hardware trilinear filtering (the apron makes it right across block borders).
 // Empty blocks are jumped over. Compositing, MIP/MinIP, clip box and shading
-// are in shared/march.wgsl.
+// are in shared/march.wgsl, block addressing in shared/packed.wgsl.
 //
 // Dispatch: one invocation per pixel, workgroups of 8×8, ceil(width / 8) × ceil(height / 8).
 // Bindings (group 0):
@@ -17,6 +17,9 @@
 //   5 block_index        texture_3d<u32> (rgba16uint), one texel per block:
 //                        atlas position of the block's first interior texel, level
 //                        (0..4; EMPTY_LEVEL when the block is not stored)
+//   6 light_volume       texture_3d<f32> (r32float, atlas-shaped): the stored light
+//                        I_s of global light propagation (lit variant only,
+//                        shared/light_volume.wgsl; shared/no_light.wgsl otherwise)
 // CPU twin: shaders::cpu::raycast (shaders/src/cpu/raycast.rs), loop for loop.
 
 @group(0) @binding(0) var<uniform> params: RaycastParams;
@@ -26,42 +29,9 @@
 @group(0) @binding(4) var output: texture_storage_2d<rgba8unorm, write>;
 @group(0) @binding(5) var block_index: texture_3d<u32>;
 
-// Edge of a block in level-0 voxels.
-const BLOCK: f32 = 16.0;
-// The index's level entry of a block that is not stored.
-const EMPTY_LEVEL: u32 = 65535u;
-
-struct Location {
-    empty: bool,
-    // The block (x, y, z in the block grid).
-    block: vec3<i32>,
-    // Atlas texel position of the block's first interior texel.
-    origin: vec3<f32>,
-    // Level-l texels per level-0 voxel: 1 / 2^level.
-    scale: f32,
-}
-
-fn locate(tc: vec3<f32>) -> Location {
-    let p = tc * params.volume_dims;
-    let last = vec3<i32>(params.block_grid) - vec3<i32>(1);
-    let block = clamp(vec3<i32>(floor(p / BLOCK)), vec3<i32>(0), last);
-    let entry = textureLoad(block_index, block, 0);
-    var loc: Location;
-    loc.empty = entry.w == EMPTY_LEVEL;
-    loc.block = block;
-    loc.origin = vec3<f32>(entry.xyz);
-    loc.scale = 1.0 / f32(1u << min(entry.w, 4u));
-    return loc;
-}
-
-// The texel value at tc read from block `loc`'s slot; positions outside the
-// block are clamped to its apron, so filtering never reads another slot.
+// The texel value at tc read from block `loc`'s slot.
 fn sample_at(tc: vec3<f32>, loc: Location) -> f32 {
-    let p = tc * params.volume_dims;
-    let local = (p - vec3<f32>(loc.block) * BLOCK) * loc.scale;
-    let edge = BLOCK * loc.scale;
-    let inside = clamp(local, vec3<f32>(-0.5), vec3<f32>(edge + 0.5));
-    return textureSampleLevel(atlas, atlas_sampler, (loc.origin + inside) / params.atlas_size, 0.0).r;
+    return textureSampleLevel(atlas, atlas_sampler, atlas_coord(tc, loc), 0.0).r;
 }
 
 // The value at tc for a gradient around a sample in `home`: from the block tc
@@ -77,11 +47,4 @@ fn sample_neighbour(tc: vec3<f32>, home: Location) -> f32 {
         return sample_at(tc, home);
     }
     return sample_at(tc, other);
-}
-
-// Where the ray leaves the empty block `loc` (model-space t).
-fn empty_exit(origin: vec3<f32>, dir: vec3<f32>, loc: Location) -> f32 {
-    let lo = vec3<f32>(loc.block) * BLOCK * params.texel;
-    let hi = min(lo + BLOCK * params.texel, vec3<f32>(1.0));
-    return intersect_box(origin, dir, lo, hi).y;
 }

@@ -8,7 +8,7 @@
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
 use blocks::Preset;
-use shaders::{Camera, ClipBox, FrameRequest, Projection, Shading};
+use shaders::{Camera, ClipBox, FrameRequest, LightSettings, LightSource, Projection, Shading};
 use voxserve_tests::image_compare::{assert_golden, assert_matches_golden, to_image};
 use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
 use voxserve_tests::render::{cpu_packed, gpu_renderer};
@@ -92,6 +92,73 @@ fn goldens() -> Vec<(&'static str, FrameRequest)> {
             },
         ),
     ]
+    .into_iter()
+    .chain(light_goldens())
+    .collect()
+}
+
+/// Global light propagation: a light outside and one inside the volume, I_bias
+/// 0 and 0.2, a small and a large scattering radius.
+fn light_goldens() -> Vec<(&'static str, FrameRequest)> {
+    let range = phantom_64().value_range;
+    let lit = |light: LightSettings| FrameRequest {
+        camera: Camera {
+            azimuth_deg: 25.0,
+            elevation_deg: 15.0,
+            ..Camera::default()
+        },
+        shading: Shading::GlobalLight,
+        light: LightSettings {
+            directions: 6,
+            ..light
+        },
+        ..FrameRequest::new(96, 96, Preset::CtSoftTissue.transfer_function(range))
+    };
+    let outside = LightSettings {
+        source: LightSource::Directional([-0.8, -0.3, 0.5]),
+        scatter_radius_voxels: 4.0,
+        ..LightSettings::default()
+    };
+    vec![
+        (
+            "phantom-light-outside-bias0",
+            lit(LightSettings {
+                bias: 0.0,
+                ..outside
+            }),
+        ),
+        (
+            "phantom-light-outside-bias02",
+            lit(LightSettings {
+                bias: 0.2,
+                ..outside
+            }),
+        ),
+        (
+            "phantom-light-inside",
+            lit(LightSettings {
+                source: LightSource::Point([0.5, 0.45, 0.55]),
+                bias: 0.05,
+                ..outside
+            }),
+        ),
+        (
+            "phantom-light-radius2",
+            lit(LightSettings {
+                scatter_radius_voxels: 2.0,
+                bias: 0.0,
+                ..outside
+            }),
+        ),
+        (
+            "phantom-light-radius16",
+            lit(LightSettings {
+                scatter_radius_voxels: 16.0,
+                bias: 0.0,
+                ..outside
+            }),
+        ),
+    ]
 }
 
 #[test]
@@ -111,7 +178,7 @@ fn gpu_matches_the_golden_images() {
     let mut renderer = gpu_renderer(gpu, phantom_64_dataset());
     for (name, request) in goldens() {
         let frame = renderer
-            .render(&request)
+            .render_converged(&request)
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         // The GPU result is compared, never blessed: the CPU twin writes goldens.
         let diff = assert_matches_golden(name, &frame, &GOLDEN_TOLERANCE);

@@ -89,6 +89,11 @@ async fn bad_queries_get_400_with_a_message_and_the_server_keeps_serving() {
         ("proj=fisheye", "unknown projection 'fisheye'"),
         ("bg=xyz", "colour 'xyz'"),
         ("shading=phong", "unknown shading 'phong'"),
+        ("shading=global&light=spot:0,0,1", "light 'spot:0,0,1'"),
+        ("shading=global&svr=3", "svr=\"3\""),
+        ("shading=global&segment=64", "segment=\"64\""),
+        ("shading=global&bias=2", "bias=\"2\""),
+        ("shading=global&directions=0", "directions=\"0\""),
     ];
     for (query, expected) in cases {
         let response = get(&server.url(&format!("/api/render?{query}"))).await;
@@ -136,6 +141,43 @@ async fn every_shading_projection_clip_and_reduction_renders() {
             assert!(reduction >= 8.5, "{query}: {reduction}");
         }
     }
+}
+
+#[tokio::test]
+async fn global_light_refines_one_direction_per_request_and_keeps_the_light_when_the_camera_moves()
+{
+    let Some(gpu) = gpu_or_skip(
+        "global_light_refines_one_direction_per_request_and_keeps_the_light_when_the_camera_moves",
+    ) else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let base = "w=48&h=48&shading=global&scatter_radius=4&directions=3&svr=2";
+    let query = format!("{base}&light=point:0.5,0.5,1.4");
+    let refinement = |response: &reqwest::Response| {
+        response.headers()["x-refinement"]
+            .to_str()
+            .unwrap_or_default()
+            .to_owned()
+    };
+    let mut seen = Vec::new();
+    for az in [0, 0, 40, 40] {
+        let response = get(&server.url(&format!("/api/render?{query}&az={az}"))).await;
+        assert_eq!(response.status(), 200, "az={az}");
+        assert!(
+            response.headers().contains_key("x-light-ms"),
+            "az={az}: X-Light-Ms"
+        );
+        seen.push(refinement(&response));
+    }
+    // The first request computes the light with one direction, each later one
+    // adds a direction, and moving the camera keeps what is computed.
+    assert_eq!(seen, ["1/3", "2/3", "3/3", "3/3"]);
+    let changed = get(&server.url(&format!("/api/render?{query}&bias=0.3"))).await;
+    assert_eq!(refinement(&changed), "3/3", "I_bias applies at render time");
+    let moved = get(&server.url(&format!("/api/render?{base}&light=point:0.5,0.5,1.6"))).await;
+    assert_eq!(moved.status(), 200);
+    assert_eq!(refinement(&moved), "1/3", "a moved light is recomputed");
 }
 
 #[tokio::test]

@@ -1,19 +1,19 @@
 //! CPU twin of `shaders/wgsl/shared/march.wgsl`, loop for loop: the ray march
 //! shared by the `raycast` and `reference` twins. Each twin supplies its voxel
 //! storage as a [`Storage`], the counterpart of the functions a WGSL stage
-//! defines (`locate`, `sample_at`, `sample_neighbour`, `empty_exit`).
+//! defines (`locate`, `sample_at`, `sample_neighbour`, `light_at`, `empty_exit`).
 
 use glam::{Mat4, Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 
 use super::hash::{pcg_hash, unit_from_hash};
 use crate::raycast::{
-    FLAG_JITTER, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP, RaycastParams,
+    FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP, RaycastParams,
     WORKGROUP_SIZE,
 };
 
 /// Largest opacity fed to the opacity correction (as in the shader).
-const MAX_SAMPLE_OPACITY: f32 = 0.9999;
+pub const MAX_SAMPLE_OPACITY: f32 = 0.9999;
 
 /// Where voxels come from: the stage-specific functions of the march.
 pub trait Storage: Sync {
@@ -27,6 +27,8 @@ pub trait Storage: Sync {
     fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> f32;
     /// WGSL `sample_neighbour`.
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &Self::Location) -> f32;
+    /// WGSL `light_at`: the stored light I_s at a sample (1 where there is none).
+    fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> f32;
     /// WGSL `empty_exit`.
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &Self::Location) -> f32;
 }
@@ -54,9 +56,9 @@ pub fn march<S: Storage>(
         });
 }
 
-/// WGSL `classify`.
-pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
-    let n = p.tf_len as i32;
+/// WGSL `classify` (`shared/transfer_function.wgsl`), for a table of `tf_len` entries.
+pub fn classify_table(tf_len: u32, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
+    let n = tf_len as i32;
     let x = u.clamp(0.0, 1.0) * n as f32 - 0.5;
     let i0f = x.floor();
     let f = x - i0f;
@@ -64,6 +66,16 @@ pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Ve
     let a = Vec4::from(transfer_function[i0.clamp(0, n - 1) as usize]);
     let b = Vec4::from(transfer_function[(i0 + 1).clamp(0, n - 1) as usize]);
     a.lerp(b, f)
+}
+
+/// WGSL `classify`.
+pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
+    classify_table(p.tf_len, transfer_function, u)
+}
+
+/// WGSL `corrected_opacity`.
+pub fn corrected_opacity(a: f32, exponent: f32) -> f32 {
+    1.0 - (1.0 - a.min(MAX_SAMPLE_OPACITY)).powf(exponent)
 }
 
 /// WGSL `gradient_at`.
@@ -168,13 +180,19 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             let rgba = classify(p, tf, u);
             if rgba.w > 0.0 {
                 if p.mode == MODE_COMPOSITE {
-                    let a = 1.0 - (1.0 - rgba.w.min(MAX_SAMPLE_OPACITY)).powf(exponent);
+                    let a = corrected_opacity(rgba.w, exponent);
                     let mut rgb = rgba.xyz();
                     if p.flags & FLAG_SHADED != 0 {
                         let g = (gradient_from_texture * gradient_at(s, p, tc, &loc).extend(0.0))
                             .xyz()
                             * p.value_scale;
                         rgb = shade(p, rgb, g, dir);
+                    }
+                    if p.flags & FLAG_LIT != 0 {
+                        // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
+                        let bias = p.light[3];
+                        let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
+                        rgb *= Vec3::splat(bias) + (1.0 - bias) * colour * s.light_at(p, tc, &loc);
                     }
                     color += (1.0 - alpha) * a * rgb;
                     alpha += (1.0 - alpha) * a;

@@ -7,6 +7,9 @@
 //! - [`reference`](mod@reference): twin of `shaders/wgsl/reference.wgsl` (one
 //!   plain texture).
 //! - [`march`]: twin of `shaders/wgsl/shared/march.wgsl`, the ray march both share.
+//! - [`packed`]: twin of `shaders/wgsl/shared/packed.wgsl`, block addressing.
+//! - [`light`]: twins of the light stages (`local_opacity`, `global_opacity`,
+//!   `direct_light`, `in_scatter`, `direct_light_reference`).
 //! - [`texture`]: [`Texture3d`], a 3D texture sampled like the GPU samples one.
 //! - [`hash`]: twin of `shaders/wgsl/shared/hash.wgsl`.
 //!
@@ -14,12 +17,15 @@
 //! [`crate::Renderer`] and [`crate::ReferenceRenderer`] do on the GPU.
 
 pub mod hash;
+pub mod light;
 pub mod march;
+pub mod packed;
 pub mod raycast;
 pub mod reference;
 pub mod texture;
 
-pub use raycast::{PackedTexture, raycast};
+pub use packed::PackedTexture;
+pub use raycast::raycast;
 pub use reference::reference;
 pub use texture::Texture3d;
 
@@ -28,11 +34,12 @@ use blocks::cache::BlockCache;
 use blocks::lod::LodSelection;
 use blocks::transfer_function::TABLE_LEN;
 
+use crate::light::{DirectLightMethod, LightParams, slot_blocks, svr_blocks};
 use crate::packed::assemble_cpu;
 use crate::raycast::{PackedLayout, RaycastParams};
 use crate::renderer::{DeviceBudget, budget_voxels, select_levels};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
-use crate::{Frame, FrameRequest, GpuError};
+use crate::{Frame, FrameRequest, GpuError, Shading};
 
 /// Renders `request` of the store behind `cache` on the CPU through the twin of
 /// `raycast`: levels selected for the request's data reduction, blocks packed
@@ -58,12 +65,24 @@ pub fn render_packed(
         budget,
         DeviceBudget::unlimited(max_edge),
     )?;
-    let packed = assemble_cpu(cache, &packing, &desc)?;
+    let mut packed = assemble_cpu(cache, &packing, &desc)?;
     let table = request.transfer_function.table(desc.tf_domain, TABLE_LEN)?;
     let layout = PackedLayout {
         atlas_dims: packing.atlas_dims,
         block_grid: store.meta().blocks,
     };
+    if request.shading == Shading::GlobalLight {
+        let computed = light_for(
+            &desc,
+            request,
+            &packing,
+            layout,
+            &packed,
+            &table,
+            DirectLightMethod::Piecewise,
+        );
+        packed.light = Some(Texture3d::new(packing.atlas_dims, computed.light_volume));
+    }
     let params = RaycastParams::new(&desc, request, table.len() as u32, layout);
     let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
     raycast(&params, &packed, &table, &mut rgba);
@@ -73,6 +92,30 @@ pub fn render_packed(
         rgba,
     };
     Ok((frame, selection))
+}
+
+/// The converged light of `request` for blocks packed as `packing`, by `method`.
+pub fn light_for(
+    desc: &VolumeTexture,
+    request: &FrameRequest,
+    packing: &blocks::packing::Packing,
+    layout: PackedLayout,
+    packed: &PackedTexture,
+    table: &[[f32; 4]],
+    method: DirectLightMethod,
+) -> light::CpuLight {
+    let params = LightParams::new(desc, &request.light, packing, layout, table.len() as u32);
+    let directions = params.scatter_directions(&request.light);
+    let svr = svr_blocks(packing, params.block_grid, params.svr_margin_blocks());
+    light::compute_light(
+        &params,
+        packed,
+        table,
+        &slot_blocks(packing),
+        &svr,
+        &directions,
+        method,
+    )
 }
 
 /// Renders `request` of `volume` on the CPU through the twin of `reference`:

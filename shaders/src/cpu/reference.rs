@@ -30,6 +30,10 @@ impl Storage for Texture3d {
         self.sample_at(p, tc, home)
     }
 
+    fn light_at(&self, _p: &RaycastParams, _tc: Vec3, _loc: &PlainLocation) -> f32 {
+        1.0
+    }
+
     fn empty_exit(
         &self,
         _p: &RaycastParams,

@@ -2,28 +2,13 @@
 // `reference` (one plain texture) stages. Each stage defines, for its storage:
 //   struct Location { empty: bool, ... }          where a sample falls
 //   fn locate(tc: vec3<f32>) -> Location
+//   fn light_at(tc: vec3<f32>, loc: Location) -> f32   stored light I_s (FLAG_LIT)
 //   fn sample_at(tc: vec3<f32>, loc: Location) -> f32       texel value
 //   fn sample_neighbour(tc: vec3<f32>, home: Location) -> f32
 //                                    texel value near a sample in `home` (gradients)
 //   fn empty_exit(origin: vec3<f32>, dir: vec3<f32>, loc: Location) -> f32
 // and the bindings `params`, `transfer_function`, `output`.
 // CPU twin: shaders/src/cpu/march.rs, loop for loop.
-
-// Largest opacity fed to the opacity correction, so pow() never sees a zero base.
-const MAX_SAMPLE_OPACITY: f32 = 0.9999;
-
-// The transfer function at coordinate u (0..1), linearly interpolated between entry
-// centres like a 1D texture with clamp to edge.
-fn classify(u: f32) -> vec4<f32> {
-    let n = i32(params.tf_len);
-    let x = clamp(u, 0.0, 1.0) * f32(n) - 0.5;
-    let i0f = floor(x);
-    let f = x - i0f;
-    let i0 = i32(i0f);
-    let a = transfer_function[clamp(i0, 0, n - 1)];
-    let b = transfer_function[clamp(i0 + 1, 0, n - 1)];
-    return mix(a, b, f);
-}
 
 // Central differences one level-0 voxel apart around a sample in `loc`, per
 // unit of texture coordinate.
@@ -53,21 +38,6 @@ fn shade(rgb: vec3<f32>, g: vec3<f32>, view_dir: vec3<f32>) -> vec3<f32> {
     let diffuse = abs(dot(n, l));
     let specular = pow(abs(dot(n, h)), params.phong.w);
     return rgb * (params.phong.x + params.phong.y * diffuse) + vec3<f32>(params.phong.z * specular);
-}
-
-// Distances along a texture-space ray (origin, dir per mm of model space) to
-// where it enters and leaves the box lo..hi; enter > exit when it misses.
-fn intersect_box(origin: vec3<f32>, dir: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f32> {
-    // Avoid dividing by an exact zero: a tiny component stands in for it.
-    let safe_dir = select(dir, vec3<f32>(1e-12), abs(dir) < vec3<f32>(1e-12));
-    let inv = 1.0 / safe_dir;
-    let t0 = (lo - origin) * inv;
-    let t1 = (hi - origin) * inv;
-    let near = min(t0, t1);
-    let far = max(t0, t1);
-    let enter = max(max(near.x, near.y), max(near.z, 0.0));
-    let exit = min(min(far.x, far.y), far.z);
-    return vec2<f32>(enter, exit);
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -126,12 +96,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let rgba = classify(u);
             if rgba.a > 0.0 {
                 if params.mode == MODE_COMPOSITE {
-                    let a = 1.0 - pow(1.0 - min(rgba.a, MAX_SAMPLE_OPACITY), exponent);
+                    let a = corrected_opacity(rgba.a, exponent);
                     var rgb = rgba.rgb;
                     if (params.flags & FLAG_SHADED) != 0u {
                         let g = (params.gradient_from_texture * vec4<f32>(gradient_at(tc, loc), 0.0)).xyz
                             * params.value_scale;
                         rgb = shade(rgb, g, dir);
+                    }
+                    if (params.flags & FLAG_LIT) != 0u {
+                        // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
+                        let bias = params.light.a;
+                        rgb = rgb * (vec3<f32>(bias) + (1.0 - bias) * params.light.rgb * light_at(tc, loc));
                     }
                     color += (1.0 - alpha) * a * rgb;
                     alpha += (1.0 - alpha) * a;

@@ -38,6 +38,8 @@ struct RaycastParams {
     value_offset: f32,
     // Background colour behind the volume (rgb; a is ignored).
     background: vec4<f32>,
+    // Light colour (rgb, times the light's intensity) and I_bias (a), for FLAG_LIT.
+    light: vec4<f32>,
     // Blinn–Phong: ambient, diffuse, specular, shininess.
     phong: vec4<f32>,
     // Blocks along x, y, z (packed stage only), and the upper bound on samples per ray.
@@ -61,6 +63,8 @@ const FLAG_JITTER: u32 = 1u;
 const FLAG_SHADED: u32 = 2u;
 // Jump over empty blocks instead of stepping through them.
 const FLAG_SKIP_EMPTY: u32 = 4u;
+// Light each sample with the stored light volume (global light propagation, eq. 12).
+const FLAG_LIT: u32 = 8u;
 
 // Front-to-back emission–absorption compositing.
 const MODE_COMPOSITE: u32 = 0u;

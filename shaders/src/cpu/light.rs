@@ -1,0 +1,384 @@
+//! CPU twins of the light stages, loop for loop like the WGSL:
+//! `local_opacity`, `global_opacity`, `direct_light`, `in_scatter` and
+//! `direct_light_reference` (`shaders/wgsl/*.wgsl`), with the shared helpers of
+//! `shared/slot.wgsl`, `shared/light.wgsl` and `shared/light_opacity.wgsl`.
+//! Atlas-shaped results are `Vec<f32>` over every atlas texel (x fastest),
+//! zero where no block is stored, as the GPU leaves them.
+
+use glam::{Mat4, Vec3, Vec4Swizzles};
+use rayon::prelude::*;
+
+use super::Texture3d;
+use super::march::{classify_table, corrected_opacity, intersect_box};
+use super::packed::{BLOCK, BlockLocation, PackedTexture, atlas_coord, empty_exit};
+use crate::light::{DirectLightMethod, LightParams, ScatterDirection};
+
+/// A slot that holds no block.
+const NO_BLOCK: u32 = u32::MAX;
+/// How far past a block's exit `global_opacity` resumes (mm).
+const RESUME: f32 = 1e-3;
+/// WGSL `OPAQUE`: remaining transparency below which a light ray stops.
+const OPAQUE: f32 = 1e-3;
+
+/// WGSL `SlotTexel`: the texel's texture-space position, if it is a stored voxel.
+pub fn slot_texel(p: &LightParams, slot_blocks: &[u32], texel: [u32; 3]) -> Option<Vec3> {
+    if (0..3).any(|i| texel[i] as f32 >= p.atlas_size[i]) {
+        return None;
+    }
+    let mut first_slot = 0u32;
+    for level in 0..5u32 {
+        let [sx, sy, sz, z0] = p.regions[level as usize];
+        let edge = (16 >> level) + 2;
+        let z_end = z0 + sz * edge;
+        if texel[2] >= z0 && texel[2] < z_end {
+            let slot = [texel[0] / edge, texel[1] / edge, (texel[2] - z0) / edge];
+            if slot[0] >= sx || slot[1] >= sy {
+                return None;
+            }
+            let b = slot_blocks[(first_slot + (slot[2] * sy + slot[1]) * sx + slot[0]) as usize];
+            if b == NO_BLOCK {
+                return None;
+            }
+            let [gx, gy, _] = p.block_grid;
+            let block = Vec3::new(
+                (b % gx) as f32,
+                ((b / gx) % gy) as f32,
+                (b / (gx * gy)) as f32,
+            );
+            let q = Vec3::new(
+                (texel[0] - slot[0] * edge) as f32,
+                (texel[1] - slot[1] * edge) as f32,
+                (texel[2] - z0 - slot[2] * edge) as f32,
+            ) - 1.0;
+            let size = (1u32 << level) as f32;
+            let pos = block * BLOCK + (q + 0.5) * size;
+            return Some((pos / Vec3::from(p.volume_dims)).clamp(Vec3::ZERO, Vec3::ONE));
+        }
+        first_slot += sx * sy * sz;
+    }
+    None
+}
+
+/// WGSL `LightRay`.
+#[derive(Debug, Clone, Copy)]
+struct LightRay {
+    dir: Vec3,
+    length: f32,
+}
+
+/// WGSL `ray_along`.
+fn ray_along(p: &LightParams, tc0: Vec3, towards: Vec3, limit: f32) -> LightRay {
+    let texture_from_model = Mat4::from_cols_array_2d(&p.texture_from_model);
+    let dir = (texture_from_model * towards.extend(0.0)).xyz();
+    let exit = intersect_box(tc0, dir, Vec3::ZERO, Vec3::ONE).y;
+    LightRay {
+        dir,
+        length: exit.min(limit).max(0.0),
+    }
+}
+
+/// WGSL `towards_light`: unit vector and distance (mm).
+fn towards_light(p: &LightParams, tc0: Vec3) -> (Vec3, f32) {
+    let light = glam::Vec4::from(p.light);
+    if light.w == 0.0 {
+        return (light.xyz(), 1e30);
+    }
+    let model_from_texture = Mat4::from_cols_array_2d(&p.model_from_texture);
+    let here = (model_from_texture * tc0.extend(1.0)).xyz();
+    let d = light.xyz() - here;
+    let distance = d.length();
+    if distance < 1e-6 {
+        return (Vec3::Z, 0.0);
+    }
+    (d / distance, distance)
+}
+
+/// WGSL `light_ray`.
+fn light_ray(p: &LightParams, tc0: Vec3) -> LightRay {
+    let (towards, distance) = towards_light(p, tc0);
+    ray_along(p, tc0, towards, distance)
+}
+
+/// WGSL `opacity_at`.
+fn opacity_at(
+    p: &LightParams,
+    packed: &PackedTexture,
+    tf: &[[f32; 4]],
+    tc: Vec3,
+    loc: &BlockLocation,
+) -> f32 {
+    let value = packed
+        .atlas
+        .sample_level(atlas_coord(&p.geometry(), tc, loc));
+    let a = classify_table(p.tf_len, tf, value * p.value_scale + p.value_offset).w;
+    corrected_opacity(a, p.step / p.reference_step)
+}
+
+/// Runs `texel_main` for every texel of a grid of `dims` (as a dispatch of
+/// whole workgroups would, skipping invocations past the edge).
+fn per_texel(dims: [u32; 3], texel_main: impl Fn([u32; 3]) -> f32 + Sync) -> Vec<f32> {
+    let [w, h, d] = dims;
+    let mut out = vec![0.0f32; (w * h * d) as usize];
+    out.par_chunks_mut((w * h) as usize)
+        .enumerate()
+        .for_each(|(z, slice)| {
+            for y in 0..h {
+                for x in 0..w {
+                    slice[(y * w + x) as usize] = texel_main([x, y, z as u32]);
+                }
+            }
+        });
+    out
+}
+
+/// Twin of `local_opacity` (α_lp, eq. 6).
+pub fn local_opacity(
+    p: &LightParams,
+    packed: &PackedTexture,
+    tf: &[[f32; 4]],
+    slot_blocks: &[u32],
+) -> Vec<f32> {
+    let g = p.geometry();
+    per_texel(p.atlas_dims(), |gid| {
+        let Some(tc0) = slot_texel(p, slot_blocks, gid) else {
+            return 0.0;
+        };
+        let ray = light_ray(p, tc0);
+        let end = p.segment.min(ray.length);
+        let mut transparency = 1.0;
+        for i in 1..=p.max_steps {
+            let t = i as f32 * p.step;
+            if t > end {
+                break;
+            }
+            let tc = tc0 + ray.dir * t;
+            let loc = packed.locate(&g, tc);
+            if !loc.empty {
+                transparency *= 1.0 - opacity_at(p, packed, tf, tc, &loc);
+            }
+        }
+        1.0 - transparency
+    })
+}
+
+/// Twin of `global_opacity` (α_g, eq. 7): the SVR, `p.svr_dims` points.
+/// `index` supplies the block index (its atlas is not read); points in blocks
+/// that `svr_blocks` ([`crate::light::svr_blocks`]) marks 0 are left 0.
+pub fn global_opacity(
+    p: &LightParams,
+    local_opacity: &Texture3d,
+    index: &PackedTexture,
+    svr_blocks: &[u32],
+) -> Vec<f32> {
+    let g = p.geometry();
+    let svr = Vec3::new(
+        p.svr_dims[0] as f32,
+        p.svr_dims[1] as f32,
+        p.svr_dims[2] as f32,
+    );
+    let dims = Vec3::from(p.volume_dims);
+    let [gx, gy, gz] = p.block_grid;
+    per_texel(p.svr_dims, |gid| {
+        let tc0 = (Vec3::new(gid[0] as f32, gid[1] as f32, gid[2] as f32) + 0.5) / svr;
+        let block = (tc0 * dims / BLOCK)
+            .as_uvec3()
+            .min(glam::UVec3::new(gx, gy, gz) - 1);
+        if svr_blocks
+            .get((block.x + gx * (block.y + gy * block.z)) as usize)
+            .is_none_or(|&m| m == 0)
+        {
+            return 0.0;
+        }
+        let ray = light_ray(p, tc0);
+        let mut transparency = 1.0;
+        let mut t = 0.0f32;
+        for _k in 0..p.max_steps {
+            if t >= ray.length || transparency < OPAQUE {
+                break;
+            }
+            let tc = tc0 + ray.dir * t;
+            let loc = index.locate(&g, tc);
+            if loc.empty {
+                t = t.max(empty_exit(&g, tc0, ray.dir, &loc)) + RESUME;
+                continue;
+            }
+            let a = local_opacity.sample_level(atlas_coord(&g, tc, &loc));
+            transparency *= 1.0 - a;
+            t += p.segment;
+        }
+        1.0 - transparency
+    })
+}
+
+/// Twin of `direct_light` (I_d, eq. 8).
+pub fn direct_light(
+    p: &LightParams,
+    local_opacity: &Texture3d,
+    shadow_volume: &Texture3d,
+    slot_blocks: &[u32],
+) -> Vec<f32> {
+    per_texel(p.atlas_dims(), |gid| {
+        let Some(tc0) = slot_texel(p, slot_blocks, gid) else {
+            return 0.0;
+        };
+        let first = local_opacity.load(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+        let ray = light_ray(p, tc0);
+        let mut rest = 0.0;
+        if ray.length > p.segment {
+            let s1 = tc0 + ray.dir * p.segment;
+            rest = shadow_volume.sample_level(s1);
+        }
+        p.intensity * (1.0 - rest) * (1.0 - first)
+    })
+}
+
+/// Twin of `in_scatter` (I_s, eqs. 11, 13): blends this step's light into
+/// `light_volume` (atlas-shaped, updated in place).
+pub fn in_scatter(
+    p: &LightParams,
+    packed: &PackedTexture,
+    tf: &[[f32; 4]],
+    slot_blocks: &[u32],
+    direct_light: &Texture3d,
+    shadow_volume: &Texture3d,
+    light_volume: &mut [f32],
+) {
+    let g = p.geometry();
+    let stored = light_volume.to_vec();
+    let [w, h, _] = p.atlas_dims();
+    let next = per_texel(p.atlas_dims(), |gid| {
+        let index = ((gid[2] * h + gid[1]) * w + gid[0]) as usize;
+        let Some(tc0) = slot_texel(p, slot_blocks, gid) else {
+            return stored[index];
+        };
+        let mut light = 0.0;
+        if p.scatter_radius <= 0.0 {
+            light = direct_light.load(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+        } else {
+            let mut towards = Vec3::new(
+                p.scatter_direction[0],
+                p.scatter_direction[1],
+                p.scatter_direction[2],
+            );
+            if p.scatter_direction[3] != 0.0 {
+                towards = towards_light(p, tc0).0;
+            }
+            let ray = ray_along(p, tc0, towards, p.scatter_radius);
+            let mut transparency = 1.0;
+            let mut i = 0u32;
+            for _k in 0..p.max_steps {
+                let t = i as f32 * p.step;
+                if t > ray.length || transparency < OPAQUE {
+                    break;
+                }
+                let tc = tc0 + ray.dir * t;
+                let loc = packed.locate(&g, tc);
+                if loc.empty {
+                    let exit = empty_exit(&g, tc0, ray.dir, &loc);
+                    i = (i + 1).max((exit / p.step).ceil() as u32);
+                    continue;
+                }
+                let a = opacity_at(p, packed, tf, tc, &loc);
+                let lit = direct_light.sample_level(atlas_coord(&g, tc, &loc));
+                light += transparency * a * lit;
+                transparency *= 1.0 - a;
+                i += 1;
+            }
+            let surface = tc0 + ray.dir * ray.length;
+            let beyond = p.intensity * (1.0 - shadow_volume.sample_level(surface));
+            light += transparency * beyond;
+        }
+        p.blend * light + (1.0 - p.blend) * stored[index]
+    });
+    light_volume.copy_from_slice(&next);
+}
+
+/// Twin of `direct_light_reference` (brute-force I_d).
+pub fn direct_light_reference(
+    p: &LightParams,
+    packed: &PackedTexture,
+    tf: &[[f32; 4]],
+    slot_blocks: &[u32],
+) -> Vec<f32> {
+    let g = p.geometry();
+    per_texel(p.atlas_dims(), |gid| {
+        let Some(tc0) = slot_texel(p, slot_blocks, gid) else {
+            return 0.0;
+        };
+        let ray = light_ray(p, tc0);
+        let mut transparency = 1.0;
+        let mut i = 1u32;
+        for _k in 0..p.max_steps {
+            let t = i as f32 * p.step;
+            if t > ray.length || transparency < OPAQUE {
+                break;
+            }
+            let tc = tc0 + ray.dir * t;
+            let loc = packed.locate(&g, tc);
+            if loc.empty {
+                let exit = empty_exit(&g, tc0, ray.dir, &loc);
+                i = (i + 1).max((exit / p.step).ceil() as u32);
+                continue;
+            }
+            transparency *= 1.0 - opacity_at(p, packed, tf, tc, &loc);
+            i += 1;
+        }
+        p.intensity * transparency
+    })
+}
+
+/// Every intermediate of one light computation on the CPU.
+#[derive(Debug, Clone)]
+pub struct CpuLight {
+    /// α_lp, atlas-shaped.
+    pub local_opacity: Vec<f32>,
+    /// α_g, the SVR.
+    pub shadow_volume: Vec<f32>,
+    /// I_d, atlas-shaped.
+    pub direct_light: Vec<f32>,
+    /// I_s after every direction, atlas-shaped.
+    pub light_volume: Vec<f32>,
+}
+
+/// The whole light computation as [`crate::light::Illumination`] runs it,
+/// converged over `directions`: I_d by `method`, then every in-scattering step.
+pub fn compute_light(
+    p: &LightParams,
+    packed: &PackedTexture,
+    tf: &[[f32; 4]],
+    slot_blocks: &[u32],
+    svr_blocks: &[u32],
+    directions: &[ScatterDirection],
+    method: DirectLightMethod,
+) -> CpuLight {
+    let atlas = p.atlas_dims();
+    let local = local_opacity(p, packed, tf, slot_blocks);
+    let local_texture = Texture3d::new(atlas, local.clone());
+    let shadow = global_opacity(p, &local_texture, packed, svr_blocks);
+    let shadow_texture = Texture3d::new(p.svr_dims, shadow.clone());
+    let direct = match method {
+        DirectLightMethod::Piecewise => {
+            direct_light(p, &local_texture, &shadow_texture, slot_blocks)
+        }
+        DirectLightMethod::Reference => direct_light_reference(p, packed, tf, slot_blocks),
+    };
+    let direct_texture = Texture3d::new(atlas, direct.clone());
+    let mut light = vec![0.0f32; direct.len()];
+    for d in directions {
+        in_scatter(
+            &p.scattering(d),
+            packed,
+            tf,
+            slot_blocks,
+            &direct_texture,
+            &shadow_texture,
+            &mut light,
+        );
+    }
+    CpuLight {
+        local_opacity: local,
+        shadow_volume: shadow,
+        direct_light: direct,
+        light_volume: light,
+    }
+}

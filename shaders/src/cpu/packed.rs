@@ -1,0 +1,110 @@
+//! CPU twin of `shaders/wgsl/shared/packed.wgsl`: addressing voxels in packed
+//! block coordinates through the block index, for the `raycast` twin and the
+//! light twins.
+
+use glam::Vec3;
+
+use super::Texture3d;
+use super::march::intersect_box;
+
+/// Edge of a block in level-0 voxels.
+pub const BLOCK: f32 = 16.0;
+/// The index's level entry of a block that is not stored.
+pub const EMPTY_LEVEL: u16 = u16::MAX;
+
+/// The sizes packed addressing needs, from a stage's uniforms.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PackedGeometry {
+    /// Level-0 voxels along x, y, z.
+    pub volume_dims: Vec3,
+    /// Blocks along x, y, z.
+    pub block_grid: [u32; 3],
+    /// Atlas size in texels.
+    pub atlas_size: Vec3,
+    /// One level-0 voxel in texture coordinates.
+    pub texel: Vec3,
+}
+
+/// The packed stages' voxel bindings on the CPU: the atlas, the block index,
+/// and — for the lit ray caster — the light volume.
+#[derive(Debug, Clone)]
+pub struct PackedTexture {
+    /// The atlas texels as the GPU samples them.
+    pub atlas: Texture3d,
+    /// Per block (x fastest): atlas position of the first interior texel, level.
+    pub index: Vec<[u16; 4]>,
+    /// Blocks along x, y, z.
+    pub grid: [u32; 3],
+    /// The stored light I_s, atlas-shaped (lit rendering only).
+    pub light: Option<Texture3d>,
+}
+
+/// WGSL `Location`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BlockLocation {
+    /// The block is not stored.
+    pub empty: bool,
+    /// The block (x, y, z in the block grid).
+    pub block: [i32; 3],
+    /// Atlas texel position of the block's first interior texel.
+    pub origin: Vec3,
+    /// Level-l texels per level-0 voxel.
+    pub scale: f32,
+}
+
+/// WGSL `block_of`.
+pub fn block_of(g: &PackedGeometry, tc: Vec3) -> [i32; 3] {
+    let last = g.block_grid.map(|n| n as i32 - 1);
+    let b = (tc * g.volume_dims / BLOCK).floor();
+    [
+        (b.x as i32).clamp(0, last[0]),
+        (b.y as i32).clamp(0, last[1]),
+        (b.z as i32).clamp(0, last[2]),
+    ]
+}
+
+/// WGSL `atlas_coord`.
+pub fn atlas_coord(g: &PackedGeometry, tc: Vec3, loc: &BlockLocation) -> Vec3 {
+    let p = tc * g.volume_dims;
+    let block = Vec3::new(
+        loc.block[0] as f32,
+        loc.block[1] as f32,
+        loc.block[2] as f32,
+    );
+    let local = (p - block * BLOCK) * loc.scale;
+    let edge = BLOCK * loc.scale;
+    let inside = local.clamp(Vec3::splat(-0.5), Vec3::splat(edge + 0.5));
+    (loc.origin + inside) / g.atlas_size
+}
+
+/// WGSL `empty_exit`.
+pub fn empty_exit(g: &PackedGeometry, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
+    let block = Vec3::new(
+        loc.block[0] as f32,
+        loc.block[1] as f32,
+        loc.block[2] as f32,
+    );
+    let lo = block * BLOCK * g.texel;
+    let hi = (lo + BLOCK * g.texel).min(Vec3::ONE);
+    intersect_box(origin, dir, lo, hi).y
+}
+
+impl PackedTexture {
+    /// WGSL `locate`.
+    pub fn locate(&self, g: &PackedGeometry, tc: Vec3) -> BlockLocation {
+        let block = block_of(g, tc);
+        let [gx, gy, _] = self.grid.map(|n| n as usize);
+        let entry =
+            self.index[(block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize];
+        BlockLocation {
+            empty: entry[3] == EMPTY_LEVEL,
+            block,
+            origin: Vec3::new(
+                f32::from(entry[0]),
+                f32::from(entry[1]),
+                f32::from(entry[2]),
+            ),
+            scale: 1.0 / (1u32 << u32::from(entry[3]).min(4)) as f32,
+        }
+    }
+}

@@ -1,0 +1,336 @@
+//! Global light propagation: every light stage on the GPU against its CPU twin
+//! (`local_opacity`, `global_opacity`, `direct_light`, `in_scatter`,
+//! `direct_light_reference`), the lit frame against the lit CPU twin, and what
+//! is recomputed when.
+//!
+//! Tolerance per stage: the two sides differ only in arithmetic — hardware
+//! trilinear filtering keeps 8 fraction bits of the weights, the CPU twin's
+//! are f32 — so light values (0..1) agree to a mean absolute difference below
+//! 1e-3 and a largest difference below 0.05 (a texel where a filtered sample
+//! straddles a sharp opacity edge).
+
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
+
+use blocks::Preset;
+use server::Dataset;
+use shaders::cpu::Texture3d;
+use shaders::light::{DirectLightMethod, LightParams, LightSource, slot_blocks, svr_blocks};
+use shaders::volume_texture::VolumeTexture;
+use shaders::{Camera, FrameRequest, GpuContext, LightSettings, Shading};
+use voxserve_tests::gpu_or_skip;
+use voxserve_tests::image_compare::assert_similar;
+use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
+use voxserve_tests::render::gpu_renderer;
+
+/// Largest accepted mean and maximum absolute difference of light values.
+const STAGE_TOLERANCE: (f64, f64) = (1e-3, 0.05);
+
+fn lit_request(light: LightSettings, reduction: f32) -> FrameRequest {
+    FrameRequest {
+        camera: Camera {
+            azimuth_deg: 30.0,
+            elevation_deg: 20.0,
+            ..Camera::default()
+        },
+        shading: Shading::GlobalLight,
+        reduction,
+        light,
+        ..FrameRequest::new(
+            96,
+            96,
+            Preset::CtSoftTissue.transfer_function(phantom_64().value_range),
+        )
+    }
+}
+
+/// Mean and largest absolute difference of two arrays of the same length.
+fn difference(name: &str, gpu: &[f32], cpu: &[f32]) -> (f64, f64) {
+    assert_eq!(gpu.len(), cpu.len(), "{name}: sizes differ");
+    let (mut sum, mut max) = (0.0f64, 0.0f64);
+    for (a, b) in gpu.iter().zip(cpu) {
+        let d = f64::from((a - b).abs());
+        sum += d;
+        max = max.max(d);
+    }
+    (sum / gpu.len().max(1) as f64, max)
+}
+
+fn check_stage(case: &str, stage: &str, gpu: &[f32], cpu: &[f32]) {
+    let (mean, max) = difference(stage, gpu, cpu);
+    println!(
+        "{case}: {stage}: GPU vs CPU twin mean {mean:.2e}, max {max:.2e} over {} values",
+        gpu.len()
+    );
+    let nonzero = cpu.iter().filter(|v| **v != 0.0).count();
+    assert!(
+        nonzero > 0,
+        "{case}: {stage}: the CPU twin computed nothing"
+    );
+    assert!(
+        mean <= STAGE_TOLERANCE.0 && max <= STAGE_TOLERANCE.1,
+        "{case}: {stage}: mean {mean:.2e} (max {}), largest {max:.2e} (max {})",
+        STAGE_TOLERANCE.0,
+        STAGE_TOLERANCE.1
+    );
+}
+
+/// Renders `request` on the GPU with the light converged, reads every light
+/// texture back and compares each with its CPU twin on the same packing.
+fn compare_stages(
+    gpu: &GpuContext,
+    dataset: &Dataset,
+    case: &str,
+    request: &FrameRequest,
+    method: DirectLightMethod,
+) {
+    let mut renderer = gpu_renderer(gpu, dataset);
+    renderer.set_light_method(method);
+    let gpu_frame = renderer
+        .render_converged(request)
+        .unwrap_or_else(|e| panic!("{case}: {e}"));
+    let illumination = renderer.illumination().expect("lit");
+    let volumes = illumination.volumes().expect("light volumes");
+    let params: LightParams = *illumination.params().expect("params");
+    let read = |t: &shaders::light::LightTexture| {
+        t.read(gpu)
+            .unwrap_or_else(|e| panic!("{case}: readback: {e}"))
+    };
+    let (gpu_local, gpu_shadow, gpu_direct, gpu_light) = (
+        read(&volumes.local_opacity),
+        read(&volumes.shadow_volume),
+        read(&volumes.direct_light),
+        read(&volumes.light_volume),
+    );
+    let packing = renderer.packing().expect("packed").clone();
+    let desc: VolumeTexture = *renderer.volume_texture();
+    let packed = shaders::packed::assemble_cpu(&dataset.cache, &packing, &desc).expect("atlas");
+    let table = request
+        .transfer_function
+        .table(desc.tf_domain, 1024)
+        .expect("table");
+    let slots = slot_blocks(&packing);
+    let atlas = params.atlas_dims();
+    // Each stage's twin reads the GPU's own inputs, so differences do not compound.
+    let cpu_local = shaders::cpu::light::local_opacity(&params, &packed, &table, &slots);
+    check_stage(case, "local_opacity", &gpu_local, &cpu_local);
+    let local_texture = Texture3d::new(atlas, gpu_local.clone());
+    if method == DirectLightMethod::Piecewise {
+        let svr = svr_blocks(&packing, params.block_grid, params.svr_margin_blocks());
+        let cpu_shadow =
+            shaders::cpu::light::global_opacity(&params, &local_texture, &packed, &svr);
+        check_stage(case, "global_opacity", &gpu_shadow, &cpu_shadow);
+    }
+    let shadow_texture = Texture3d::new(params.svr_dims, gpu_shadow.clone());
+    let cpu_direct = match method {
+        DirectLightMethod::Piecewise => {
+            shaders::cpu::light::direct_light(&params, &local_texture, &shadow_texture, &slots)
+        }
+        DirectLightMethod::Reference => {
+            shaders::cpu::light::direct_light_reference(&params, &packed, &table, &slots)
+        }
+    };
+    let stage = if method == DirectLightMethod::Piecewise {
+        "direct_light"
+    } else {
+        "direct_light_reference"
+    };
+    check_stage(case, stage, &gpu_direct, &cpu_direct);
+    let direct_texture = Texture3d::new(atlas, gpu_direct.clone());
+    let mut cpu_light = vec![0.0f32; gpu_light.len()];
+    for d in params.scatter_directions(&request.light) {
+        shaders::cpu::light::in_scatter(
+            &params.scattering(&d),
+            &packed,
+            &table,
+            &slots,
+            &direct_texture,
+            &shadow_texture,
+            &mut cpu_light,
+        );
+    }
+    check_stage(case, "in_scatter", &gpu_light, &cpu_light);
+    // The lit frame: the CPU ray caster lit by the GPU's light volume, so only
+    // the ray caster's arithmetic differs.
+    let mut cpu_packed = packed;
+    cpu_packed.light = Some(Texture3d::new(atlas, gpu_light));
+    let layout = shaders::raycast::PackedLayout {
+        atlas_dims: packing.atlas_dims,
+        block_grid: dataset.store.meta().blocks,
+    };
+    let raycast_params = shaders::RaycastParams::new(&desc, request, table.len() as u32, layout);
+    let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
+    shaders::cpu::raycast(&raycast_params, &cpu_packed, &table, &mut rgba);
+    let cpu_frame = shaders::Frame {
+        width: request.width,
+        height: request.height,
+        rgba,
+    };
+    let tolerance = voxserve_tests::Tolerance {
+        max_mean: 0.5,
+        pixel_threshold: 8,
+        max_differing_fraction: 0.01,
+    };
+    let diff = assert_similar(&format!("light-{case}"), &gpu_frame, &cpu_frame, &tolerance);
+    println!("{case}: lit frame GPU vs CPU twin: {diff:?}");
+}
+
+#[test]
+fn every_light_stage_agrees_with_its_cpu_twin() {
+    let Some(gpu) = gpu_or_skip("every_light_stage_agrees_with_its_cpu_twin") else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    let cases = [
+        (
+            "directional-svr1-scatter",
+            lit_request(
+                LightSettings {
+                    source: LightSource::Directional([-0.6, -0.5, 0.6]),
+                    svr_scale: 1,
+                    scatter_radius_voxels: 6.0,
+                    directions: 6,
+                    ..LightSettings::default()
+                },
+                1.0,
+            ),
+            DirectLightMethod::Piecewise,
+        ),
+        (
+            "point-inside-svr2-reduced",
+            lit_request(
+                LightSettings {
+                    source: LightSource::Point([0.55, 0.4, 0.6]),
+                    svr_scale: 2,
+                    segment_voxels: 4,
+                    scatter_radius_voxels: 4.0,
+                    directions: 3,
+                    phase_g: 0.5,
+                    ..LightSettings::default()
+                },
+                9.0,
+            ),
+            DirectLightMethod::Piecewise,
+        ),
+        (
+            "point-outside-reference",
+            lit_request(
+                LightSettings {
+                    source: LightSource::Point([1.6, -0.4, 0.9]),
+                    scatter_radius_voxels: 0.0,
+                    directions: 1,
+                    ..LightSettings::default()
+                },
+                1.0,
+            ),
+            DirectLightMethod::Reference,
+        ),
+    ];
+    for (case, request, method) in cases {
+        compare_stages(gpu, dataset, case, &request, method);
+    }
+}
+
+#[test]
+fn light_is_recomputed_on_light_and_tf_changes_refined_per_frame_and_kept_on_camera_moves() {
+    let Some(gpu) = gpu_or_skip(
+        "light_is_recomputed_on_light_and_tf_changes_refined_per_frame_and_kept_on_camera_moves",
+    ) else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    let mut renderer = gpu_renderer(gpu, dataset);
+    let mut request = lit_request(
+        LightSettings {
+            directions: 3,
+            ..LightSettings::default()
+        },
+        1.0,
+    );
+    request.width = 32;
+    request.height = 32;
+    let mut frame = |r: &FrameRequest| {
+        renderer.render(r).expect("render");
+        renderer.last_stats().light.expect("lit")
+    };
+    let first = frame(&request);
+    assert!(
+        first.recomputed && first.refined == 1 && first.directions == 3,
+        "{first:?}"
+    );
+    assert!(
+        first.local_opacity_ms > 0.0
+            && first.global_opacity_ms > 0.0
+            && first.direct_light_ms > 0.0
+    );
+    let second = frame(&request);
+    assert!(
+        !second.recomputed && second.refined == 2 && second.in_scatter_ms > 0.0,
+        "{second:?}"
+    );
+    assert_eq!(
+        second.local_opacity_ms, 0.0,
+        "a refinement runs in_scatter only"
+    );
+    request.camera.azimuth_deg += 40.0;
+    let third = frame(&request);
+    assert!(
+        !third.recomputed && third.refined == 3,
+        "a camera move keeps refining: {third:?}"
+    );
+    request.camera.elevation_deg = -10.0;
+    let converged = frame(&request);
+    assert!(
+        !converged.recomputed && converged.refined == 3 && converged.in_scatter_ms == 0.0,
+        "{converged:?}"
+    );
+    // Colour and I_bias apply at render time.
+    request.light.bias = 0.4;
+    request.light.colour = [1.0, 0.8, 0.6];
+    let recoloured = frame(&request);
+    assert!(
+        !recoloured.recomputed && recoloured.in_scatter_ms == 0.0,
+        "{recoloured:?}"
+    );
+    // The transfer function and the light itself change the light.
+    request.transfer_function = Preset::CtBone.transfer_function(phantom_64().value_range);
+    assert!(
+        frame(&request).recomputed,
+        "a new transfer function relights"
+    );
+    request.light.source = LightSource::Point([0.5, 0.5, 0.5]);
+    assert!(frame(&request).recomputed, "a moved light relights");
+    request.light.scatter_radius_voxels = 12.0;
+    assert!(
+        frame(&request).recomputed,
+        "a new scattering radius relights"
+    );
+}
+
+#[test]
+fn bad_light_settings_are_refused_before_anything_runs() {
+    let dataset = phantom_64_dataset();
+    let request = lit_request(
+        LightSettings {
+            svr_scale: 3,
+            ..LightSettings::default()
+        },
+        1.0,
+    );
+    let cpu = shaders::cpu::render_packed(
+        &dataset.cache,
+        &request,
+        wgpu::Features::TEXTURE_FORMAT_16BIT_NORM,
+        2048,
+    );
+    assert!(
+        matches!(&cpu, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("SVR scale = 3")),
+        "{cpu:?}"
+    );
+    if let Some(gpu) = gpu_or_skip("bad_light_settings_are_refused_before_anything_runs") {
+        let result = gpu_renderer(gpu, dataset).render(&request);
+        assert!(
+            matches!(&result, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("SVR scale = 3")),
+            "{result:?}"
+        );
+    }
+}
