@@ -2,13 +2,11 @@
 // camera and transfer-function choices back. No build step; plain ES modules.
 
 import { OrbitCamera, attachGestures } from './camera.js';
-import { FrameFetcher } from './frames.js';
+import { ViewStream } from './stream.js';
 
-// While the user drags, frames are rendered at this fraction of the full
-// resolution, so they come back fast; the full frame follows once idle.
-const INTERACTIVE_SCALE = 0.5;
-const IDLE_MS = 250;
 // The full frame's longest side, in device pixels (software GPUs are slow).
+// The server renders smaller, lossy frames while the view keeps changing and
+// the full lossless frame once it is still.
 const MAX_EDGE = 1536;
 
 const canvas = document.getElementById('view');
@@ -27,32 +25,26 @@ const fidelity = document.getElementById('fidelity');
 
 const camera = new OrbitCamera();
 let dataset = null;
-let idleTimer = 0;
-// Whether the last frame asked for was an interactive (reduced) one.
-let interacting = false;
+let stream = null;
 
-const fetcher = new FrameFetcher(
-  (bitmap, info) => {
-    errorBox.hidden = true;
-    context.imageSmoothingEnabled = true;
-    context.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
-    bitmap.close();
-    const light = info.refinement ? ` · light ${info.refinement}` : '';
-    fidelity.textContent =
-      `${info.width}×${info.height} · reduction ${info.reduction.toFixed(1)}:1 · ` +
-      `blocks per level ${info.levels}${light} · render ${info.renderMs.toFixed(0)} ms · ` +
-      `encode ${info.encodeMs.toFixed(0)} ms · round trip ${info.roundTripMs.toFixed(0)} ms`;
-    // The server refines the light one direction per frame: ask again until all are in.
-    if (info.refinement && !interacting) {
-      const [done, all] = info.refinement.split('/').map(Number);
-      if (done < all) requestFrame(false);
-    }
-  },
-  (message) => {
-    errorBox.textContent = message;
-    errorBox.hidden = false;
-  },
-);
+function drawFrame(bitmap, info) {
+  errorBox.hidden = true;
+  context.imageSmoothingEnabled = true;
+  context.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
+  bitmap.close();
+  const quality = info.lossless ? 'lossless' : 'JPEG';
+  const light = info.directions ? ` · light ${info.refined}/${info.directions}` : '';
+  const latency = Number.isNaN(info.latencyMs) ? '' : ` · latency ${info.latencyMs.toFixed(0)} ms`;
+  fidelity.textContent =
+    `${info.width}×${info.height} ${quality} · reduction ${info.reduction.toFixed(1)}:1${light} · ` +
+    `render ${info.renderMs.toFixed(0)} ms · encode ${info.encodeMs.toFixed(0)} ms${latency}`;
+  canvas.dataset.frames = String(Number(canvas.dataset.frames || 0) + 1);
+}
+
+function showError(message) {
+  errorBox.textContent = message;
+  errorBox.hidden = false;
+}
 
 function resizeCanvas() {
   const dpr = window.devicePixelRatio || 1;
@@ -60,14 +52,13 @@ function resizeCanvas() {
   canvas.height = Math.max(1, Math.round(canvas.clientHeight * dpr));
 }
 
-// The image size to ask for: the canvas, capped, scaled while interacting.
-function frameSize(interacting) {
-  const cap = Math.min(1, MAX_EDGE / Math.max(canvas.width, canvas.height));
-  const scale = cap * (interacting ? INTERACTIVE_SCALE : 1);
-  return {
-    w: Math.max(1, Math.round(canvas.width * scale)),
-    h: Math.max(1, Math.round(canvas.height * scale)),
-  };
+// The viewport in CSS pixels and the device pixel ratio, capped so the frame's
+// longest side stays within MAX_EDGE.
+function viewport() {
+  const w = Math.max(1, canvas.clientWidth);
+  const h = Math.max(1, canvas.clientHeight);
+  const dpr = Math.max(0.25, Math.min(window.devicePixelRatio || 1, MAX_EDGE / Math.max(w, h), 4));
+  return { size: { w, h }, dpr: Number(dpr.toFixed(3)) };
 }
 
 // Clip sliders: [axis][0 = min, 1 = max], values 0..1000.
@@ -89,8 +80,7 @@ const clipSliders = ['x', 'y', 'z'].map((axis) => {
   return pair;
 });
 
-// The clip box parameter, or nothing when the whole volume shows. Keeps each
-// axis's min below its max.
+// The clip box parameter. Keeps each axis's min below its max.
 function clipParam() {
   const lo = [];
   const hi = [];
@@ -100,8 +90,7 @@ function clipParam() {
     lo.push(a / 1000);
     hi.push(b / 1000);
   }
-  const whole = lo.every((v) => v === 0) && hi.every((v) => v === 1);
-  return whole ? {} : { clip: [...lo, ...hi].join(',') };
+  return { clip: [...lo, ...hi].join(',') };
 }
 
 // The light parameters of the light panel (global light only).
@@ -122,22 +111,22 @@ function lightParams() {
   return { light, bias: Number(bias.value) / 100, scatter_radius: scatter.value };
 }
 
-function requestFrame(isInteracting) {
-  if (!dataset) return;
-  interacting = isInteracting;
-  fetcher.request({
+// Sends the view; the server renders what it needs (the argument, whether the
+// user is dragging, is no longer needed: the server sees the messages come).
+function requestFrame() {
+  if (!dataset || !stream) return;
+  const { size, dpr } = viewport();
+  stream.update({
     dataset: dataset.id,
     ...camera.params(),
-    ...frameSize(interacting),
+    ...size,
     preset: presetSelect.value,
     shading: shadingSelect.value,
     proj: projectionSelect.value,
     reduction: reductionSelect.value,
     ...clipParam(),
     ...lightParams(),
-  });
-  clearTimeout(idleTimer);
-  if (isInteracting) idleTimer = setTimeout(() => requestFrame(false), IDLE_MS);
+  }, dpr);
 }
 
 async function start() {
@@ -159,6 +148,7 @@ async function start() {
     presetSelect.add(option);
   }
   presetSelect.value = dataset.default_preset;
+  stream = new ViewStream(drawFrame, showError, () => {});
 
   attachGestures(canvas, camera, requestFrame);
   presetSelect.addEventListener('change', () => requestFrame(false));

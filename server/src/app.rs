@@ -4,6 +4,7 @@
 //! |---|---|
 //! | `GET /` and other paths | the web client (`web/`) |
 //! | `GET /api/render?…` | a PNG of one frame; parameters in [`crate::frame_query`]; headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
+//! | `GET /api/stream` | a WebSocket view session: [`crate::protocol`], [`crate::stream`] |
 //! | `GET /api/datasets` | the datasets offered, as JSON |
 //! | `GET /healthz` | `{"status":"ok","adapter":…}` |
 
@@ -19,6 +20,7 @@ use axum::{Json, Router};
 use tokio::net::TcpListener;
 
 use crate::dataset::DatasetInfo;
+use crate::stream::{SessionCounter, StreamSettings};
 use crate::{AppError, Dataset, RenderService, encode, frame_query, web};
 
 /// What every handler shares.
@@ -28,12 +30,29 @@ pub struct AppState {
     pub dataset: Dataset,
     /// The render worker.
     pub renderer: RenderService,
+    /// How view sessions trade quality for speed.
+    pub stream: StreamSettings,
+    /// The view sessions open.
+    pub sessions: SessionCounter,
+}
+
+impl AppState {
+    /// The state of a server offering `dataset` through `renderer`.
+    pub fn new(dataset: Dataset, renderer: RenderService, stream: StreamSettings) -> AppState {
+        AppState {
+            dataset,
+            renderer,
+            stream,
+            sessions: SessionCounter::default(),
+        }
+    }
 }
 
 /// The router over `state`.
 pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/api/render", get(render))
+        .route("/api/stream", get(crate::stream::handler))
         .route("/api/datasets", get(datasets))
         .route("/healthz", get(healthz))
         .fallback(get(static_file))

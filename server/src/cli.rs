@@ -163,7 +163,48 @@ pub struct ServeArgs {
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: SocketAddr,
     #[command(flatten)]
+    pub stream: StreamArgs,
+    #[command(flatten)]
     pub data: DataArgs,
+}
+
+/// How view sessions (`/api/stream`) trade quality for speed.
+#[derive(Debug, Clone, Args)]
+pub struct StreamArgs {
+    /// Milliseconds without a view change after which the full-quality,
+    /// lossless frame is rendered.
+    #[arg(long, default_value_t = 150, value_parser = clap::value_parser!(u64).range(0..=60_000))]
+    pub idle_ms: u64,
+    /// Image size while the user interacts, as a fraction of the full size.
+    #[arg(long, default_value_t = 0.5, value_parser = finite_in(0.1, 1.0))]
+    pub interactive_scale: f32,
+    /// Data reduction while the user interacts, as a multiple of the view's
+    /// (not applied with global light, whose light would be recomputed).
+    #[arg(long, default_value_t = 4.0, value_parser = finite_in(1.0, 1000.0))]
+    pub interactive_reduction: f32,
+    /// JPEG quality (1 to 100) of frames while the user interacts.
+    #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub jpeg_quality: u8,
+    /// Frames a session sends ahead of the client's acknowledgements.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub frames_in_flight: u32,
+    /// View sessions open at most; more are refused (HTTP 503).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    pub max_sessions: u64,
+}
+
+impl StreamArgs {
+    /// The settings these flags give.
+    pub fn settings(&self) -> crate::stream::StreamSettings {
+        crate::stream::StreamSettings {
+            idle_ms: self.idle_ms,
+            interactive_scale: self.interactive_scale,
+            interactive_reduction: self.interactive_reduction,
+            jpeg_quality: self.jpeg_quality,
+            frames_in_flight: self.frames_in_flight,
+            max_sessions: usize::try_from(self.max_sessions).unwrap_or(usize::MAX),
+        }
+    }
 }
 
 /// `voxserve render`.

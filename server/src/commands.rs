@@ -78,7 +78,7 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         dataset.dims(),
         renderer.adapter()
     ))?;
-    let state = AppState { dataset, renderer };
+    let state = AppState::new(dataset, renderer, args.stream.settings());
     let shutdown = async {
         if let Err(e) = tokio::signal::ctrl_c().await {
             tracing::error!("cannot listen for Ctrl-C: {e}");

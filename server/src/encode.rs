@@ -24,6 +24,25 @@ pub fn png(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
     Ok(out)
 }
 
+/// Encodes a frame as a baseline JPEG of `quality` (1–100): small and fast,
+/// for frames shown while the user interacts.
+pub fn jpeg(frame: &Frame, quality: u8) -> Result<Vec<u8>, image::ImageError> {
+    let rgb: Vec<u8> = frame
+        .rgba
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    let mut out = Vec::with_capacity(rgb.len() / 8);
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
+        .write_image(
+            &rgb,
+            frame.width,
+            frame.height,
+            image::ExtendedColorType::Rgb8,
+        )?;
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

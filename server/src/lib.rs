@@ -9,6 +9,9 @@
 //! - [`frame_query`]: the query string of `GET /api/render` → a [`shaders::FrameRequest`].
 //! - [`render_service`]: [`RenderService`], one worker thread that owns the GPU
 //!   renderer and serves render jobs from all requests in arrival order.
+//! - [`stream`]: view sessions over WebSocket (`GET /api/stream`): latest state
+//!   wins, adaptive quality, one render worker shared in turn;
+//!   [`protocol`]: their messages and the binary frame header, in one place.
 //! - [`dataset`]: [`Dataset`], a brick store the server offers (on disk, or bricked
 //!   in memory at start), and its public description.
 //! - [`encode`]: frame → PNG.
@@ -27,8 +30,10 @@ pub mod dataset;
 pub mod encode;
 pub mod error;
 pub mod frame_query;
+pub mod protocol;
 pub mod reference_data;
 pub mod render_service;
+pub mod stream;
 pub mod web;
 
 pub use app::{AppState, run};

@@ -26,10 +26,13 @@ pub struct RenderedFrame {
     pub render_ms: f64,
     /// What the frame took and showed: data reduction, levels, uploads.
     pub stats: RenderStats,
+    /// Milliseconds the job waited in the queue before the worker took it.
+    pub queue_ms: f64,
 }
 
 struct Job {
     request: FrameRequest,
+    queued: Instant,
     reply: oneshot::Sender<Result<RenderedFrame, GpuError>>,
 }
 
@@ -65,10 +68,12 @@ impl RenderService {
                 // Ends when every sender (every RenderService clone) is gone.
                 while let Some(job) = queue.blocking_recv() {
                     let start = Instant::now();
+                    let queue_ms = (start - job.queued).as_secs_f64() * 1e3;
                     let result = renderer.render(&job.request).map(|frame| RenderedFrame {
                         frame,
                         render_ms: start.elapsed().as_secs_f64() * 1e3,
                         stats: renderer.last_stats().clone(),
+                        queue_ms,
                     });
                     if let Err(e) = &result {
                         tracing::warn!("render failed: {e}");
@@ -89,19 +94,46 @@ impl RenderService {
         &self.adapter
     }
 
-    /// Renders `request`, or refuses at once when the queue is full.
+    /// Renders `request`, or refuses at once when the queue is full (single
+    /// HTTP frames: a client retries rather than waiting behind stale work).
     pub async fn render(&self, request: FrameRequest) -> Result<RenderedFrame, AppError> {
         let (reply, answer) = oneshot::channel();
+        let job = Job {
+            request,
+            queued: Instant::now(),
+            reply,
+        };
+        self.jobs.try_send(job).map_err(|e| match e {
+            mpsc::error::TrySendError::Full(_) => AppError::Busy(format!(
+                "the renderer has {QUEUE_CAPACITY} frames waiting: retry shortly"
+            )),
+            mpsc::error::TrySendError::Closed(_) => {
+                AppError::Internal("the render worker has stopped".into())
+            }
+        })?;
+        Self::answer(answer).await
+    }
+
+    /// Renders `request`, waiting for room in the queue. View sessions use
+    /// this: each has at most one job queued, so the worker, taking jobs in
+    /// arrival order, serves the sessions in turn.
+    pub async fn render_waiting(&self, request: FrameRequest) -> Result<RenderedFrame, AppError> {
+        let (reply, answer) = oneshot::channel();
+        let job = Job {
+            request,
+            queued: Instant::now(),
+            reply,
+        };
         self.jobs
-            .try_send(Job { request, reply })
-            .map_err(|e| match e {
-                mpsc::error::TrySendError::Full(_) => AppError::Busy(format!(
-                    "the renderer has {QUEUE_CAPACITY} frames waiting: retry shortly"
-                )),
-                mpsc::error::TrySendError::Closed(_) => {
-                    AppError::Internal("the render worker has stopped".into())
-                }
-            })?;
+            .send(job)
+            .await
+            .map_err(|_| AppError::Internal("the render worker has stopped".into()))?;
+        Self::answer(answer).await
+    }
+
+    async fn answer(
+        answer: oneshot::Receiver<Result<RenderedFrame, GpuError>>,
+    ) -> Result<RenderedFrame, AppError> {
         let result = answer
             .await
             .map_err(|_| AppError::Internal("the render worker dropped a job".into()))?;

@@ -1,5 +1,6 @@
 //! A real voxserve server on an ephemeral port, stopped when dropped.
 
+use server::stream::StreamSettings;
 use server::{AppState, Dataset, RenderService};
 use shaders::GpuContext;
 use tokio::net::TcpListener;
@@ -19,6 +20,18 @@ impl TestServer {
     /// # Panics
     /// When the server cannot start.
     pub async fn start(gpu: &GpuContext, phantom_size: u32) -> TestServer {
+        TestServer::start_with(gpu, phantom_size, StreamSettings::default()).await
+    }
+
+    /// [`TestServer::start`] with view sessions set up as `stream`.
+    ///
+    /// # Panics
+    /// When the server cannot start.
+    pub async fn start_with(
+        gpu: &GpuContext,
+        phantom_size: u32,
+        stream: StreamSettings,
+    ) -> TestServer {
         let dataset = Dataset::phantom(phantom_size, 256 << 20).expect("phantom");
         let renderer =
             RenderService::start(gpu.clone(), &dataset, 512 << 20).expect("render worker");
@@ -30,7 +43,8 @@ impl TestServer {
                 // A dropped sender stops the server as well.
                 let _ = stopped.await;
             };
-            if let Err(e) = server::run(listener, AppState { dataset, renderer }, shutdown).await {
+            let state = AppState::new(dataset, renderer, stream);
+            if let Err(e) = server::run(listener, state, shutdown).await {
                 panic!("test server failed: {e}");
             }
         });
@@ -38,6 +52,11 @@ impl TestServer {
             base_url: format!("http://{addr}"),
             stop: Some(stop),
         }
+    }
+
+    /// The WebSocket URL of `path` (which starts with `/`).
+    pub fn ws_url(&self, path: &str) -> String {
+        format!("{}{path}", self.base_url.replacen("http://", "ws://", 1))
     }
 
     /// The absolute URL of `path` (which starts with `/`).

@@ -214,7 +214,7 @@ async fn the_web_client_and_dataset_list_are_served() {
         html.contains("app.js"),
         "index.html loads the client module"
     );
-    for module in ["/app.js", "/camera.js", "/frames.js"] {
+    for module in ["/app.js", "/camera.js", "/stream.js"] {
         let r = get(&server.url(module)).await;
         assert_eq!(r.status(), 200, "{module}");
         let ct = r.headers()["content-type"]

@@ -1,0 +1,382 @@
+//! The view-session protocol of `GET /api/stream` (a WebSocket), in one place.
+//! keep in sync with web/stream.js
+//!
+//! # Client → server: JSON text messages
+//!
+//! | message | meaning |
+//! |---|---|
+//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds any of the parameters of `GET /api/render` (see [`crate::frame_query`]: `az`, `el`, `dist`, `fov`, `proj`, `w`, `h`, `preset`, `shading`, `step`, `clip`, `reduction`, `bg`, `dataset` and the light's), as JSON numbers or strings; they are merged into the session's view, so a camera move sends only `az` and `el`. `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
+//! | `{"type":"ack","frame":F}` | the client has drawn frame `F`; the server sends at most [`crate::stream::StreamSettings::frames_in_flight`] frames ahead of the last acknowledged one. |
+//!
+//! A message that is not JSON, has an unknown type or field, or sets a value
+//! out of range is answered with an `error` message and changes nothing; the
+//! session goes on with the view it had.
+//!
+//! # Server → client
+//!
+//! JSON text: `{"type":"hello","protocol":1,"dataset":{…},"settings":{…}}` once
+//! at the start (the dataset's description as `GET /api/datasets` gives it, and
+//! the stream settings), and `{"type":"error","id":N,"message":"…"}` for a
+//! refused message (`id`: the message's, when it had one).
+//!
+//! Binary: one frame, a [`FrameHeader`] of [`HEADER_LEN`] bytes (little
+//! endian) followed by the encoded image:
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | 4 bytes | magic `VXF1` |
+//! | 4 | u8 | encoding: 1 JPEG, 2 PNG |
+//! | 5 | u8 | flags: 1 lossless full resolution, 2 converged (nothing more will come for this view) |
+//! | 6 | u16 | width, pixels |
+//! | 8 | u16 | height, pixels |
+//! | 10 | u16 | refinement step j (in-scattering directions in; 0 without global light) |
+//! | 12 | u16 | refinement steps J |
+//! | 14 | u16 | reserved, 0 |
+//! | 16 | u32 | frame id (1, 2, … per session) |
+//! | 20 | u32 | id of the last view message this frame reflects |
+//! | 24 | f32 | render milliseconds |
+//! | 28 | f32 | encode milliseconds |
+//! | 32 | f32 | data reduction rendered at |
+//! | 36 | f32 | milliseconds the render waited for the GPU behind other sessions |
+
+use serde_json::Value;
+
+/// The protocol's version, sent in `hello`.
+pub const PROTOCOL: u32 = 1;
+/// Bytes of a [`FrameHeader`].
+pub const HEADER_LEN: usize = 40;
+/// The first four bytes of every frame.
+pub const MAGIC: [u8; 4] = *b"VXF1";
+/// Device pixel ratios accepted.
+pub const DPR_RANGE: (f64, f64) = (0.25, 4.0);
+
+/// How a frame's image is encoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Encoding {
+    /// Lossy, for frames while the user interacts.
+    Jpeg = 1,
+    /// Lossless.
+    Png = 2,
+}
+
+/// The header in front of every binary frame; see the module docs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameHeader {
+    /// How the image is encoded.
+    pub encoding: Encoding,
+    /// Lossless at full resolution.
+    pub lossless: bool,
+    /// Nothing more will be sent for this view.
+    pub converged: bool,
+    /// Image width.
+    pub width: u16,
+    /// Image height.
+    pub height: u16,
+    /// In-scattering directions in (j).
+    pub refined: u16,
+    /// In-scattering directions in all (J).
+    pub directions: u16,
+    /// This frame's id.
+    pub frame_id: u32,
+    /// The id of the last view message the frame reflects.
+    pub message_id: u32,
+    /// Render milliseconds.
+    pub render_ms: f32,
+    /// Encode milliseconds.
+    pub encode_ms: f32,
+    /// The data reduction rendered at.
+    pub reduction: f32,
+    /// Milliseconds the job waited for the render worker.
+    pub queue_ms: f32,
+}
+
+impl FrameHeader {
+    /// The header's bytes.
+    pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
+        let mut b = [0u8; HEADER_LEN];
+        b[0..4].copy_from_slice(&MAGIC);
+        b[4] = self.encoding as u8;
+        b[5] = u8::from(self.lossless) | (u8::from(self.converged) << 1);
+        b[6..8].copy_from_slice(&self.width.to_le_bytes());
+        b[8..10].copy_from_slice(&self.height.to_le_bytes());
+        b[10..12].copy_from_slice(&self.refined.to_le_bytes());
+        b[12..14].copy_from_slice(&self.directions.to_le_bytes());
+        b[16..20].copy_from_slice(&self.frame_id.to_le_bytes());
+        b[20..24].copy_from_slice(&self.message_id.to_le_bytes());
+        b[24..28].copy_from_slice(&self.render_ms.to_le_bytes());
+        b[28..32].copy_from_slice(&self.encode_ms.to_le_bytes());
+        b[32..36].copy_from_slice(&self.reduction.to_le_bytes());
+        b[36..40].copy_from_slice(&self.queue_ms.to_le_bytes());
+        b
+    }
+
+    /// Reads a header from the start of `bytes` (clients and tests).
+    ///
+    /// # Errors
+    /// When `bytes` is too short, the magic is wrong or the encoding unknown.
+    pub fn parse(bytes: &[u8]) -> Result<FrameHeader, String> {
+        if bytes.len() < HEADER_LEN {
+            return Err(format!(
+                "a frame of {} bytes: expected at least the {HEADER_LEN}-byte header",
+                bytes.len()
+            ));
+        }
+        if bytes[0..4] != MAGIC {
+            return Err(format!(
+                "frame magic {:?}: expected {MAGIC:?}",
+                &bytes[0..4]
+            ));
+        }
+        let u16_at = |i: usize| u16::from_le_bytes([bytes[i], bytes[i + 1]]);
+        let u32_at =
+            |i: usize| u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
+        let f32_at = |i: usize| f32::from_bits(u32_at(i));
+        let encoding = match bytes[4] {
+            1 => Encoding::Jpeg,
+            2 => Encoding::Png,
+            other => {
+                return Err(format!(
+                    "frame encoding {other}: expected 1 (JPEG) or 2 (PNG)"
+                ));
+            }
+        };
+        Ok(FrameHeader {
+            encoding,
+            lossless: bytes[5] & 1 != 0,
+            converged: bytes[5] & 2 != 0,
+            width: u16_at(6),
+            height: u16_at(8),
+            refined: u16_at(10),
+            directions: u16_at(12),
+            frame_id: u32_at(16),
+            message_id: u32_at(20),
+            render_ms: f32_at(24),
+            encode_ms: f32_at(28),
+            reduction: f32_at(32),
+            queue_ms: f32_at(36),
+        })
+    }
+}
+
+/// A client message, checked.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ClientMessage {
+    /// Change the view: `set` as `GET /api/render` parameter pairs.
+    View {
+        /// The message's id.
+        id: u32,
+        /// Parameters to merge into the view.
+        set: Vec<(String, String)>,
+        /// Device pixel ratio, if given.
+        dpr: Option<f64>,
+    },
+    /// The client has drawn `frame`.
+    Ack {
+        /// The frame's id.
+        frame: u32,
+    },
+}
+
+/// A refused message: why, and its id when it had one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refusal {
+    /// The message's id, if it could be read.
+    pub id: Option<u32>,
+    /// What was wrong and what was expected.
+    pub message: String,
+}
+
+/// Parses one text message.
+///
+/// # Errors
+/// A [`Refusal`] naming the field and what was expected.
+pub fn parse_client_message(text: &str) -> Result<ClientMessage, Refusal> {
+    let refuse = |id, message: String| Refusal { id, message };
+    let value: Value = serde_json::from_str(text)
+        .map_err(|e| refuse(None, format!("message is not JSON: {e}")))?;
+    let Value::Object(fields) = value else {
+        return Err(refuse(None, "message: expected a JSON object".into()));
+    };
+    let id = fields
+        .get("id")
+        .and_then(Value::as_u64)
+        .and_then(|i| u32::try_from(i).ok());
+    let kind = fields.get("type").and_then(Value::as_str).ok_or_else(|| {
+        refuse(
+            id,
+            "message field 'type': expected \"view\" or \"ack\"".into(),
+        )
+    })?;
+    let allowed: &[&str] = match kind {
+        "view" => &["type", "id", "set", "dpr"],
+        "ack" => &["type", "frame"],
+        other => {
+            return Err(refuse(
+                id,
+                format!("message type '{other}': expected \"view\" or \"ack\""),
+            ));
+        }
+    };
+    if let Some(unknown) = fields.keys().find(|k| !allowed.contains(&k.as_str())) {
+        return Err(refuse(
+            id,
+            format!(
+                "{kind} message field '{unknown}': unknown; expected {}",
+                allowed.join(", ")
+            ),
+        ));
+    }
+    let whole = |name: &str| -> Result<u32, Refusal> {
+        fields
+            .get(name)
+            .and_then(Value::as_u64)
+            .and_then(|v| u32::try_from(v).ok())
+            .ok_or_else(|| {
+                refuse(
+                    id,
+                    format!(
+                        "{kind} message field '{name}': expected a whole number from 0 to {}",
+                        u32::MAX
+                    ),
+                )
+            })
+    };
+    match kind {
+        "ack" => Ok(ClientMessage::Ack {
+            frame: whole("frame")?,
+        }),
+        _ => {
+            let id = whole("id")?;
+            let mut set = Vec::new();
+            match fields.get("set") {
+                None => {}
+                Some(Value::Object(map)) => {
+                    for (name, v) in map {
+                        let text = match v {
+                            Value::String(s) => s.clone(),
+                            Value::Number(n) => n.to_string(),
+                            Value::Bool(b) => b.to_string(),
+                            _ => {
+                                return Err(refuse(
+                                    Some(id),
+                                    format!("view setting {name}: expected a number or a string"),
+                                ));
+                            }
+                        };
+                        set.push((name.clone(), text));
+                    }
+                }
+                Some(_) => {
+                    return Err(refuse(
+                        Some(id),
+                        "view message field 'set': expected an object of settings".into(),
+                    ));
+                }
+            }
+            let dpr = match fields.get("dpr") {
+                None => None,
+                Some(v) => Some(
+                    v.as_f64()
+                        .filter(|d| (DPR_RANGE.0..=DPR_RANGE.1).contains(d))
+                        .ok_or_else(|| {
+                            refuse(
+                                Some(id),
+                                format!(
+                                    "view message field 'dpr' = {v}: expected a device pixel ratio from {} to {}",
+                                    DPR_RANGE.0, DPR_RANGE.1
+                                ),
+                            )
+                        })?,
+                ),
+            };
+            Ok(ClientMessage::View { id, set, dpr })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_header_round_trips() {
+        let header = FrameHeader {
+            encoding: Encoding::Jpeg,
+            lossless: false,
+            converged: true,
+            width: 640,
+            height: 480,
+            refined: 3,
+            directions: 18,
+            frame_id: 7,
+            message_id: 1234,
+            render_ms: 12.5,
+            encode_ms: 3.25,
+            reduction: 8.9,
+            queue_ms: 0.5,
+        };
+        let mut bytes = header.to_bytes().to_vec();
+        bytes.extend_from_slice(b"image");
+        assert_eq!(FrameHeader::parse(&bytes), Ok(header));
+        assert!(FrameHeader::parse(&bytes[..10]).is_err());
+        bytes[0] = b'X';
+        assert!(
+            FrameHeader::parse(&bytes)
+                .expect_err("bad magic")
+                .contains("magic")
+        );
+    }
+
+    #[test]
+    fn messages_are_read_and_bad_ones_refused_with_the_field_named() {
+        assert_eq!(
+            parse_client_message(
+                r#"{"type":"view","id":3,"set":{"az":30,"shading":"global"},"dpr":2}"#
+            ),
+            Ok(ClientMessage::View {
+                id: 3,
+                set: vec![
+                    ("az".into(), "30".into()),
+                    ("shading".into(), "global".into())
+                ],
+                dpr: Some(2.0),
+            })
+        );
+        assert_eq!(
+            parse_client_message(r#"{"type":"ack","frame":9}"#),
+            Ok(ClientMessage::Ack { frame: 9 })
+        );
+        for (text, expected) in [
+            ("{nope", "not JSON"),
+            ("[1,2]", "expected a JSON object"),
+            (r#"{"id":1}"#, "field 'type'"),
+            (r#"{"type":"zoom","id":1}"#, "message type 'zoom'"),
+            (
+                r#"{"type":"view","id":1,"colour":"red"}"#,
+                "field 'colour': unknown",
+            ),
+            (r#"{"type":"view","set":{}}"#, "field 'id'"),
+            (r#"{"type":"view","id":-4}"#, "field 'id'"),
+            (r#"{"type":"view","id":1,"set":[1]}"#, "field 'set'"),
+            (
+                r#"{"type":"view","id":1,"set":{"az":[1]}}"#,
+                "view setting az",
+            ),
+            (r#"{"type":"view","id":1,"dpr":100}"#, "field 'dpr' = 100"),
+            (r#"{"type":"ack","frame":"x"}"#, "field 'frame'"),
+        ] {
+            let refusal = parse_client_message(text).expect_err(text);
+            assert!(
+                refusal.message.contains(expected),
+                "{text}: {}",
+                refusal.message
+            );
+        }
+        assert_eq!(
+            parse_client_message(r#"{"type":"view","id":5,"colour":1}"#)
+                .expect_err("unknown field")
+                .id,
+            Some(5)
+        );
+    }
+}

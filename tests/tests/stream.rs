@@ -1,0 +1,368 @@
+//! View sessions over WebSocket against a real server on port 0: frames of the
+//! requested size that follow the camera, a lossless frame after idling,
+//! latest state wins under a burst, the acknowledgement window, bad messages
+//! refused without harm to the session or to others, and the session cap.
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
+
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use server::protocol::{Encoding, FrameHeader, HEADER_LEN};
+use server::stream::StreamSettings;
+use tokio::net::TcpStream;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{MaybeTlsStream, WebSocketStream, connect_async};
+use voxserve_tests::gpu_or_skip;
+use voxserve_tests::server::TestServer;
+
+type Socket = WebSocketStream<MaybeTlsStream<TcpStream>>;
+
+/// How long any single wait may take before the test fails.
+const PATIENCE: Duration = Duration::from_secs(60);
+
+/// What the server sent.
+#[derive(Debug)]
+enum Received {
+    Json(serde_json::Value),
+    Frame(FrameHeader, image::RgbaImage),
+}
+
+async fn connect(server: &TestServer) -> Socket {
+    let (mut socket, _) = connect_async(server.ws_url("/api/stream"))
+        .await
+        .expect("WebSocket connects");
+    match next(&mut socket).await {
+        Received::Json(hello) => {
+            assert_eq!(hello["type"], "hello", "{hello}");
+            assert_eq!(hello["protocol"], 1, "{hello}");
+        }
+        Received::Frame(h, _) => panic!("expected hello first, got frame {h:?}"),
+    }
+    socket
+}
+
+/// The next message, decoded (frames checked: header, encoding, size).
+async fn next(socket: &mut Socket) -> Received {
+    loop {
+        let message = tokio::time::timeout(PATIENCE, socket.next())
+            .await
+            .expect("a message within the patience")
+            .expect("the socket stays open")
+            .expect("a readable message");
+        match message {
+            Message::Text(text) => {
+                return Received::Json(serde_json::from_str(text.as_str()).expect("JSON text"));
+            }
+            Message::Binary(bytes) => {
+                let header = FrameHeader::parse(&bytes).expect("a frame header");
+                let format = match header.encoding {
+                    Encoding::Jpeg => image::ImageFormat::Jpeg,
+                    Encoding::Png => image::ImageFormat::Png,
+                };
+                let img = image::load_from_memory_with_format(&bytes[HEADER_LEN..], format)
+                    .expect("a decodable image")
+                    .to_rgba8();
+                assert_eq!(
+                    img.dimensions(),
+                    (u32::from(header.width), u32::from(header.height)),
+                    "the header's size is the image's"
+                );
+                return Received::Frame(header, img);
+            }
+            Message::Ping(_) | Message::Pong(_) => {}
+            other => panic!("unexpected message {other:?}"),
+        }
+    }
+}
+
+async fn send(socket: &mut Socket, value: serde_json::Value) {
+    socket
+        .send(Message::Text(value.to_string().into()))
+        .await
+        .expect("send");
+}
+
+async fn ack(socket: &mut Socket, frame: u32) {
+    send(socket, serde_json::json!({"type": "ack", "frame": frame})).await;
+}
+
+/// Reads (and acknowledges) frames until a lossless one reflecting message
+/// `id`; returns every frame seen.
+async fn until_lossless(socket: &mut Socket, id: u32) -> Vec<(FrameHeader, image::RgbaImage)> {
+    let mut frames = Vec::new();
+    loop {
+        match next(socket).await {
+            Received::Json(m) => panic!("unexpected message while waiting for frames: {m}"),
+            Received::Frame(header, img) => {
+                ack(socket, header.frame_id).await;
+                let done = header.lossless && header.message_id == id;
+                frames.push((header, img));
+                if done {
+                    return frames;
+                }
+            }
+        }
+    }
+}
+
+#[tokio::test]
+async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_follows_idling() {
+    let Some(gpu) = gpu_or_skip(
+        "frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_follows_idling",
+    ) else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let mut socket = connect(&server).await;
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 64, "h": 48, "az": 0}}),
+    )
+    .await;
+    let first = until_lossless(&mut socket, 1).await;
+    // The first render comes while the view is fresh: half size, JPEG.
+    let (h, _) = &first[0];
+    assert_eq!(
+        (h.encoding, h.width, h.height),
+        (Encoding::Jpeg, 32, 24),
+        "{h:?}"
+    );
+    assert!(!h.lossless);
+    let (full, front) = first.last().expect("frames");
+    assert_eq!(
+        (full.encoding, full.width, full.height),
+        (Encoding::Png, 64, 48),
+        "{full:?}"
+    );
+    assert!(
+        full.converged,
+        "gradient shading converges at once: {full:?}"
+    );
+    assert!(full.render_ms > 0.0 && full.reduction >= 1.0, "{full:?}");
+    // The device pixel ratio scales the frame; the camera changes its content.
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 2, "set": {"az": 90, "w": 40, "h": 30}, "dpr": 2}),
+    )
+    .await;
+    let second = until_lossless(&mut socket, 2).await;
+    let (full, side) = second.last().expect("frames");
+    assert_eq!((full.width, full.height), (80, 60), "{full:?}");
+    let front_small = image::imageops::resize(front, 80, 60, image::imageops::FilterType::Triangle);
+    let differing = front_small
+        .pixels()
+        .zip(side.pixels())
+        .filter(|(a, b)| a.0.iter().zip(b.0).any(|(x, y)| x.abs_diff(y) > 24))
+        .count();
+    assert!(
+        differing > 80 * 60 / 20,
+        "the view from the side differs: {differing} pixels"
+    );
+    // Still and converged: nothing more is sent.
+    let quiet = tokio::time::timeout(Duration::from_millis(600), socket.next()).await;
+    assert!(quiet.is_err(), "nothing after convergence: {quiet:?}");
+}
+
+#[tokio::test]
+async fn a_burst_of_100_camera_messages_renders_a_handful_of_frames_ending_on_the_last() {
+    let Some(gpu) = gpu_or_skip(
+        "a_burst_of_100_camera_messages_renders_a_handful_of_frames_ending_on_the_last",
+    ) else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let mut socket = connect(&server).await;
+    let start = std::time::Instant::now();
+    for id in 1..=100u32 {
+        let az = f64::from(id) * 3.6;
+        send(
+            &mut socket,
+            serde_json::json!({"type": "view", "id": id, "set": {"w": 96, "h": 96, "az": az}}),
+        )
+        .await;
+    }
+    let sending = start.elapsed();
+    assert!(
+        sending < Duration::from_secs(1),
+        "the burst took {sending:?}"
+    );
+    let frames = until_lossless(&mut socket, 100).await;
+    let ids: Vec<u32> = frames.iter().map(|(h, _)| h.message_id).collect();
+    println!(
+        "100 messages in {sending:?}: {} frames, reflecting messages {ids:?}",
+        frames.len()
+    );
+    assert!(
+        frames.len() <= 5,
+        "a handful of frames, got {}: {ids:?}",
+        frames.len()
+    );
+    let (last, _) = frames.last().expect("frames");
+    assert_eq!(last.message_id, 100);
+    assert!(last.lossless && last.converged);
+}
+
+#[tokio::test]
+async fn without_acknowledgements_no_more_frames_come_and_the_next_shows_the_latest_view() {
+    let Some(gpu) = gpu_or_skip(
+        "without_acknowledgements_no_more_frames_come_and_the_next_shows_the_latest_view",
+    ) else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let mut socket = connect(&server).await;
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 48}}),
+    )
+    .await;
+    let Received::Frame(first, _) = next(&mut socket).await else {
+        panic!("expected a frame");
+    };
+    for id in 2..=5u32 {
+        send(
+            &mut socket,
+            serde_json::json!({"type": "view", "id": id, "set": {"az": id * 20}}),
+        )
+        .await;
+    }
+    let held = tokio::time::timeout(Duration::from_millis(800), socket.next()).await;
+    assert!(
+        held.is_err(),
+        "no frame beyond the window before an ack: {held:?}"
+    );
+    ack(&mut socket, first.frame_id).await;
+    let frames = until_lossless(&mut socket, 5).await;
+    assert_eq!(
+        frames[0].0.message_id, 5,
+        "the next frame shows the latest view"
+    );
+}
+
+#[tokio::test]
+async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed() {
+    let Some(gpu) =
+        gpu_or_skip("bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed")
+    else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let mut a = connect(&server).await;
+    let mut b = connect(&server).await;
+    send(
+        &mut a,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 40, "h": 40}}),
+    )
+    .await;
+    until_lossless(&mut a, 1).await;
+    let cases = [
+        (
+            "{\"type\": \"view\", \"id\": 2, \"set\": {\"az\": NaN}}".to_owned(),
+            "not JSON",
+        ),
+        ("[]".to_owned(), "expected a JSON object"),
+        (
+            serde_json::json!({"type": "view", "id": 3, "camera": {}}).to_string(),
+            "field 'camera': unknown",
+        ),
+        (
+            serde_json::json!({"type": "view", "id": 4, "set": {"zoom": 2}}).to_string(),
+            "unknown view setting 'zoom'",
+        ),
+        (
+            serde_json::json!({"type": "view", "id": 5, "set": {"az": "NaN"}}).to_string(),
+            "view setting az=\"NaN\"",
+        ),
+        (
+            serde_json::json!({"type": "view", "id": 6, "set": {"w": 100000}}).to_string(),
+            "expected at most 4096 per side",
+        ),
+        (
+            serde_json::json!({"type": "view", "id": 7, "set": {"dataset": "lung"}}).to_string(),
+            "view setting dataset=\"lung\"",
+        ),
+        (
+            serde_json::json!({"type": "view", "id": 8, "dpr": 0}).to_string(),
+            "field 'dpr'",
+        ),
+        (
+            serde_json::json!({"type": "flush"}).to_string(),
+            "message type 'flush'",
+        ),
+    ];
+    for (text, expected) in cases {
+        a.send(Message::Text(text.clone().into()))
+            .await
+            .expect("send");
+        match next(&mut a).await {
+            Received::Json(m) => {
+                assert_eq!(m["type"], "error", "{text}: {m}");
+                let message = m["message"].as_str().unwrap_or_default();
+                assert!(message.contains(expected), "{text}: {message}");
+            }
+            Received::Frame(h, _) => panic!("{text}: expected an error, got frame {h:?}"),
+        }
+    }
+    a.send(Message::Binary(vec![1, 2, 3].into()))
+        .await
+        .expect("send");
+    assert!(matches!(next(&mut a).await, Received::Json(m) if m["type"] == "error"));
+    // The session kept its view and still renders.
+    send(
+        &mut a,
+        serde_json::json!({"type": "view", "id": 9, "set": {"az": 45}}),
+    )
+    .await;
+    let frames = until_lossless(&mut a, 9).await;
+    assert_eq!(
+        (
+            frames.last().expect("frame").0.width,
+            frames.last().expect("frame").0.height
+        ),
+        (40, 40)
+    );
+    // The other session never noticed.
+    send(
+        &mut b,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 24, "h": 24}}),
+    )
+    .await;
+    let frames = until_lossless(&mut b, 1).await;
+    assert!(frames.iter().all(|(h, _)| h.message_id == 1));
+}
+
+#[tokio::test]
+async fn sessions_beyond_the_cap_are_refused_and_a_closed_session_frees_its_place() {
+    let Some(gpu) =
+        gpu_or_skip("sessions_beyond_the_cap_are_refused_and_a_closed_session_frees_its_place")
+    else {
+        return;
+    };
+    let settings = StreamSettings {
+        max_sessions: 2,
+        ..StreamSettings::default()
+    };
+    let server = TestServer::start_with(gpu, 32, settings).await;
+    let a = connect(&server).await;
+    let _b = connect(&server).await;
+    match connect_async(server.ws_url("/api/stream")).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), 503);
+        }
+        other => panic!(
+            "a third session should be refused, got {:?}",
+            other.map(|_| ())
+        ),
+    }
+    drop(a);
+    // The server notices the close and frees the place.
+    let mut tries = 0;
+    loop {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        if connect_async(server.ws_url("/api/stream")).await.is_ok() {
+            break;
+        }
+        tries += 1;
+        assert!(tries < 50, "the closed session's place was never freed");
+    }
+}

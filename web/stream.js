@@ -1,0 +1,113 @@
+// A view session over WebSocket (GET /api/stream). The protocol is documented
+// in server/src/protocol.rs (keep in sync): JSON `view` messages carry only
+// the settings that changed, each with a rising id; binary frames come back
+// with a 40-byte little-endian header; every drawn frame is acknowledged, and
+// the server sends nothing more until it is, so a slow link drops frames
+// instead of building lag. The server decides the quality: small JPEG frames
+// while views keep coming, then the lossless full frame, then light
+// refinements until converged.
+
+export const HEADER_LEN = 40;
+const ENCODINGS = { 1: 'image/jpeg', 2: 'image/png' };
+
+// The header of a binary frame (see server/src/protocol.rs `FrameHeader`).
+export function parseHeader(buffer) {
+  const v = new DataView(buffer);
+  const magic = String.fromCharCode(v.getUint8(0), v.getUint8(1), v.getUint8(2), v.getUint8(3));
+  if (magic !== 'VXF1') throw new Error(`frame magic '${magic}': expected 'VXF1'`);
+  return {
+    encoding: v.getUint8(4),
+    lossless: (v.getUint8(5) & 1) !== 0,
+    converged: (v.getUint8(5) & 2) !== 0,
+    width: v.getUint16(6, true),
+    height: v.getUint16(8, true),
+    refined: v.getUint16(10, true),
+    directions: v.getUint16(12, true),
+    frameId: v.getUint32(16, true),
+    messageId: v.getUint32(20, true),
+    renderMs: v.getFloat32(24, true),
+    encodeMs: v.getFloat32(28, true),
+    reduction: v.getFloat32(32, true),
+    queueMs: v.getFloat32(36, true),
+  };
+}
+
+export class ViewStream {
+  // `draw(bitmap, info)` shows a frame, `fail(message)` reports an error,
+  // `hello(message)` receives the server's greeting (dataset, settings).
+  constructor(draw, fail, hello) {
+    this.draw = draw;
+    this.fail = fail;
+    this.hello = hello;
+    this.view = null;
+    this.dpr = 1;
+    this.sent = {};
+    this.sentDpr = null;
+    this.id = 0;
+    this.sentAt = new Map();
+    this.connect();
+  }
+
+  connect() {
+    const scheme = location.protocol === 'https:' ? 'wss://' : 'ws://';
+    const socket = new WebSocket(`${scheme}${location.host}/api/stream`);
+    socket.binaryType = 'arraybuffer';
+    socket.onopen = () => {
+      // A new session knows nothing: send the whole view.
+      this.sent = {};
+      this.sentDpr = null;
+      this.flush();
+    };
+    socket.onmessage = (event) => this.receive(event.data);
+    socket.onclose = () => {
+      this.fail('connection to the server lost: reconnecting…');
+      setTimeout(() => this.connect(), 1000);
+    };
+    this.socket = socket;
+  }
+
+  // Sets the whole view (settings as in GET /api/render; w and h in CSS pixels).
+  update(view, dpr) {
+    this.view = { ...view };
+    this.dpr = dpr;
+    this.flush();
+  }
+
+  flush() {
+    if (!this.view || this.socket.readyState !== WebSocket.OPEN) return;
+    const set = {};
+    for (const [name, value] of Object.entries(this.view)) {
+      if (this.sent[name] !== value) set[name] = value;
+    }
+    if (Object.keys(set).length === 0 && this.sentDpr === this.dpr) return;
+    this.id += 1;
+    this.sentAt.set(this.id, performance.now());
+    this.socket.send(JSON.stringify({ type: 'view', id: this.id, set, dpr: this.dpr }));
+    this.sent = { ...this.view };
+    this.sentDpr = this.dpr;
+  }
+
+  async receive(data) {
+    if (typeof data === 'string') {
+      const message = JSON.parse(data);
+      if (message.type === 'error') this.fail(message.message);
+      else if (message.type === 'hello') this.hello(message);
+      return;
+    }
+    let header;
+    try {
+      header = parseHeader(data);
+    } catch (e) {
+      this.fail(e.message);
+      return;
+    }
+    const type = ENCODINGS[header.encoding] || 'application/octet-stream';
+    const bitmap = await createImageBitmap(new Blob([new Uint8Array(data, HEADER_LEN)], { type }));
+    const sentAt = this.sentAt.get(header.messageId);
+    for (const id of this.sentAt.keys()) if (id < header.messageId) this.sentAt.delete(id);
+    this.draw(bitmap, { ...header, latencyMs: sentAt === undefined ? NaN : performance.now() - sentAt });
+    if (this.socket.readyState === WebSocket.OPEN) {
+      this.socket.send(JSON.stringify({ type: 'ack', frame: header.frameId }));
+    }
+  }
+}
