@@ -17,7 +17,9 @@ use crate::dataset::PHANTOM_ID;
 use crate::reference_data::{self, reference_dataset};
 
 mod light;
+mod stream;
 pub use light::light;
+pub use stream::stream;
 
 /// `voxserve bench render`: for each dataset, the packed renderer at every
 /// image size and data reduction, with and without empty-block skipping, against

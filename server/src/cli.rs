@@ -368,6 +368,38 @@ pub enum BenchCommand {
     /// (B) and a lit frame (C) per data reduction, and (A) per SVR size and
     /// segment length.
     Light(Box<BenchLightArgs>),
+    /// View sessions on loopback: event-to-frame latency (p50, p95) per image
+    /// size for JPEG and lossless frames, encode time per format, and frames
+    /// per second with several concurrent sessions.
+    Stream(Box<BenchStreamArgs>),
+}
+
+/// `voxserve bench stream`.
+#[derive(Debug, Args)]
+pub struct BenchStreamArgs {
+    /// The dataset: `phantom`, a brick store, a volume file or a DICOM folder.
+    #[arg(default_value = PHANTOM_ID)]
+    pub dataset: String,
+    /// Image edges for the latency measurements (square), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [512u32, 1024],
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
+    pub sizes: Vec<u32>,
+    /// Camera events timed per size and format.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub events: u32,
+    /// Concurrent sessions for the frame-rate measurements, comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 4, 16],
+          value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub sessions: Vec<u32>,
+    /// Image edge of the frame-rate measurements.
+    #[arg(long, default_value_t = 256,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
+    pub session_size: u32,
+    /// Seconds each frame-rate measurement runs.
+    #[arg(long, default_value_t = 5.0, value_parser = finite_in(0.1, 3600.0))]
+    pub seconds: f32,
+    #[command(flatten)]
+    pub data: DataArgs,
 }
 
 /// `voxserve bench light`.

@@ -1,45 +1,45 @@
-//! Frame encoding for HTTP responses.
+//! Frame encoding for HTTP responses and view sessions: PNG and JPEG.
 
 use image::ImageEncoder;
+use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::{CompressionType, FilterType, PngEncoder};
 use shaders::Frame;
 
-/// Encodes a frame as an opaque RGB PNG (frames are composited over the
-/// background, so alpha carries nothing). Fast compression: a frame is encoded
-/// for every view change.
-pub fn png(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
+/// Writes `frame` as opaque RGB (frames are composited over the background,
+/// so alpha carries nothing) through `encoder`.
+fn write_rgb(frame: &Frame, encoder: impl ImageEncoder) -> Result<(), image::ImageError> {
     let rgb: Vec<u8> = frame
         .rgba
         .chunks_exact(4)
         .flat_map(|p| [p[0], p[1], p[2]])
         .collect();
-    let mut out = Vec::with_capacity(rgb.len() / 2);
-    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
-        .write_image(
-            &rgb,
-            frame.width,
-            frame.height,
-            image::ExtendedColorType::Rgb8,
-        )?;
+    encoder.write_image(
+        &rgb,
+        frame.width,
+        frame.height,
+        image::ExtendedColorType::Rgb8,
+    )
+}
+
+/// Encodes a frame as an RGB PNG. Fast compression: a frame is encoded for
+/// every view change.
+pub fn png(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
+    let mut out = Vec::with_capacity(frame.rgba.len() / 4);
+    write_rgb(
+        frame,
+        PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive),
+    )?;
     Ok(out)
 }
 
 /// Encodes a frame as a baseline JPEG of `quality` (1–100): small and fast,
 /// for frames shown while the user interacts.
 pub fn jpeg(frame: &Frame, quality: u8) -> Result<Vec<u8>, image::ImageError> {
-    let rgb: Vec<u8> = frame
-        .rgba
-        .chunks_exact(4)
-        .flat_map(|p| [p[0], p[1], p[2]])
-        .collect();
-    let mut out = Vec::with_capacity(rgb.len() / 8);
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
-        .write_image(
-            &rgb,
-            frame.width,
-            frame.height,
-            image::ExtendedColorType::Rgb8,
-        )?;
+    let mut out = Vec::with_capacity(frame.rgba.len() / 16);
+    write_rgb(
+        frame,
+        JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100)),
+    )?;
     Ok(out)
 }
 
@@ -60,5 +60,22 @@ mod tests {
         let back = image::load_from_memory(&bytes).expect("decodes").to_rgba8();
         assert_eq!(back.dimensions(), (3, 2));
         assert_eq!(back.into_raw(), frame.rgba);
+    }
+
+    #[test]
+    fn a_flat_frame_survives_jpeg_within_a_few_levels() {
+        let frame = Frame {
+            width: 16,
+            height: 8,
+            rgba: [90u8, 140, 200, 255].repeat(16 * 8),
+        };
+        let bytes = jpeg(&frame, 90).expect("encodes");
+        let back = image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg)
+            .expect("decodes")
+            .to_rgba8();
+        assert_eq!(back.dimensions(), (16, 8));
+        for (got, want) in back.into_raw().iter().zip(&frame.rgba) {
+            assert!(got.abs_diff(*want) <= 3, "{got} vs {want}");
+        }
     }
 }

@@ -29,6 +29,7 @@ fn main() -> ExitCode {
             BenchCommand::Read(a) => server::bench::read(a),
             BenchCommand::Blocks(a) => server::bench::blocks(a),
             BenchCommand::Light(a) => server::bench::light(a),
+            BenchCommand::Stream(a) => server::bench::stream(a),
         },
     };
     match result {

@@ -39,8 +39,26 @@ struct Job {
 /// A handle to the render worker; cloning shares the worker.
 #[derive(Debug, Clone)]
 pub struct RenderService {
+    // Dropped before `_worker`: when the last handle goes, the queue closes
+    // first, so the worker's loop ends and the join below returns.
     jobs: mpsc::Sender<Job>,
     adapter: Arc<str>,
+    _worker: Arc<WorkerThread>,
+}
+
+/// The worker thread, joined when the last handle is dropped, so the GPU
+/// device is released before the process exits rather than racing its exit.
+#[derive(Debug)]
+struct WorkerThread(Option<std::thread::JoinHandle<()>>);
+
+impl Drop for WorkerThread {
+    fn drop(&mut self) {
+        if let Some(handle) = self.0.take()
+            && handle.join().is_err()
+        {
+            tracing::error!("the render worker panicked");
+        }
+    }
 }
 
 impl std::fmt::Debug for Job {
@@ -62,7 +80,7 @@ impl RenderService {
         let adapter: Arc<str> = gpu.describe().into();
         let mut renderer = Renderer::new(gpu, dataset.cache.clone(), gpu_budget_bytes)?;
         let (jobs, mut queue) = mpsc::channel::<Job>(QUEUE_CAPACITY);
-        std::thread::Builder::new()
+        let handle = std::thread::Builder::new()
             .name("render-worker".into())
             .spawn(move || {
                 // Ends when every sender (every RenderService clone) is gone.
@@ -86,7 +104,11 @@ impl RenderService {
                 operation: "starting the render worker".into(),
                 reason: e.to_string(),
             })?;
-        Ok(RenderService { jobs, adapter })
+        Ok(RenderService {
+            jobs,
+            adapter,
+            _worker: Arc::new(WorkerThread(Some(handle))),
+        })
     }
 
     /// The adapter the worker renders on.

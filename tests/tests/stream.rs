@@ -105,15 +105,24 @@ async fn until_lossless(socket: &mut Socket, id: u32) -> Vec<(FrameHeader, image
     }
 }
 
+/// A server on the 32³ phantom and one session on it, or `None` when `test`
+/// is skipped for want of a GPU.
+async fn server_and_session(test: &str) -> Option<(TestServer, Socket)> {
+    let gpu = gpu_or_skip(test)?;
+    let server = TestServer::start(gpu, 32).await;
+    let socket = connect(&server).await;
+    Some((server, socket))
+}
+
 #[tokio::test]
 async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_follows_idling() {
-    let Some(gpu) = gpu_or_skip(
+    let Some((_server, mut socket)) = server_and_session(
         "frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_follows_idling",
-    ) else {
+    )
+    .await
+    else {
         return;
     };
-    let server = TestServer::start(gpu, 32).await;
-    let mut socket = connect(&server).await;
     send(
         &mut socket,
         serde_json::json!({"type": "view", "id": 1, "set": {"w": 64, "h": 48, "az": 0}}),
@@ -165,13 +174,13 @@ async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_fol
 
 #[tokio::test]
 async fn a_burst_of_100_camera_messages_renders_a_handful_of_frames_ending_on_the_last() {
-    let Some(gpu) = gpu_or_skip(
+    let Some((_server, mut socket)) = server_and_session(
         "a_burst_of_100_camera_messages_renders_a_handful_of_frames_ending_on_the_last",
-    ) else {
+    )
+    .await
+    else {
         return;
     };
-    let server = TestServer::start(gpu, 32).await;
-    let mut socket = connect(&server).await;
     let start = std::time::Instant::now();
     for id in 1..=100u32 {
         let az = f64::from(id) * 3.6;
@@ -204,13 +213,13 @@ async fn a_burst_of_100_camera_messages_renders_a_handful_of_frames_ending_on_th
 
 #[tokio::test]
 async fn without_acknowledgements_no_more_frames_come_and_the_next_shows_the_latest_view() {
-    let Some(gpu) = gpu_or_skip(
+    let Some((_server, mut socket)) = server_and_session(
         "without_acknowledgements_no_more_frames_come_and_the_next_shows_the_latest_view",
-    ) else {
+    )
+    .await
+    else {
         return;
     };
-    let server = TestServer::start(gpu, 32).await;
-    let mut socket = connect(&server).await;
     send(
         &mut socket,
         serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 48}}),

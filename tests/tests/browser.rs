@@ -1,0 +1,227 @@
+//! The web client in a real headless Chromium (Debian's `chromium` and
+//! `chromium-driver`, driven through WebDriver with fantoccini) against a real
+//! server on port 0: the page draws a frame, a drag orbits the camera and
+//! brings a new frame, switching the preset brings another. On failure a
+//! screenshot is written to `target/tmp/browser-failure.png`.
+//!
+//! Skipped with a printed reason when `chromedriver` is missing, unless
+//! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
+//! it).
+
+use std::net::TcpListener as StdListener;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use fantoccini::actions::{InputSource, MouseActions, PointerAction};
+use fantoccini::{Client, ClientBuilder, Locator};
+use voxserve_tests::gpu::report_skip;
+use voxserve_tests::gpu_or_skip;
+use voxserve_tests::server::TestServer;
+
+/// How long the page may take to show each expected change.
+const PATIENCE: Duration = Duration::from_secs(120);
+
+/// `chromedriver` on a free port, killed when dropped.
+struct Driver {
+    child: Child,
+    port: u16,
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn find(program: &str) -> Option<PathBuf> {
+    std::env::var_os("PATH")?
+        .to_str()?
+        .split(':')
+        .map(|dir| PathBuf::from(dir).join(program))
+        .find(|p| p.is_file())
+}
+
+fn start_driver() -> Result<Driver, String> {
+    let binary =
+        find("chromedriver").ok_or("chromedriver is not installed (Debian: chromium-driver)")?;
+    let port = StdListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map_err(|e| format!("no free port: {e}"))?
+        .port();
+    let child = Command::new(binary)
+        .arg(format!("--port={port}"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .map_err(|e| format!("cannot start chromedriver: {e}"))?;
+    Ok(Driver { child, port })
+}
+
+/// A number the page computes, polled until `done` accepts it.
+async fn wait_for(
+    client: &Client,
+    what: &str,
+    script: &str,
+    done: impl Fn(f64) -> bool,
+) -> Result<f64, String> {
+    let start = Instant::now();
+    loop {
+        let value = client
+            .execute(script, vec![])
+            .await
+            .map_err(|e| format!("{what}: {e}"))?
+            .as_f64()
+            .unwrap_or(f64::NAN);
+        if done(value) {
+            return Ok(value);
+        }
+        if start.elapsed() > PATIENCE {
+            return Err(format!("{what}: still {value} after {PATIENCE:?}"));
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+const FRAMES: &str = "return Number(document.getElementById('view').dataset.frames || 0);";
+/// A fingerprint of what the canvas shows: the sum of a sparse grid of pixels
+/// and the count of non-black ones (encoded as count·1e9 + sum).
+const PIXELS: &str = "const c = document.getElementById('view');
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let sum = 0, lit = 0;
+    for (let i = 0; i < d.length; i += 4 * 97) { sum += d[i] + d[i + 1] + d[i + 2]; if (d[i] + d[i + 1] + d[i + 2] > 30) lit += 1; }
+    return lit * 1e9 + sum;";
+
+async fn exercise(client: &Client, url: &str) -> Result<(), String> {
+    client
+        .goto(url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    // A lossless frame of the still view arrives (after a first JPEG one).
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    let first = wait_for(client, "a lit canvas", PIXELS, |v| v >= 1e9 * 20.0).await?;
+    let frames = wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+
+    // Drag across the canvas to orbit.
+    let canvas = client
+        .find(Locator::Id("view"))
+        .await
+        .map_err(|e| format!("the canvas: {e}"))?;
+    let mut drag = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: canvas.clone(),
+            duration: None,
+            x: 0.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down { button: 0 });
+    for step in 1..=8 {
+        drag = drag.then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(30)),
+            x: 25.0,
+            y: if step % 2 == 0 { 4.0 } else { 0.0 },
+        });
+    }
+    drag = drag.then(PointerAction::Up { button: 0 });
+    client
+        .perform_actions(drag)
+        .await
+        .map_err(|e| format!("dragging: {e}"))?;
+    let after_drag = wait_for(client, "a frame after the drag", FRAMES, |n| n > frames).await?;
+    wait_for(client, "the orbited view", PIXELS, |v| {
+        (v - first).abs() > 0.5
+    })
+    .await?;
+
+    // Switch the transfer-function preset.
+    let shown = wait_for(client, "frames", FRAMES, |n| n >= after_drag).await?;
+    let before = client
+        .execute(PIXELS, vec![])
+        .await
+        .map_err(|e| format!("reading the canvas: {e}"))?
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    client
+        .execute(
+            "const s = document.getElementById('preset');
+             s.value = 'ct-soft-tissue';
+             s.dispatchEvent(new Event('change'));
+             return s.value;",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("switching the preset: {e}"))?;
+    wait_for(client, "a frame after the preset", FRAMES, |n| n > shown).await?;
+    wait_for(client, "the soft-tissue view", PIXELS, |v| {
+        (v - before).abs() > 0.5
+    })
+    .await?;
+    let error = client
+        .execute(
+            "const e = document.getElementById('error'); return e.hidden ? '' : e.textContent;",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("reading the error box: {e}"))?;
+    match error.as_str() {
+        Some("") | None => Ok(()),
+        Some(message) => Err(format!("the page shows an error: {message}")),
+    }
+}
+
+#[tokio::test]
+async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium() {
+    let test = "the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium";
+    let require = std::env::var("VOXSERVE_REQUIRE_BROWSER").is_ok_and(|v| v == "1");
+    let driver = match start_driver() {
+        Ok(d) => d,
+        Err(reason) if require => panic!("{test}: VOXSERVE_REQUIRE_BROWSER=1 but {reason}"),
+        Err(reason) => {
+            report_skip(test, &reason);
+            return;
+        }
+    };
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let server = TestServer::start(gpu, 64).await;
+    let mut capabilities = serde_json::Map::new();
+    let mut options = serde_json::json!({
+        "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=640,480"],
+    });
+    if let Some(chromium) = find("chromium") {
+        options["binary"] = serde_json::json!(chromium);
+    }
+    capabilities.insert("goog:chromeOptions".into(), options);
+    let webdriver = format!("http://127.0.0.1:{}", driver.port);
+    let start = Instant::now();
+    let client = loop {
+        let connector = hyper_util::client::legacy::connect::HttpConnector::new();
+        match ClientBuilder::new(connector)
+            .capabilities(capabilities.clone())
+            .connect(&webdriver)
+            .await
+        {
+            Ok(client) => break client,
+            Err(e) if start.elapsed() < Duration::from_secs(20) => {
+                let _ = e;
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            Err(e) => panic!("{test}: cannot open a Chromium session: {e}"),
+        }
+    };
+    let result = exercise(&client, &server.url("/")).await;
+    if let Err(reason) = &result {
+        let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("browser-failure.png");
+        match client.screenshot().await {
+            Ok(png) => {
+                let _ = std::fs::write(&path, png);
+            }
+            Err(e) => report_skip(test, &format!("no screenshot: {e}")),
+        }
+        let _ = client.close().await;
+        panic!("{test}: {reason} (screenshot: {})", path.display());
+    }
+    client.close().await.expect("closing the browser");
+}
