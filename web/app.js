@@ -131,23 +131,37 @@ function requestFrame() {
 
 async function start() {
   resizeCanvas();
+  let datasets;
   try {
     const response = await fetch('/api/datasets');
-    const datasets = await response.json();
-    dataset = datasets[0];
+    datasets = await response.json();
   } catch (e) {
     errorBox.textContent = `cannot load the dataset list: ${e.message}`;
     errorBox.hidden = false;
     return;
   }
-  const [nx, ny, nz] = dataset.dims;
-  document.getElementById('dataset').textContent = `${dataset.name} ${nx}×${ny}×${nz}`;
-  for (const preset of dataset.presets) {
-    const option = new Option(preset.name, preset.name);
-    option.title = preset.description;
-    presetSelect.add(option);
+  // The dataset picker: the server's datasets, the default (first) chosen.
+  const datasetSelect = document.getElementById('dataset');
+  for (const d of datasets) {
+    const [nx, ny, nz] = d.dims;
+    datasetSelect.add(new Option(`${d.name} ${nx}×${ny}×${nz}`, d.id));
   }
-  presetSelect.value = dataset.default_preset;
+  const choose = (id) => {
+    dataset = datasets.find((d) => d.id === id) || datasets[0];
+    presetSelect.replaceChildren();
+    for (const preset of dataset.presets) {
+      const option = new Option(preset.name, preset.name);
+      option.title = preset.description;
+      presetSelect.add(option);
+    }
+    presetSelect.value = dataset.default_preset;
+  };
+  choose(datasets[0].id);
+  datasetSelect.addEventListener('change', () => {
+    choose(datasetSelect.value);
+    camera.reset();
+    requestFrame(false);
+  });
   stream = new ViewStream(drawFrame, showError, () => {});
 
   attachGestures(canvas, camera, requestFrame);

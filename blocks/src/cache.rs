@@ -91,6 +91,17 @@ impl BlockCache {
         self.chunks.weight()
     }
 
+    /// Chunk reads served from the budgeted cache so far (resident levels not
+    /// counted).
+    pub fn hits(&self) -> u64 {
+        self.chunks.hits()
+    }
+
+    /// Chunk reads that had to read and decode from the store so far.
+    pub fn misses(&self) -> u64 {
+        self.chunks.misses()
+    }
+
     /// The decoded chunk `key`, from memory or read and decoded now.
     pub fn chunk(&self, key: ChunkKey) -> Result<Arc<VoxelData>, Error> {
         if let Some(c) = self.resident.get(&key) {

@@ -6,13 +6,17 @@
 //! | `GET /api/render?…` | a PNG of one frame; parameters in [`crate::frame_query`]; headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
 //! | `GET /api/stream` | a WebSocket view session: [`crate::protocol`], [`crate::stream`] |
 //! | `GET /api/datasets` | the datasets offered, as JSON |
+//! | `GET /api/datasets/{id}` | one dataset's description; 404 for an unknown id |
+//! | `GET /api/datasets/{id}/render?…` | `GET /api/render` for that dataset (thumbnails, embedding) |
+//! | `GET /metrics` | OpenMetrics text: [`crate::metrics`] |
 //! | `GET /healthz` | `{"status":"ok","adapter":…}` |
 
 use std::future::Future;
+use std::sync::Arc;
 use std::time::Instant;
 
 use axum::extract::rejection::QueryRejection;
-use axum::extract::{Query, State};
+use axum::extract::{Path, Query, State};
 use axum::http::{HeaderValue, Uri, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
@@ -20,30 +24,43 @@ use axum::{Json, Router};
 use tokio::net::TcpListener;
 
 use crate::dataset::DatasetInfo;
+use crate::metrics::{Format, FrameTimes, Metrics, Quality, Source};
 use crate::stream::{SessionCounter, StreamSettings};
 use crate::{AppError, Dataset, RenderService, encode, frame_query, web};
 
 /// What every handler shares.
 #[derive(Debug, Clone)]
 pub struct AppState {
-    /// The dataset offered (the render worker holds it on the GPU).
-    pub dataset: Dataset,
+    /// The datasets offered, the default first (never empty).
+    pub datasets: Arc<[Dataset]>,
     /// The render worker.
     pub renderer: RenderService,
     /// How view sessions trade quality for speed.
     pub stream: StreamSettings,
     /// The view sessions open.
     pub sessions: SessionCounter,
+    /// What the server has done, for `GET /metrics`.
+    pub metrics: Arc<Metrics>,
 }
 
 impl AppState {
-    /// The state of a server offering `dataset` through `renderer`.
-    pub fn new(dataset: Dataset, renderer: RenderService, stream: StreamSettings) -> AppState {
+    /// The state of a server offering `datasets` (the first is the default)
+    /// through `renderer`.
+    ///
+    /// # Panics
+    /// When `datasets` is empty.
+    pub fn new(
+        datasets: Vec<Dataset>,
+        renderer: RenderService,
+        stream: StreamSettings,
+    ) -> AppState {
+        assert!(!datasets.is_empty(), "a server offers at least one dataset");
         AppState {
-            dataset,
+            datasets: datasets.into(),
             renderer,
             stream,
             sessions: SessionCounter::default(),
+            metrics: Arc::new(Metrics::default()),
         }
     }
 }
@@ -54,7 +71,10 @@ pub fn router(state: AppState) -> Router {
         .route("/api/render", get(render))
         .route("/api/stream", get(crate::stream::handler))
         .route("/api/datasets", get(datasets))
+        .route("/api/datasets/{id}", get(dataset))
+        .route("/api/datasets/{id}/render", get(dataset_render))
         .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics))
         .fallback(get(static_file))
         .with_state(state)
 }
@@ -80,7 +100,53 @@ async fn healthz(State(state): State<AppState>) -> Json<serde_json::Value> {
 }
 
 async fn datasets(State(state): State<AppState>) -> Json<Vec<DatasetInfo>> {
-    Json(vec![state.dataset.info()])
+    Json(state.datasets.iter().map(Dataset::info).collect())
+}
+
+/// The dataset `id`, or a 404 naming the ones there are.
+fn find_dataset<'a>(state: &'a AppState, id: &str) -> Result<&'a Dataset, AppError> {
+    state.datasets.iter().find(|d| d.id == id).ok_or_else(|| {
+        let known: Vec<&str> = state.datasets.iter().map(|d| d.id.as_str()).collect();
+        AppError::NotFound(format!(
+            "dataset '{id}': expected one of {}",
+            known.join(", ")
+        ))
+    })
+}
+
+async fn dataset(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<DatasetInfo>, AppError> {
+    Ok(Json(find_dataset(&state, &id)?.info()))
+}
+
+/// `GET /api/datasets/{id}/render?…`: `GET /api/render` with the dataset in
+/// the path (thumbnails, embedding).
+async fn dataset_render(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, AppError> {
+    find_dataset(&state, &id)?;
+    let Query(mut pairs) = query
+        .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
+    if pairs.iter().any(|(name, _)| name == "dataset") {
+        return Err(AppError::BadRequest(format!(
+            "query parameter dataset: the dataset is '{id}' from the path; leave it out of the query"
+        )));
+    }
+    pairs.push(("dataset".into(), id));
+    render_pairs(&state, &pairs).await
+}
+
+async fn metrics(State(state): State<AppState>) -> Response {
+    let text = state.metrics.encode(
+        state.sessions.open(),
+        state.datasets.iter().map(|d| &*d.cache),
+    );
+    let content_type = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+    ([(header::CONTENT_TYPE, content_type)], text).into_response()
 }
 
 async fn render(
@@ -89,9 +155,14 @@ async fn render(
 ) -> Result<Response, AppError> {
     let Query(pairs) = query
         .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
-    let (_, request) = frame_query::parse(&pairs, std::slice::from_ref(&state.dataset))
-        .map_err(AppError::BadRequest)?;
-    let rendered = state.renderer.render(request).await?;
+    render_pairs(&state, &pairs).await
+}
+
+/// Renders the frame `pairs` (query parameters) ask for, as a PNG response.
+async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Response, AppError> {
+    let (dataset, request) =
+        frame_query::parse(pairs, &state.datasets).map_err(AppError::BadRequest)?;
+    let rendered = state.renderer.render(dataset, request).await?;
     let encode_start = Instant::now();
     let frame = rendered.frame;
     let png = tokio::task::spawn_blocking(move || encode::png(&frame))
@@ -99,6 +170,16 @@ async fn render(
         .map_err(|e| AppError::Internal(format!("PNG encoder task failed: {e}")))?
         .map_err(|e| AppError::Internal(format!("PNG encoding failed: {e}")))?;
     let encode_ms = encode_start.elapsed().as_secs_f64() * 1e3;
+    state.metrics.frame(
+        Source::Http,
+        Quality::Full,
+        Format::Png,
+        FrameTimes {
+            render_ms: rendered.render_ms,
+            queue_ms: rendered.queue_ms,
+            encode_ms,
+        },
+    );
     let value =
         |text: String| HeaderValue::from_str(&text).unwrap_or(HeaderValue::from_static("-"));
     let stats = &rendered.stats;

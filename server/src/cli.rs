@@ -154,11 +154,18 @@ pub struct InfoArgs {
 /// `voxserve serve`.
 #[derive(Debug, Args)]
 pub struct ServeArgs {
-    /// The dataset to serve: `phantom` (the built-in CT head phantom), a brick
-    /// store (`voxserve ingest`), a volume file or a folder of DICOM files
-    /// (bricked in memory at start).
-    #[arg(default_value = PHANTOM_ID)]
-    pub dataset: String,
+    /// The datasets to serve, the first being the default: `phantom` (the
+    /// built-in CT head phantom), brick stores (`voxserve ingest`), volume
+    /// files or folders of DICOM files (bricked in memory at start).
+    #[arg(default_values_t = [PHANTOM_ID.to_owned()], value_name = "DATASET")]
+    pub datasets: Vec<String>,
+    /// Also serve every brick store in this folder (after the DATASETs).
+    #[arg(long = "data", value_name = "DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// Datasets whose blocks stay on the GPU at once; the one used least
+    /// recently is released when another is needed.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub resident_datasets: u64,
     /// Address and port to listen on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: SocketAddr,

@@ -52,6 +52,26 @@ pub fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
     Ok(dataset)
 }
 
+/// The brick stores directly inside `dir`, by name.
+pub fn stores_in(dir: &std::path::Path) -> anyhow::Result<Vec<PathBuf>> {
+    let entries = std::fs::read_dir(dir).with_context(|| {
+        format!(
+            "--data {}: expected a folder of brick stores",
+            dir.display()
+        )
+    })?;
+    let mut stores: Vec<PathBuf> = entries
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| blocks::store::Store::is_store(p))
+        .collect();
+    stores.sort();
+    if stores.is_empty() {
+        tracing::warn!("--data {}: no brick stores in it", dir.display());
+    }
+    Ok(stores)
+}
+
 /// Writes a line to standard output (the command's result, not a log line).
 pub fn say(line: &str) -> anyhow::Result<()> {
     let mut out = std::io::stdout().lock();
@@ -62,9 +82,26 @@ pub fn say(line: &str) -> anyhow::Result<()> {
 
 /// `voxserve serve`: serves until Ctrl-C.
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
-    let dataset = load_dataset(&args.dataset, &args.data)?;
+    let mut datasets = Vec::new();
+    for name in &args.datasets {
+        datasets.push(load_dataset(name, &args.data)?);
+    }
+    if let Some(dir) = &args.data_dir {
+        for path in stores_in(dir)? {
+            datasets.push(load_dataset(&path.to_string_lossy(), &args.data)?);
+        }
+    }
+    for (i, d) in datasets.iter().enumerate() {
+        if datasets[..i].iter().any(|e| e.id == d.id) {
+            anyhow::bail!(
+                "two datasets have the id '{}': expected each dataset once, with distinct names",
+                d.id
+            );
+        }
+    }
     let gpu = GpuContext::new()?;
-    let renderer = RenderService::start(gpu, &dataset, args.data.gpu_budget_bytes())?;
+    let resident = usize::try_from(args.resident_datasets).unwrap_or(usize::MAX);
+    let renderer = RenderService::start(gpu, args.data.gpu_budget_bytes(), resident)?;
     let listener = TcpListener::bind(args.addr)
         .await
         .with_context(|| format!("cannot listen on {}", args.addr))?;
@@ -72,13 +109,16 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     if addr.ip().is_unspecified() {
         addr.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
     }
+    let names: Vec<String> = datasets
+        .iter()
+        .map(|d| format!("the {} ({:?} voxels)", d.name(), d.dims()))
+        .collect();
     say(&format!(
-        "voxserve: serving the {} ({:?} voxels) on {} at http://{addr}/",
-        dataset.name(),
-        dataset.dims(),
+        "voxserve: serving {} on {} at http://{addr}/",
+        names.join(", "),
         renderer.adapter()
     ))?;
-    let state = AppState::new(dataset, renderer, args.stream.settings());
+    let state = AppState::new(datasets, renderer, args.stream.settings());
     let shutdown = async {
         if let Err(e) = tokio::signal::ctrl_c().await {
             tracing::error!("cannot listen for Ctrl-C: {e}");

@@ -14,7 +14,9 @@
 //!   [`protocol`]: their messages and the binary frame header, in one place.
 //! - [`dataset`]: [`Dataset`], a brick store the server offers (on disk, or bricked
 //!   in memory at start), and its public description.
-//! - [`encode`]: frame → PNG.
+//! - [`encode`]: frame → PNG or JPEG.
+//! - [`metrics`]: `GET /metrics`, OpenMetrics text (sessions, frames, render,
+//!   encode and queue time histograms, block cache hits).
 //! - [`web`]: the static web client from `web/`, compiled into the binary.
 //! - [`cli`]: the command line's subcommands and flags.
 //! - [`commands`]: what `serve`, `render`, `info` and `ingest` do.
@@ -30,6 +32,7 @@ pub mod dataset;
 pub mod encode;
 pub mod error;
 pub mod frame_query;
+pub mod metrics;
 pub mod protocol;
 pub mod reference_data;
 pub mod render_service;

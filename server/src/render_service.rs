@@ -1,5 +1,10 @@
-//! [`RenderService`]: one worker thread owns the GPU [`Renderer`]; handlers send it
-//! jobs over a bounded channel and await the reply.
+//! [`RenderService`]: one worker thread owns the GPU and a [`Renderer`] per
+//! dataset in use; handlers and view sessions send it jobs over a bounded
+//! channel and await the reply.
+//!
+//! A renderer keeps its dataset's blocks (and light) on the GPU; at most
+//! [`RenderService::start`]'s `resident_datasets` renderers are kept, and the
+//! one used least recently goes (its GPU memory freed) before another is made.
 //!
 //! GPU work is blocking (submit, then wait for the queue), so it runs on its own
 //! thread rather than on the async runtime. Jobs are served in arrival order; when
@@ -31,6 +36,7 @@ pub struct RenderedFrame {
 }
 
 struct Job {
+    dataset: Dataset,
     request: FrameRequest,
     queued: Instant,
     reply: oneshot::Sender<Result<RenderedFrame, GpuError>>,
@@ -61,6 +67,38 @@ impl Drop for WorkerThread {
     }
 }
 
+/// The worker's renderers, least recently used first.
+struct Renderers {
+    gpu: GpuContext,
+    budget_bytes: u64,
+    capacity: usize,
+    by_use: Vec<(String, Renderer)>,
+}
+
+impl Renderers {
+    /// The renderer of `dataset`, made (after dropping the least recently used
+    /// one when all places are taken) if there is none.
+    fn get(&mut self, dataset: &Dataset) -> Result<&mut Renderer, GpuError> {
+        if let Some(i) = self.by_use.iter().position(|(id, _)| *id == dataset.id) {
+            let entry = self.by_use.remove(i);
+            self.by_use.push(entry);
+        } else {
+            if self.by_use.len() >= self.capacity {
+                // Freed before the next one allocates.
+                let (id, _) = self.by_use.remove(0);
+                tracing::info!("released dataset '{id}' from the GPU");
+            }
+            let renderer =
+                Renderer::new(self.gpu.clone(), dataset.cache.clone(), self.budget_bytes)?;
+            self.by_use.push((dataset.id.clone(), renderer));
+        }
+        self.by_use
+            .last_mut()
+            .map(|(_, r)| r)
+            .ok_or_else(|| GpuError::InvalidRequest("no renderer".into()))
+    }
+}
+
 impl std::fmt::Debug for Job {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Job")
@@ -70,15 +108,21 @@ impl std::fmt::Debug for Job {
 }
 
 impl RenderService {
-    /// Starts the worker thread rendering `dataset` on `gpu`, keeping at most
-    /// `gpu_budget_bytes` of its blocks on the device.
+    /// Starts the worker thread rendering on `gpu`, keeping at most
+    /// `gpu_budget_bytes` of each dataset's blocks on the device and the
+    /// renderers of at most `resident_datasets` datasets.
     pub fn start(
         gpu: GpuContext,
-        dataset: &Dataset,
         gpu_budget_bytes: u64,
+        resident_datasets: usize,
     ) -> Result<RenderService, GpuError> {
         let adapter: Arc<str> = gpu.describe().into();
-        let mut renderer = Renderer::new(gpu, dataset.cache.clone(), gpu_budget_bytes)?;
+        let mut renderers = Renderers {
+            gpu,
+            budget_bytes: gpu_budget_bytes,
+            capacity: resident_datasets.max(1),
+            by_use: Vec::new(),
+        };
         let (jobs, mut queue) = mpsc::channel::<Job>(QUEUE_CAPACITY);
         let handle = std::thread::Builder::new()
             .name("render-worker".into())
@@ -87,11 +131,13 @@ impl RenderService {
                 while let Some(job) = queue.blocking_recv() {
                     let start = Instant::now();
                     let queue_ms = (start - job.queued).as_secs_f64() * 1e3;
-                    let result = renderer.render(&job.request).map(|frame| RenderedFrame {
-                        frame,
-                        render_ms: start.elapsed().as_secs_f64() * 1e3,
-                        stats: renderer.last_stats().clone(),
-                        queue_ms,
+                    let result = renderers.get(&job.dataset).and_then(|renderer| {
+                        renderer.render(&job.request).map(|frame| RenderedFrame {
+                            frame,
+                            render_ms: start.elapsed().as_secs_f64() * 1e3,
+                            stats: renderer.last_stats().clone(),
+                            queue_ms,
+                        })
                     });
                     if let Err(e) = &result {
                         tracing::warn!("render failed: {e}");
@@ -118,9 +164,14 @@ impl RenderService {
 
     /// Renders `request`, or refuses at once when the queue is full (single
     /// HTTP frames: a client retries rather than waiting behind stale work).
-    pub async fn render(&self, request: FrameRequest) -> Result<RenderedFrame, AppError> {
+    pub async fn render(
+        &self,
+        dataset: &Dataset,
+        request: FrameRequest,
+    ) -> Result<RenderedFrame, AppError> {
         let (reply, answer) = oneshot::channel();
         let job = Job {
+            dataset: dataset.clone(),
             request,
             queued: Instant::now(),
             reply,
@@ -139,9 +190,14 @@ impl RenderService {
     /// Renders `request`, waiting for room in the queue. View sessions use
     /// this: each has at most one job queued, so the worker, taking jobs in
     /// arrival order, serves the sessions in turn.
-    pub async fn render_waiting(&self, request: FrameRequest) -> Result<RenderedFrame, AppError> {
+    pub async fn render_waiting(
+        &self,
+        dataset: &Dataset,
+        request: FrameRequest,
+    ) -> Result<RenderedFrame, AppError> {
         let (reply, answer) = oneshot::channel();
         let job = Job {
+            dataset: dataset.clone(),
             request,
             queued: Instant::now(),
             reply,

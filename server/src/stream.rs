@@ -37,7 +37,7 @@ use shaders::frame::MAX_IMAGE_EDGE;
 use shaders::{FrameRequest, Shading};
 
 use crate::protocol::{self, ClientMessage, Encoding, FrameHeader};
-use crate::{AppError, AppState, encode, frame_query};
+use crate::{AppError, AppState, Dataset, encode, frame_query, metrics};
 
 /// How view sessions trade quality for speed; see the module docs.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -148,8 +148,12 @@ struct View {
 }
 
 impl View {
-    /// The frame request of this view at `quality`, checked.
-    fn request(&self, state: &AppState, quality: Quality) -> Result<FrameRequest, String> {
+    /// The dataset and frame request of this view at `quality`, checked.
+    fn request(
+        &self,
+        state: &AppState,
+        quality: Quality,
+    ) -> Result<(Dataset, FrameRequest), String> {
         let mut pairs: Vec<(String, String)> = Vec::with_capacity(self.params.len());
         for (name, value) in &self.params {
             if name == "w" || name == "h" {
@@ -160,7 +164,7 @@ impl View {
         let (w, h) = self.size()?;
         pairs.push(("w".into(), w.to_string()));
         pairs.push(("h".into(), h.to_string()));
-        let (_, mut request) = frame_query::parse(&pairs, std::slice::from_ref(&state.dataset))
+        let (dataset, mut request) = frame_query::parse(&pairs, &state.datasets)
             .map_err(|e| e.replacen("query parameter", "view setting", 1))?;
         if quality == Quality::Interactive {
             let s = state.stream.interactive_scale;
@@ -171,7 +175,7 @@ impl View {
                     .min(shaders::frame::MAX_REDUCTION);
             }
         }
-        Ok(request)
+        Ok((dataset.clone(), request))
     }
 
     /// The frame size in device pixels.
@@ -212,12 +216,13 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
     let hello = serde_json::json!({
         "type": "hello",
         "protocol": protocol::PROTOCOL,
-        "dataset": state.dataset.info(),
+        "datasets": state.datasets.iter().map(Dataset::info).collect::<Vec<_>>(),
         "settings": state.stream,
     });
     if !send_json(&mut socket, &hello).await {
         return;
     }
+    state.metrics.session_opened();
     let mut view = View {
         params: BTreeMap::new(),
         dpr: 1.0,
@@ -258,11 +263,11 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
                     view.converged = false;
                 }
                 match view.request(&state, quality) {
-                    Ok(request) => {
+                    Ok((dataset, request)) => {
                         next_id += 1;
                         job = Some((
                             quality,
-                            render_job(&state, request, quality, next_id, view.message_id),
+                            render_job(&state, dataset, request, quality, next_id, view.message_id),
                         ));
                     }
                     Err(message) => {
@@ -338,6 +343,20 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
                             return;
                         }
                         sent = header.frame_id;
+                        let (metric_quality, format) = match header.encoding {
+                            Encoding::Jpeg => (metrics::Quality::Interactive, metrics::Format::Jpeg),
+                            Encoding::Png => (metrics::Quality::Full, metrics::Format::Png),
+                        };
+                        state.metrics.frame(
+                            metrics::Source::Stream,
+                            metric_quality,
+                            format,
+                            metrics::FrameTimes {
+                                render_ms: f64::from(header.render_ms),
+                                queue_ms: f64::from(header.queue_ms),
+                                encode_ms: f64::from(header.encode_ms),
+                            },
+                        );
                     }
                     Err(message) => {
                         view.full_sent = true;
@@ -380,6 +399,7 @@ fn apply(
 /// Renders and encodes one frame.
 fn render_job(
     state: &AppState,
+    dataset: Dataset,
     request: FrameRequest,
     quality: Quality,
     frame_id: u32,
@@ -390,7 +410,7 @@ fn render_job(
     let global = request.shading == Shading::GlobalLight;
     Box::pin(async move {
         let rendered = renderer
-            .render_waiting(request)
+            .render_waiting(&dataset, request)
             .await
             .map_err(|e| e.to_string())?;
         let light = rendered.stats.light;

@@ -108,6 +108,14 @@ fn bad_flags_are_refused_with_the_flag_named() {
         (vec!["render", "--projection", "fisheye"], "--projection"),
         (vec!["render", "--background", "white"], "--background"),
         (vec!["serve", "--addr", "localhost"], "--addr"),
+        (
+            vec!["serve", "--data", "/no/such/folder"],
+            "--data /no/such/folder",
+        ),
+        (
+            vec!["serve", "--resident-datasets", "0"],
+            "--resident-datasets",
+        ),
         (vec!["render", "--light", "spot:0,0,1"], "--light"),
         (vec!["render", "--light", "directional:0,0,0"], "--light"),
         (vec!["render", "--light", "point:0.5,nan,0.5"], "--light"),
@@ -245,8 +253,34 @@ impl Drop for Server {
 
 #[tokio::test]
 async fn serve_prints_its_url_and_renders_the_phantom() {
+    // A folder with one brick store: served beside the phantom.
+    let dir = tempfile::tempdir().expect("temp");
+    let raw = dir.path().join("scan_24x20x18_uint16.raw");
+    let bytes: Vec<u8> = (0..24 * 20 * 18u32)
+        .flat_map(|i| (((i * 13) % 3000) as u16).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).expect("raw");
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).expect("data folder");
+    std::fs::write(data.join("notes.txt"), "not a store").expect("a stray file");
+    let store = data.join("scan.zarr");
+    let out = voxserve(&[
+        "ingest",
+        raw.to_str().expect("utf-8"),
+        "--out",
+        store.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "ingest: {}", text(&out.stderr));
     let mut child = Command::new(VOXSERVE)
-        .args(["serve", "--addr", "127.0.0.1:0", "--phantom-size", "64"])
+        .args([
+            "serve",
+            "--addr",
+            "127.0.0.1:0",
+            "--phantom-size",
+            "64",
+            "--data",
+        ])
+        .arg(&data)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -303,6 +337,33 @@ async fn serve_prints_its_url_and_renders_the_phantom() {
         .await
         .expect("GET");
     assert_eq!(again.status(), 200, "still serving after a bad request");
+    assert!(line.contains("phantom") && line.contains("scan"), "{line}");
+    let list: serde_json::Value = serde_json::from_str(
+        &reqwest::get(format!("{url}/api/datasets"))
+            .await
+            .expect("GET")
+            .text()
+            .await
+            .expect("body"),
+    )
+    .expect("JSON");
+    let ids: Vec<&str> = list
+        .as_array()
+        .expect("a list")
+        .iter()
+        .filter_map(|d| d["id"].as_str())
+        .collect();
+    assert_eq!(ids, ["phantom", "scan"]);
+    let scan = reqwest::get(format!(
+        "{url}/api/datasets/scan/render?w=32&h=24&preset=generic"
+    ))
+    .await
+    .expect("GET");
+    assert_eq!(scan.status(), 200);
+    let img = image::load_from_memory(&scan.bytes().await.expect("body"))
+        .expect("PNG")
+        .to_rgba8();
+    assert_eq!(img.dimensions(), (32, 24));
 }
 
 #[test]

@@ -33,8 +33,22 @@ impl TestServer {
         stream: StreamSettings,
     ) -> TestServer {
         let dataset = Dataset::phantom(phantom_size, 256 << 20).expect("phantom");
+        TestServer::with_datasets(gpu, vec![dataset], 2, stream).await
+    }
+
+    /// A server offering `datasets` (the first is the default), keeping the
+    /// blocks of at most `resident` of them on the GPU.
+    ///
+    /// # Panics
+    /// When the server cannot start.
+    pub async fn with_datasets(
+        gpu: &GpuContext,
+        datasets: Vec<Dataset>,
+        resident: usize,
+        stream: StreamSettings,
+    ) -> TestServer {
         let renderer =
-            RenderService::start(gpu.clone(), &dataset, 512 << 20).expect("render worker");
+            RenderService::start(gpu.clone(), 512 << 20, resident).expect("render worker");
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind port 0");
         let addr = listener.local_addr().expect("local address");
         let (stop, stopped) = oneshot::channel::<()>();
@@ -43,7 +57,7 @@ impl TestServer {
                 // A dropped sender stops the server as well.
                 let _ = stopped.await;
             };
-            let state = AppState::new(dataset, renderer, stream);
+            let state = AppState::new(datasets, renderer, stream);
             if let Err(e) = server::run(listener, state, shutdown).await {
                 panic!("test server failed: {e}");
             }

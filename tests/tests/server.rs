@@ -236,6 +236,68 @@ async fn the_web_client_and_dataset_list_are_served() {
     assert_eq!(health["status"], "ok");
 }
 
+#[tokio::test]
+async fn one_dataset_is_described_and_rendered_by_its_path_and_metrics_count_the_frames() {
+    let Some(gpu) = gpu_or_skip(
+        "one_dataset_is_described_and_rendered_by_its_path_and_metrics_count_the_frames",
+    ) else {
+        return;
+    };
+    let server = TestServer::start(gpu, 32).await;
+    let one: serde_json::Value = get(&server.url("/api/datasets/phantom"))
+        .await
+        .json_body()
+        .await;
+    assert_eq!(one["id"], "phantom");
+    let missing = get(&server.url("/api/datasets/lung")).await;
+    assert_eq!(missing.status(), 404);
+    let body = missing.json_body().await;
+    assert!(
+        body["error"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("dataset 'lung'"),
+        "{body}"
+    );
+    let thumbnail = get(&server.url("/api/datasets/phantom/render?w=40&h=30&az=20")).await;
+    assert_eq!(thumbnail.status(), 200);
+    let img = image::load_from_memory(&thumbnail.bytes().await.expect("body"))
+        .expect("PNG")
+        .to_rgba8();
+    assert_eq!(img.dimensions(), (40, 30));
+    assert_eq!(
+        get(&server.url("/api/datasets/lung/render?w=8&h=8"))
+            .await
+            .status(),
+        404
+    );
+    let twice = get(&server.url("/api/datasets/phantom/render?dataset=phantom")).await;
+    assert_eq!(twice.status(), 400);
+
+    let metrics = get(&server.url("/metrics")).await;
+    assert_eq!(metrics.status(), 200);
+    assert!(
+        metrics.headers()["content-type"]
+            .to_str()
+            .unwrap_or_default()
+            .starts_with("application/openmetrics-text")
+    );
+    let text = metrics.text().await.expect("body");
+    for expected in [
+        "voxserve_frames_total{source=\"http\",quality=\"full\"} 1",
+        "voxserve_sessions_open 0",
+        "voxserve_render_seconds_count 1",
+        "voxserve_encode_seconds_count{format=\"png\"} 1",
+        "voxserve_block_cache_misses",
+        "# EOF",
+    ] {
+        assert!(
+            text.contains(expected),
+            "/metrics lacks {expected}:\n{text}"
+        );
+    }
+}
+
 /// JSON bodies without reqwest's `json` feature.
 trait JsonBody {
     async fn json_body(self) -> serde_json::Value;

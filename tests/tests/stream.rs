@@ -116,7 +116,7 @@ async fn server_and_session(test: &str) -> Option<(TestServer, Socket)> {
 
 #[tokio::test]
 async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_follows_idling() {
-    let Some((_server, mut socket)) = server_and_session(
+    let Some((server, mut socket)) = server_and_session(
         "frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_follows_idling",
     )
     .await
@@ -170,6 +170,25 @@ async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_fol
     // Still and converged: nothing more is sent.
     let quiet = tokio::time::timeout(Duration::from_millis(600), socket.next()).await;
     assert!(quiet.is_err(), "nothing after convergence: {quiet:?}");
+    // The metrics saw the session and its frames of both kinds.
+    let metrics = reqwest::get(server.url("/metrics"))
+        .await
+        .expect("GET /metrics")
+        .text()
+        .await
+        .expect("body");
+    for expected in [
+        "voxserve_sessions_open 1",
+        "voxserve_sessions_total 1",
+        "voxserve_frames_total{source=\"stream\",quality=\"interactive\"}",
+        "voxserve_frames_total{source=\"stream\",quality=\"full\"}",
+        "voxserve_encode_seconds_count{format=\"jpeg\"}",
+    ] {
+        assert!(
+            metrics.contains(expected),
+            "/metrics lacks {expected}:\n{metrics}"
+        );
+    }
 }
 
 #[tokio::test]
@@ -373,5 +392,45 @@ async fn sessions_beyond_the_cap_are_refused_and_a_closed_session_frees_its_plac
         }
         tries += 1;
         assert!(tries < 50, "the closed session's place was never freed");
+    }
+}
+
+#[tokio::test]
+async fn a_session_switches_datasets_and_one_resident_renderer_serves_both_in_turn() {
+    let test = "a_session_switches_datasets_and_one_resident_renderer_serves_both_in_turn";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let phantom = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let small = {
+        let volume = std::sync::Arc::new(blocks::phantom::head(24).expect("head"));
+        let mut source = blocks::ingest::MemorySource::new(volume, "small head");
+        let store =
+            blocks::store::ingest_in_memory(&mut source, &Default::default()).expect("store");
+        server::Dataset::new("small".into(), store, 64 << 20).expect("dataset")
+    };
+    // One renderer at a time: every switch releases one dataset and loads the other.
+    let server =
+        TestServer::with_datasets(gpu, vec![phantom, small], 1, StreamSettings::default()).await;
+    let mut socket = connect(&server).await;
+    let mut id = 0;
+    for dataset in ["small", "phantom", "small"] {
+        id += 1;
+        send(
+            &mut socket,
+            serde_json::json!({"type": "view", "id": id, "set": {"w": 36, "h": 36, "dataset": dataset}}),
+        )
+        .await;
+        let frames = until_lossless(&mut socket, id).await;
+        let (last, img) = frames.last().expect("frames");
+        assert_eq!((last.width, last.height), (36, 36), "{dataset}");
+        let lit = img
+            .pixels()
+            .filter(|p| p.0[..3].iter().any(|&c| c > 30))
+            .count();
+        assert!(
+            lit > 36 * 36 / 20,
+            "{dataset}: the head shows ({lit} pixels)"
+        );
     }
 }

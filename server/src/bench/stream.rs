@@ -47,7 +47,7 @@ async fn start_server(
     let listener = TcpListener::bind("127.0.0.1:0").await?;
     let url = format!("ws://{}/api/stream", listener.local_addr()?);
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let state = AppState::new(dataset, renderer, settings);
+    let state = AppState::new(vec![dataset], renderer, settings);
     tokio::spawn(async move {
         let shutdown = async {
             let _ = stopped.await;
@@ -124,7 +124,7 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
     let dataset = load_dataset(&args.dataset, &args.data)?;
     let gpu = GpuContext::new()?;
     let adapter = gpu.info.name.clone();
-    let renderer = RenderService::start(gpu, &dataset, args.data.gpu_budget_bytes())?;
+    let renderer = RenderService::start(gpu, args.data.gpu_budget_bytes(), 1)?;
     let full_size = StreamSettings {
         interactive_scale: 1.0,
         interactive_reduction: 1.0,
