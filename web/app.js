@@ -3,6 +3,7 @@
 
 import { OrbitCamera, attachGestures } from './camera.js';
 import { ViewStream } from './stream.js';
+import { TfEditor } from './tf-editor.js';
 
 // The full frame's longest side, in device pixels (software GPUs are slow).
 // The server renders smaller, lossy frames while the view keeps changing and
@@ -26,6 +27,19 @@ const fidelity = document.getElementById('fidelity');
 const camera = new OrbitCamera();
 let dataset = null;
 let stream = null;
+// The edited transfer function (the `tf` text), or null for the preset's.
+let customTf = null;
+const tfEditor = new TfEditor(document.getElementById('tf'), document.getElementById('tf-colour'), (text) => {
+  customTf = text;
+  requestFrame(true);
+});
+
+// Loads the chosen preset's transfer function into the editor.
+function loadPreset() {
+  customTf = null;
+  const preset = dataset.presets.find((p) => p.name === presetSelect.value);
+  if (preset) tfEditor.load(dataset.histogram, dataset.histogram_range, preset.tf);
+}
 
 function drawFrame(bitmap, info) {
   errorBox.hidden = true;
@@ -120,7 +134,7 @@ function requestFrame() {
     dataset: dataset.id,
     ...camera.params(),
     ...size,
-    preset: presetSelect.value,
+    ...(customTf ? { tf: customTf } : { preset: presetSelect.value }),
     shading: shadingSelect.value,
     proj: projectionSelect.value,
     reduction: reductionSelect.value,
@@ -155,6 +169,7 @@ async function start() {
       presetSelect.add(option);
     }
     presetSelect.value = dataset.default_preset;
+    loadPreset();
   };
   choose(datasets[0].id);
   datasetSelect.addEventListener('change', () => {
@@ -165,7 +180,10 @@ async function start() {
   stream = new ViewStream(drawFrame, showError, () => {});
 
   attachGestures(canvas, camera, requestFrame);
-  presetSelect.addEventListener('change', () => requestFrame(false));
+  presetSelect.addEventListener('change', () => {
+    loadPreset();
+    requestFrame(false);
+  });
   for (const select of [shadingSelect, projectionSelect, reductionSelect]) {
     select.addEventListener('change', () => requestFrame(false));
   }

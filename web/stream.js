@@ -79,6 +79,10 @@ export class ViewStream {
     for (const [name, value] of Object.entries(this.view)) {
       if (this.sent[name] !== value) set[name] = value;
     }
+    // A setting no longer in the view goes back to its default.
+    for (const name of Object.keys(this.sent)) {
+      if (!(name in this.view)) set[name] = null;
+    }
     if (Object.keys(set).length === 0 && this.sentDpr === this.dpr) return;
     this.id += 1;
     this.sentAt.set(this.id, performance.now());

@@ -13,6 +13,24 @@ use crate::Error;
 
 /// The number of entries in a [`TransferFunction::table`] unless asked otherwise.
 pub const TABLE_LEN: usize = 1024;
+/// The most control points [`TransferFunction::parse`] accepts.
+pub const MAX_POINTS: usize = 64;
+
+/// Six hex digits `rrggbb` (a leading `#` allowed) → channels in 0..=1.
+///
+/// # Errors
+/// A message naming the text and what was expected.
+pub fn parse_rgb_hex(text: &str) -> Result<[f32; 3], String> {
+    let hex = text.strip_prefix('#').unwrap_or(text);
+    let channel = |i: usize| {
+        hex.get(i..i + 2)
+            .and_then(|h| u8::from_str_radix(h, 16).ok())
+    };
+    match (hex.len(), channel(0), channel(2), channel(4)) {
+        (6, Some(r), Some(g), Some(b)) => Ok([r, g, b].map(|c| f32::from(c) / 255.0)),
+        _ => Err(format!("colour '{text}': expected six hex digits rrggbb")),
+    }
+}
 
 /// One control point: at `value`, the colour `rgb` and the opacity `opacity`.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -82,6 +100,44 @@ impl TransferFunction {
     /// The control points.
     pub fn points(&self) -> &[TfPoint] {
         &self.points
+    }
+
+    /// Parses the text form `VALUE:RRGGBB:OPACITY,…` (physical values, hex
+    /// colours, opacities 0..1), e.g. `-200:000000:0,300:ffddcc:0.3,1200:ffffff:0.9`,
+    /// at most [`MAX_POINTS`] points. [`fmt::Display`] writes the same form.
+    ///
+    /// # Errors
+    /// A message naming the point and what was expected.
+    pub fn parse(text: &str) -> Result<TransferFunction, String> {
+        let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+        if parts.len() > MAX_POINTS {
+            return Err(format!(
+                "transfer function with {} points: expected at most {MAX_POINTS}",
+                parts.len()
+            ));
+        }
+        let points = parts
+            .iter()
+            .enumerate()
+            .map(|(i, part)| {
+                let expected = || {
+                    format!(
+                        "point {i} '{part}': expected VALUE:RRGGBB:OPACITY, e.g. 300:ffddcc:0.3"
+                    )
+                };
+                let mut fields = part.split(':');
+                let (Some(value), Some(colour), Some(opacity), None) =
+                    (fields.next(), fields.next(), fields.next(), fields.next())
+                else {
+                    return Err(expected());
+                };
+                let value: f32 = value.parse().map_err(|_| expected())?;
+                let opacity: f32 = opacity.parse().map_err(|_| expected())?;
+                let rgb = parse_rgb_hex(colour).map_err(|e| format!("point {i}: {e}"))?;
+                Ok(TfPoint::new(value, rgb, opacity))
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        TransferFunction::new(points).map_err(|e| e.to_string())
     }
 
     /// Colour and opacity `[r, g, b, opacity]` at a physical value.
@@ -224,6 +280,18 @@ impl Preset {
     }
 }
 
+impl fmt::Display for TransferFunction {
+    /// The text form [`TransferFunction::parse`] reads.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, p) in self.points.iter().enumerate() {
+            let [r, g, b] = p.rgb.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8);
+            let comma = if i == 0 { "" } else { "," };
+            write!(f, "{comma}{}:{r:02x}{g:02x}{b:02x}:{}", p.value, p.opacity)?;
+        }
+        Ok(())
+    }
+}
+
 impl fmt::Display for Preset {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
@@ -247,6 +315,38 @@ impl FromStr for Preset {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_text_form_round_trips_and_bad_text_is_refused_with_the_point_named() {
+        let tf = TransferFunction::parse("-200:000000:0, 300:ffddcc:0.3,1200:FFFFFF:0.9")
+            .expect("valid");
+        assert_eq!(tf.points().len(), 3);
+        assert_eq!(tf.points()[1].rgb, [1.0, 221.0 / 255.0, 204.0 / 255.0]);
+        assert_eq!(
+            tf.to_string(),
+            "-200:000000:0,300:ffddcc:0.3,1200:ffffff:0.9"
+        );
+        assert_eq!(TransferFunction::parse(&tf.to_string()), Ok(tf));
+        for (text, expected) in [
+            ("", "point 0 ''"),
+            ("100:ffffff", "point 0 '100:ffffff'"),
+            ("100:ffffff:0.5:1", "expected VALUE:RRGGBB:OPACITY"),
+            ("abc:ffffff:0.5", "point 0 'abc:ffffff:0.5'"),
+            ("0:fff:0.5", "point 0: colour 'fff'"),
+            ("0:ffffff:1.5", "opacity 1.5"),
+            ("10:ffffff:0,5:ffffff:0", "non-decreasing"),
+            ("NaN:ffffff:0", "finite"),
+        ] {
+            let e = TransferFunction::parse(text).expect_err(text);
+            assert!(e.contains(expected), "{text}: {e}");
+        }
+        let many = vec!["0:000000:0"; MAX_POINTS + 1].join(",");
+        assert!(
+            TransferFunction::parse(&many)
+                .expect_err("too many")
+                .contains("at most 64")
+        );
+    }
 
     #[test]
     fn evaluate_interpolates_and_clamps() {

@@ -36,6 +36,9 @@ pub struct PresetInfo {
     pub name: &'static str,
     /// A one-line description.
     pub description: &'static str,
+    /// Its transfer function over this dataset's values, in the text form of
+    /// the `tf` parameter (a starting point for editing).
+    pub tf: String,
 }
 
 /// What `GET /api/datasets` says about a dataset.
@@ -65,6 +68,11 @@ pub struct DatasetInfo {
     pub presets: Vec<PresetInfo>,
     /// The preset a client should start with.
     pub default_preset: &'static str,
+    /// The level-0 voxels' histogram: counts in equal bins over
+    /// `histogram_range` (physical units), for transfer-function editors.
+    pub histogram: Vec<u64>,
+    /// The physical values the histogram's bins divide evenly.
+    pub histogram_range: [f64; 2],
 }
 
 impl Dataset {
@@ -145,9 +153,30 @@ impl Dataset {
         }
     }
 
+    /// The level-0 histogram summed over every block, and the physical range
+    /// its bins divide.
+    pub fn histogram(&self) -> (Vec<u64>, [f64; 2]) {
+        let stats = self.store.stats();
+        let mut counts = vec![0u64; blocks::store::HISTOGRAM_BINS];
+        for b in 0..stats.block_count() {
+            for (c, &n) in counts.iter_mut().zip(stats.histogram(0, b)) {
+                *c += u64::from(n);
+            }
+        }
+        let map = self.value_map();
+        let [lo, hi] = stats.range.map(|v| map.physical(v));
+        if hi < lo {
+            // A negative slope runs the bins backwards in physical units.
+            counts.reverse();
+            return (counts, [hi, lo]);
+        }
+        (counts, [lo, hi])
+    }
+
     /// The public description.
     pub fn info(&self) -> DatasetInfo {
         let m = self.store.meta();
+        let (histogram, histogram_range) = self.histogram();
         DatasetInfo {
             id: self.id.clone(),
             name: m.name.clone(),
@@ -164,9 +193,12 @@ impl Dataset {
                 .map(|p| PresetInfo {
                     name: p.name(),
                     description: p.description(),
+                    tf: p.transfer_function(self.value_range()).to_string(),
                 })
                 .collect(),
             default_preset: self.default_preset().name(),
+            histogram,
+            histogram_range,
         }
     }
 }

@@ -9,6 +9,7 @@
 //! | `fov` | vertical field of view, degrees, 1..=120 | 30 |
 //! | `w`, `h` | image size, pixels, 1..=4096 | 512 |
 //! | `preset` | transfer-function preset | the dataset's default |
+//! | `tf` | a transfer function instead of a preset: `VALUE:RRGGBB:OPACITY,…` in physical units (e.g. HU), opacity per step of the smallest spacing, at most 64 points in non-decreasing order | — |
 //! | `proj` | `perspective` or `orthographic` | `perspective` |
 //! | `shading` | `gradient`, `unshaded`, `mip`, `minip` or `global` (global light propagation) | `gradient` |
 //! | `step` | sample step, voxels, 0.05..=4 | 0.5 |
@@ -36,7 +37,7 @@
 
 use std::str::FromStr;
 
-use blocks::Preset;
+use blocks::{Preset, TransferFunction};
 use shaders::frame::{MAX_IMAGE_EDGE, MAX_REDUCTION, STEP_RANGE_VOXELS, parse_colour};
 use shaders::light::{self, LightSettings};
 use shaders::{Camera, ClipBox, FrameRequest, Projection, Shading, camera};
@@ -44,7 +45,7 @@ use shaders::{Camera, ClipBox, FrameRequest, Projection, Shading, camera};
 use crate::Dataset;
 
 /// The parameters `GET /api/render` accepts.
-pub const PARAMETERS: [&str; 23] = [
+pub const PARAMETERS: [&str; 24] = [
     "dataset",
     "az",
     "el",
@@ -54,6 +55,7 @@ pub const PARAMETERS: [&str; 23] = [
     "w",
     "h",
     "preset",
+    "tf",
     "shading",
     "step",
     "clip",
@@ -181,7 +183,18 @@ pub fn parse<'d>(
     };
     let width = params.ranged("w", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, PIXELS)?;
     let height = params.ranged("h", DEFAULT_EDGE, 1, MAX_IMAGE_EDGE, PIXELS)?;
-    let preset: Preset = params.named("preset", dataset.default_preset())?;
+    let transfer_function = match (params.get("tf"), params.get("preset")) {
+        (Some(_), Some(_)) => {
+            return Err(
+                "query parameters tf and preset: expected one of them, not both".to_owned(),
+            );
+        }
+        (Some(text), None) => TransferFunction::parse(text)
+            .map_err(|e| format!("query parameter tf={text:?}: {e}"))?,
+        (None, _) => params
+            .named::<Preset>("preset", dataset.default_preset())?
+            .transfer_function(dataset.value_range()),
+    };
     let shading: Shading = params.named("shading", Shading::default())?;
     let step_voxels = params.ranged(
         "step",
@@ -265,11 +278,7 @@ pub fn parse<'d>(
         reduction,
         background,
         light,
-        ..FrameRequest::new(
-            width,
-            height,
-            preset.transfer_function(dataset.value_range()),
-        )
+        ..FrameRequest::new(width, height, transfer_function)
     };
     request.validate()?;
     Ok((dataset, request))
@@ -333,6 +342,15 @@ mod tests {
         assert_eq!(r.background, [1.0, 128.0 / 255.0, 0.0]);
         let tf = Preset::CtSoftTissue.transfer_function(ds[0].value_range());
         assert_eq!(r.transfer_function, tf);
+        let (_, r) = parse(&query("tf=-500:000000:0,300:ff8000:0.4"), &ds).expect("valid tf");
+        assert_eq!(
+            r.transfer_function,
+            TransferFunction::new(vec![
+                blocks::TfPoint::new(-500.0, [0.0; 3], 0.0),
+                blocks::TfPoint::new(300.0, [1.0, 128.0 / 255.0, 0.0], 0.4),
+            ])
+            .expect("valid")
+        );
     }
 
     #[test]
@@ -371,6 +389,12 @@ mod tests {
             ("el=91", "from -90 to 90"),
             ("dist=0", "dist=\"0\""),
             ("preset=bone", "unknown transfer-function preset 'bone'"),
+            ("tf=0:ffffff", "query parameter tf=\"0:ffffff\": point 0"),
+            (
+                "tf=0:ffffff:0.1&preset=mr",
+                "tf and preset: expected one of them",
+            ),
+            ("tf=10:ffffff:0,5:000000:1", "non-decreasing"),
             ("shading=phong", "unknown shading 'phong'"),
             ("light=sun:0,0,1", "light 'sun:0,0,1'"),
             (

@@ -5,7 +5,7 @@
 //!
 //! | message | meaning |
 //! |---|---|
-//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds any of the parameters of `GET /api/render` (see [`crate::frame_query`]: `az`, `el`, `dist`, `fov`, `proj`, `w`, `h`, `preset`, `shading`, `step`, `clip`, `reduction`, `bg`, `dataset` and the light's), as JSON numbers or strings; they are merged into the session's view, so a camera move sends only `az` and `el`. `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
+//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds any of the parameters of `GET /api/render` (see [`crate::frame_query`]: `az`, `el`, `dist`, `fov`, `proj`, `w`, `h`, `preset`, `shading`, `step`, `clip`, `reduction`, `bg`, `dataset` and the light's), as JSON numbers or strings; they are merged into the session's view, so a camera move sends only `az` and `el`. A setting given as `null` is removed (back to its default; e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
 //! | `{"type":"ack","frame":F}` | the client has drawn frame `F`; the server sends at most [`crate::stream::StreamSettings::frames_in_flight`] frames ahead of the last acknowledged one. |
 //!
 //! A message that is not JSON, has an unknown type or field, or sets a value
@@ -161,12 +161,13 @@ impl FrameHeader {
 /// A client message, checked.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ClientMessage {
-    /// Change the view: `set` as `GET /api/render` parameter pairs.
+    /// Change the view: `set` as `GET /api/render` parameter pairs; `None`
+    /// removes a setting (back to its default).
     View {
         /// The message's id.
         id: u32,
         /// Parameters to merge into the view.
-        set: Vec<(String, String)>,
+        set: Vec<(String, Option<String>)>,
         /// Device pixel ratio, if given.
         dpr: Option<f64>,
     },
@@ -253,13 +254,16 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, Refusal> {
                 Some(Value::Object(map)) => {
                     for (name, v) in map {
                         let text = match v {
-                            Value::String(s) => s.clone(),
-                            Value::Number(n) => n.to_string(),
-                            Value::Bool(b) => b.to_string(),
+                            Value::String(s) => Some(s.clone()),
+                            Value::Number(n) => Some(n.to_string()),
+                            Value::Bool(b) => Some(b.to_string()),
+                            Value::Null => None,
                             _ => {
                                 return Err(refuse(
                                     Some(id),
-                                    format!("view setting {name}: expected a number or a string"),
+                                    format!(
+                                        "view setting {name}: expected a number, a string or null"
+                                    ),
                                 ));
                             }
                         };
@@ -331,13 +335,14 @@ mod tests {
     fn messages_are_read_and_bad_ones_refused_with_the_field_named() {
         assert_eq!(
             parse_client_message(
-                r#"{"type":"view","id":3,"set":{"az":30,"shading":"global"},"dpr":2}"#
+                r#"{"type":"view","id":3,"set":{"az":30,"shading":"global","preset":null},"dpr":2}"#
             ),
             Ok(ClientMessage::View {
                 id: 3,
                 set: vec![
-                    ("az".into(), "30".into()),
-                    ("shading".into(), "global".into())
+                    ("az".into(), Some("30".into())),
+                    ("shading".into(), Some("global".into())),
+                    ("preset".into(), None),
                 ],
                 dpr: Some(2.0),
             })

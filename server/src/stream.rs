@@ -377,7 +377,7 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
 fn apply(
     view: &View,
     state: &AppState,
-    set: &[(String, String)],
+    set: &[(String, Option<String>)],
     dpr: Option<f64>,
 ) -> Result<(BTreeMap<String, String>, f64), String> {
     let mut next = View {
@@ -390,7 +390,10 @@ fn apply(
         converged: false,
     };
     for (name, value) in set {
-        next.params.insert(name.clone(), value.clone());
+        match value {
+            Some(value) => next.params.insert(name.clone(), value.clone()),
+            None => next.params.remove(name),
+        };
     }
     next.request(state, Quality::Full)?;
     Ok((next.params, next.dpr))

@@ -122,15 +122,7 @@ impl FromStr for ClipBox {
 /// A colour written as six hex digits `rrggbb` (an optional leading `#`) →
 /// channels in 0..=1.
 pub fn parse_colour(text: &str) -> Result<[f32; 3], String> {
-    let hex = text.strip_prefix('#').unwrap_or(text);
-    let channel = |i: usize| {
-        hex.get(i..i + 2)
-            .and_then(|h| u8::from_str_radix(h, 16).ok())
-    };
-    match (hex.len(), channel(0), channel(2), channel(4)) {
-        (6, Some(r), Some(g), Some(b)) => Ok([r, g, b].map(|c| f32::from(c) / 255.0)),
-        _ => Err(format!("colour '{text}': expected six hex digits rrggbb")),
-    }
+    blocks::transfer_function::parse_rgb_hex(text)
 }
 
 impl ClipBox {

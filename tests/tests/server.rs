@@ -232,6 +232,16 @@ async fn the_web_client_and_dataset_list_are_served() {
     assert_eq!(phantom["unit"], "HU");
     assert_eq!(phantom["default_preset"], "ct-bone");
     assert!(phantom["presets"].as_array().is_some_and(|p| p.len() == 5));
+    // The histogram counts every voxel once, over the value range in HU.
+    let counts: u64 = phantom["histogram"]
+        .as_array()
+        .expect("a histogram")
+        .iter()
+        .filter_map(serde_json::Value::as_u64)
+        .sum();
+    assert_eq!(counts, 32 * 32 * 32);
+    let range = phantom["histogram_range"].as_array().expect("a range");
+    assert!(range[0].as_f64() < range[1].as_f64(), "{range:?}");
     let health: serde_json::Value = get(&server.url("/healthz")).await.json_body().await;
     assert_eq!(health["status"], "ok");
 }

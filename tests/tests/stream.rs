@@ -349,6 +349,35 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
         ),
         (40, 40)
     );
+    // A transfer function of its own replaces the preset once that is removed (null).
+    send(
+        &mut a,
+        serde_json::json!({"type": "view", "id": 10, "set": {"preset": "mr"}}),
+    )
+    .await;
+    until_lossless(&mut a, 10).await;
+    let tf = "-1000:000000:0,200:ffcc99:0.2,1500:ffffff:0.9";
+    send(
+        &mut a,
+        serde_json::json!({"type": "view", "id": 11, "set": {"tf": tf}}),
+    )
+    .await;
+    match next(&mut a).await {
+        Received::Json(m) => assert!(
+            m["message"]
+                .as_str()
+                .unwrap_or_default()
+                .contains("tf and preset"),
+            "{m}"
+        ),
+        Received::Frame(h, _) => panic!("tf beside a preset should be refused, got {h:?}"),
+    }
+    send(
+        &mut a,
+        serde_json::json!({"type": "view", "id": 12, "set": {"tf": tf, "preset": null}}),
+    )
+    .await;
+    until_lossless(&mut a, 12).await;
     // The other session never noticed.
     send(
         &mut b,
