@@ -286,7 +286,11 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
                 }
             }
         }
-        let wait_for_still = job.is_none() && have_view && !view.full_sent && !view.dirty;
+        // Wake when the view turns still, unless frames wait for an ack (the
+        // ack wakes the loop then; waking earlier would only spin).
+        let window_open = sent - acked < state.stream.frames_in_flight;
+        let wait_for_still =
+            job.is_none() && have_view && !view.full_sent && !view.dirty && window_open;
         let still_at = tokio::time::Instant::from_std(view.changed_at + idle);
         tokio::select! {
             incoming = socket.recv() => {

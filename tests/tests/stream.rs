@@ -105,6 +105,17 @@ async fn until_lossless(socket: &mut Socket, id: u32) -> Vec<(FrameHeader, image
     }
 }
 
+/// CPU time this process has used (user + system), seconds, where Linux says.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name's closing parenthesis; utime and stime are
+    // the 14th and 15th fields of the whole line, in clock ticks (100 per s).
+    let rest = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
 /// A server on the 32³ phantom and one session on it, or `None` when `test`
 /// is skipped for want of a GPU.
 async fn server_and_session(test: &str) -> Option<(TestServer, Socket)> {
@@ -247,6 +258,18 @@ async fn without_acknowledgements_no_more_frames_come_and_the_next_shows_the_lat
     let Received::Frame(first, _) = next(&mut socket).await else {
         panic!("expected a frame");
     };
+    // The view turns still while the frame waits for its ack: the lossless
+    // frame must wait too, without the session spinning meanwhile.
+    let cpu_before = cpu_seconds();
+    let held = tokio::time::timeout(Duration::from_millis(800), socket.next()).await;
+    assert!(held.is_err(), "no lossless frame before the ack: {held:?}");
+    if let (Some(a), Some(b)) = (cpu_before, cpu_seconds()) {
+        assert!(
+            b - a < 0.4,
+            "the idle session burned {:.2} s of CPU in 0.8 s",
+            b - a
+        );
+    }
     for id in 2..=5u32 {
         send(
             &mut socket,
