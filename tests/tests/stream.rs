@@ -105,9 +105,11 @@ async fn until_lossless(socket: &mut Socket, id: u32) -> Vec<(FrameHeader, image
     }
 }
 
-/// CPU time this process has used (user + system), seconds, where Linux says.
+/// CPU time this thread has used (user + system), seconds, where Linux says.
+/// A `#[tokio::test]` runtime runs on the test's one thread, the server's
+/// session tasks included; rendering happens on other threads.
 fn cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let stat = std::fs::read_to_string("/proc/thread-self/stat").ok()?;
     // Fields after the command name's closing parenthesis; utime and stime are
     // the 14th and 15th fields of the whole line, in clock ticks (100 per s).
     let rest = stat.rsplit_once(')')?.1;
@@ -265,7 +267,7 @@ async fn without_acknowledgements_no_more_frames_come_and_the_next_shows_the_lat
     assert!(held.is_err(), "no lossless frame before the ack: {held:?}");
     if let (Some(a), Some(b)) = (cpu_before, cpu_seconds()) {
         assert!(
-            b - a < 0.4,
+            b - a < 0.3,
             "the idle session burned {:.2} s of CPU in 0.8 s",
             b - a
         );
