@@ -11,7 +11,7 @@
 //! - `stream-sessions`, per number of concurrent sessions: every session moves
 //!   its camera again as soon as its frame arrives, for `--seconds`; frames per
 //!   second in all and per session (slowest ÷ fastest shows fairness), errors,
-//!   and the process's resident memory before and after.
+//!   and the process's resident memory before, ten times during, and after.
 
 use std::time::{Duration, Instant};
 
@@ -227,6 +227,15 @@ async fn sessions(
             })
         })
         .collect();
+    // Resident memory ten times over the run: flat after warm-up, or growing.
+    let sampler = tokio::spawn(async move {
+        let mut samples = Vec::new();
+        for _ in 0..10 {
+            tokio::time::sleep(run_for / 10).await;
+            samples.push(rss_mib());
+        }
+        samples
+    });
     let mut rates = Vec::new();
     let mut errors = Vec::new();
     for task in tasks {
@@ -256,6 +265,7 @@ async fn sessions(
         "first_error": errors.first(),
         "rss_mib_before": rss_before,
         "rss_mib_after": rss_mib(),
+        "rss_mib_during": sampler.await.unwrap_or_default(),
     })
     .to_string())?;
     Ok(())
