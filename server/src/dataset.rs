@@ -27,6 +27,8 @@ pub struct Dataset {
     pub store: Arc<Store>,
     /// Decoded blocks of the store, shared by every renderer of it.
     pub cache: Arc<BlockCache>,
+    /// [`Dataset::histogram`], summed once when the dataset is opened.
+    histogram: Arc<(Vec<u64>, [f64; 2])>,
 }
 
 /// A transfer-function preset as clients list it.
@@ -82,10 +84,12 @@ impl Dataset {
         let store = Arc::new(store);
         let mut cache = BlockCache::new(store.clone(), cache_bytes);
         cache.make_resident(&[3, 4])?;
+        let histogram = Arc::new(level0_histogram(&store));
         Ok(Dataset {
             id,
             store,
             cache: Arc::new(cache),
+            histogram,
         })
     }
 
@@ -155,28 +159,14 @@ impl Dataset {
 
     /// The level-0 histogram summed over every block, and the physical range
     /// its bins divide.
-    pub fn histogram(&self) -> (Vec<u64>, [f64; 2]) {
-        let stats = self.store.stats();
-        let mut counts = vec![0u64; blocks::store::HISTOGRAM_BINS];
-        for b in 0..stats.block_count() {
-            for (c, &n) in counts.iter_mut().zip(stats.histogram(0, b)) {
-                *c += u64::from(n);
-            }
-        }
-        let map = self.value_map();
-        let [lo, hi] = stats.range.map(|v| map.physical(v));
-        if hi < lo {
-            // A negative slope runs the bins backwards in physical units.
-            counts.reverse();
-            return (counts, [hi, lo]);
-        }
-        (counts, [lo, hi])
+    pub fn histogram(&self) -> &(Vec<u64>, [f64; 2]) {
+        &self.histogram
     }
 
     /// The public description.
     pub fn info(&self) -> DatasetInfo {
         let m = self.store.meta();
-        let (histogram, histogram_range) = self.histogram();
+        let (histogram, histogram_range) = self.histogram().clone();
         DatasetInfo {
             id: self.id.clone(),
             name: m.name.clone(),
@@ -201,4 +191,24 @@ impl Dataset {
             histogram_range,
         }
     }
+}
+
+/// The level-0 histogram of `store` summed over every block, and the physical
+/// range its bins divide (bins reversed under a negative value-map slope).
+fn level0_histogram(store: &Store) -> (Vec<u64>, [f64; 2]) {
+    let stats = store.stats();
+    let mut counts = vec![0u64; blocks::store::HISTOGRAM_BINS];
+    for b in 0..stats.block_count() {
+        for (c, &n) in counts.iter_mut().zip(stats.histogram(0, b)) {
+            *c += u64::from(n);
+        }
+    }
+    let map = store.meta().value_map;
+    let [lo, hi] = stats.range.map(|v| map.physical(v));
+    if hi < lo {
+        // A negative slope runs the bins backwards in physical units.
+        counts.reverse();
+        return (counts, [hi, lo]);
+    }
+    (counts, [lo, hi])
 }

@@ -67,6 +67,23 @@ impl Drop for WorkerThread {
     }
 }
 
+impl Job {
+    /// A job queued now, and where its frame will come.
+    fn new(
+        dataset: &Dataset,
+        request: FrameRequest,
+    ) -> (Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>) {
+        let (reply, answer) = oneshot::channel();
+        let job = Job {
+            dataset: dataset.clone(),
+            request,
+            queued: Instant::now(),
+            reply,
+        };
+        (job, answer)
+    }
+}
+
 /// The worker's renderers, least recently used first.
 struct Renderers {
     gpu: GpuContext,
@@ -169,13 +186,7 @@ impl RenderService {
         dataset: &Dataset,
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
-        let (reply, answer) = oneshot::channel();
-        let job = Job {
-            dataset: dataset.clone(),
-            request,
-            queued: Instant::now(),
-            reply,
-        };
+        let (job, answer) = Job::new(dataset, request);
         self.jobs.try_send(job).map_err(|e| match e {
             mpsc::error::TrySendError::Full(_) => AppError::Busy(format!(
                 "the renderer has {QUEUE_CAPACITY} frames waiting: retry shortly"
@@ -195,13 +206,7 @@ impl RenderService {
         dataset: &Dataset,
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
-        let (reply, answer) = oneshot::channel();
-        let job = Job {
-            dataset: dataset.clone(),
-            request,
-            queued: Instant::now(),
-            reply,
-        };
+        let (job, answer) = Job::new(dataset, request);
         self.jobs
             .send(job)
             .await
