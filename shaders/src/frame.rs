@@ -6,6 +6,7 @@ use std::str::FromStr;
 use blocks::TransferFunction;
 
 use crate::Camera;
+use crate::extinction::ExtinctionSettings;
 use crate::light::LightSettings;
 
 /// The largest image edge in pixels.
@@ -27,16 +28,62 @@ pub enum Shading {
     /// Compositing lit by global light propagation with first-order scattering
     /// (shadows from a light anywhere, also inside the volume): see [`crate::light`].
     GlobalLight,
+    /// Compositing lit by extinction-based illumination: ambient occlusion,
+    /// colour bleeding and cone soft shadows from summed-area-table queries
+    /// (several point, spot or directional lights): see [`crate::extinction`].
+    Extinction,
+}
+
+/// How samples along a ray combine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Compositing {
+    /// Front-to-back α-blending of opacity-corrected samples.
+    #[default]
+    Alpha,
+    /// Exponential extinction (eq. 2 of Schlegel et al.): extinction
+    /// coefficients τ = −ln(1 − α)/Δt summed along the ray and exponentiated.
+    Extinction,
+}
+
+impl Compositing {
+    /// The mode's name in URLs and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Compositing::Alpha => "alpha",
+            Compositing::Extinction => "extinction",
+        }
+    }
+}
+
+impl fmt::Display for Compositing {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Compositing {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Compositing, String> {
+        match name {
+            "alpha" => Ok(Compositing::Alpha),
+            "extinction" => Ok(Compositing::Extinction),
+            _ => Err(format!(
+                "unknown compositing '{name}': expected alpha or extinction"
+            )),
+        }
+    }
 }
 
 impl Shading {
     /// Every shading mode.
-    pub const ALL: [Shading; 5] = [
+    pub const ALL: [Shading; 6] = [
         Shading::Unshaded,
         Shading::Gradient,
         Shading::Mip,
         Shading::MinIp,
         Shading::GlobalLight,
+        Shading::Extinction,
     ];
 
     /// The mode's name in URLs and on the command line.
@@ -47,6 +94,7 @@ impl Shading {
             Shading::Mip => "mip",
             Shading::MinIp => "minip",
             Shading::GlobalLight => "global",
+            Shading::Extinction => "extinction",
         }
     }
 }
@@ -66,7 +114,8 @@ impl FromStr for Shading {
             .find(|s| s.name() == name)
             .ok_or_else(|| {
                 format!(
-                    "unknown shading '{name}': expected unshaded, gradient, mip, minip or global"
+                    "unknown shading '{name}': expected unshaded, gradient, mip, minip, global or \
+                     extinction"
                 )
             })
     }
@@ -173,6 +222,10 @@ pub struct FrameRequest {
     pub skip_empty: bool,
     /// The light of [`Shading::GlobalLight`].
     pub light: LightSettings,
+    /// The illumination of [`Shading::Extinction`].
+    pub extinction: ExtinctionSettings,
+    /// How samples combine along a ray.
+    pub compositing: Compositing,
 }
 
 /// The largest data reduction a request may ask for.
@@ -196,6 +249,8 @@ impl FrameRequest {
             reduction: 1.0,
             skip_empty: true,
             light: LightSettings::default(),
+            extinction: ExtinctionSettings::default(),
+            compositing: Compositing::default(),
         }
     }
 
@@ -225,6 +280,9 @@ impl FrameRequest {
         }
         if self.shading == Shading::GlobalLight {
             self.light.validate()?;
+        }
+        if self.shading == Shading::Extinction {
+            self.extinction.validate()?;
         }
         if !self.background.iter().all(|c| (0.0..=1.0).contains(c)) {
             return Err(format!(

@@ -21,10 +21,15 @@
 //! - [`light`]: global light propagation (local piecewise integration, the
 //!   shadow volume, direct light, first-order in-scattering) in packed block
 //!   coordinates: [`light::LightSettings`], [`light::Illumination`].
+//! - [`extinction`]: extinction-based illumination (a 3D summed-area table of
+//!   extinction coefficients; ambient occlusion, colour bleeding and cone soft
+//!   shadows from several lights in a light cache):
+//!   [`extinction::ExtinctionSettings`], [`extinction::ExtinctionLighting`].
 //! - [`pipeline`]: builders for compute stages and their bind group layouts.
 //! - [`renderer`]: [`Renderer`] (a brick store rendered from its packed blocks,
 //!   frame by frame) and [`ReferenceRenderer`] (tests and benchmarks).
-//! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`, `cpu::light`)
+//! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`, `cpu::light`,
+//!   `cpu::extinction`)
 //!   and whole-frame CPU renders.
 //! - [`colour_difference`]: CIE ΔE*uv between a frame and its reference (mean,
 //!   RMS, 99th percentile, ΔE₆; over the image or the object's pixels), for
@@ -38,6 +43,7 @@ pub mod camera;
 pub mod colour_difference;
 pub mod cpu;
 pub mod error;
+pub mod extinction;
 pub mod frame;
 pub mod gpu;
 pub mod light;
@@ -53,7 +59,7 @@ pub use wgpu;
 
 pub use camera::{Camera, Projection};
 pub use error::GpuError;
-pub use frame::{ClipBox, Frame, FrameRequest, Shading};
+pub use frame::{ClipBox, Compositing, Frame, FrameRequest, Shading};
 pub use gpu::GpuContext;
 pub use light::{LightSettings, LightSource};
 pub use raycast::{MarchPipeline, RaycastParams, Stage};

@@ -748,11 +748,23 @@ pub fn read_texture_f32(
     texture: &wgpu::Texture,
     dims: [u32; 3],
 ) -> Result<Vec<f32>, GpuError> {
+    let bytes = read_texture_bytes(gpu, texture, dims, wgpu::TextureFormat::R32Float)?;
+    Ok(bytemuck::pod_collect_to_vec::<u8, f32>(&bytes))
+}
+
+/// Reads a 3D texture of `format` back as bytes, rows unpadded, x fastest.
+pub fn read_texture_bytes(
+    gpu: &GpuContext,
+    texture: &wgpu::Texture,
+    dims: [u32; 3],
+    format: wgpu::TextureFormat,
+) -> Result<Vec<u8>, GpuError> {
     let [w, h, d] = dims;
-    let row = w * 4;
+    let texel = format.block_copy_size(None).unwrap_or(4);
+    let row = w * texel;
     let padded =
         row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-    let mut out = Vec::with_capacity((w * h * d) as usize);
+    let mut out = Vec::with_capacity((row * h * d) as usize);
     // A slab of slices at a time keeps the readback buffer small.
     let slab = ((64u64 << 20) / (u64::from(padded) * u64::from(h))).clamp(1, u64::from(d)) as u32;
     let mut z = 0;
@@ -794,9 +806,7 @@ pub fn read_texture_f32(
         })?;
         gpu.read_buffer(&buffer, "a light texture", |bytes| {
             for padded_row in bytes.chunks(padded as usize) {
-                out.extend(bytemuck::pod_collect_to_vec::<u8, f32>(
-                    &padded_row[..row as usize],
-                ));
+                out.extend_from_slice(&padded_row[..row as usize]);
             }
         })?;
         z += depth;

@@ -212,5 +212,6 @@ pub fn assemble_cpu(
         index: packing.block_index(grid).entries,
         grid,
         light: None,
+        light_cache: None,
     })
 }

@@ -38,6 +38,30 @@ pub fn storage_buffer(binding: u32) -> wgpu::BindGroupLayoutEntry {
     )
 }
 
+/// A read-write storage buffer.
+pub fn storage_buffer_rw(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    entry(
+        binding,
+        wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only: false },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+    )
+}
+
+/// A float 3D texture read with `textureLoad` only (32-bit floats need not filter).
+pub fn unfilterable_texture_3d(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    entry(
+        binding,
+        wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+            view_dimension: wgpu::TextureViewDimension::D3,
+            multisampled: false,
+        },
+    )
+}
+
 /// A filterable float 3D texture.
 pub fn float_texture_3d(binding: u32) -> wgpu::BindGroupLayoutEntry {
     entry(
@@ -87,7 +111,8 @@ pub fn storage_texture(
     )
 }
 
-/// A compiled compute stage (entry point `main`) and its one bind group layout.
+/// A compiled compute stage (entry point `main` unless named) and its one bind
+/// group layout.
 #[derive(Debug)]
 pub struct ComputeStage {
     /// The stage's name, for labels and errors.
@@ -103,6 +128,17 @@ impl ComputeStage {
     pub fn new(
         gpu: &GpuContext,
         name: &'static str,
+        source: &str,
+        entries: &[wgpu::BindGroupLayoutEntry],
+    ) -> Result<ComputeStage, GpuError> {
+        ComputeStage::with_entry(gpu, name, "main", source, entries)
+    }
+
+    /// Compiles entry point `entry` of `source` with group 0 laid out as `entries`.
+    pub fn with_entry(
+        gpu: &GpuContext,
+        name: &'static str,
+        entry: &str,
         source: &str,
         entries: &[wgpu::BindGroupLayoutEntry],
     ) -> Result<ComputeStage, GpuError> {
@@ -125,7 +161,7 @@ impl ComputeStage {
                 label: Some(name),
                 layout: Some(&pipeline_layout),
                 module: &module,
-                entry_point: Some("main"),
+                entry_point: Some(entry),
                 compilation_options: Default::default(),
                 cache: None,
             });

@@ -12,7 +12,7 @@ use glam::{Mat3, Mat4, Vec3, Vec4};
 
 use crate::pipeline::ComputeStage;
 use crate::volume_texture::VolumeTexture;
-use crate::{FrameRequest, GpuContext, GpuError, Shading};
+use crate::{Compositing, FrameRequest, GpuContext, GpuError, Shading};
 
 /// Invocations per workgroup along x and y.
 pub const WORKGROUP_SIZE: u32 = 8;
@@ -34,6 +34,9 @@ pub const FLAG_SHADED: u32 = 2;
 pub const FLAG_SKIP_EMPTY: u32 = 4;
 /// [`RaycastParams::flags`] bit: light samples with the stored light volume (eq. 12).
 pub const FLAG_LIT: u32 = 8;
+/// [`RaycastParams::flags`] bit: exponential extinction compositing (eq. 2 of
+/// Schlegel et al.) instead of α-blending.
+pub const FLAG_EXTINCTION: u32 = 16;
 /// [`RaycastParams::mode`]: front-to-back compositing.
 pub const MODE_COMPOSITE: u32 = 0;
 /// [`RaycastParams::mode`]: maximum intensity projection.
@@ -182,8 +185,17 @@ impl RaycastParams {
             let [r, g, b] = request.light.colour.map(|c| c * request.light.intensity);
             lit = [r, g, b, request.light.bias];
         }
+        if request.shading == Shading::Extinction {
+            // The light cache holds the coloured light: white, no bias.
+            flags |= FLAG_LIT;
+        }
+        if request.compositing == Compositing::Extinction {
+            flags |= FLAG_EXTINCTION;
+        }
         let mode = match request.shading {
-            Shading::Unshaded | Shading::Gradient | Shading::GlobalLight => MODE_COMPOSITE,
+            Shading::Unshaded | Shading::Gradient | Shading::GlobalLight | Shading::Extinction => {
+                MODE_COMPOSITE
+            }
             Shading::Mip => MODE_MIP,
             Shading::MinIp => MODE_MINIP,
         };
@@ -238,12 +250,14 @@ impl RaycastParams {
 }
 
 /// Which ray-marching stage a pipeline runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stage {
     /// Packed blocks through the block index.
     Raycast,
     /// Packed blocks lit by a light volume (needs float32-filterable textures).
     RaycastLit,
+    /// Packed blocks lit by the light cache of extinction-based illumination.
+    RaycastExtinction,
     /// One plain texture.
     Reference,
 }
@@ -253,6 +267,7 @@ impl Stage {
         match self {
             Stage::Raycast => "raycast",
             Stage::RaycastLit => "raycast (lit)",
+            Stage::RaycastExtinction => "raycast (light cache)",
             Stage::Reference => "reference",
         }
     }
@@ -261,6 +276,7 @@ impl Stage {
         match self {
             Stage::Raycast => crate::wgsl::RAYCAST,
             Stage::RaycastLit => crate::wgsl::RAYCAST_LIT,
+            Stage::RaycastExtinction => crate::wgsl::RAYCAST_EXTINCTION,
             Stage::Reference => crate::wgsl::REFERENCE,
         }
     }
@@ -312,7 +328,7 @@ impl MarchPipeline {
         if stage != Stage::Reference {
             entries.push(uint_texture_3d(5));
         }
-        if stage == Stage::RaycastLit {
+        if matches!(stage, Stage::RaycastLit | Stage::RaycastExtinction) {
             entries.push(float_texture_3d(6));
         }
         Ok(MarchPipeline {
@@ -341,13 +357,18 @@ impl MarchPipeline {
             })?;
             resources.push(wgpu::BindingResource::TextureView(index));
         }
-        if self.stage == Stage::RaycastLit {
+        if matches!(self.stage, Stage::RaycastLit | Stage::RaycastExtinction) {
             let light = bindings.light_volume.ok_or_else(|| {
                 GpuError::InvalidRequest("the lit raycast stage needs a light volume".into())
             })?;
             resources.push(wgpu::BindingResource::TextureView(light));
         }
         Ok(self.compute.bind_group(gpu, &resources))
+    }
+
+    /// Which stage this pipeline runs.
+    pub fn stage(&self) -> Stage {
+        self.stage
     }
 
     /// Records the dispatch for an image of `params.width` × `params.height`.

@@ -19,6 +19,7 @@ use blocks::store::{LEVELS, Store};
 use blocks::transfer_function::TABLE_LEN;
 use blocks::{TransferFunction, Volume};
 
+use crate::extinction::{ExtinctionLighting, ExtinctionTimings};
 use crate::light::{DirectLightMethod, Illumination, LightInputs, LightTimings};
 use crate::packed::GpuAtlas;
 use crate::raycast::{MarchBindings, MarchPipeline, PackedLayout, Stage};
@@ -49,6 +50,19 @@ struct FrameResources {
     transfer_function: wgpu::Buffer,
     uploaded_tf: Option<TransferFunction>,
     target: Option<Target>,
+    /// The last frame's bind group and what it binds: frames that bind the same
+    /// views (a camera move) reuse it instead of allocating a descriptor set each.
+    bind_group: Option<(BindKey, wgpu::BindGroup)>,
+}
+
+/// What a frame's bind group binds beside the renderer's own buffers.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct BindKey {
+    stage: Stage,
+    voxels: wgpu::TextureView,
+    block_index: Option<wgpu::TextureView>,
+    light_volume: Option<wgpu::TextureView>,
+    output: wgpu::TextureView,
 }
 
 impl FrameResources {
@@ -68,6 +82,7 @@ impl FrameResources {
             }),
             uploaded_tf: None,
             target: None,
+            bind_group: None,
         })
     }
 
@@ -112,24 +127,36 @@ impl FrameResources {
         gpu.queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(params));
         let target = ensure_target(gpu, &mut self.target, params.width, params.height)?;
-        let bind_group = pipeline.bind_group(
-            gpu,
-            MarchBindings {
-                params: &self.params,
-                voxels,
-                transfer_function: &self.transfer_function,
-                output: &target.view,
-                block_index,
-                light_volume,
-            },
-        )?;
+        let key = BindKey {
+            stage: pipeline.stage(),
+            voxels: voxels.clone(),
+            block_index: block_index.cloned(),
+            light_volume: light_volume.cloned(),
+            output: target.view.clone(),
+        };
+        let bind_group = match self.bind_group.take() {
+            Some((cached, group)) if cached == key => group,
+            // Any old group (and the views it holds) is dropped before a new one.
+            _ => pipeline.bind_group(
+                gpu,
+                MarchBindings {
+                    params: &self.params,
+                    voxels,
+                    transfer_function: &self.transfer_function,
+                    output: &target.view,
+                    block_index,
+                    light_volume,
+                },
+            )?,
+        };
+        let bind_group = &self.bind_group.insert((key, bind_group)).1;
         gpu.scoped("rendering a frame", || {
             let mut encoder = gpu
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("frame"),
                 });
-            pipeline.dispatch(&mut encoder, &bind_group, params);
+            pipeline.dispatch(&mut encoder, bind_group, params);
             encoder.copy_texture_to_buffer(
                 target.texture.as_image_copy(),
                 wgpu::TexelCopyBufferInfo {
@@ -183,6 +210,8 @@ pub struct RenderStats {
     pub draw_ms: f64,
     /// The light stages of this frame (global light propagation only).
     pub light: Option<LightTimings>,
+    /// The extinction stages of this frame (extinction-based illumination only).
+    pub extinction: Option<ExtinctionTimings>,
 }
 
 /// The blocks on the GPU and what they were selected for.
@@ -209,6 +238,8 @@ pub struct Renderer {
     lit_pipeline: Option<MarchPipeline>,
     illumination: Option<Illumination>,
     light_method: DirectLightMethod,
+    extinction_pipeline: Option<MarchPipeline>,
+    extinction: Option<ExtinctionLighting>,
     frame: FrameResources,
     last: RenderStats,
 }
@@ -251,6 +282,8 @@ impl Renderer {
             lit_pipeline: None,
             illumination: None,
             light_method: DirectLightMethod::Piecewise,
+            extinction_pipeline: None,
+            extinction: None,
             frame,
             last: RenderStats::default(),
         })
@@ -286,6 +319,11 @@ impl Renderer {
         self.illumination.as_ref()
     }
 
+    /// The extinction-based illumination, once computed.
+    pub fn extinction(&self) -> Option<&ExtinctionLighting> {
+        self.extinction.as_ref()
+    }
+
     /// The resident atlas, once a frame was rendered.
     pub fn atlas(&self) -> Option<&GpuAtlas> {
         self.resident.as_ref().map(|r| &r.atlas)
@@ -305,6 +343,9 @@ impl Renderer {
         if request.shading == Shading::GlobalLight {
             stats.light = Some(self.update_light(request, false)?);
         }
+        if request.shading == Shading::Extinction {
+            stats.extinction = Some(self.update_extinction(request)?);
+        }
         self.draw(request, stats)
     }
 
@@ -314,6 +355,9 @@ impl Renderer {
         let mut stats = self.prepare(request)?;
         if request.shading == Shading::GlobalLight {
             stats.light = Some(self.update_light(request, true)?);
+        }
+        if request.shading == Shading::Extinction {
+            stats.extinction = Some(self.update_extinction(request)?);
         }
         self.draw(request, stats)
     }
@@ -364,6 +408,34 @@ impl Renderer {
         Ok(timings)
     }
 
+    /// Brings the light cache up to date for `request` (nothing when only the
+    /// camera moved).
+    fn update_extinction(&mut self, request: &FrameRequest) -> Result<ExtinctionTimings, GpuError> {
+        if self.extinction.is_none() {
+            self.extinction = Some(ExtinctionLighting::new(&self.gpu)?);
+        }
+        if self.extinction_pipeline.is_none() {
+            self.extinction_pipeline =
+                Some(MarchPipeline::new(&self.gpu, Stage::RaycastExtinction)?);
+        }
+        let (Some(resident), Some(extinction)) = (&self.resident, self.extinction.as_mut()) else {
+            return Err(GpuError::InvalidRequest("no blocks are resident".into()));
+        };
+        let inputs = LightInputs {
+            atlas: &resident.atlas,
+            transfer_function: &self.frame.transfer_function,
+            texture: &self.desc,
+            tf_len: TABLE_LEN as u32,
+        };
+        extinction.update(
+            &self.gpu,
+            inputs,
+            &request.transfer_function,
+            &request.extinction,
+            self.data_version,
+        )
+    }
+
     /// Renders the frame of `request` from what is resident.
     fn draw(&mut self, request: &FrameRequest, mut stats: RenderStats) -> Result<Frame, GpuError> {
         let Some(resident) = &self.resident else {
@@ -371,14 +443,25 @@ impl Renderer {
         };
         let params =
             RaycastParams::new(&self.desc, request, TABLE_LEN as u32, resident.atlas.layout);
-        let lit = request.shading == Shading::GlobalLight;
-        let (pipeline, light) = match (
-            &self.lit_pipeline,
-            self.illumination
-                .as_ref()
-                .and_then(Illumination::light_volume),
-        ) {
-            (Some(p), Some(light)) if lit => (p, Some(light)),
+        let (pipeline, light) = match request.shading {
+            Shading::GlobalLight => match (
+                &self.lit_pipeline,
+                self.illumination
+                    .as_ref()
+                    .and_then(Illumination::light_volume),
+            ) {
+                (Some(p), Some(light)) => (p, Some(light)),
+                _ => (&self.pipeline, None),
+            },
+            Shading::Extinction => match (
+                &self.extinction_pipeline,
+                self.extinction
+                    .as_ref()
+                    .and_then(ExtinctionLighting::light_cache),
+            ) {
+                (Some(p), Some(cache)) => (p, Some(cache)),
+                _ => (&self.pipeline, None),
+            },
             _ => (&self.pipeline, None),
         };
         let start = Instant::now();

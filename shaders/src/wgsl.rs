@@ -53,6 +53,58 @@ pub const RAYCAST_LIT: &str = march_stage!(
     "../wgsl/shared/light_volume.wgsl"
 );
 
+/// The `raycast` stage lit by the light cache of extinction-based illumination
+/// (`shaders/wgsl/raycast.wgsl` with `shared/light_cache.wgsl`).
+pub const RAYCAST_EXTINCTION: &str = march_stage!(
+    "../wgsl/shared/blocks.wgsl",
+    "../wgsl/shared/packed.wgsl",
+    "../wgsl/raycast.wgsl",
+    "../wgsl/shared/light_cache.wgsl"
+);
+
+/// The shared files of the extinction-based illumination stages, then the listed ones.
+macro_rules! extinction_stage {
+    ($($file:literal),+) => {
+        concat!(
+            include_str!("../wgsl/shared/extinction_params.wgsl"),
+            $("\n", include_str!($file),)+
+        )
+    };
+}
+
+/// The `extinction_sat` stage, entry points `reconstruct` and `scan`
+/// (`shaders/wgsl/extinction_sat.wgsl`).
+pub const EXTINCTION_SAT: &str = extinction_stage!(
+    "../wgsl/shared/ray.wgsl",
+    "../wgsl/shared/blocks.wgsl",
+    "../wgsl/shared/transfer_function.wgsl",
+    "../wgsl/shared/packed.wgsl",
+    "../wgsl/extinction_sat.wgsl",
+    "../wgsl/shared/sat.wgsl"
+);
+
+/// The `ambient_occlusion` stage (`shaders/wgsl/ambient_occlusion.wgsl`).
+pub const AMBIENT_OCCLUSION: &str =
+    extinction_stage!("../wgsl/ambient_occlusion.wgsl", "../wgsl/shared/sat.wgsl");
+
+/// The `ambient_occlusion_reference` stage
+/// (`shaders/wgsl/ambient_occlusion_reference.wgsl`).
+pub const AMBIENT_OCCLUSION_REFERENCE: &str =
+    extinction_stage!("../wgsl/ambient_occlusion_reference.wgsl");
+
+/// The `soft_shadow` stage (`shaders/wgsl/soft_shadow.wgsl`).
+pub const SOFT_SHADOW: &str = extinction_stage!(
+    "../wgsl/shared/extinction_light.wgsl",
+    "../wgsl/soft_shadow.wgsl",
+    "../wgsl/shared/sat.wgsl"
+);
+
+/// The `shadow_ray` stage (`shaders/wgsl/shadow_ray.wgsl`).
+pub const SHADOW_RAY: &str = extinction_stage!(
+    "../wgsl/shared/extinction_light.wgsl",
+    "../wgsl/shadow_ray.wgsl"
+);
+
 /// The `reference` stage over one plain texture (`shaders/wgsl/reference.wgsl`).
 pub const REFERENCE: &str = march_stage!("../wgsl/reference.wgsl");
 
@@ -107,6 +159,15 @@ mod tests {
             ("direct_light", super::DIRECT_LIGHT),
             ("in_scatter", super::IN_SCATTER),
             ("direct_light_reference", super::DIRECT_LIGHT_REFERENCE),
+            ("raycast extinction", super::RAYCAST_EXTINCTION),
+            ("extinction_sat", super::EXTINCTION_SAT),
+            ("ambient_occlusion", super::AMBIENT_OCCLUSION),
+            (
+                "ambient_occlusion_reference",
+                super::AMBIENT_OCCLUSION_REFERENCE,
+            ),
+            ("soft_shadow", super::SOFT_SHADOW),
+            ("shadow_ray", super::SHADOW_RAY),
         ] {
             let module = naga::front::wgsl::parse_str(source)
                 .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));

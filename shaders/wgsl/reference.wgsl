@@ -30,8 +30,8 @@ fn sample_at(tc: vec3<f32>, loc: Location) -> f32 {
 }
 
 // The reference is never lit: illumination is compared packed against packed.
-fn light_at(tc: vec3<f32>, loc: Location) -> f32 {
-    return 1.0;
+fn light_at(tc: vec3<f32>, loc: Location) -> vec3<f32> {
+    return vec3<f32>(1.0);
 }
 
 fn sample_neighbour(tc: vec3<f32>, home: Location) -> f32 {

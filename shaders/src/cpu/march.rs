@@ -8,8 +8,8 @@ use rayon::prelude::*;
 
 use super::hash::{pcg_hash, unit_from_hash};
 use crate::raycast::{
-    FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP, RaycastParams,
-    WORKGROUP_SIZE,
+    FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP,
+    RaycastParams, WORKGROUP_SIZE,
 };
 
 /// Largest opacity fed to the opacity correction (as in the shader).
@@ -27,8 +27,9 @@ pub trait Storage: Sync {
     fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> f32;
     /// WGSL `sample_neighbour`.
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &Self::Location) -> f32;
-    /// WGSL `light_at`: the stored light I_s at a sample (1 where there is none).
-    fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> f32;
+    /// WGSL `light_at`: the stored light at a sample (I_s of global light
+    /// propagation, or the light cache's colour; 1 where there is none).
+    fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> Vec3;
     /// WGSL `empty_exit`.
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &Self::Location) -> f32;
 }
@@ -148,6 +149,8 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
     );
     let mut color = Vec3::ZERO;
     let mut alpha = 0.0f32;
+    // Σ Δt·τ so far (extinction compositing).
+    let mut depth = 0.0f32;
     let mut found = false;
     let mut extreme = 0.0f32;
     if span.x < span.y {
@@ -194,8 +197,16 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                         let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
                         rgb *= Vec3::splat(bias) + (1.0 - bias) * colour * s.light_at(p, tc, &loc);
                     }
-                    color += (1.0 - alpha) * a * rgb;
-                    alpha += (1.0 - alpha) * a;
+                    if p.flags & FLAG_EXTINCTION != 0 {
+                        // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).
+                        let dtau = -(1.0 - a.min(MAX_SAMPLE_OPACITY)).ln();
+                        depth += dtau;
+                        color += (-depth).exp() * dtau * rgb;
+                        alpha = 1.0 - (-depth).exp();
+                    } else {
+                        color += (1.0 - alpha) * a * rgb;
+                        alpha += (1.0 - alpha) * a;
+                    }
                     if alpha >= p.early_termination {
                         break;
                     }

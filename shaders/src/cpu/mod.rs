@@ -10,12 +10,15 @@
 //! - [`packed`]: twin of `shaders/wgsl/shared/packed.wgsl`, block addressing.
 //! - [`light`]: twins of the light stages (`local_opacity`, `global_opacity`,
 //!   `direct_light`, `in_scatter`, `direct_light_reference`).
+//! - [`extinction`]: twins of the extinction stages (`extinction_sat`,
+//!   `ambient_occlusion`, `soft_shadow` and their references).
 //! - [`texture`]: [`Texture3d`], a 3D texture sampled like the GPU samples one.
 //! - [`hash`]: twin of `shaders/wgsl/shared/hash.wgsl`.
 //!
 //! [`render_packed`] and [`render_reference`] render whole frames the way
 //! [`crate::Renderer`] and [`crate::ReferenceRenderer`] do on the GPU.
 
+pub mod extinction;
 pub mod hash;
 pub mod light;
 pub mod march;
@@ -34,6 +37,7 @@ use blocks::cache::BlockCache;
 use blocks::lod::LodSelection;
 use blocks::transfer_function::TABLE_LEN;
 
+use crate::extinction::ExtinctionParams;
 use crate::light::{DirectLightMethod, LightParams, slot_blocks, svr_blocks};
 use crate::packed::assemble_cpu;
 use crate::raycast::{PackedLayout, RaycastParams};
@@ -83,6 +87,12 @@ pub fn render_packed(
         );
         packed.light = Some(Texture3d::new(packing.atlas_dims, computed.light_volume));
     }
+    if request.shading == Shading::Extinction {
+        let params = ExtinctionParams::new(&desc, &request.extinction, layout, table.len() as u32);
+        let computed =
+            extinction::compute_extinction(&params, &request.extinction, &packed, &table);
+        packed.light_cache = Some(light_cache_textures(params.grid, &computed.light_cache));
+    }
     let params = RaycastParams::new(&desc, request, table.len() as u32, layout);
     let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
     raycast(&params, &packed, &table, &mut rgba);
@@ -92,6 +102,11 @@ pub fn render_packed(
         rgba,
     };
     Ok((frame, selection))
+}
+
+/// The light cache as the `raycast` twin samples it: one texture per channel.
+pub fn light_cache_textures(grid: [u32; 3], cache: &[[f32; 4]]) -> [Texture3d; 3] {
+    [0, 1, 2].map(|ch| Texture3d::new(grid, cache.iter().map(|t| t[ch]).collect()))
 }
 
 /// The converged light of `request` for blocks packed as `packing`, by `method`.

@@ -37,6 +37,9 @@ pub struct PackedTexture {
     pub grid: [u32; 3],
     /// The stored light I_s, atlas-shaped (lit rendering only).
     pub light: Option<Texture3d>,
+    /// The light cache of extinction-based illumination, grid-shaped, one
+    /// texture per channel r, g, b.
+    pub light_cache: Option<[Texture3d; 3]>,
 }
 
 /// WGSL `Location`.

@@ -36,10 +36,14 @@ impl Storage for PackedTexture {
         self.sample_at(p, tc, &other)
     }
 
-    fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> f32 {
+    fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> Vec3 {
+        if let Some([r, g, b]) = &self.light_cache {
+            // shared/light_cache.wgsl: grid-shaped, read at tc.
+            return Vec3::new(r.sample_level(tc), g.sample_level(tc), b.sample_level(tc));
+        }
         match &self.light {
-            Some(light) => light.sample_level(atlas_coord(&p.geometry(), tc, loc)),
-            None => 1.0,
+            Some(light) => Vec3::splat(light.sample_level(atlas_coord(&p.geometry(), tc, loc))),
+            None => Vec3::ONE,
         }
     }
 

@@ -30,8 +30,8 @@ impl Storage for Texture3d {
         self.sample_at(p, tc, home)
     }
 
-    fn light_at(&self, _p: &RaycastParams, _tc: Vec3, _loc: &PlainLocation) -> f32 {
-        1.0
+    fn light_at(&self, _p: &RaycastParams, _tc: Vec3, _loc: &PlainLocation) -> Vec3 {
+        Vec3::ONE
     }
 
     fn empty_exit(

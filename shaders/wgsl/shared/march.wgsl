@@ -63,6 +63,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let span = intersect_box(tex_origin, tex_dir, params.clip_min, params.clip_max);
     var color = vec3<f32>(0.0);
     var alpha = 0.0;
+    // Σ Δt·τ so far (extinction compositing).
+    var depth = 0.0;
     var found = false;
     var extreme = 0.0;
     if span.x < span.y {
@@ -108,8 +110,18 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                         let bias = params.light.a;
                         rgb = rgb * (vec3<f32>(bias) + (1.0 - bias) * params.light.rgb * light_at(tc, loc));
                     }
-                    color += (1.0 - alpha) * a * rgb;
-                    alpha += (1.0 - alpha) * a;
+                    if (params.flags & FLAG_EXTINCTION) != 0u {
+                        // Eq. 2 (Schlegel et al.): Δt·τ_i from the corrected
+                        // opacity, E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j) with the
+                        // extinctions summed along the ray.
+                        let dtau = -log(1.0 - min(a, MAX_SAMPLE_OPACITY));
+                        depth += dtau;
+                        color += exp(-depth) * dtau * rgb;
+                        alpha = 1.0 - exp(-depth);
+                    } else {
+                        color += (1.0 - alpha) * a * rgb;
+                        alpha += (1.0 - alpha) * a;
+                    }
                     if alpha >= params.early_termination {
                         break;
                     }

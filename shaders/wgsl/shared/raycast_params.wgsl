@@ -38,7 +38,8 @@ struct RaycastParams {
     value_offset: f32,
     // Background colour behind the volume (rgb; a is ignored).
     background: vec4<f32>,
-    // Light colour (rgb, times the light's intensity) and I_bias (a), for FLAG_LIT.
+    // Light colour (rgb, times the light's intensity) and I_bias (a), for FLAG_LIT
+    // (extinction-based illumination: white and 0, the cache holds the colour).
     light: vec4<f32>,
     // Blinn–Phong: ambient, diffuse, specular, shininess.
     phong: vec4<f32>,
@@ -65,6 +66,8 @@ const FLAG_SHADED: u32 = 2u;
 const FLAG_SKIP_EMPTY: u32 = 4u;
 // Light each sample with the stored light volume (global light propagation, eq. 12).
 const FLAG_LIT: u32 = 8u;
+// Exponential extinction compositing (eq. 2 of Schlegel et al.) instead of α-blending.
+const FLAG_EXTINCTION: u32 = 16u;
 
 // Front-to-back emission–absorption compositing.
 const MODE_COMPOSITE: u32 = 0u;

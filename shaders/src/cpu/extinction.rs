@@ -1,0 +1,512 @@
+//! CPU twins of the extinction-based illumination stages
+//! (`shaders/wgsl/extinction_sat.wgsl`, `ambient_occlusion.wgsl`,
+//! `ambient_occlusion_reference.wgsl`, `soft_shadow.wgsl`, `shadow_ray.wgsl`,
+//! and `shared/sat.wgsl`, `shared/extinction_light.wgsl`), loop for loop.
+//! Grid-shaped outputs are RGBA per cell, x fastest, rounded through f16 as the
+//! GPU's rgba16float textures store them.
+
+use glam::{IVec3, Vec3, Vec4, Vec4Swizzles};
+use rayon::prelude::*;
+
+use super::march::{MAX_SAMPLE_OPACITY, classify_table};
+use super::packed::{PackedTexture, atlas_coord};
+use crate::extinction::{
+    AoMethod, ExtinctionParams, ExtinctionSettings, FIXED_ONE, LightUniform, MAX_CELL_DEPTH,
+    MAX_CONE_CUBOIDS, ShadowMethod,
+};
+
+/// The most samples of one shadow ray (WGSL `MAX_RAY_STEPS`).
+const MAX_RAY_STEPS: u32 = 8192;
+
+/// The summed-area table: per channel (τ, τ·R, τ·G, τ·B) 64-bit fixed-point
+/// sums, x fastest (WGSL `sat_tau`, `sat_r`, `sat_g`, `sat_b`).
+#[derive(Debug, Clone)]
+pub struct Sat {
+    /// Cells along x, y, z.
+    pub grid: [u32; 3],
+    /// Channels in use (1 or 4).
+    pub channels: u32,
+    /// The channels; unused ones are empty.
+    pub data: [Vec<u64>; 4],
+}
+
+impl Sat {
+    /// WGSL `sat_index`.
+    fn index(&self, c: IVec3) -> usize {
+        let g = self.grid;
+        ((c.z as u32 * g[1] + c.y as u32) * g[0] + c.x as u32) as usize
+    }
+
+    /// WGSL `sat_at`.
+    pub fn at(&self, c: IVec3, ch: usize) -> u64 {
+        if c.cmplt(IVec3::ZERO).any() {
+            return 0;
+        }
+        self.data[ch][self.index(c)]
+    }
+
+    /// WGSL `cuboid_sum`: the exact sum over cells lo..=hi, clamped to the grid.
+    pub fn cuboid_sum(&self, lo_in: IVec3, hi_in: IVec3, ch: usize) -> u64 {
+        let lo = lo_in.max(IVec3::ZERO) - IVec3::ONE;
+        let last = IVec3::new(
+            self.grid[0] as i32 - 1,
+            self.grid[1] as i32 - 1,
+            self.grid[2] as i32 - 1,
+        );
+        let hi = hi_in.min(last);
+        if hi.cmple(lo).any() {
+            return 0;
+        }
+        let s = |x: i32, y: i32, z: i32| self.at(IVec3::new(x, y, z), ch);
+        let plus = s(hi.x, hi.y, hi.z)
+            .wrapping_add(s(lo.x, lo.y, hi.z))
+            .wrapping_add(s(lo.x, hi.y, lo.z))
+            .wrapping_add(s(hi.x, lo.y, lo.z));
+        let minus = s(lo.x, hi.y, hi.z)
+            .wrapping_add(s(hi.x, lo.y, hi.z))
+            .wrapping_add(s(hi.x, hi.y, lo.z))
+            .wrapping_add(s(lo.x, lo.y, lo.z));
+        plus.wrapping_sub(minus)
+    }
+}
+
+/// WGSL `depth_of`: a fixed-point sum as Δt·τ.
+pub fn depth_of(v: u64) -> f32 {
+    let (lo, hi) = (v as u32, (v >> 32) as u32);
+    (hi as f32 * 4_294_967_296.0 + lo as f32) / FIXED_ONE
+}
+
+/// WGSL `fixed_of`.
+fn fixed_of(depth: f32) -> u64 {
+    // WGSL's f32 → u32 conversion saturates like Rust's `as`.
+    u64::from((depth * FIXED_ONE + 0.5) as u32)
+}
+
+/// Index of grid cell `c` (x fastest).
+fn cell_index(grid: [u32; 3], c: [u32; 3]) -> usize {
+    ((c[2] * grid[1] + c[1]) * grid[0] + c[0]) as usize
+}
+
+/// Every cell of `grid` in index order, for per-cell stages.
+fn cells(grid: [u32; 3]) -> impl ParallelIterator<Item = [u32; 3]> {
+    let [gx, gy, gz] = grid;
+    (0..gx * gy * gz)
+        .into_par_iter()
+        .map(move |i| [i % gx, (i / gx) % gy, i / (gx * gy)])
+}
+
+/// As an rgba16float texel stores it.
+fn f16_round(v: Vec4) -> [f32; 4] {
+    v.to_array().map(|x| half::f16::from_f32(x).to_f32())
+}
+
+/// WGSL `extinction_sat`, both entry points: `reconstruct` over every cell,
+/// then `scan` along x, y and z. Returns the SAT and the extinction texture
+/// (Δt·τ per cell).
+pub fn extinction_sat(
+    p: &ExtinctionParams,
+    packed: &PackedTexture,
+    transfer_function: &[[f32; 4]],
+) -> (Sat, Vec<f32>) {
+    let g = p.geometry();
+    let grid = p.grid;
+    let gridf = Vec3::new(grid[0] as f32, grid[1] as f32, grid[2] as f32);
+    let n = p.sub as f32;
+    let reconstructed: Vec<Vec4> = cells(grid)
+        .map(|gid| {
+            let mut sum = Vec4::ZERO;
+            for z in 0..p.sub {
+                for y in 0..p.sub {
+                    for x in 0..p.sub {
+                        let tc = (Vec3::new(gid[0] as f32, gid[1] as f32, gid[2] as f32)
+                            + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) / n)
+                            / gridf;
+                        let loc = packed.locate(&g, tc);
+                        if !loc.empty {
+                            let value = packed.atlas.sample_level(atlas_coord(&g, tc, &loc));
+                            let rgba = classify_table(
+                                p.tf_len,
+                                transfer_function,
+                                value * p.value_scale + p.value_offset,
+                            );
+                            let depth =
+                                -(1.0 - rgba.w.min(MAX_SAMPLE_OPACITY)).ln() * p.opacity_scale;
+                            sum += Vec4::new(depth, depth * rgba.x, depth * rgba.y, depth * rgba.z);
+                        }
+                    }
+                }
+            }
+            (sum / (n * n * n)).min(Vec4::splat(MAX_CELL_DEPTH))
+        })
+        .collect();
+    let extinction: Vec<f32> = reconstructed.iter().map(|c| c.x).collect();
+    let channels = p.channels as usize;
+    let mut data: [Vec<u64>; 4] = Default::default();
+    for (ch, out) in data.iter_mut().enumerate().take(channels) {
+        *out = reconstructed.iter().map(|c| fixed_of(c[ch])).collect();
+    }
+    for axis in 0..3 {
+        scan(grid, axis, &mut data[..channels]);
+    }
+    (
+        Sat {
+            grid,
+            channels: p.channels,
+            data,
+        },
+        extinction,
+    )
+}
+
+/// WGSL `scan`: the inclusive prefix sum along `axis`, every line.
+fn scan(grid: [u32; 3], axis: usize, channels: &mut [Vec<u64>]) {
+    let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+    for data in channels {
+        for j in 0..grid[c] {
+            for i in 0..grid[b] {
+                let mut cell = [0u32; 3];
+                cell[b] = i;
+                cell[c] = j;
+                let mut run = 0u64;
+                for k in 0..grid[axis] {
+                    cell[axis] = k;
+                    let index = cell_index(grid, cell);
+                    run = run.wrapping_add(data[index]);
+                    data[index] = run;
+                }
+            }
+        }
+    }
+}
+
+/// A one-channel SAT of fixed-point `cells` (x fastest) by the twin's scans.
+pub fn sat_from_cells(grid: [u32; 3], cells: &[u64]) -> Sat {
+    let mut data: [Vec<u64>; 4] = Default::default();
+    data[0] = cells.to_vec();
+    for axis in 0..3 {
+        scan(grid, axis, &mut data[..1]);
+    }
+    Sat {
+        grid,
+        channels: 1,
+        data,
+    }
+}
+
+/// WGSL `ambient_occlusion`: I_AO per cell (rgb, a: grey).
+pub fn ambient_occlusion(p: &ExtinctionParams, sat: &Sat) -> Vec<[f32; 4]> {
+    let colour = p.channels == 4;
+    cells(p.grid)
+        .map(|gid| {
+            let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+            let mut inner = [sat.cuboid_sum(c, c, 0), 0, 0, 0];
+            if colour {
+                for (ch, v) in inner.iter_mut().enumerate().skip(1) {
+                    *v = sat.cuboid_sum(c, c, ch);
+                }
+            }
+            let mut depth = Vec4::ZERO;
+            for i in 0..p.ao_shells {
+                let r = crate::extinction::shell_radius(p.ao_radius, p.ao_shells, i) as i32;
+                let w = 1.0 / (r * r) as f32;
+                let lo = c - IVec3::splat(r);
+                let hi = c + IVec3::splat(r);
+                let tau = sat.cuboid_sum(lo, hi, 0);
+                depth.x += depth_of(tau.wrapping_sub(inner[0])) * w;
+                inner[0] = tau;
+                if colour {
+                    for ch in 1..4 {
+                        let sum = sat.cuboid_sum(lo, hi, ch);
+                        depth[ch] += depth_of(sum.wrapping_sub(inner[ch])) * w;
+                        inner[ch] = sum;
+                    }
+                }
+            }
+            let k = p.ao_strength * p.ao_radius as f32 / p.ao_norm;
+            let grey = (-k * depth.x).exp();
+            let mut out = Vec4::splat(grey);
+            if colour {
+                let bleed = (Vec3::splat(depth.x) - depth.yzw()).max(Vec3::ZERO);
+                out = (-k * bleed).exp().extend(grey);
+            }
+            f16_round(out)
+        })
+        .collect()
+}
+
+/// WGSL `ambient_occlusion_reference`: I_AO by explicit sampling of the sphere.
+pub fn ambient_occlusion_reference(p: &ExtinctionParams, extinction: &[f32]) -> Vec<[f32; 4]> {
+    let grid = p.grid;
+    cells(grid)
+        .map(|gid| {
+            let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+            let r = p.ao_radius as i32;
+            let r2 = r * r;
+            let last = IVec3::new(grid[0] as i32, grid[1] as i32, grid[2] as i32) - 1;
+            let mut depth = 0.0f32;
+            for z in -r..=r {
+                for y in -r..=r {
+                    for x in -r..=r {
+                        let d2 = x * x + y * y + z * z;
+                        let q = c + IVec3::new(x, y, z);
+                        if d2 == 0 || d2 > r2 || q.cmplt(IVec3::ZERO).any() || q.cmpgt(last).any() {
+                            continue;
+                        }
+                        let at = cell_index(grid, [q.x as u32, q.y as u32, q.z as u32]);
+                        depth += extinction[at] / d2 as f32;
+                    }
+                }
+            }
+            let grey = (-p.ao_strength * p.ao_radius as f32 * depth / p.ao_norm).exp();
+            f16_round(Vec4::splat(grey))
+        })
+        .collect()
+}
+
+/// WGSL `towards`.
+fn towards(light: &LightUniform, p: Vec3) -> Vec3 {
+    let position = Vec4::from(light.position);
+    if position.w == 0.0 {
+        return position.xyz();
+    }
+    position.xyz() - p
+}
+
+/// WGSL `smoothstep`.
+fn smoothstep(e0: f32, e1: f32, x: f32) -> f32 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// WGSL `light_factor`.
+fn light_factor(light: &LightUniform, p: Vec3) -> f32 {
+    if light.colour[3] < -1.0 || light.position[3] == 0.0 {
+        return 1.0;
+    }
+    let d = p - Vec4::from(light.position).xyz();
+    let distance = d.length();
+    if distance < 1e-6 {
+        return 1.0;
+    }
+    let c = (d / distance).dot(Vec4::from(light.spot).xyz());
+    smoothstep(light.colour[3], light.spot[3], c)
+}
+
+/// WGSL `cone_depth`.
+fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -> f32 {
+    let pos = c.as_vec3() + 0.5;
+    let v = towards(light, pos);
+    let av = v.abs();
+    let mut a = 0usize;
+    if av.y > av[a] {
+        a = 1;
+    }
+    if av.z > av[a] {
+        a = 2;
+    }
+    let va = av[a];
+    if va < 1e-6 {
+        return 0.0;
+    }
+    let mut d_end = 1e9f32;
+    if light.position[3] != 0.0 {
+        d_end = va;
+    }
+    let b = (a + 1) % 3;
+    let e = (a + 2) % 3;
+    let sign = if v[a] >= 0.0 { 1 } else { -1 };
+    let slope = v / va;
+    let slant = v.length() / va;
+    let last = IVec3::new(p.grid[0] as i32, p.grid[1] as i32, p.grid[2] as i32) - 1;
+    let mut depth = 0.0f32;
+    let mut prev = 0i32;
+    let mut dist = 0.0f32;
+    let mut spacing = p.cone_first;
+    for _k in 0..MAX_CONE_CUBOIDS {
+        dist += spacing;
+        spacing *= 1.0 + p.cone_growth;
+        let start = prev + 1;
+        if start as f32 > d_end {
+            break;
+        }
+        let end = ((dist + 0.5).floor() as i32)
+            .max(start)
+            .min(d_end.floor() as i32);
+        let m0 = c[a] + sign * start;
+        let m1 = c[a] + sign * end;
+        let mut lo = IVec3::ZERO;
+        let mut hi = IVec3::ZERO;
+        lo[a] = m0.min(m1);
+        hi[a] = m0.max(m1);
+        if hi[a] < 0 || lo[a] > last[a] {
+            break;
+        }
+        let mid = 0.5 * (start as f32 + end as f32);
+        let w = mid * slant * p.cone_tan + 0.5;
+        let cb = pos[b] + slope[b] * mid;
+        let ce = pos[e] + slope[e] * mid;
+        lo[b] = (cb - w).floor() as i32;
+        hi[b] = (((cb + w).ceil() as i32) - 1).max(lo[b]);
+        lo[e] = (ce - w).floor() as i32;
+        hi[e] = (((ce + w).ceil() as i32) - 1).max(lo[e]);
+        let size = (hi - lo + IVec3::ONE).as_vec3();
+        let volume = size.x * size.y * size.z;
+        depth += depth_of(sat.cuboid_sum(lo, hi, 0)) / volume * (end - start + 1) as f32 * slant;
+        prev = end;
+    }
+    depth
+}
+
+/// WGSL `soft_shadow`: the light cache (ambient plus every light through its cone).
+pub fn soft_shadow(p: &ExtinctionParams, sat: &Sat, ambient: &[[f32; 4]]) -> Vec<[f32; 4]> {
+    let lights = &p.lights[..p.light_count as usize];
+    cells(p.grid)
+        .map(|gid| {
+            let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+            let pos = c.as_vec3() + 0.5;
+            let mut light = p.ambient * Vec4::from(ambient[cell_index(p.grid, gid)]).xyz();
+            for source in lights {
+                let f = light_factor(source, pos);
+                if f > 0.0 {
+                    light += Vec4::from(source.colour).xyz()
+                        * f
+                        * (-cone_depth(p, sat, source, c)).exp();
+                }
+            }
+            f16_round(light.extend(1.0))
+        })
+        .collect()
+}
+
+/// WGSL `ray_depth`.
+fn ray_depth(p: &ExtinctionParams, extinction: &[f32], light: &LightUniform, pos: Vec3) -> f32 {
+    let v = towards(light, pos);
+    let distance = v.length();
+    let va = v.abs().max_element();
+    if va < 1e-6 {
+        return 0.0;
+    }
+    let dir = v / distance;
+    let mut t_end = 1e9f32;
+    if light.position[3] != 0.0 {
+        t_end = distance;
+    }
+    let last = IVec3::new(p.grid[0] as i32, p.grid[1] as i32, p.grid[2] as i32) - 1;
+    let mut depth = 0.0f32;
+    let mut t = 0.5 * distance / va + 0.5 * p.ray_step;
+    for _k in 0..MAX_RAY_STEPS {
+        if t > t_end {
+            break;
+        }
+        let cell = (pos + dir * t).floor().as_ivec3();
+        if cell.cmplt(IVec3::ZERO).any() || cell.cmpgt(last).any() {
+            break;
+        }
+        let at = cell_index(p.grid, [cell.x as u32, cell.y as u32, cell.z as u32]);
+        depth += extinction[at] * p.ray_step;
+        t += p.ray_step;
+    }
+    depth
+}
+
+/// WGSL `shadow_ray`: the light cache by one classic shadow ray per light.
+pub fn shadow_ray(p: &ExtinctionParams, extinction: &[f32], ambient: &[[f32; 4]]) -> Vec<[f32; 4]> {
+    let lights = &p.lights[..p.light_count as usize];
+    cells(p.grid)
+        .map(|gid| {
+            let pos = Vec3::new(gid[0] as f32, gid[1] as f32, gid[2] as f32) + 0.5;
+            let mut light = p.ambient * Vec4::from(ambient[cell_index(p.grid, gid)]).xyz();
+            for source in lights {
+                let f = light_factor(source, pos);
+                if f > 0.0 {
+                    light += Vec4::from(source.colour).xyz()
+                        * f
+                        * (-ray_depth(p, extinction, source, pos)).exp();
+                }
+            }
+            f16_round(light.extend(1.0))
+        })
+        .collect()
+}
+
+/// Everything [`crate::extinction::ExtinctionLighting`] computes, on the CPU.
+#[derive(Debug, Clone)]
+pub struct CpuExtinction {
+    /// The SAT.
+    pub sat: Sat,
+    /// Δt·τ per cell.
+    pub extinction: Vec<f32>,
+    /// I_AO per cell.
+    pub ambient: Vec<[f32; 4]>,
+    /// The light cache.
+    pub light_cache: Vec<[f32; 4]>,
+}
+
+/// The whole computation as [`crate::extinction::ExtinctionLighting`] runs it
+/// with `settings`' methods.
+pub fn compute_extinction(
+    p: &ExtinctionParams,
+    settings: &ExtinctionSettings,
+    packed: &PackedTexture,
+    transfer_function: &[[f32; 4]],
+) -> CpuExtinction {
+    let (sat, extinction) = extinction_sat(p, packed, transfer_function);
+    let ambient = match settings.ao_method {
+        AoMethod::Sat => ambient_occlusion(p, &sat),
+        AoMethod::Sampled => ambient_occlusion_reference(p, &extinction),
+    };
+    let light_cache = match settings.shadow_method {
+        ShadowMethod::Cone => soft_shadow(p, &sat, &ambient),
+        ShadowMethod::Ray => shadow_ray(p, &extinction, &ambient),
+    };
+    CpuExtinction {
+        sat,
+        extinction,
+        ambient,
+        light_cache,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cuboid_queries_equal_brute_force_sums_exactly() {
+        let grid = [7, 5, 6];
+        let n = 7 * 5 * 6;
+        // Large values, so 32-bit sums would wrap.
+        let values: Vec<u64> = (0..n as u64)
+            .map(|i| (i * 2_654_435_761) % (63 << 24))
+            .collect();
+        let sat = sat_from_cells(grid, &values);
+        for (lo, hi) in [
+            ([0, 0, 0], [6, 4, 5]),
+            ([2, 1, 3], [4, 4, 3]),
+            ([-3, -2, -9], [1, 9, 2]),
+            ([3, 3, 3], [3, 3, 3]),
+            ([5, 0, 0], [4, 4, 5]),
+        ] {
+            let mut expected = 0u64;
+            for z in lo[2].max(0)..=hi[2].min(5) {
+                for y in lo[1].max(0)..=hi[1].min(4) {
+                    for x in lo[0].max(0)..=hi[0].min(6) {
+                        expected += values[cell_index(grid, [x as u32, y as u32, z as u32])];
+                    }
+                }
+            }
+            assert_eq!(
+                sat.cuboid_sum(IVec3::from(lo), IVec3::from(hi), 0),
+                expected,
+                "{lo:?}..{hi:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn depths_convert_from_both_words() {
+        assert_eq!(depth_of(1 << 24), 1.0);
+        assert_eq!(depth_of(63 << 40), 63.0 * 65536.0);
+        assert_eq!(fixed_of(2.5), 5 << 23);
+    }
+}

@@ -1,0 +1,69 @@
+// shadow_ray: the classic shadow ray (the paper's fig. 4, left), the reference
+// soft_shadow is measured against: per cell and light, Δt·τ summed along the
+// straight line to the light at ray_step cells per sample (the paper's 250
+// samples per volume edge), from where the cone's first cuboid starts (half a
+// cell along the main axis) to the light or the grid's edge, reading each
+// sample's cell; the cache is filled as soft_shadow fills it.
+//
+// Dispatch: one invocation per cell, workgroups of 4×4×4.
+// Bindings (group 0):
+//   0 params             uniform ExtinctionParams
+//   1 extinction         texture_3d<f32> (r32float), Δt·τ per cell
+//   2 ambient            texture_3d<f32> (rgba16float), I_AO
+//   3 light_cache        storage texture rgba16float, grid-shaped (written)
+// CPU twin: shaders::cpu::extinction::shadow_ray (shaders/src/cpu/extinction.rs).
+
+@group(0) @binding(0) var<uniform> params: ExtinctionParams;
+@group(0) @binding(1) var extinction: texture_3d<f32>;
+@group(0) @binding(2) var ambient: texture_3d<f32>;
+@group(0) @binding(3) var light_cache: texture_storage_3d<rgba16float, write>;
+
+// The most samples of one shadow ray.
+const MAX_RAY_STEPS: u32 = 8192u;
+
+fn ray_depth(light: ExtinctionLight, p: vec3<f32>) -> f32 {
+    let v = towards(light, p);
+    let distance = length(v);
+    let va = max(abs(v.x), max(abs(v.y), abs(v.z)));
+    if va < 1e-6 {
+        return 0.0;
+    }
+    let dir = v / distance;
+    var t_end = 1e9;
+    if light.position.w != 0.0 {
+        t_end = distance;
+    }
+    let last = vec3<i32>(params.grid) - vec3<i32>(1);
+    var depth = 0.0;
+    var t = 0.5 * distance / va + 0.5 * params.ray_step;
+    for (var k = 0u; k < MAX_RAY_STEPS; k++) {
+        if t > t_end {
+            break;
+        }
+        let cell = vec3<i32>(floor(p + dir * t));
+        if any(cell < vec3<i32>(0)) || any(cell > last) {
+            break;
+        }
+        depth += textureLoad(extinction, cell, 0).r * params.ray_step;
+        t += params.ray_step;
+    }
+    return depth;
+}
+
+@compute @workgroup_size(4, 4, 4)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if any(gid >= params.grid) {
+        return;
+    }
+    let c = vec3<i32>(gid);
+    let p = vec3<f32>(c) + 0.5;
+    var light = params.ambient * textureLoad(ambient, c, 0).rgb;
+    for (var l = 0u; l < params.light_count; l++) {
+        let source = params.lights[l];
+        let f = light_factor(source, p);
+        if f > 0.0 {
+            light += source.colour.rgb * f * exp(-ray_depth(source, p));
+        }
+    }
+    textureStore(light_cache, gid, vec4<f32>(light, 1.0));
+}

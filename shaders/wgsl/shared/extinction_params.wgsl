@@ -1,0 +1,67 @@
+// ExtinctionParams: the uniforms of the extinction-based illumination stages
+// (extinction_sat, ambient_occlusion, soft_shadow and their references).
+// keep in sync with shaders/src/extinction.rs `ExtinctionParams`
+//
+// The stages work on a regular grid (the SAT grid, also the light cache's)
+// covering the volume's box, cell i's centre at texture coordinate (i + 0.5) / n.
+// Grid coordinates below are continuous cell units: cell i spans [i, i + 1).
+
+// One light of the light cache, in grid coordinates.
+struct ExtinctionLight {
+    // Point or spot light: position (w = 1); directional: unit vector towards
+    // the light (w = 0).
+    position: vec4<f32>,
+    // Colour times intensity (rgb); w: cosine of a spot light's outer half-angle
+    // (below -1: not a spot light).
+    colour: vec4<f32>,
+    // Spot light: unit axis from the light outwards (xyz), cosine of the inner
+    // half-angle (w).
+    spot: vec4<f32>,
+}
+
+struct ExtinctionParams {
+    // Grid cells along x, y, z, and SAT channels (1: τ only; 4: τ and τ·RGB).
+    grid: vec3<u32>,
+    channels: u32,
+    // Level-0 voxels along x, y, z, and texel value → transfer-function
+    // coordinate: u = value * value_scale + value_offset.
+    volume_dims: vec3<f32>,
+    value_scale: f32,
+    // Atlas size in texels.
+    atlas_size: vec3<f32>,
+    value_offset: f32,
+    // Blocks along x, y, z, and transfer-function entries.
+    block_grid: vec3<u32>,
+    tf_len: u32,
+    // One level-0 voxel in texture coordinates, and Δt·τ of a cell per unit of
+    // −ln(1 − α): the cell's edge over the step opacities refer to.
+    texel: vec3<f32>,
+    opacity_scale: f32,
+    // extinction_sat scan: the axis summed (0, 1, 2); samples per cell edge of
+    // the reconstruction; ambient occlusion radius R (cells) and shell count.
+    axis: u32,
+    sub: u32,
+    ao_radius: u32,
+    ao_shells: u32,
+    // Ambient light I_A; the sum of shell weights over a full neighbourhood
+    // (normalises the AO sum to a mean); AO strength; tan of the cone half-angle.
+    ambient: f32,
+    ao_norm: f32,
+    ao_strength: f32,
+    cone_tan: f32,
+    // Cone: first cuboid length along the main axis (cells) and its growth per
+    // cuboid; the shadow-ray step (cells); lights in use.
+    cone_first: f32,
+    cone_growth: f32,
+    ray_step: f32,
+    light_count: u32,
+    lights: array<ExtinctionLight, 4>,
+}
+
+// Fixed-point SAT values: one unit of Δt·τ is 2^24; sums are 64-bit integers
+// (lo, hi words) so every cuboid query is exact whatever the grid size.
+const FIXED_ONE: f32 = 16777216.0;
+// The largest Δt·τ a cell may hold (an opaque cell).
+const MAX_CELL_DEPTH: f32 = 63.0;
+// The most cuboids per cone.
+const MAX_CONE_CUBOIDS: u32 = 256u;

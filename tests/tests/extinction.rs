@@ -1,0 +1,374 @@
+//! Extinction-based illumination: every stage on the GPU against its CPU twin
+//! (`extinction_sat`, `ambient_occlusion`, `ambient_occlusion_reference`,
+//! `soft_shadow`, `shadow_ray`), the lit frame against the lit CPU twin,
+//! extinction compositing, SAT queries against brute-force sums, and what is
+//! recomputed when.
+//!
+//! Tolerances: the SAT's cells come from `log` of filtered samples, which the
+//! GPU and the CPU compute to a few ulps apart, so SAT entries agree to a
+//! relative 1e-4 (the 64-bit sums themselves are exact); ambient and light
+//! terms (0..~2, stored as f16) to a mean absolute 2e-3 and a largest 0.03.
+
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
+
+use blocks::Preset;
+use server::Dataset;
+use shaders::cpu::extinction as twin;
+use shaders::cpu::light_cache_textures;
+use shaders::extinction::{
+    AoMethod, ExtinctionLight, ExtinctionLightKind, ExtinctionParams, ExtinctionSettings,
+    ShadowMethod,
+};
+use shaders::volume_texture::VolumeTexture;
+use shaders::{Camera, Compositing, FrameRequest, GpuContext, Shading};
+use voxserve_tests::gpu_or_skip;
+use voxserve_tests::image_compare::assert_similar;
+use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
+use voxserve_tests::render::gpu_renderer;
+
+/// Largest accepted mean and maximum absolute difference of ambient and light terms.
+const TERM_TOLERANCE: (f64, f64) = (2e-3, 0.03);
+
+fn extinction_request(extinction: ExtinctionSettings) -> FrameRequest {
+    FrameRequest {
+        camera: Camera {
+            azimuth_deg: 30.0,
+            elevation_deg: 20.0,
+            ..Camera::default()
+        },
+        shading: Shading::Extinction,
+        extinction,
+        ..FrameRequest::new(
+            96,
+            96,
+            Preset::CtSoftTissue.transfer_function(phantom_64().value_range),
+        )
+    }
+}
+
+fn light(kind: ExtinctionLightKind, colour: [f32; 3]) -> ExtinctionLight {
+    ExtinctionLight {
+        kind,
+        colour,
+        intensity: 1.0,
+    }
+}
+
+fn check_terms(case: &str, stage: &str, gpu: &[[f32; 4]], cpu: &[[f32; 4]]) {
+    assert_eq!(gpu.len(), cpu.len(), "{case}: {stage}: sizes differ");
+    let (mut sum, mut max) = (0.0f64, 0.0f64);
+    for (a, b) in gpu.iter().zip(cpu) {
+        for ch in 0..4 {
+            let d = f64::from((a[ch] - b[ch]).abs());
+            sum += d;
+            max = max.max(d);
+        }
+    }
+    let mean = sum / (4 * gpu.len().max(1)) as f64;
+    println!(
+        "{case}: {stage}: GPU vs CPU twin mean {mean:.2e}, max {max:.2e} over {} cells",
+        gpu.len()
+    );
+    let spread = cpu.iter().map(|t| t[0]).fold(f32::INFINITY, f32::min)
+        < cpu.iter().map(|t| t[0]).fold(f32::NEG_INFINITY, f32::max);
+    assert!(spread, "{case}: {stage}: the CPU twin computed a constant");
+    assert!(
+        mean <= TERM_TOLERANCE.0 && max <= TERM_TOLERANCE.1,
+        "{case}: {stage}: mean {mean:.2e} (max {}), largest {max:.2e} (max {})",
+        TERM_TOLERANCE.0,
+        TERM_TOLERANCE.1
+    );
+}
+
+/// Renders `request` on the GPU, reads the SAT and every texture back and
+/// compares each stage with its CPU twin fed the GPU's own inputs.
+fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &FrameRequest) {
+    let mut renderer = gpu_renderer(gpu, dataset);
+    let gpu_frame = renderer
+        .render(request)
+        .unwrap_or_else(|e| panic!("{case}: {e}"));
+    let lighting = renderer.extinction().expect("extinction lighting");
+    let volumes = lighting.volumes().expect("extinction volumes");
+    let params: ExtinctionParams = *lighting.params().expect("params");
+    let packing = renderer.packing().expect("packed").clone();
+    let desc: VolumeTexture = *renderer.volume_texture();
+    let packed = shaders::packed::assemble_cpu(&dataset.cache, &packing, &desc).expect("atlas");
+    let table = request
+        .transfer_function
+        .table(desc.tf_domain, 1024)
+        .expect("table");
+    let settings = &request.extinction;
+
+    let (cpu_sat, cpu_extinction) = twin::extinction_sat(&params, &packed, &table);
+    let channels = params.channels as usize;
+    let mut gpu_sat = cpu_sat.clone();
+    for ch in 0..channels {
+        let gpu_values = volumes
+            .read_sat(gpu, ch)
+            .unwrap_or_else(|e| panic!("{case}: SAT readback: {e}"));
+        let cpu_values = &cpu_sat.data[ch];
+        assert_eq!(gpu_values.len(), cpu_values.len(), "{case}: SAT size");
+        let mut worst = 0.0f64;
+        for (g, c) in gpu_values.iter().zip(cpu_values) {
+            let rel = (*g as f64 - *c as f64).abs() / (*c as f64).max(1.0 * 16_777_216.0);
+            worst = worst.max(rel);
+        }
+        println!("{case}: extinction_sat channel {ch}: largest relative difference {worst:.2e}");
+        assert!(
+            worst <= 1e-4,
+            "{case}: SAT channel {ch} differs by {worst:.2e}"
+        );
+        assert!(*cpu_values.last().expect("cells") > 0, "{case}: empty SAT");
+        gpu_sat.data[ch] = gpu_values;
+    }
+    let gpu_extinction: Vec<f32> = volumes
+        .extinction
+        .read(gpu)
+        .expect("extinction readback")
+        .iter()
+        .map(|t| t[0])
+        .collect();
+    let worst = gpu_extinction
+        .iter()
+        .zip(&cpu_extinction)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst <= 1e-4, "{case}: extinction cells differ by {worst}");
+
+    let gpu_ambient = volumes.ambient.read(gpu).expect("ambient readback");
+    let cpu_ambient = match settings.ao_method {
+        AoMethod::Sat => twin::ambient_occlusion(&params, &gpu_sat),
+        AoMethod::Sampled => twin::ambient_occlusion_reference(&params, &gpu_extinction),
+    };
+    let ao_stage = match settings.ao_method {
+        AoMethod::Sat => "ambient_occlusion",
+        AoMethod::Sampled => "ambient_occlusion_reference",
+    };
+    check_terms(case, ao_stage, &gpu_ambient, &cpu_ambient);
+
+    let gpu_cache = volumes.light_cache.read(gpu).expect("cache readback");
+    let (shadow_stage, cpu_cache) = match settings.shadow_method {
+        ShadowMethod::Cone => (
+            "soft_shadow",
+            twin::soft_shadow(&params, &gpu_sat, &gpu_ambient),
+        ),
+        ShadowMethod::Ray => (
+            "shadow_ray",
+            twin::shadow_ray(&params, &gpu_extinction, &gpu_ambient),
+        ),
+    };
+    check_terms(case, shadow_stage, &gpu_cache, &cpu_cache);
+
+    // The lit frame: the CPU ray caster reading the GPU's light cache.
+    let mut cpu_packed = packed;
+    cpu_packed.light_cache = Some(light_cache_textures(params.grid, &gpu_cache));
+    let layout = shaders::raycast::PackedLayout {
+        atlas_dims: packing.atlas_dims,
+        block_grid: dataset.store.meta().blocks,
+    };
+    let raycast_params = shaders::RaycastParams::new(&desc, request, table.len() as u32, layout);
+    let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
+    shaders::cpu::raycast(&raycast_params, &cpu_packed, &table, &mut rgba);
+    let cpu_frame = shaders::Frame {
+        width: request.width,
+        height: request.height,
+        rgba,
+    };
+    let tolerance = voxserve_tests::Tolerance {
+        max_mean: 0.5,
+        pixel_threshold: 8,
+        max_differing_fraction: 0.01,
+    };
+    let diff = assert_similar(
+        &format!("extinction-{case}"),
+        &gpu_frame,
+        &cpu_frame,
+        &tolerance,
+    );
+    println!("{case}: lit frame GPU vs CPU twin: {diff:?}");
+}
+
+#[test]
+fn every_extinction_stage_agrees_with_its_cpu_twin() {
+    let Some(gpu) = gpu_or_skip("every_extinction_stage_agrees_with_its_cpu_twin") else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    let base = ExtinctionSettings {
+        sat_size: 32,
+        ao_radius: 4,
+        ao_shells: 3,
+        ..ExtinctionSettings::default()
+    };
+    let cases = [
+        (
+            "colour-bleeding-two-lights",
+            extinction_request(ExtinctionSettings {
+                colour_bleeding: true,
+                lights: vec![
+                    light(
+                        ExtinctionLightKind::Point([0.5, 0.45, 0.55]),
+                        [1.0, 0.6, 0.3],
+                    ),
+                    light(
+                        ExtinctionLightKind::Spot {
+                            position: [1.4, 0.5, 1.2],
+                            direction: [-1.0, 0.0, -0.8],
+                            angle: 35.0,
+                        },
+                        [0.3, 0.6, 1.0],
+                    ),
+                ],
+                cone_angle: 8.0,
+                ..base.clone()
+            }),
+        ),
+        (
+            "references",
+            extinction_request(ExtinctionSettings {
+                ao_method: AoMethod::Sampled,
+                shadow_method: ShadowMethod::Ray,
+                ..base.clone()
+            }),
+        ),
+        (
+            "extinction-compositing-directional",
+            FrameRequest {
+                compositing: Compositing::Extinction,
+                ..extinction_request(ExtinctionSettings {
+                    sat_size: 40,
+                    cone_growth: 0.2,
+                    ..base.clone()
+                })
+            },
+        ),
+    ];
+    for (case, request) in cases {
+        compare_stages(gpu, dataset, case, &request);
+    }
+}
+
+#[test]
+fn light_cache_follows_algorithm_1() {
+    let Some(gpu) = gpu_or_skip("light_cache_follows_algorithm_1") else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    let mut renderer = gpu_renderer(gpu, dataset);
+    let mut request = extinction_request(ExtinctionSettings {
+        sat_size: 24,
+        ao_radius: 3,
+        ..ExtinctionSettings::default()
+    });
+    request.width = 32;
+    request.height = 32;
+    let mut frame = |r: &FrameRequest| {
+        renderer.render(r).expect("render");
+        renderer
+            .last_stats()
+            .extinction
+            .expect("extinction timings")
+    };
+    let first = frame(&request);
+    assert!(
+        first.sat_ms > 0.0 && first.ambient_occlusion_ms > 0.0 && first.soft_shadow_ms > 0.0,
+        "the first frame computes everything: {first:?}"
+    );
+    request.camera.azimuth_deg += 40.0;
+    let moved = frame(&request);
+    assert!(
+        moved.sat_ms == 0.0 && moved.ambient_occlusion_ms == 0.0 && moved.soft_shadow_ms == 0.0,
+        "a camera move recomputes nothing: {moved:?}"
+    );
+    request.extinction.lights[0].kind = ExtinctionLightKind::Point([0.2, 0.8, 0.5]);
+    let relit = frame(&request);
+    assert!(
+        relit.sat_ms == 0.0 && relit.ambient_occlusion_ms == 0.0 && relit.soft_shadow_ms > 0.0,
+        "a light change recomputes the shadows only: {relit:?}"
+    );
+    request.extinction.ao_radius = 2;
+    request.extinction.ao_shells = 2;
+    let ao = frame(&request);
+    assert!(
+        ao.sat_ms == 0.0 && ao.ambient_occlusion_ms > 0.0 && ao.soft_shadow_ms > 0.0,
+        "an AO change recomputes AO and the cache: {ao:?}"
+    );
+    request.transfer_function = Preset::CtBone.transfer_function(phantom_64().value_range);
+    let tf = frame(&request);
+    assert!(
+        tf.sat_ms > 0.0 && tf.ambient_occlusion_ms > 0.0 && tf.soft_shadow_ms > 0.0,
+        "a transfer-function change recomputes everything: {tf:?}"
+    );
+}
+
+#[test]
+fn a_sat_query_equals_the_brute_force_sum_at_256_cubed() {
+    // A 256³ SAT of cells up to the largest Δt·τ (so 32-bit or f32 sums would
+    // fail); queries from one cell to the whole grid. Exact in 64 bits: the
+    // stated relative tolerance is 0.
+    let grid = [256u32, 256, 256];
+    let n = 256usize * 256 * 256;
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let values: Vec<u64> = (0..n)
+        .map(|_| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state % (63 << 24)
+        })
+        .collect();
+    let sat = twin::sat_from_cells(grid, &values);
+    let boxes: [([i32; 3], [i32; 3]); 5] = [
+        ([0, 0, 0], [255, 255, 255]),
+        ([100, 17, 200], [100, 17, 200]),
+        ([3, 250, 9], [40, 255, 90]),
+        ([128, 0, 64], [255, 127, 191]),
+        ([-10, 200, 250], [10, 300, 400]),
+    ];
+    for (lo, hi) in boxes {
+        let mut expected = 0u64;
+        for z in lo[2].max(0)..=hi[2].min(255) {
+            for y in lo[1].max(0)..=hi[1].min(255) {
+                let row = (z as usize * 256 + y as usize) * 256;
+                for x in lo[0].max(0)..=hi[0].min(255) {
+                    expected += values[row + x as usize];
+                }
+            }
+        }
+        let got = sat.cuboid_sum(glam::IVec3::from(lo), glam::IVec3::from(hi), 0);
+        println!("{lo:?}..{hi:?}: SAT {got}, brute force {expected}");
+        assert_eq!(got, expected, "{lo:?}..{hi:?}");
+        let depth = f64::from(twin::depth_of(got));
+        let exact = expected as f64 / 16_777_216.0;
+        assert!(
+            (depth - exact).abs() <= exact * 1e-6,
+            "{lo:?}..{hi:?}: as Δt·τ {depth} vs {exact}"
+        );
+    }
+}
+
+#[test]
+fn bad_extinction_settings_are_refused_before_anything_runs() {
+    let dataset = phantom_64_dataset();
+    let request = extinction_request(ExtinctionSettings {
+        ao_shells: 20,
+        ..ExtinctionSettings::default()
+    });
+    let cpu = shaders::cpu::render_packed(
+        &dataset.cache,
+        &request,
+        wgpu::Features::TEXTURE_FORMAT_16BIT_NORM,
+        2048,
+    );
+    assert!(
+        matches!(&cpu, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("shells = 20")),
+        "{cpu:?}"
+    );
+    if let Some(gpu) = gpu_or_skip("bad_extinction_settings_are_refused_before_anything_runs") {
+        let result = gpu_renderer(gpu, dataset).render(&request);
+        assert!(
+            matches!(&result, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("shells")),
+            "{result:?}"
+        );
+    }
+}
