@@ -8,6 +8,8 @@ use blocks::ingest::OpenOptions;
 use blocks::ingest::raw::{self, RawOptions};
 use clap::builder::PossibleValuesParser;
 use clap::{Args, Parser, Subcommand};
+use shaders::Compositing;
+use shaders::extinction::{self, AoMethod, ExtinctionLight, ExtinctionSettings, ShadowMethod};
 use shaders::frame::{MAX_IMAGE_EDGE, MAX_REDUCTION, parse_colour};
 use shaders::light::{self, LightSettings, LightSource};
 use shaders::{ClipBox, Projection, Shading, camera};
@@ -186,7 +188,8 @@ pub struct StreamArgs {
     #[arg(long, default_value_t = 0.5, value_parser = finite_in(0.1, 1.0))]
     pub interactive_scale: f32,
     /// Data reduction while the user interacts, as a multiple of the view's
-    /// (not applied with global light, whose light would be recomputed).
+    /// (not applied with global light or extinction-based illumination, whose
+    /// light would be recomputed).
     #[arg(long, default_value_t = 4.0, value_parser = finite_in(1.0, 1000.0))]
     pub interactive_reduction: f32,
     /// JPEG quality (1 to 100) of frames while the user interacts.
@@ -260,8 +263,10 @@ pub struct RenderArgs {
     pub preset: Option<String>,
     /// Shading: gradient (Blinn–Phong from the data's gradient), unshaded,
     /// mip (maximum intensity projection), minip (minimum intensity projection)
-    /// or global (global light propagation: shadows and first-order scattering
-    /// from the light of --light; see the light flags).
+    /// global (global light propagation: shadows and first-order scattering
+    /// from the light of --light; see the light flags) or extinction
+    /// (extinction-based: ambient occlusion and cone soft shadows from --lights;
+    /// see the extinction flags).
     #[arg(long, default_value = "gradient",
           value_parser = PossibleValuesParser::new(Shading::ALL.map(Shading::name)))]
     pub shading: String,
@@ -282,6 +287,12 @@ pub struct RenderArgs {
     pub background: [f32; 3],
     #[command(flatten)]
     pub light: LightArgs,
+    #[command(flatten)]
+    pub extinction: ExtinctionArgs,
+    /// How samples combine along a ray: alpha (α-blending) or extinction
+    /// (exponential extinction, eq. 2 of Schlegel et al.).
+    #[arg(long, default_value = "alpha", value_parser = |t: &str| t.parse::<Compositing>())]
+    pub compositing: Compositing,
     /// Render on the CPU with the ray caster's CPU twin instead of the GPU (slow;
     /// for checking, or where no GPU driver is installed).
     #[arg(long)]
@@ -345,6 +356,87 @@ impl LightArgs {
             directions: self.directions,
             phase_g: self.phase_g,
             bias: self.light_bias,
+        }
+    }
+}
+
+/// Lights of `--lights`, parsed as one value (clap would repeat a plain `Vec`).
+pub type Lights = Vec<ExtinctionLight>;
+
+/// The illumination of `--shading extinction` (ambient occlusion, colour
+/// bleeding and cone soft shadows from a summed-area table of extinction).
+#[derive(Debug, Clone, Args)]
+pub struct ExtinctionArgs {
+    /// The lights, separated by ';' (at most 4): point:X,Y,Z (fractions of the
+    /// volume's box; 0..1 is inside), directional:X,Y,Z (towards the light,
+    /// patient LPS) or spot:X,Y,Z:DX,DY,DZ:ANGLE (position, axis, half-angle in
+    /// degrees), each optionally followed by :RRGGBB and :INTENSITY. Empty: ambient only.
+    #[arg(long, value_name = "LIGHTS", default_value = "directional:-0.6,-0.5,0.62:ffffff:0.8",
+          value_parser = extinction::parse_lights, allow_hyphen_values = true)]
+    pub lights: Lights,
+    /// Ambient light I_A (0 to 16).
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true,
+          value_parser = finite_in(0.0, light::MAX_INTENSITY))]
+    pub ambient: f32,
+    /// Grid cells of the summed-area table and light cache along the volume's
+    /// longest side (16 to 256; the others in proportion).
+    #[arg(long, default_value_t = 128,
+          value_parser = clap::value_parser!(u32).range(i64::from(extinction::SAT_SIZE_RANGE.0)..=i64::from(extinction::SAT_SIZE_RANGE.1)))]
+    pub sat_size: u32,
+    /// Ambient-occlusion radius R in grid cells (1 to 32).
+    #[arg(long, default_value_t = 8,
+          value_parser = clap::value_parser!(u32).range(i64::from(extinction::AO_RADIUS_RANGE.0)..=i64::from(extinction::AO_RADIUS_RANGE.1)))]
+    pub ao_radius: u32,
+    /// Ambient-occlusion shells (1 to 16, at most the radius).
+    #[arg(long, default_value_t = 3,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(extinction::MAX_AO_SHELLS)))]
+    pub ao_shells: u32,
+    /// Ambient-occlusion strength (0 to 16): scales the exponent, the weighted
+    /// mean Δt·τ of the neighbourhood (0.4: a flat opaque surface keeps about
+    /// 45 % of the ambient light).
+    #[arg(long, default_value_t = 0.4, allow_negative_numbers = true,
+          value_parser = finite_in(0.0, extinction::MAX_AO_STRENGTH))]
+    pub ao_strength: f32,
+    /// Colour bleeding: neighbours tint the ambient light with their colour.
+    #[arg(long)]
+    pub colour_bleeding: bool,
+    /// Half-angle of the shadow cones in degrees (0 to 45; wider is softer).
+    #[arg(long, default_value_t = 3.0, allow_negative_numbers = true,
+          value_parser = finite_in(0.0, extinction::MAX_CONE_ANGLE))]
+    pub cone_angle: f32,
+    /// Cuboids per volume side at the start of each cone (1 to 1000).
+    #[arg(long, default_value_t = 50.0, allow_negative_numbers = true,
+          value_parser = finite_in(extinction::CONE_FREQUENCY_RANGE.0, extinction::CONE_FREQUENCY_RANGE.1))]
+    pub cone_frequency: f32,
+    /// Growth of each cone cuboid's length over the one before (0 to 1).
+    #[arg(long, default_value_t = 0.05, allow_negative_numbers = true,
+          value_parser = finite_in(0.0, extinction::MAX_CONE_GROWTH))]
+    pub cone_growth: f32,
+    /// Ambient occlusion by SAT shells (sat) or by explicit sampling of the
+    /// sphere (sampled, the reference).
+    #[arg(long, default_value = "sat", value_parser = |t: &str| t.parse::<AoMethod>())]
+    pub ao_method: AoMethod,
+    /// Shadows by SAT cones (cone) or one classic shadow ray per light (ray, the reference).
+    #[arg(long, default_value = "cone", value_parser = |t: &str| t.parse::<ShadowMethod>())]
+    pub shadow_method: ShadowMethod,
+}
+
+impl ExtinctionArgs {
+    /// The settings these flags give.
+    pub fn settings(&self) -> ExtinctionSettings {
+        ExtinctionSettings {
+            sat_size: self.sat_size,
+            ambient: self.ambient,
+            ao_radius: self.ao_radius,
+            ao_shells: self.ao_shells,
+            ao_strength: self.ao_strength,
+            colour_bleeding: self.colour_bleeding,
+            lights: self.lights.clone(),
+            cone_angle: self.cone_angle,
+            cone_frequency: self.cone_frequency,
+            cone_growth: self.cone_growth,
+            ao_method: self.ao_method,
+            shadow_method: self.shadow_method,
         }
     }
 }
@@ -610,6 +702,11 @@ mod tests {
             ["--elevation", "NaN"],
             ["--preset", "bone"],
             ["--shading", "phong"],
+            ["--lights", "lamp:0,0,0"],
+            ["--ao-radius", "64"],
+            ["--sat-size", "1024"],
+            ["--compositing", "over"],
+            ["--shadow-method", "rays"],
             ["--projection", "fisheye"],
             ["--clip", "0,0,0,1,1"],
             ["--reduction", "0.5"],

@@ -151,6 +151,8 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         reduction: args.reduction,
         background: args.background,
         light: args.light.settings(),
+        extinction: args.extinction.settings(),
+        compositing: args.compositing,
         ..FrameRequest::new(
             args.width,
             args.height,

@@ -11,7 +11,8 @@
 //! | `preset` | transfer-function preset | the dataset's default |
 //! | `tf` | a transfer function instead of a preset: `VALUE:RRGGBB:OPACITY,…` in physical units (e.g. HU), opacity per step of the smallest spacing, at most 64 points in non-decreasing order | — |
 //! | `proj` | `perspective` or `orthographic` | `perspective` |
-//! | `shading` | `gradient`, `unshaded`, `mip`, `minip` or `global` (global light propagation) | `gradient` |
+//! | `shading` | `gradient`, `unshaded`, `mip`, `minip`, `global` (global light propagation) or `extinction` (extinction-based illumination) | `gradient` |
+//! | `compositing` | `alpha` (α-blending) or `extinction` (exponential extinction, eq. 2 of Schlegel et al.) | `alpha` |
 //! | `step` | sample step, voxels, 0.05..=4 | 0.5 |
 //! | `clip` | clip box as six fractions of the volume's extent, `x0,y0,z0,x1,y1,z1` | `0,0,0,1,1,1` |
 //! | `reduction` | data reduction (full voxels per voxel on the GPU), 1..=10000 | 1 (the device budget may force more) |
@@ -26,9 +27,25 @@
 //! | `directions` | in-scattering directions J, 1..=258 | 18 |
 //! | `phase_g` | Henyey–Greenstein asymmetry, −0.9..=0.9 | 0 |
 //!
+//! | `lights` | extinction lights separated by `;` (at most 4): `point:x,y,z`, `directional:x,y,z` or `spot:x,y,z:dx,dy,dz:angle`, each optionally followed by `:rrggbb` and `:intensity`; empty: ambient only | `directional:-0.6,-0.5,0.62:ffffff:0.8` |
+//! | `ambient` | ambient light I_A, 0..=16 | 0.5 |
+//! | `sat_size` | SAT and light-cache cells along the volume's longest side, 16..=256 | 128 |
+//! | `ao_radius` | ambient-occlusion radius, cells, 1..=32 | 8 |
+//! | `ao_shells` | ambient-occlusion shells, 1..=16 and at most `ao_radius` | 3 |
+//! | `ao_strength` | ambient-occlusion strength, 0..=16 | 0.4 |
+//! | `colour_bleeding` | `true` or `false` | `false` |
+//! | `cone_angle` | shadow cone half-angle, degrees, 0..=45 | 3 |
+//! | `cone_frequency` | cone cuboids per volume side at the start, 1..=1000 | 50 |
+//! | `cone_growth` | growth of each cone cuboid over the one before, 0..=1 | 0.05 |
+//! | `ao_method` | `sat` or `sampled` (explicit sampling, the reference) | `sat` |
+//! | `shadow_method` | `cone` or `ray` (one shadow ray, the reference) | `cone` |
+//!
 //! The light parameters apply to `shading=global`. Each request with the same
 //! light refines the in-scattering by one more direction (`X-Refinement: j/J`)
-//! until all J are in; a camera change keeps the light.
+//! until all J are in; a camera change keeps the light. The parameters from
+//! `lights` on apply to `shading=extinction`: a transfer-function change
+//! rebuilds the summed-area table, the ambient occlusion and the shadows, a
+//! light change the shadows only, a camera change nothing.
 //!
 //! Every parameter is checked before anything renders; a bad one is refused
 //! with a message that names it, the value given and what was expected. Unknown
@@ -38,14 +55,15 @@
 use std::str::FromStr;
 
 use blocks::{Preset, TransferFunction};
+use shaders::extinction::{self, ExtinctionSettings};
 use shaders::frame::{MAX_IMAGE_EDGE, MAX_REDUCTION, STEP_RANGE_VOXELS, parse_colour};
 use shaders::light::{self, LightSettings};
-use shaders::{Camera, ClipBox, FrameRequest, Projection, Shading, camera};
+use shaders::{Camera, ClipBox, Compositing, FrameRequest, Projection, Shading, camera};
 
 use crate::Dataset;
 
 /// The parameters `GET /api/render` accepts.
-pub const PARAMETERS: [&str; 24] = [
+pub const PARAMETERS: [&str; 37] = [
     "dataset",
     "az",
     "el",
@@ -70,6 +88,19 @@ pub const PARAMETERS: [&str; 24] = [
     "scatter_radius",
     "directions",
     "phase_g",
+    "compositing",
+    "lights",
+    "ambient",
+    "sat_size",
+    "ao_radius",
+    "ao_shells",
+    "ao_strength",
+    "colour_bleeding",
+    "cone_angle",
+    "cone_frequency",
+    "cone_growth",
+    "ao_method",
+    "shadow_method",
 ];
 
 /// The default image edge in pixels.
@@ -270,6 +301,74 @@ pub fn parse<'d>(
             "an asymmetry",
         )?,
     };
+    let defaults = ExtinctionSettings::default();
+    let extinction = ExtinctionSettings {
+        sat_size: params.ranged(
+            "sat_size",
+            defaults.sat_size,
+            extinction::SAT_SIZE_RANGE.0,
+            extinction::SAT_SIZE_RANGE.1,
+            "a whole number of cells",
+        )?,
+        ambient: params.ranged(
+            "ambient",
+            defaults.ambient,
+            0.0,
+            light::MAX_INTENSITY,
+            "an intensity",
+        )?,
+        ao_radius: params.ranged(
+            "ao_radius",
+            defaults.ao_radius,
+            extinction::AO_RADIUS_RANGE.0,
+            extinction::AO_RADIUS_RANGE.1,
+            "a whole number of cells",
+        )?,
+        ao_shells: params.ranged(
+            "ao_shells",
+            defaults.ao_shells,
+            1,
+            extinction::MAX_AO_SHELLS,
+            "a number of shells",
+        )?,
+        ao_strength: params.ranged(
+            "ao_strength",
+            defaults.ao_strength,
+            0.0,
+            extinction::MAX_AO_STRENGTH,
+            "a strength",
+        )?,
+        colour_bleeding: params.named("colour_bleeding", defaults.colour_bleeding)?,
+        lights: match params.get("lights") {
+            None => defaults.lights,
+            Some(text) => extinction::parse_lights(text)
+                .map_err(|e| format!("query parameter lights: {e}"))?,
+        },
+        cone_angle: params.ranged(
+            "cone_angle",
+            defaults.cone_angle,
+            0.0,
+            extinction::MAX_CONE_ANGLE,
+            DEGREES,
+        )?,
+        cone_frequency: params.ranged(
+            "cone_frequency",
+            defaults.cone_frequency,
+            extinction::CONE_FREQUENCY_RANGE.0,
+            extinction::CONE_FREQUENCY_RANGE.1,
+            "a number of cuboids per volume side",
+        )?,
+        cone_growth: params.ranged(
+            "cone_growth",
+            defaults.cone_growth,
+            0.0,
+            extinction::MAX_CONE_GROWTH,
+            "a growth rate",
+        )?,
+        ao_method: params.named("ao_method", defaults.ao_method)?,
+        shadow_method: params.named("shadow_method", defaults.shadow_method)?,
+    };
+    let compositing: Compositing = params.named("compositing", Compositing::default())?;
     let request = FrameRequest {
         camera,
         shading,
@@ -278,6 +377,8 @@ pub fn parse<'d>(
         reduction,
         background,
         light,
+        extinction,
+        compositing,
         ..FrameRequest::new(width, height, transfer_function)
     };
     request.validate()?;
@@ -374,6 +475,39 @@ mod tests {
     }
 
     #[test]
+    fn every_extinction_parameter_is_read() {
+        let ds = datasets();
+        let q = "shading=extinction&compositing=extinction\
+                 &lights=point:0.5,0.5,1.2:ff8000:2;spot:0,0,0:1,1,1:30&ambient=0.7&sat_size=64\
+                 &ao_radius=6&ao_shells=2&ao_strength=1.5&colour_bleeding=true&cone_angle=10\
+                 &cone_frequency=20&cone_growth=0.1&ao_method=sat&shadow_method=ray";
+        let (_, r) = parse(&query(q), &ds).expect("valid");
+        assert_eq!(r.shading, Shading::Extinction);
+        assert_eq!(r.compositing, Compositing::Extinction);
+        let e = r.extinction;
+        assert_eq!(e.lights.len(), 2);
+        assert_eq!(e.lights[0].intensity, 2.0);
+        assert_eq!(
+            (
+                e.ambient,
+                e.sat_size,
+                e.ao_radius,
+                e.ao_shells,
+                e.ao_strength
+            ),
+            (0.7, 64, 6, 2, 1.5)
+        );
+        assert!(e.colour_bleeding);
+        assert_eq!(
+            (e.cone_angle, e.cone_frequency, e.cone_growth),
+            (10.0, 20.0, 0.1)
+        );
+        assert_eq!(e.shadow_method, extinction::ShadowMethod::Ray);
+        let (_, r) = parse(&query("shading=extinction&lights="), &ds).expect("no lights");
+        assert!(r.extinction.lights.is_empty());
+    }
+
+    #[test]
     fn bad_values_name_the_parameter_and_the_expectation() {
         let cases = [
             (
@@ -417,6 +551,22 @@ mod tests {
             ("phase_g=NaN", "phase_g=\"NaN\""),
             ("light_colour=white", "light_colour: colour 'white'"),
             ("light_intensity=100", "light_intensity=\"100\""),
+            (
+                "shading=extinction&ao_shells=9",
+                "ambient occlusion shells = 9: expected 1 to 8",
+            ),
+            (
+                "lights=lamp:0,0,0",
+                "query parameter lights: light 'lamp:0,0,0'",
+            ),
+            (
+                "sat_size=8",
+                "sat_size=\"8\": expected a whole number of cells",
+            ),
+            ("colour_bleeding=maybe", "query parameter colour_bleeding"),
+            ("compositing=over", "unknown compositing 'over'"),
+            ("ao_method=rays", "ambient occlusion method 'rays'"),
+            ("cone_angle=90", "cone_angle=\"90\""),
             ("dataset=lung", "dataset=\"lung\": expected one of phantom"),
             ("zoom=2", "unknown query parameter 'zoom'"),
             ("az=1&az=2", "'az' is given twice"),

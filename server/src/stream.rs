@@ -170,7 +170,9 @@ impl View {
             let s = state.stream.interactive_scale;
             request.width = ((request.width as f32 * s).round() as u32).max(1);
             request.height = ((request.height as f32 * s).round() as u32).max(1);
-            if request.shading != Shading::GlobalLight {
+            // Lit modes keep their data: other blocks would recompute the light
+            // (global light) or the summed-area table (extinction) twice a gesture.
+            if !matches!(request.shading, Shading::GlobalLight | Shading::Extinction) {
                 request.reduction = (request.reduction * state.stream.interactive_reduction)
                     .min(shaders::frame::MAX_REDUCTION);
             }

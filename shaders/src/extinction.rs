@@ -56,8 +56,8 @@ pub const MAX_AO_STRENGTH: f32 = 16.0;
 pub const SHADOW_RAY_SAMPLES: f32 = 250.0;
 /// Fixed-point scale of SAT cells: one unit of Δt·τ.
 pub const FIXED_ONE: f32 = 16_777_216.0;
-/// The largest Δt·τ a cell holds.
-pub const MAX_CELL_DEPTH: f32 = 63.0;
+/// The largest Δt·τ a cell holds (an opaque cell passes e^−4 ≈ 2 % of the light).
+pub const MAX_CELL_DEPTH: f32 = 4.0;
 /// The most cuboids per cone.
 pub const MAX_CONE_CUBOIDS: u32 = 256;
 /// The light cache's and ambient term's texel format.
@@ -131,7 +131,8 @@ pub struct ExtinctionSettings {
     pub ao_radius: u32,
     /// Ambient-occlusion shells (at most R).
     pub ao_shells: u32,
-    /// Scales the ambient occlusion's optical depth (1: as measured).
+    /// Scales the ambient occlusion's exponent, the weighted mean Δt·τ of the
+    /// neighbourhood (0.4: a flat opaque surface keeps about 45 % of the ambient light).
     pub ao_strength: f32,
     /// Colour bleeding (eq. 5): neighbours tint the ambient light.
     pub colour_bleeding: bool,
@@ -156,7 +157,7 @@ impl Default for ExtinctionSettings {
             ambient: 0.5,
             ao_radius: 8,
             ao_shells: 3,
-            ao_strength: 1.0,
+            ao_strength: 0.4,
             colour_bleeding: false,
             lights: vec![ExtinctionLight {
                 // As global light propagation's default: from the upper left
@@ -529,6 +530,14 @@ pub fn grid_dims(texture: &VolumeTexture, size: u32) -> [u32; 3] {
     e.map(|x| ((x / longest * size as f32).round() as u32).clamp(1, size))
 }
 
+/// The edge of a grid cell for `size` cells along the longest side, mm (the
+/// mean over the axes).
+pub fn cell_mm(texture: &VolumeTexture, size: u32) -> f32 {
+    let grid = grid_dims(texture, size);
+    let cells = Vec3::new(grid[0] as f32, grid[1] as f32, grid[2] as f32);
+    (extent_mm(texture) / cells).element_sum() / 3.0
+}
+
 /// The volume's extent along its index axes, mm.
 fn extent_mm(texture: &VolumeTexture) -> Vec3 {
     let m = VolumePlacement::of(texture).model_from_texture;
@@ -582,9 +591,8 @@ impl ExtinctionParams {
         tf_len: u32,
     ) -> ExtinctionParams {
         let grid = grid_dims(texture, settings.sat_size);
-        let extent = extent_mm(texture);
         let cells = Vec3::new(grid[0] as f32, grid[1] as f32, grid[2] as f32);
-        let cell_mm = (extent / cells).element_sum() / 3.0;
+        let cell_mm = cell_mm(texture, settings.sat_size);
         let h = texture.min_spacing();
         let sub = (cell_mm / h).round().clamp(1.0, 4.0) as u32;
         let (_, texture_from_model) = texture_transforms(texture);

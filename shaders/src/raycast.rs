@@ -99,8 +99,12 @@ pub struct RaycastParams {
     pub flags: u32,
     /// `MODE_*`.
     pub mode: u32,
+    /// How far towards the eye (mm) the light is read: one light-cache cell for
+    /// extinction-based illumination, so a surface reads the light just outside
+    /// it rather than a blend with the shadowed cells behind it; 0 otherwise.
+    pub light_offset: f32,
     /// Padding to a multiple of 16 bytes.
-    pub _pad: [u32; 3],
+    pub _pad: [u32; 2],
 }
 
 /// Where the volume sits in model space: the linear map from texture offsets
@@ -173,7 +177,8 @@ impl RaycastParams {
         let step = request.step_voxels * min_spacing;
         let max_steps = (2.0 * radius / step).ceil() as u32 + 2;
         let mut flags = FLAG_JITTER;
-        if request.shading == Shading::Gradient {
+        // Extinction-based illumination keeps the gradient factor k of eq. 8.
+        if matches!(request.shading, Shading::Gradient | Shading::Extinction) {
             flags |= FLAG_SHADED;
         }
         if request.skip_empty {
@@ -185,9 +190,11 @@ impl RaycastParams {
             let [r, g, b] = request.light.colour.map(|c| c * request.light.intensity);
             lit = [r, g, b, request.light.bias];
         }
+        let mut light_offset = 0.0;
         if request.shading == Shading::Extinction {
             // The light cache holds the coloured light: white, no bias.
             flags |= FLAG_LIT;
+            light_offset = crate::extinction::cell_mm(texture, request.extinction.sat_size);
         }
         if request.compositing == Compositing::Extinction {
             flags |= FLAG_EXTINCTION;
@@ -226,7 +233,8 @@ impl RaycastParams {
             height: request.height,
             flags,
             mode,
-            _pad: [0; 3],
+            light_offset,
+            _pad: [0; 2],
         }
     }
 

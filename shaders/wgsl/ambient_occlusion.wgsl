@@ -5,9 +5,12 @@
 // its sum of Δt·τ, one SAT query difference, is weighted by 1/r_i²:
 //   D = Σ_i (SAT(Sh_i) − SAT(Sh_{i−1})) / r_i².
 // D over the same weights for a full neighbourhood (ao_norm, cells outside
-// the grid count as empty) is the weighted mean Δt·τ per cell; times R it is
-// an optical depth over the radius, the exponent of eq. 8 with w_A = r^−2:
-//   I_AO = exp(−strength · R · D / ao_norm).
+// the grid count as empty) is the weighted mean Δt·τ per cell (at most
+// MAX_CELL_DEPTH), the exponent of eq. 8 with w_A = r^−2 made independent of
+// the number of shells and of R:
+//   I_AO = exp(−strength · D / ao_norm).
+// A flat opaque surface (half its neighbourhood at the cap) reads
+// exp(−2·strength), a crevice less, open space 1.
 // Colour bleeding reads eq. 5's C_RGB as the colour a neighbour scatters, so
 // the light it takes away is Δt·τ·(1 − C_RGB): channel c uses
 // SAT_τ − SAT_τc, tinting a cell towards its neighbours' colour.
@@ -64,7 +67,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
     }
-    let k = params.ao_strength * f32(params.ao_radius) / params.ao_norm;
+    let k = params.ao_strength / params.ao_norm;
     let grey = exp(-k * depth.x);
     var out = vec4<f32>(grey, grey, grey, grey);
     if colour {

@@ -1,7 +1,7 @@
 // ambient_occlusion_reference: I_AO (eq. 4) by explicit sampling of the
 // spherical neighbourhood (the paper's fig. 2 and 5, left): every cell o with
 // 0 < |o| ≤ R (cells) around the cell, its Δt·τ weighted by 1/|o|²,
-//   D = Σ Δt·τ(c + o) / |o|²,   I_AO = exp(−strength · R · D / norm),
+//   D = Σ Δt·τ(c + o) / |o|²,   I_AO = exp(−strength · D / norm),
 // norm the same weights summed over the whole sphere (cells outside the grid
 // count as empty). The measure `ambient_occlusion` is compared against; grey
 // only (no colour bleeding).
@@ -39,6 +39,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
     }
-    let grey = exp(-params.ao_strength * f32(params.ao_radius) * depth / params.ao_norm);
+    let grey = exp(-params.ao_strength * depth / params.ao_norm);
     textureStore(ambient, gid, vec4<f32>(grey));
 }

@@ -8,9 +8,9 @@
 //     references read them).
 //   scan: the inclusive prefix sum along `params.axis`, in place, one
 //     invocation per grid line; three scans (x, y, z) turn cells into the SAT.
-// Precision: cells are fixed point (2^24 per unit of Δt·τ, at most 63 per
-// cell) and sums 64-bit integers (two u32 words), so a 256³ grid of opaque
-// cells (< 2^54) never overflows and every cuboid query is exact up to the
+// Precision: cells are fixed point (2^24 per unit of Δt·τ, at most
+// MAX_CELL_DEPTH = 4 per cell) and sums 64-bit integers (two u32 words), so a
+// 256³ grid of opaque cells (< 2^50) never overflows and every cuboid query is exact up to the
 // cells' rounding (2^-25 each); f32 sums would lose all digits of a small
 // cuboid's sum next to a large SAT entry.
 //

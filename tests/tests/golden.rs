@@ -8,6 +8,7 @@
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
 use blocks::Preset;
+use shaders::extinction::{ExtinctionLight, ExtinctionLightKind, ExtinctionSettings};
 use shaders::{Camera, ClipBox, FrameRequest, LightSettings, LightSource, Projection, Shading};
 use voxserve_tests::image_compare::{assert_golden, assert_matches_golden, to_image};
 use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
@@ -94,6 +95,7 @@ fn goldens() -> Vec<(&'static str, FrameRequest)> {
     ]
     .into_iter()
     .chain(light_goldens())
+    .chain(extinction_goldens())
     .collect()
 }
 
@@ -157,6 +159,104 @@ fn light_goldens() -> Vec<(&'static str, FrameRequest)> {
                 bias: 0.0,
                 ..outside
             }),
+        ),
+    ]
+}
+
+/// Extinction-based illumination: ambient occlusion only, colour bleeding, one
+/// soft-shadow light, two lights of different colours, a light inside the volume.
+fn extinction_goldens() -> Vec<(&'static str, FrameRequest)> {
+    let range = phantom_64().value_range;
+    let lit = |extinction: ExtinctionSettings| FrameRequest {
+        camera: Camera {
+            azimuth_deg: 25.0,
+            elevation_deg: 15.0,
+            ..Camera::default()
+        },
+        shading: Shading::Extinction,
+        extinction: ExtinctionSettings {
+            sat_size: 48,
+            ao_radius: 4,
+            ao_shells: 2,
+            ..extinction
+        },
+        ..FrameRequest::new(96, 96, Preset::CtSoftTissue.transfer_function(range))
+    };
+    let light = |kind, colour| ExtinctionLight {
+        kind,
+        colour,
+        intensity: 1.0,
+    };
+    let ambient_only = ExtinctionSettings {
+        lights: Vec::new(),
+        ambient: 1.0,
+        ao_strength: 0.6,
+        ..ExtinctionSettings::default()
+    };
+    vec![
+        ("phantom-extinction-ao", lit(ambient_only.clone())),
+        (
+            "phantom-extinction-colour-bleeding",
+            lit(ExtinctionSettings {
+                colour_bleeding: true,
+                ao_strength: 1.5,
+                ..ambient_only
+            }),
+        ),
+        (
+            "phantom-extinction-one-light",
+            lit(ExtinctionSettings {
+                ambient: 0.3,
+                lights: vec![light(
+                    ExtinctionLightKind::Directional([-0.8, -0.3, 0.5]),
+                    [1.0; 3],
+                )],
+                cone_angle: 5.0,
+                ..ExtinctionSettings::default()
+            }),
+        ),
+        (
+            "phantom-extinction-two-lights",
+            lit(ExtinctionSettings {
+                ambient: 0.2,
+                lights: vec![
+                    light(
+                        ExtinctionLightKind::Point([-0.6, 0.2, 0.8]),
+                        [1.0, 0.45, 0.2],
+                    ),
+                    light(
+                        ExtinctionLightKind::Spot {
+                            position: [1.6, 0.1, 0.6],
+                            direction: [-1.0, 0.3, 0.0],
+                            angle: 30.0,
+                        },
+                        [0.25, 0.5, 1.0],
+                    ),
+                ],
+                ..ExtinctionSettings::default()
+            }),
+        ),
+        (
+            // Clipped open, so the inside lit from within shows.
+            "phantom-extinction-light-inside",
+            FrameRequest {
+                clip: ClipBox {
+                    min: [0.0, 0.5, 0.0],
+                    max: [1.0, 1.0, 1.0],
+                },
+                ..lit(ExtinctionSettings {
+                    ambient: 0.1,
+                    lights: vec![ExtinctionLight {
+                        intensity: 2.0,
+                        ..light(
+                            ExtinctionLightKind::Point([0.5, 0.6, 0.55]),
+                            [1.0, 0.9, 0.7],
+                        )
+                    }],
+                    cone_angle: 10.0,
+                    ..ExtinctionSettings::default()
+                })
+            },
         ),
     ]
 }

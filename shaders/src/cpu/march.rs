@@ -195,7 +195,10 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                         // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
                         let bias = p.light[3];
                         let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
-                        rgb *= Vec3::splat(bias) + (1.0 - bias) * colour * s.light_at(p, tc, &loc);
+                        rgb *= Vec3::splat(bias)
+                            + (1.0 - bias)
+                                * colour
+                                * s.light_at(p, tc - tex_dir * p.light_offset, &loc);
                     }
                     if p.flags & FLAG_EXTINCTION != 0 {
                         // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).

@@ -108,7 +108,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                     if (params.flags & FLAG_LIT) != 0u {
                         // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
                         let bias = params.light.a;
-                        rgb = rgb * (vec3<f32>(bias) + (1.0 - bias) * params.light.rgb * light_at(tc, loc));
+                        rgb = rgb * (vec3<f32>(bias) + (1.0 - bias) * params.light.rgb * light_at(tc - tex_dir * params.light_offset, loc));
                     }
                     if (params.flags & FLAG_EXTINCTION) != 0u {
                         // Eq. 2 (Schlegel et al.): Δt·τ_i from the corrected

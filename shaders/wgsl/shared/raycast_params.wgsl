@@ -51,11 +51,13 @@ struct RaycastParams {
     width: u32,
     height: u32,
     flags: u32,
-    // MODE_*, padding.
+    // MODE_*; how far towards the eye (mm) the light is read (one light-cache
+    // cell for extinction-based illumination, so a surface reads the light just
+    // outside it, not a blend with the shadowed cells behind it; else 0); padding.
     mode: u32,
+    light_offset: f32,
     _pad0: u32,
     _pad1: u32,
-    _pad2: u32,
 }
 
 // Offset each ray's first sample by a per-pixel fraction of a step (hides wood-grain banding).
