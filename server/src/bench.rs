@@ -16,8 +16,10 @@ use crate::commands::{CPU_TWIN_FEATURES, say};
 use crate::dataset::PHANTOM_ID;
 use crate::reference_data::{self, reference_dataset};
 
+mod extinction;
 mod light;
 mod stream;
+pub use extinction::extinction;
 pub use light::light;
 pub use stream::stream;
 

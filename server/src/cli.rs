@@ -471,6 +471,60 @@ pub enum BenchCommand {
     /// size for JPEG and lossless frames, encode time per format, and frames
     /// per second with several concurrent sessions.
     Stream(Box<BenchStreamArgs>),
+    /// Extinction-based illumination as its paper reports it: summed-area-table
+    /// build time per grid size, ambient occlusion per shell count against
+    /// explicit sampling, soft shadows per cone sampling against one shadow
+    /// ray (times and ΔE*uv), and lit against unlit frames.
+    Extinction(Box<BenchExtinctionArgs>),
+}
+
+/// `voxserve bench extinction`.
+#[derive(Debug, Args)]
+pub struct BenchExtinctionArgs {
+    /// Datasets: `phantom`, and the real datasets engine, bonsai, cthead, vhf
+    /// (from --data-dir; skipped with a warning when missing), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = ["engine", "cthead"].map(String::from))]
+    pub datasets: Vec<String>,
+    /// Where the real datasets are.
+    #[arg(long, default_value = "../shared/data")]
+    pub data_dir: PathBuf,
+    /// SAT and light-cache grid sizes (cells along the longest side), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [64u32, 128, 192, 256],
+          value_parser = clap::value_parser!(u32).range(i64::from(extinction::SAT_SIZE_RANGE.0)..=i64::from(extinction::SAT_SIZE_RANGE.1)))]
+    pub sat_sizes: Vec<u32>,
+    /// Ambient-occlusion shell counts, comma separated (radius: the larger of
+    /// --ao-radius and the count).
+    #[arg(long, value_delimiter = ',', default_values_t = [3u32, 7, 11],
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(extinction::MAX_AO_SHELLS)))]
+    pub shells: Vec<u32>,
+    /// Ambient-occlusion radius in cells of the comparison with explicit sampling.
+    #[arg(long, default_value_t = 7,
+          value_parser = clap::value_parser!(u32).range(i64::from(extinction::AO_RADIUS_RANGE.0)..=i64::from(extinction::AO_RADIUS_RANGE.1)))]
+    pub ao_radius: u32,
+    /// Cone sampling frequencies (cuboids per volume side), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [20.0f32, 50.0],
+          value_parser = finite_in(extinction::CONE_FREQUENCY_RANGE.0, extinction::CONE_FREQUENCY_RANGE.1))]
+    pub cone_frequencies: Vec<f32>,
+    /// Half-angle of the shadow cones, degrees.
+    #[arg(long, default_value_t = 2.0, value_parser = finite_in(0.0, extinction::MAX_CONE_ANGLE))]
+    pub cone_angle: f32,
+    /// The largest grid the references (explicit AO sampling, shadow rays) run
+    /// at; larger ones report the SAT methods only.
+    #[arg(long, default_value_t = 256,
+          value_parser = clap::value_parser!(u32).range(i64::from(extinction::SAT_SIZE_RANGE.0)..=i64::from(extinction::SAT_SIZE_RANGE.1)))]
+    pub reference_max: u32,
+    /// Image edge in pixels (square) of the compared and timed frames.
+    #[arg(long, default_value_t = 512,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(MAX_IMAGE_EDGE)))]
+    pub size: u32,
+    /// Frames timed per frame measurement.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub frames: u32,
+    /// Also write the compared frames and a ΔE error image per pair as PNGs here.
+    #[arg(long, value_name = "DIR")]
+    pub images: Option<PathBuf>,
+    #[command(flatten)]
+    pub data: DataArgs,
 }
 
 /// `voxserve bench stream`.

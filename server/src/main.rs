@@ -30,6 +30,7 @@ fn main() -> ExitCode {
             BenchCommand::Blocks(a) => server::bench::blocks(a),
             BenchCommand::Light(a) => server::bench::light(a),
             BenchCommand::Stream(a) => server::bench::stream(a),
+            BenchCommand::Extinction(a) => server::bench::extinction(a),
         },
     };
     match result {

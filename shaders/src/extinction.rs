@@ -519,6 +519,10 @@ pub struct ExtinctionParams {
     pub light_count: u32,
     /// The lights.
     pub lights: [LightUniform; MAX_LIGHTS],
+    /// Half-edge of each ambient-occlusion shell ([`AoShells`]), 4 per row.
+    pub shell_radii: [[u32; 4]; 4],
+    /// Weight of each ambient-occlusion shell, 4 per row.
+    pub shell_weights: [[f32; 4]; 4],
 }
 
 /// Grid cells along each axis for `size` cells along the volume's longest
@@ -544,24 +548,62 @@ fn extent_mm(texture: &VolumeTexture) -> Vec3 {
     Vec3::new(m.x_axis.length(), m.y_axis.length(), m.z_axis.length())
 }
 
-/// Half-edge of ambient-occlusion shell `i` of `shells` for radius `radius`:
-/// round(R·(i+1)/N) (WGSL `shell_radius`).
-pub fn shell_radius(radius: u32, shells: u32, i: u32) -> u32 {
-    (2 * radius * (i + 1) + shells) / (2 * shells)
+/// The ambient-occlusion shells for radius R and N shells: each shell's
+/// half-edge (cells) and weight, and the weights summed over the whole
+/// neighbourhood (the normaliser).
+///
+/// The outer cube has the volume of the sphere of radius R (half-edge
+/// R·(π/6)^⅓ ≈ 0.806·R), so "radius R" means the same neighbourhood for the
+/// shells and for explicit sampling; half-edges grow evenly to it, at least
+/// one cell apart. A shell's weight is the mean of 1/|o|² over its cells (the
+/// inverse square of its radius, eq. 8's w_A, taken over the cells it holds).
+#[derive(Debug, Clone, PartialEq)]
+pub struct AoShells {
+    /// Half-edge of each shell's outer cube, cells.
+    pub radii: Vec<u32>,
+    /// Weight of each shell.
+    pub weights: Vec<f32>,
+    /// Σ over the neighbourhood's cells of their shell's weight.
+    pub norm: f32,
 }
 
-/// The shell weights summed over a full neighbourhood: Σ_i |Sh_i| / r_i².
-pub fn shell_norm(radius: u32, shells: u32) -> f32 {
-    let cube = |r: u32| f64::from(2 * r + 1).powi(3);
-    let mut inner = 1.0;
-    let mut norm = 0.0;
-    for i in 0..shells {
-        let r = shell_radius(radius, shells, i);
-        let outer = cube(r);
-        norm += (outer - inner) / f64::from(r * r);
-        inner = outer;
+impl AoShells {
+    /// The shells of `shells` over radius `radius` (both ≥ 1).
+    pub fn new(radius: u32, shells: u32) -> AoShells {
+        let outer = f64::from(radius) * (std::f64::consts::PI / 6.0).cbrt();
+        let mut radii = Vec::with_capacity(shells as usize);
+        let mut prev = 0u32;
+        for i in 0..shells {
+            let r = (outer * f64::from(i + 1) / f64::from(shells)).round() as u32;
+            prev = r.max(prev + 1);
+            radii.push(prev);
+        }
+        let mut weights = Vec::with_capacity(radii.len());
+        let mut norm = 0.0f64;
+        let mut inner = 0i32;
+        for &r in &radii {
+            let r = r as i32;
+            let (mut sum, mut count) = (0.0f64, 0u32);
+            for z in -r..=r {
+                for y in -r..=r {
+                    for x in -r..=r {
+                        if x.abs().max(y.abs()).max(z.abs()) > inner {
+                            sum += 1.0 / f64::from(x * x + y * y + z * z);
+                            count += 1;
+                        }
+                    }
+                }
+            }
+            weights.push((sum / f64::from(count)) as f32);
+            norm += sum;
+            inner = r;
+        }
+        AoShells {
+            radii,
+            weights,
+            norm: norm as f32,
+        }
     }
-    norm as f32
 }
 
 /// The sampled reference's weights summed over the sphere: Σ 1/|o|², 0 < |o| ≤ R.
@@ -626,10 +668,17 @@ impl ExtinctionParams {
             };
         }
         let size = grid.iter().copied().max().unwrap_or(1) as f32;
+        let shells = AoShells::new(settings.ao_radius, settings.ao_shells);
         let ao_norm = match settings.ao_method {
-            AoMethod::Sat => shell_norm(settings.ao_radius, settings.ao_shells),
+            AoMethod::Sat => shells.norm,
             AoMethod::Sampled => sphere_norm(settings.ao_radius),
         };
+        let mut shell_radii = [[0u32; 4]; 4];
+        let mut shell_weights = [[0.0f32; 4]; 4];
+        for (i, (&r, &w)) in shells.radii.iter().zip(&shells.weights).enumerate() {
+            shell_radii[i / 4][i % 4] = r;
+            shell_weights[i / 4][i % 4] = w;
+        }
         ExtinctionParams {
             grid,
             channels: if settings.colour_bleeding { 4 } else { 1 },
@@ -654,6 +703,8 @@ impl ExtinctionParams {
             ray_step: size / SHADOW_RAY_SAMPLES,
             light_count: settings.lights.len() as u32,
             lights,
+            shell_radii,
+            shell_weights,
         }
     }
 
@@ -1237,29 +1288,41 @@ mod tests {
 
     #[test]
     fn params_match_the_wgsl_layout() {
-        // 9 rows of 16 bytes, then 4 lights of 48.
-        assert_eq!(size_of::<ExtinctionParams>(), 9 * 16 + 4 * 48);
+        // 8 rows of 16 bytes, 4 lights of 48, then 8 rows of shells.
+        assert_eq!(size_of::<ExtinctionParams>(), 8 * 16 + 4 * 48 + 8 * 16);
         assert_eq!(size_of::<LightUniform>(), 48);
     }
 
     #[test]
-    fn shells_grow_by_at_least_one_cell_and_end_at_the_radius() {
+    fn shells_grow_by_at_least_one_cell_to_the_sphere_volume() {
         for radius in 1..=32 {
             for shells in 1..=radius.min(MAX_AO_SHELLS) {
-                let r: Vec<u32> = (0..shells)
-                    .map(|i| shell_radius(radius, shells, i))
-                    .collect();
-                assert_eq!(*r.last().unwrap_or(&0), radius, "R {radius} N {shells}");
+                let s = AoShells::new(radius, shells);
+                let r = &s.radii;
+                assert_eq!(r.len(), shells as usize);
                 assert!(r[0] >= 1);
                 assert!(r.windows(2).all(|w| w[1] > w[0]), "{r:?}");
+                // The outer cube holds about the sphere's volume.
+                let last = f64::from(*r.last().unwrap_or(&0));
+                if shells * 2 <= radius {
+                    assert!(
+                        (last - 0.806 * f64::from(radius)).abs() <= 1.0,
+                        "R {radius} N {shells}: {r:?}"
+                    );
+                }
+                // Weights fall with distance.
+                assert!(s.weights.windows(2).all(|w| w[1] < w[0]), "{:?}", s.weights);
             }
         }
     }
 
     #[test]
     fn the_norms_count_every_neighbour_once() {
-        // One shell of radius 1: 26 neighbours at weight 1.
-        assert_eq!(shell_norm(1, 1), 26.0);
+        // One shell of half-edge 1: 6 faces at 1, 12 edges at ½, 8 corners at ⅓.
+        let one = AoShells::new(1, 1);
+        assert_eq!(one.radii, [1]);
+        assert!((one.norm - (6.0 + 6.0 + 8.0 / 3.0)).abs() < 1e-5);
+        assert!((one.weights[0] * 26.0 - one.norm).abs() < 1e-5);
         // Radius 1 sphere: 6 neighbours at distance 1.
         assert_eq!(sphere_norm(1), 6.0);
     }

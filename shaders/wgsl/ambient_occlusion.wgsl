@@ -1,9 +1,11 @@
 // ambient_occlusion: I_AO (eq. 4) and colour bleeding I_AO_RGB (eq. 5) per
 // light-cache cell from the SAT, by cuboid shells (fig. 5, sec. 3.2). Shell i
-// (0..N−1) is the cube of half-edge r_i = round(R·(i+1)/N) cells around the
-// cell minus the cube of r_{i−1} (r_{−1} = 0: the cell itself is left out);
-// its sum of Δt·τ, one SAT query difference, is weighted by 1/r_i²:
-//   D = Σ_i (SAT(Sh_i) − SAT(Sh_{i−1})) / r_i².
+// (0..N−1) is the cube of half-edge r_i cells around the cell minus the cube
+// of r_{i−1} (r_{−1} = 0: the cell itself is left out); the outer cube has the
+// volume of the sphere of radius R. Its sum of Δt·τ, one SAT query
+// difference, is weighted by w_i, the mean 1/|o|² over its cells (eq. 8's
+// inverse square of the shell's radius; both per shell in params):
+//   D = Σ_i (SAT(Sh_i) − SAT(Sh_{i−1})) · w_i.
 // D over the same weights for a full neighbourhood (ao_norm, cells outside
 // the grid count as empty) is the weighted mean Δt·τ per cell (at most
 // MAX_CELL_DEPTH), the exponent of eq. 8 with w_A = r^−2 made independent of
@@ -30,11 +32,6 @@
 @group(0) @binding(4) var<storage, read> sat_b: array<vec2<u32>>;
 @group(0) @binding(5) var ambient: texture_storage_3d<rgba16float, write>;
 
-// The half-edge of shell i: round(R·(i+1)/N), in integers.
-fn shell_radius(i: u32) -> u32 {
-    return (2u * params.ao_radius * (i + 1u) + params.ao_shells) / (2u * params.ao_shells);
-}
-
 @compute @workgroup_size(4, 4, 4)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if any(gid >= params.grid) {
@@ -52,8 +49,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     var depth = vec4<f32>(0.0);
     for (var i = 0u; i < params.ao_shells; i++) {
-        let r = i32(shell_radius(i));
-        let w = 1.0 / f32(r * r);
+        let r = i32(params.shell_radii[i / 4u][i % 4u]);
+        let w = params.shell_weights[i / 4u][i % 4u];
         let lo = c - vec3<i32>(r);
         let hi = c + vec3<i32>(r);
         let tau = cuboid_sum(lo, hi, 0u);

@@ -158,7 +158,7 @@ pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
                     .map_err(anyhow::Error::msg)?;
                 if let Some(dir) = &args.images {
                     let stem = format!("{name}-reduction{reduction}-svr{svr}-segment{segment}");
-                    write_images(dir, &stem, &frame, &reference_frame)?;
+                    write_images(dir, &stem, "piecewise", &frame, &reference_frame)?;
                 }
                 let mut line = serde_json::json!({
                     "bench": "light-quality",
@@ -264,11 +264,12 @@ pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes `STEM-piecewise.png`, `STEM-reference.png` and `STEM-delta-e.png`
+/// Writes `STEM-METHOD.png`, `STEM-reference.png` and `STEM-delta-e.png`
 /// (ΔE*uv per pixel: black at 0, full red at 6 or more) into `dir`.
-fn write_images(
+pub(crate) fn write_images(
     dir: &std::path::Path,
     stem: &str,
+    method: &str,
     piecewise: &shaders::Frame,
     reference: &shaders::Frame,
 ) -> anyhow::Result<()> {
@@ -294,7 +295,7 @@ fn write_images(
             .collect(),
     };
     for (suffix, frame) in [
-        ("piecewise", piecewise),
+        (method, piecewise),
         ("reference", reference),
         ("delta-e", &error),
     ] {
@@ -307,7 +308,7 @@ fn write_images(
 }
 
 /// Adds the fields of `extra` to `line`.
-fn merge(line: &mut serde_json::Value, extra: &serde_json::Value) {
+pub(crate) fn merge(line: &mut serde_json::Value, extra: &serde_json::Value) {
     if let (Some(line), Some(extra)) = (line.as_object_mut(), extra.as_object()) {
         for (k, v) in extra {
             line.insert(k.clone(), v.clone());

@@ -207,8 +207,9 @@ pub fn ambient_occlusion(p: &ExtinctionParams, sat: &Sat) -> Vec<[f32; 4]> {
             }
             let mut depth = Vec4::ZERO;
             for i in 0..p.ao_shells {
-                let r = crate::extinction::shell_radius(p.ao_radius, p.ao_shells, i) as i32;
-                let w = 1.0 / (r * r) as f32;
+                let (row, col) = (i as usize / 4, i as usize % 4);
+                let r = p.shell_radii[row][col] as i32;
+                let w = p.shell_weights[row][col];
                 let lo = c - IVec3::splat(r);
                 let hi = c + IVec3::splat(r);
                 let tau = sat.cuboid_sum(lo, hi, 0);

@@ -56,6 +56,10 @@ struct ExtinctionParams {
     ray_step: f32,
     light_count: u32,
     lights: array<ExtinctionLight, 4>,
+    // Ambient-occlusion shells: half-edge (cells) and weight of shell i at
+    // [i / 4][i % 4] (shaders/src/extinction.rs `AoShells`).
+    shell_radii: array<vec4<u32>, 4>,
+    shell_weights: array<vec4<f32>, 4>,
 }
 
 // Fixed-point SAT values: one unit of Δt·τ is 2^24; sums are 64-bit integers
