@@ -14,12 +14,15 @@ const canvas = document.getElementById('view');
 const context = canvas.getContext('2d');
 const presetSelect = document.getElementById('preset');
 const shadingSelect = document.getElementById('shading');
+const compositingSelect = document.getElementById('compositing');
 const projectionSelect = document.getElementById('projection');
 const reductionSelect = document.getElementById('reduction');
 const clipBox = document.getElementById('clip');
 const lightPanel = document.getElementById('light-panel');
-const lightInputs = ['kind', 'azimuth', 'elevation', 'distance', 'bias', 'scatter'].map((name) =>
-  document.getElementById(`light-${name}`),
+const light = Object.fromEntries(
+  ['kind', 'drag', 'azimuth', 'elevation', 'distance', 'colour', 'intensity', 'bias', 'scatter',
+    'ambient', 'ao-radius', 'ao-strength', 'bleeding', 'cone', 'spot']
+    .map((name) => [name, document.getElementById(`light-${name}`)]),
 );
 const errorBox = document.getElementById('error');
 const fidelity = document.getElementById('fidelity');
@@ -107,22 +110,100 @@ function clipParam() {
   return { clip: [...lo, ...hi].join(',') };
 }
 
-// The light parameters of the light panel (global light only).
-function lightParams() {
-  if (shadingSelect.value !== 'global') return {};
-  const [kind, azimuth, elevation, distance, bias, scatter] = lightInputs;
-  const a = (Number(azimuth.value) * Math.PI) / 180;
-  const e = (Number(elevation.value) * Math.PI) / 180;
-  // Patient LPS: azimuth 0 is anterior (−y), 90 the patient's left (+x).
+// The light of the illumination panel as `kind:…` text (view settings `light`
+// and `lights`), with the direction from the centre in patient LPS: azimuth 0
+// is anterior (−y), 90 the patient's left (+x).
+function lightSource() {
+  const a = (Number(light.azimuth.value) * Math.PI) / 180;
+  const e = (Number(light.elevation.value) * Math.PI) / 180;
   const v = [Math.sin(a) * Math.cos(e), -Math.cos(a) * Math.cos(e), Math.sin(e)];
-  let light;
-  if (kind.value === 'point') {
-    const r = Number(distance.value) / 200;
-    light = 'point:' + v.map((c) => (0.5 + c * r).toFixed(3)).join(',');
-  } else {
-    light = 'directional:' + v.map((c) => c.toFixed(3)).join(',');
+  const xyz = (w) => w.map((c) => c.toFixed(3)).join(',');
+  const r = Number(light.distance.value) / 200;
+  const at = v.map((c) => 0.5 + c * r);
+  switch (light.kind.value) {
+    case 'point': return `point:${xyz(at)}`;
+    case 'spot': return `spot:${xyz(at)}:${xyz(v.map((c) => -c))}:${light.spot.value}`;
+    default: return `directional:${xyz(v)}`;
   }
-  return { light, bias: Number(bias.value) / 100, scatter_radius: scatter.value };
+}
+
+// The illumination panel's view settings for the lit shading modes.
+function lightParams() {
+  const colour = light.colour.value.slice(1);
+  const intensity = Number(light.intensity.value) / 100;
+  if (shadingSelect.value === 'global') {
+    // Global light has no spot light: a spot becomes a point light there.
+    const source = lightSource().replace(/^spot:([^:]*):.*$/, 'point:$1');
+    return {
+      light: source,
+      light_colour: colour,
+      light_intensity: intensity,
+      bias: Number(light.bias.value) / 100,
+      scatter_radius: light.scatter.value,
+    };
+  }
+  if (shadingSelect.value === 'extinction') {
+    return {
+      lights: `${lightSource()}:${colour}:${intensity}`,
+      ambient: Number(light.ambient.value) / 100,
+      ao_radius: light['ao-radius'].value,
+      ao_shells: Math.min(3, Number(light['ao-radius'].value)),
+      ao_strength: Number(light['ao-strength'].value) / 100,
+      colour_bleeding: light.bleeding.checked,
+      cone_angle: light.cone.value,
+    };
+  }
+  return {};
+}
+
+// Shows the illumination panel for the lit modes, with the rows of the mode.
+function showLightPanel() {
+  const mode = shadingSelect.value;
+  lightPanel.hidden = mode !== 'global' && mode !== 'extinction';
+  for (const row of lightPanel.querySelectorAll('[data-mode]')) {
+    row.hidden = row.dataset.mode !== mode;
+  }
+  if (mode === 'global' && light.kind.value === 'spot') light.kind.value = 'point';
+}
+
+// Dragging on the image moves the light instead of the camera while the
+// panel's box is ticked or Shift is held; the wheel moves a point or spot light
+// nearer or farther (into the volume below distance 100).
+function attachLightDrag() {
+  let last = null;
+  const active = (e) => !lightPanel.hidden && (light.drag.checked || e.shiftKey);
+  canvas.addEventListener('pointerdown', (e) => {
+    if (!active(e)) return;
+    e.stopImmediatePropagation();
+    canvas.setPointerCapture(e.pointerId);
+    last = { id: e.pointerId, x: e.clientX, y: e.clientY };
+  }, { capture: true });
+  canvas.addEventListener('pointermove', (e) => {
+    if (!last || e.pointerId !== last.id) return;
+    e.stopImmediatePropagation();
+    const dx = e.clientX - last.x;
+    const dy = e.clientY - last.y;
+    last = { id: e.pointerId, x: e.clientX, y: e.clientY };
+    const azimuth = ((Number(light.azimuth.value) - dx * 0.5 + 540) % 360) - 180;
+    light.azimuth.value = String(azimuth);
+    light.elevation.value = String(Math.max(-90, Math.min(90, Number(light.elevation.value) - dy * 0.5)));
+    requestFrame();
+  }, { capture: true });
+  const end = (e) => {
+    if (!last || e.pointerId !== last.id) return;
+    e.stopImmediatePropagation();
+    last = null;
+    requestFrame();
+  };
+  canvas.addEventListener('pointerup', end, { capture: true });
+  canvas.addEventListener('pointercancel', end, { capture: true });
+  canvas.addEventListener('wheel', (e) => {
+    if (!active(e) || light.kind.value === 'directional') return;
+    e.preventDefault();
+    e.stopImmediatePropagation();
+    light.distance.value = String(Number(light.distance.value) * Math.exp(e.deltaY * 0.001));
+    requestFrame();
+  }, { capture: true, passive: false });
 }
 
 // Sends the view; the server renders what it needs (the argument, whether the
@@ -136,6 +217,7 @@ function requestFrame() {
     ...size,
     ...(customTf ? { tf: customTf } : { preset: presetSelect.value }),
     shading: shadingSelect.value,
+    compositing: compositingSelect.value,
     proj: projectionSelect.value,
     reduction: reductionSelect.value,
     ...clipParam(),
@@ -179,22 +261,22 @@ async function start() {
   });
   stream = new ViewStream(drawFrame, showError, () => {});
 
+  attachLightDrag();
   attachGestures(canvas, camera, requestFrame);
   presetSelect.addEventListener('change', () => {
     loadPreset();
     requestFrame(false);
   });
-  for (const select of [shadingSelect, projectionSelect, reductionSelect]) {
+  for (const select of [shadingSelect, compositingSelect, projectionSelect, reductionSelect]) {
     select.addEventListener('change', () => requestFrame(false));
   }
   for (const slider of clipSliders.flat()) {
     slider.addEventListener('input', () => requestFrame(true));
   }
-  shadingSelect.addEventListener('change', () => {
-    lightPanel.hidden = shadingSelect.value !== 'global';
-  });
-  for (const input of lightInputs) {
-    input.addEventListener('change', () => requestFrame(false));
+  shadingSelect.addEventListener('change', showLightPanel);
+  showLightPanel();
+  for (const input of Object.values(light)) {
+    if (input !== light.drag) input.addEventListener('change', () => requestFrame(false));
   }
   document.getElementById('reset').addEventListener('click', () => {
     camera.reset();

@@ -8,7 +8,7 @@
 // refinements until converged.
 
 export const HEADER_LEN = 40;
-const ENCODINGS = { 1: 'image/jpeg', 2: 'image/png' };
+const ENCODINGS = { 1: 'image/jpeg', 2: 'image/png', 3: 'image/webp' };
 
 // The header of a binary frame (see server/src/protocol.rs `FrameHeader`).
 export function parseHeader(buffer) {

@@ -1,8 +1,9 @@
-//! Frame encoding for HTTP responses and view sessions: PNG and JPEG.
+//! Frame encoding for HTTP responses and view sessions: PNG, WebP lossless and JPEG.
 
 use image::ImageEncoder;
 use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+use image::codecs::webp::WebPEncoder;
 use shaders::Frame;
 
 /// Writes `frame` as opaque RGB (frames are composited over the background,
@@ -32,6 +33,36 @@ pub fn png(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
     Ok(out)
 }
 
+/// Encodes a frame as a lossless WebP (smaller than PNG, slower to encode).
+pub fn webp(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
+    let mut out = Vec::with_capacity(frame.rgba.len() / 4);
+    write_rgb(frame, WebPEncoder::new_lossless(&mut out))?;
+    Ok(out)
+}
+
+/// A lossless image format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Lossless {
+    /// PNG with fast compression.
+    #[default]
+    Png,
+    /// WebP lossless.
+    Webp,
+}
+
+impl std::str::FromStr for Lossless {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Lossless, String> {
+        match text {
+            "png" => Ok(Lossless::Png),
+            "webp" => Ok(Lossless::Webp),
+            _ => Err(format!("lossless format '{text}': expected png or webp")),
+        }
+    }
+}
+
 /// Encodes a frame as a baseline JPEG of `quality` (1–100): small and fast,
 /// for frames shown while the user interacts.
 pub fn jpeg(frame: &Frame, quality: u8) -> Result<Vec<u8>, image::ImageError> {
@@ -59,6 +90,23 @@ mod tests {
         let bytes = png(&frame).expect("encodes");
         let back = image::load_from_memory(&bytes).expect("decodes").to_rgba8();
         assert_eq!(back.dimensions(), (3, 2));
+        assert_eq!(back.into_raw(), frame.rgba);
+    }
+
+    #[test]
+    fn a_frame_round_trips_through_webp() {
+        let frame = Frame {
+            width: 5,
+            height: 3,
+            rgba: (0..60)
+                .map(|i| if i % 4 == 3 { 255 } else { (i * 7) as u8 })
+                .collect(),
+        };
+        let bytes = webp(&frame).expect("encodes");
+        let back = image::load_from_memory_with_format(&bytes, image::ImageFormat::WebP)
+            .expect("decodes")
+            .to_rgba8();
+        assert_eq!(back.dimensions(), (5, 3));
         assert_eq!(back.into_raw(), frame.rgba);
     }
 

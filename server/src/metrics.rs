@@ -46,6 +46,8 @@ pub enum Format {
     Jpeg,
     /// PNG.
     Png,
+    /// WebP (lossless).
+    Webp,
 }
 
 /// Label values in lower case, as Prometheus labels are usually written.
@@ -63,7 +65,7 @@ macro_rules! label_values {
 label_values! {
     Source { Stream => "stream", Http => "http" }
     Quality { Interactive => "interactive", Full => "full" }
-    Format { Jpeg => "jpeg", Png => "png" }
+    Format { Jpeg => "jpeg", Png => "png", Webp => "webp" }
 }
 
 #[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]

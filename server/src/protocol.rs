@@ -5,7 +5,7 @@
 //!
 //! | message | meaning |
 //! |---|---|
-//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds any of the parameters of `GET /api/render` (see [`crate::frame_query`]: `az`, `el`, `dist`, `fov`, `proj`, `w`, `h`, `preset`, `shading`, `step`, `clip`, `reduction`, `bg`, `dataset` and the light's), as JSON numbers or strings; they are merged into the session's view, so a camera move sends only `az` and `el`. A setting given as `null` is removed (back to its default; e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
+//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds any of the parameters of `GET /api/render` (see [`crate::frame_query`]: `az`, `el`, `dist`, `fov`, `proj`, `w`, `h`, `preset`, `shading`, `step`, `clip`, `reduction`, `bg`, `dataset`, `compositing`, the global light's (`light`, `light_colour`, …) and extinction-based illumination's (`lights`, `ambient`, `ao_radius`, `colour_bleeding`, …)), as JSON numbers or strings; they are merged into the session's view, so a camera move sends only `az` and `el`. A setting given as `null` is removed (back to its default; e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
 //! | `{"type":"ack","frame":F}` | the client has drawn frame `F`; the server sends at most [`crate::stream::StreamSettings::frames_in_flight`] frames ahead of the last acknowledged one. |
 //!
 //! A message that is not JSON, has an unknown type or field, or sets a value
@@ -25,7 +25,7 @@
 //! | offset | type | field |
 //! |---|---|---|
 //! | 0 | 4 bytes | magic `VXF1` |
-//! | 4 | u8 | encoding: 1 JPEG, 2 PNG |
+//! | 4 | u8 | encoding: 1 JPEG, 2 PNG, 3 WebP (lossless) |
 //! | 5 | u8 | flags: 1 lossless full resolution, 2 converged (nothing more will come for this view) |
 //! | 6 | u16 | width, pixels |
 //! | 8 | u16 | height, pixels |
@@ -55,8 +55,10 @@ pub const DPR_RANGE: (f64, f64) = (0.25, 4.0);
 pub enum Encoding {
     /// Lossy, for frames while the user interacts.
     Jpeg = 1,
-    /// Lossless.
+    /// Lossless, PNG.
     Png = 2,
+    /// Lossless, WebP.
+    Webp = 3,
 }
 
 /// The header in front of every binary frame; see the module docs.
@@ -134,9 +136,10 @@ impl FrameHeader {
         let encoding = match bytes[4] {
             1 => Encoding::Jpeg,
             2 => Encoding::Png,
+            3 => Encoding::Webp,
             other => {
                 return Err(format!(
-                    "frame encoding {other}: expected 1 (JPEG) or 2 (PNG)"
+                    "frame encoding {other}: expected 1 (JPEG), 2 (PNG) or 3 (WebP)"
                 ));
             }
         };

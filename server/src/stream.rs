@@ -51,6 +51,8 @@ pub struct StreamSettings {
     pub interactive_reduction: f32,
     /// JPEG quality (1–100) of frames while interacting.
     pub jpeg_quality: u8,
+    /// The format of lossless frames.
+    pub lossless: encode::Lossless,
     /// Frames sent ahead of the client's last acknowledgement.
     pub frames_in_flight: u32,
     /// Open sessions at most; more are refused with 503.
@@ -64,6 +66,7 @@ impl Default for StreamSettings {
             interactive_scale: 0.5,
             interactive_reduction: 4.0,
             jpeg_quality: 80,
+            lossless: encode::Lossless::Png,
             frames_in_flight: 1,
             max_sessions: 16,
         }
@@ -352,6 +355,7 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
                         let (metric_quality, format) = match header.encoding {
                             Encoding::Jpeg => (metrics::Quality::Interactive, metrics::Format::Jpeg),
                             Encoding::Png => (metrics::Quality::Full, metrics::Format::Png),
+                            Encoding::Webp => (metrics::Quality::Full, metrics::Format::Webp),
                         };
                         state.metrics.frame(
                             metrics::Source::Stream,
@@ -416,6 +420,7 @@ fn render_job(
 ) -> Job {
     let renderer = state.renderer.clone();
     let jpeg_quality = state.stream.jpeg_quality;
+    let lossless = state.stream.lossless;
     let global = request.shading == Shading::GlobalLight;
     Box::pin(async move {
         let rendered = renderer
@@ -429,7 +434,10 @@ fn render_job(
         let start = Instant::now();
         let (encoding, image) = tokio::task::spawn_blocking(move || match quality {
             Quality::Interactive => encode::jpeg(&frame, jpeg_quality).map(|b| (Encoding::Jpeg, b)),
-            Quality::Full => encode::png(&frame).map(|b| (Encoding::Png, b)),
+            Quality::Full => match lossless {
+                encode::Lossless::Png => encode::png(&frame).map(|b| (Encoding::Png, b)),
+                encode::Lossless::Webp => encode::webp(&frame).map(|b| (Encoding::Webp, b)),
+            },
         })
         .await
         .map_err(|e| format!("the encoder task failed: {e}"))?

@@ -1,8 +1,11 @@
 //! The web client in a real headless Chromium (Debian's `chromium` and
 //! `chromium-driver`, driven through WebDriver with fantoccini) against a real
 //! server on port 0: the page draws a frame, a drag orbits the camera and
-//! brings a new frame, switching the preset brings another. On failure a
-//! screenshot is written to `target/tmp/browser-failure.png`.
+//! brings a new frame, switching the preset brings another, extinction shading
+//! another, a drag with "Drag moves the light" ticked moves the light (a new
+//! frame, new pixels), and a phone-sized window (390×844) gets a frame of its
+//! own with nothing wider than the screen. On failure a screenshot is written
+//! to `target/tmp/browser-failure.png`.
 //!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
@@ -104,30 +107,7 @@ async fn exercise(client: &Client, url: &str) -> Result<(), String> {
     let frames = wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
 
     // Drag across the canvas to orbit.
-    let canvas = client
-        .find(Locator::Id("view"))
-        .await
-        .map_err(|e| format!("the canvas: {e}"))?;
-    let mut drag = MouseActions::new("mouse".into())
-        .then(PointerAction::MoveToElement {
-            element: canvas.clone(),
-            duration: None,
-            x: 0.0,
-            y: 0.0,
-        })
-        .then(PointerAction::Down { button: 0 });
-    for step in 1..=8 {
-        drag = drag.then(PointerAction::MoveBy {
-            duration: Some(Duration::from_millis(30)),
-            x: 25.0,
-            y: if step % 2 == 0 { 4.0 } else { 0.0 },
-        });
-    }
-    drag = drag.then(PointerAction::Up { button: 0 });
-    client
-        .perform_actions(drag)
-        .await
-        .map_err(|e| format!("dragging: {e}"))?;
+    drag_across(client).await?;
     let after_drag = wait_for(client, "a frame after the drag", FRAMES, |n| n > frames).await?;
     wait_for(client, "the orbited view", PIXELS, |v| {
         (v - first).abs() > 0.5
@@ -157,6 +137,71 @@ async fn exercise(client: &Client, url: &str) -> Result<(), String> {
         (v - before).abs() > 0.5
     })
     .await?;
+    // Extinction-based illumination, then drag the light instead of the camera.
+    let shown = wait_for(client, "frames", FRAMES, |n| n >= 1.0).await?;
+    let before = pixels(client).await?;
+    client
+        .execute(
+            "const s = document.getElementById('shading');
+             s.value = 'extinction';
+             s.dispatchEvent(new Event('change'));
+             document.getElementById('light-drag').checked = true;
+             document.getElementById('light-panel').open = false;
+             return s.value;",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("switching to extinction shading: {e}"))?;
+    wait_for(client, "a frame with extinction", FRAMES, |n| n > shown).await?;
+    let lit = wait_for(client, "the extinction view", PIXELS, |v| {
+        (v - before).abs() > 0.5
+    })
+    .await?;
+    let shown = wait_for(client, "frames", FRAMES, |n| n >= 1.0).await?;
+    let azimuth_before = client
+        .execute(
+            "return document.getElementById('light-azimuth').value;",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("reading the light: {e}"))?;
+    drag_across(client).await?;
+    wait_for(client, "a frame after moving the light", FRAMES, |n| {
+        n > shown
+    })
+    .await?;
+    let azimuth_after = client
+        .execute(
+            "return document.getElementById('light-azimuth').value;",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("reading the light: {e}"))?;
+    if azimuth_before == azimuth_after {
+        return Err(format!(
+            "dragging with 'Drag moves the light' left the light at azimuth {azimuth_after}"
+        ));
+    }
+    wait_for(client, "the relit view", PIXELS, |v| (v - lit).abs() > 0.5).await?;
+
+    // A phone-sized viewport: a new frame for the new size, nothing wider than the screen.
+    let shown = wait_for(client, "frames", FRAMES, |n| n >= 1.0).await?;
+    client
+        .set_window_size(390, 844)
+        .await
+        .map_err(|e| format!("resizing the window: {e}"))?;
+    wait_for(client, "a frame for the phone viewport", FRAMES, |n| {
+        n > shown
+    })
+    .await?;
+    wait_for(
+        client,
+        "page width over the viewport's",
+        "return document.documentElement.scrollWidth - window.innerWidth;",
+        |over| over <= 0.0,
+    )
+    .await?;
+
     let error = client
         .execute(
             "const e = document.getElementById('error'); return e.hidden ? '' : e.textContent;",
@@ -168,6 +213,44 @@ async fn exercise(client: &Client, url: &str) -> Result<(), String> {
         Some("") | None => Ok(()),
         Some(message) => Err(format!("the page shows an error: {message}")),
     }
+}
+
+/// The canvas's pixel sum, as [`PIXELS`] reads it.
+async fn pixels(client: &Client) -> Result<f64, String> {
+    Ok(client
+        .execute(PIXELS, vec![])
+        .await
+        .map_err(|e| format!("reading the canvas: {e}"))?
+        .as_f64()
+        .unwrap_or(f64::NAN))
+}
+
+/// Drags the mouse across the canvas from its centre to the right.
+async fn drag_across(client: &Client) -> Result<(), String> {
+    let canvas = client
+        .find(Locator::Id("view"))
+        .await
+        .map_err(|e| format!("the canvas: {e}"))?;
+    let mut drag = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: canvas,
+            duration: None,
+            x: 0.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down { button: 0 });
+    for step in 1..=8 {
+        drag = drag.then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(30)),
+            x: 25.0,
+            y: if step % 2 == 0 { 4.0 } else { 0.0 },
+        });
+    }
+    drag = drag.then(PointerAction::Up { button: 0 });
+    client
+        .perform_actions(drag)
+        .await
+        .map_err(|e| format!("dragging: {e}"))
 }
 
 #[tokio::test]

@@ -94,6 +94,11 @@ async fn bad_queries_get_400_with_a_message_and_the_server_keeps_serving() {
         ("shading=global&segment=64", "segment=\"64\""),
         ("shading=global&bias=2", "bias=\"2\""),
         ("shading=global&directions=0", "directions=\"0\""),
+        ("shading=extinction&lights=lamp:0,0,0", "light 'lamp:0,0,0'"),
+        ("shading=extinction&ao_radius=2&ao_shells=3", "shells = 3"),
+        ("shading=extinction&sat_size=1000", "sat_size=\"1000\""),
+        ("shading=extinction&cone_growth=-1", "cone_growth=\"-1\""),
+        ("compositing=over", "unknown compositing 'over'"),
     ];
     for (query, expected) in cases {
         let response = get(&server.url(&format!("/api/render?{query}"))).await;
@@ -121,6 +126,9 @@ async fn every_shading_projection_clip_and_reduction_renders() {
         "shading=minip&bg=203040",
         "shading=unshaded&clip=0,0,0,1,0.5,1",
         "shading=gradient&reduction=9",
+        "shading=extinction&sat_size=24&ao_radius=3&colour_bleeding=true\
+         &lights=point:0.5,0.5,0.5:ff8000:1;spot:1.5,0.5,0.5:-1,0,0:30:4080ff:1",
+        "shading=extinction&compositing=extinction&sat_size=16&lights=",
     ] {
         let response = get(&server.url(&format!("/api/render?w=64&h=48&{query}"))).await;
         assert_eq!(response.status(), 200, "{query}");

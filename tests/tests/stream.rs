@@ -7,6 +7,7 @@
 use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
+use server::encode::Lossless;
 use server::protocol::{Encoding, FrameHeader, HEADER_LEN};
 use server::stream::StreamSettings;
 use tokio::net::TcpStream;
@@ -58,6 +59,7 @@ async fn next(socket: &mut Socket) -> Received {
                 let format = match header.encoding {
                     Encoding::Jpeg => image::ImageFormat::Jpeg,
                     Encoding::Png => image::ImageFormat::Png,
+                    Encoding::Webp => image::ImageFormat::WebP,
                 };
                 let img = image::load_from_memory_with_format(&bytes[HEADER_LEN..], format)
                     .expect("a decodable image")
@@ -125,6 +127,41 @@ async fn server_and_session(test: &str) -> Option<(TestServer, Socket)> {
     let server = TestServer::start(gpu, 32).await;
     let socket = connect(&server).await;
     Some((server, socket))
+}
+
+#[tokio::test]
+async fn lossless_frames_can_be_webp_with_the_same_pixels_as_png() {
+    let test = "lossless_frames_can_be_webp_with_the_same_pixels_as_png";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let mut still = Vec::new();
+    for lossless in [Lossless::Png, Lossless::Webp] {
+        let server = TestServer::start_with(
+            gpu,
+            32,
+            StreamSettings {
+                lossless,
+                ..StreamSettings::default()
+            },
+        )
+        .await;
+        let mut socket = connect(&server).await;
+        send(
+            &mut socket,
+            serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 40, "az": 20}}),
+        )
+        .await;
+        let frames = until_lossless(&mut socket, 1).await;
+        let (header, image) = frames.last().expect("frames");
+        let expected = match lossless {
+            Lossless::Png => Encoding::Png,
+            Lossless::Webp => Encoding::Webp,
+        };
+        assert_eq!(header.encoding, expected, "{header:?}");
+        still.push(image.clone());
+    }
+    assert_eq!(still[0], still[1], "WebP lossless shows PNG's pixels");
 }
 
 #[tokio::test]

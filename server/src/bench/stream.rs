@@ -4,10 +4,11 @@
 //! - `stream-latency`, per image size and format: the time from sending a
 //!   `view` message (a camera move) to receiving the frame that reflects it,
 //!   one event at a time, p50 and p95, beside the render, queue and encode
-//!   milliseconds the frames' headers report. JPEG frames come from a server
-//!   that never counts the view as still, lossless ones from a server that
-//!   counts it still at once; both render at the full size (no interactive
-//!   scaling or reduction), so the two formats show the same pixels.
+//!   milliseconds the frames' headers report, and the frames' size in bytes.
+//!   JPEG frames come from a server that never counts the view as still,
+//!   lossless ones (PNG, then WebP) from a server that counts it still at once;
+//!   all render at the full size (no interactive scaling or reduction), so the
+//!   formats show the same pixels.
 //! - `stream-sessions`, per number of concurrent sessions: every session moves
 //!   its camera again as soon as its frame arrives, for `--seconds`; frames per
 //!   second in all and per session (slowest ÷ fastest shows fairness), errors,
@@ -23,6 +24,7 @@ use tokio_tungstenite::tungstenite::Message;
 
 use crate::cli::BenchStreamArgs;
 use crate::commands::{load_dataset, say};
+use crate::encode::Lossless;
 use crate::protocol::FrameHeader;
 use crate::stream::StreamSettings;
 use crate::{AppState, Dataset, RenderService};
@@ -71,6 +73,16 @@ async fn connect(url: &str) -> anyhow::Result<Socket> {
 /// Waits for the frame reflecting message `id` (any frame for `None`, which
 /// also accepts the hello); acknowledges it.
 async fn next_frame(socket: &mut Socket, id: Option<u32>) -> anyhow::Result<Option<FrameHeader>> {
+    Ok(next_frame_sized(socket, id)
+        .await?
+        .map(|(header, _)| header))
+}
+
+/// [`next_frame`] with the frame's size in bytes (header included).
+async fn next_frame_sized(
+    socket: &mut Socket,
+    id: Option<u32>,
+) -> anyhow::Result<Option<(FrameHeader, usize)>> {
     loop {
         let message = tokio::time::timeout(PATIENCE, socket.next())
             .await
@@ -82,7 +94,7 @@ async fn next_frame(socket: &mut Socket, id: Option<u32>) -> anyhow::Result<Opti
                 let ack = serde_json::json!({"type": "ack", "frame": header.frame_id});
                 socket.send(Message::Text(ack.to_string().into())).await?;
                 if id.is_none_or(|id| header.message_id == id) {
-                    return Ok(Some(header));
+                    return Ok(Some((header, bytes.len())));
                 }
             }
             Message::Text(text) => {
@@ -131,9 +143,16 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
         max_sessions: 4096,
         ..StreamSettings::default()
     };
-    for (format, idle_ms) in [("jpeg", 3_600_000u64), ("lossless", 0)] {
+    // JPEG from a server that never counts the view as still; lossless frames
+    // (PNG, then WebP) from one that always does.
+    for (format, idle_ms, lossless) in [
+        ("jpeg", 3_600_000u64, Lossless::Png),
+        ("png", 0, Lossless::Png),
+        ("webp", 0, Lossless::Webp),
+    ] {
         let settings = StreamSettings {
             idle_ms,
+            lossless,
             ..full_size
         };
         let (url, stop) = start_server(dataset.clone(), renderer.clone(), settings).await?;
@@ -145,6 +164,7 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
             let (mut latency, mut overhead, mut render, mut encode, mut queue) =
                 (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
             let mut pixels = 0usize;
+            let mut sizes = Vec::new();
             for event in 0..args.events {
                 let id = event + 2;
                 let start = Instant::now();
@@ -154,9 +174,10 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
                     serde_json::json!({"az": f64::from(event) * 7.0}),
                 )
                 .await?;
-                let Some(header) = next_frame(&mut socket, Some(id)).await? else {
+                let Some((header, size)) = next_frame_sized(&mut socket, Some(id)).await? else {
                     anyhow::bail!("no frame for message {id}");
                 };
+                sizes.push(size as f64);
                 let ms = start.elapsed().as_secs_f64() * 1e3;
                 latency.push(ms);
                 overhead.push(ms - f64::from(header.render_ms));
@@ -182,6 +203,7 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
                 "encode_ms_p95": quantile(&mut encode, 0.95),
                 "queue_ms_p50": quantile(&mut queue, 0.5),
                 "pixels_per_frame": pixels / args.events.max(1) as usize,
+                "frame_bytes_p50": quantile(&mut sizes, 0.5),
             })
             .to_string())?;
         }
