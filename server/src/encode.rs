@@ -45,9 +45,9 @@ pub fn webp(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
 #[serde(rename_all = "lowercase")]
 pub enum Lossless {
     /// PNG with fast compression.
-    #[default]
     Png,
     /// WebP lossless.
+    #[default]
     Webp,
 }
 

@@ -190,7 +190,7 @@ async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_fol
     let (full, front) = first.last().expect("frames");
     assert_eq!(
         (full.encoding, full.width, full.height),
-        (Encoding::Png, 64, 48),
+        (Encoding::Webp, 64, 48),
         "{full:?}"
     );
     assert!(
