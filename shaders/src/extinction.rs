@@ -31,7 +31,7 @@ use std::time::Instant;
 use glam::{Mat3, Vec3};
 
 use crate::light::{LightInputs, MAX_INTENSITY, parse_vec3, texture_transforms};
-use crate::pipeline::{self, ComputeStage};
+use crate::pipeline::{self, ComputeStage, run};
 use crate::raycast::VolumePlacement;
 use crate::volume_texture::VolumeTexture;
 use crate::{GpuContext, GpuError};
@@ -1020,6 +1020,13 @@ impl ExtinctionVolumes {
         })
     }
 
+    /// Bindings 0–4 of the stages that query the SAT: params and the channels.
+    fn sat_bindings(&self) -> Vec<wgpu::BindingResource<'_>> {
+        let mut resources = vec![self.params.as_entire_binding()];
+        resources.extend(self.sat.iter().map(wgpu::Buffer::as_entire_binding));
+        resources
+    }
+
     fn fits(&self, grid: [u32; 3], channels: u32) -> bool {
         self.extinction.dims == grid && self.channels == channels
     }
@@ -1197,19 +1204,11 @@ impl ExtinctionLighting {
         let p = &self.pipelines;
         let groups = workgroups(params.grid);
         match method {
-            AoMethod::Sat => run(
-                gpu,
-                &p.ambient_occlusion,
-                &[
-                    v.params.as_entire_binding(),
-                    v.sat[0].as_entire_binding(),
-                    v.sat[1].as_entire_binding(),
-                    v.sat[2].as_entire_binding(),
-                    v.sat[3].as_entire_binding(),
-                    wgpu::BindingResource::TextureView(&v.ambient.view),
-                ],
-                groups,
-            ),
+            AoMethod::Sat => {
+                let mut resources = v.sat_bindings();
+                resources.push(wgpu::BindingResource::TextureView(&v.ambient.view));
+                run(gpu, &p.ambient_occlusion, &resources, groups)
+            }
             AoMethod::Sampled => run(
                 gpu,
                 &p.ambient_occlusion_reference,
@@ -1231,20 +1230,14 @@ impl ExtinctionLighting {
         let p = &self.pipelines;
         let groups = workgroups(params.grid);
         match method {
-            ShadowMethod::Cone => run(
-                gpu,
-                &p.soft_shadow,
-                &[
-                    v.params.as_entire_binding(),
-                    v.sat[0].as_entire_binding(),
-                    v.sat[1].as_entire_binding(),
-                    v.sat[2].as_entire_binding(),
-                    v.sat[3].as_entire_binding(),
+            ShadowMethod::Cone => {
+                let mut resources = v.sat_bindings();
+                resources.extend([
                     wgpu::BindingResource::TextureView(&v.ambient.view),
                     wgpu::BindingResource::TextureView(&v.light_cache.view),
-                ],
-                groups,
-            ),
+                ]);
+                run(gpu, &p.soft_shadow, &resources, groups)
+            }
             ShadowMethod::Ray => run(
                 gpu,
                 &p.shadow_ray,
@@ -1258,28 +1251,6 @@ impl ExtinctionLighting {
             ),
         }
     }
-}
-
-/// Runs one stage to completion and returns its wall time in milliseconds.
-fn run(
-    gpu: &GpuContext,
-    stage: &ComputeStage,
-    resources: &[wgpu::BindingResource<'_>],
-    groups: [u32; 3],
-) -> Result<f64, GpuError> {
-    let start = Instant::now();
-    gpu.scoped(&format!("running {}", stage.name), || {
-        let bind_group = stage.bind_group(gpu, resources);
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some(stage.name),
-            });
-        stage.dispatch(&mut encoder, &bind_group, groups);
-        gpu.queue.submit([encoder.finish()]);
-    })?;
-    gpu.wait(stage.name)?;
-    Ok(start.elapsed().as_secs_f64() * 1e3)
 }
 
 #[cfg(test)]

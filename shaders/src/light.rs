@@ -30,7 +30,7 @@ use blocks::store::LEVELS;
 use glam::{Mat4, Vec3};
 
 use crate::packed::GpuAtlas;
-use crate::pipeline::{self, ComputeStage};
+use crate::pipeline::{self, ComputeStage, run};
 use crate::raycast::{PackedLayout, VolumePlacement};
 use crate::volume_texture::VolumeTexture;
 use crate::{GpuContext, GpuError};
@@ -1180,28 +1180,6 @@ impl Illumination {
             workgroups(volumes.light_volume.dims),
         )
     }
-}
-
-/// Runs one stage to completion and returns its wall time in milliseconds.
-fn run(
-    gpu: &GpuContext,
-    stage: &ComputeStage,
-    resources: &[wgpu::BindingResource<'_>],
-    groups: [u32; 3],
-) -> Result<f64, GpuError> {
-    let start = Instant::now();
-    gpu.scoped(&format!("running {}", stage.name), || {
-        let bind_group = stage.bind_group(gpu, resources);
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some(stage.name),
-            });
-        stage.dispatch(&mut encoder, &bind_group, groups);
-        gpu.queue.submit([encoder.finish()]);
-    })?;
-    gpu.wait(stage.name)?;
-    Ok(start.elapsed().as_secs_f64() * 1e3)
 }
 
 #[cfg(test)]

@@ -211,6 +211,29 @@ impl ComputeStage {
     }
 }
 
+/// Runs one stage to completion (a bind group of `resources`, `groups`
+/// workgroups) and returns its wall time in milliseconds.
+pub fn run(
+    gpu: &GpuContext,
+    stage: &ComputeStage,
+    resources: &[wgpu::BindingResource<'_>],
+    groups: [u32; 3],
+) -> Result<f64, GpuError> {
+    let start = std::time::Instant::now();
+    gpu.scoped(&format!("running {}", stage.name), || {
+        let bind_group = stage.bind_group(gpu, resources);
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some(stage.name),
+            });
+        stage.dispatch(&mut encoder, &bind_group, groups);
+        gpu.queue.submit([encoder.finish()]);
+    })?;
+    gpu.wait(stage.name)?;
+    Ok(start.elapsed().as_secs_f64() * 1e3)
+}
+
 /// The sampler every stage filters with: linear, clamp to edge.
 pub fn linear_sampler(gpu: &GpuContext) -> wgpu::Sampler {
     gpu.device.create_sampler(&wgpu::SamplerDescriptor {

@@ -339,25 +339,23 @@ impl Renderer {
     /// light is brought up to date first: recomputed when the data, transfer
     /// function or light changed, else refined by one more direction.
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        let mut stats = self.prepare(request)?;
-        if request.shading == Shading::GlobalLight {
-            stats.light = Some(self.update_light(request, false)?);
-        }
-        if request.shading == Shading::Extinction {
-            stats.extinction = Some(self.update_extinction(request)?);
-        }
-        self.draw(request, stats)
+        self.render_lit(request, false)
     }
 
     /// Renders one frame with the light converged: every in-scattering
     /// direction in (for still images and tests).
     pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.render_lit(request, true)
+    }
+
+    /// Prepares the blocks, brings the request's light up to date (all of
+    /// global light's refinements when `converge`) and draws.
+    fn render_lit(&mut self, request: &FrameRequest, converge: bool) -> Result<Frame, GpuError> {
         let mut stats = self.prepare(request)?;
-        if request.shading == Shading::GlobalLight {
-            stats.light = Some(self.update_light(request, true)?);
-        }
-        if request.shading == Shading::Extinction {
-            stats.extinction = Some(self.update_extinction(request)?);
+        match request.shading {
+            Shading::GlobalLight => stats.light = Some(self.update_light(request, converge)?),
+            Shading::Extinction => stats.extinction = Some(self.update_extinction(request)?),
+            _ => {}
         }
         self.draw(request, stats)
     }
@@ -387,12 +385,7 @@ impl Renderer {
         else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
-        let inputs = LightInputs {
-            atlas: &resident.atlas,
-            transfer_function: &self.frame.transfer_function,
-            texture: &self.desc,
-            tf_len: TABLE_LEN as u32,
-        };
+        let inputs = light_inputs(resident, &self.frame, &self.desc);
         let mut timings = illumination.update(
             &self.gpu,
             inputs,
@@ -421,12 +414,7 @@ impl Renderer {
         let (Some(resident), Some(extinction)) = (&self.resident, self.extinction.as_mut()) else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
-        let inputs = LightInputs {
-            atlas: &resident.atlas,
-            transfer_function: &self.frame.transfer_function,
-            texture: &self.desc,
-            tf_len: TABLE_LEN as u32,
-        };
+        let inputs = light_inputs(resident, &self.frame, &self.desc);
         extinction.update(
             &self.gpu,
             inputs,
@@ -443,26 +431,23 @@ impl Renderer {
         };
         let params =
             RaycastParams::new(&self.desc, request, TABLE_LEN as u32, resident.atlas.layout);
-        let (pipeline, light) = match request.shading {
-            Shading::GlobalLight => match (
-                &self.lit_pipeline,
+        // The lit pipeline and its light, once both exist; else unlit.
+        let lit = match request.shading {
+            Shading::GlobalLight => self.lit_pipeline.as_ref().zip(
                 self.illumination
                     .as_ref()
                     .and_then(Illumination::light_volume),
-            ) {
-                (Some(p), Some(light)) => (p, Some(light)),
-                _ => (&self.pipeline, None),
-            },
-            Shading::Extinction => match (
-                &self.extinction_pipeline,
+            ),
+            Shading::Extinction => self.extinction_pipeline.as_ref().zip(
                 self.extinction
                     .as_ref()
                     .and_then(ExtinctionLighting::light_cache),
-            ) {
-                (Some(p), Some(cache)) => (p, Some(cache)),
-                _ => (&self.pipeline, None),
-            },
-            _ => (&self.pipeline, None),
+            ),
+            _ => None,
+        };
+        let (pipeline, light) = match lit {
+            Some((p, light)) => (p, Some(light)),
+            None => (&self.pipeline, None),
         };
         let start = Instant::now();
         let frame = self.frame.draw(
@@ -713,6 +698,21 @@ pub fn select_levels(
 /// voxel) of a volume of `full_voxels`.
 pub fn budget_voxels(full_voxels: u64, reduction: f32) -> u64 {
     (full_voxels as f64 / f64::from(reduction.max(1.0))).ceil() as u64
+}
+
+/// What the light stages read: the resident blocks and the frame's
+/// transfer-function table.
+fn light_inputs<'a>(
+    resident: &'a Resident,
+    frame: &'a FrameResources,
+    desc: &'a VolumeTexture,
+) -> LightInputs<'a> {
+    LightInputs {
+        atlas: &resident.atlas,
+        transfer_function: &frame.transfer_function,
+        texture: desc,
+        tf_len: TABLE_LEN as u32,
+    }
 }
 
 /// The output texture and readback buffer for `width` × `height`: the one in `slot`

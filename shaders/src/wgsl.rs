@@ -96,13 +96,15 @@ pub const AMBIENT_OCCLUSION_REFERENCE: &str =
 pub const SOFT_SHADOW: &str = extinction_stage!(
     "../wgsl/shared/extinction_light.wgsl",
     "../wgsl/soft_shadow.wgsl",
-    "../wgsl/shared/sat.wgsl"
+    "../wgsl/shared/sat.wgsl",
+    "../wgsl/shared/light_cache_fill.wgsl"
 );
 
 /// The `shadow_ray` stage (`shaders/wgsl/shadow_ray.wgsl`).
 pub const SHADOW_RAY: &str = extinction_stage!(
     "../wgsl/shared/extinction_light.wgsl",
-    "../wgsl/shadow_ray.wgsl"
+    "../wgsl/shadow_ray.wgsl",
+    "../wgsl/shared/light_cache_fill.wgsl"
 );
 
 /// The `reference` stage over one plain texture (`shaders/wgsl/reference.wgsl`).

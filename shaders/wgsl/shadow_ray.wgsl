@@ -5,6 +5,7 @@
 // cell along the main axis) to the light or the grid's edge, reading each
 // sample's cell; the cache is filled as soft_shadow fills it.
 //
+// Entry point: shared/light_cache_fill.wgsl.
 // Dispatch: one invocation per cell, workgroups of 4×4×4.
 // Bindings (group 0):
 //   0 params             uniform ExtinctionParams
@@ -21,7 +22,10 @@
 // The most samples of one shadow ray.
 const MAX_RAY_STEPS: u32 = 8192u;
 
-fn ray_depth(light: ExtinctionLight, p: vec3<f32>) -> f32 {
+// Δt·τ summed along the ray from cell c to `light` (shared/light_cache_fill.wgsl
+// calls it per light).
+fn occlusion_depth(light: ExtinctionLight, c: vec3<i32>) -> f32 {
+    let p = vec3<f32>(c) + 0.5;
     let v = towards(light, p);
     let distance = length(v);
     let va = max(abs(v.x), max(abs(v.y), abs(v.z)));
@@ -48,22 +52,4 @@ fn ray_depth(light: ExtinctionLight, p: vec3<f32>) -> f32 {
         t += params.ray_step;
     }
     return depth;
-}
-
-@compute @workgroup_size(4, 4, 4)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if any(gid >= params.grid) {
-        return;
-    }
-    let c = vec3<i32>(gid);
-    let p = vec3<f32>(c) + 0.5;
-    var light = params.ambient * textureLoad(ambient, c, 0).rgb;
-    for (var l = 0u; l < params.light_count; l++) {
-        let source = params.lights[l];
-        let f = light_factor(source, p);
-        if f > 0.0 {
-            light += source.colour.rgb * f * exp(-ray_depth(source, p));
-        }
-    }
-    textureStore(light_cache, gid, vec4<f32>(light, 1.0));
 }

@@ -13,6 +13,7 @@
 // Cuboids stop at the light (point and spot lights, inside the volume too) or
 // where the main axis leaves the grid; cells outside the grid count as empty.
 //
+// Entry point: shared/light_cache_fill.wgsl.
 // Dispatch: one invocation per cell, workgroups of 4×4×4.
 // Bindings (group 0):
 //   0 params             uniform ExtinctionParams (lights in grid coordinates)
@@ -30,8 +31,9 @@
 @group(0) @binding(5) var ambient: texture_3d<f32>;
 @group(0) @binding(6) var light_cache: texture_storage_3d<rgba16float, write>;
 
-// Σ_k h_k · SAT(Q_k): the optical depth through the cone from cell c towards `light`.
-fn cone_depth(light: ExtinctionLight, c: vec3<i32>) -> f32 {
+// Σ_k h_k · SAT(Q_k): the optical depth through the cone from cell c towards
+// `light` (shared/light_cache_fill.wgsl calls it per light).
+fn occlusion_depth(light: ExtinctionLight, c: vec3<i32>) -> f32 {
     let p = vec3<f32>(c) + 0.5;
     let v = towards(light, p);
     let av = abs(v);
@@ -91,22 +93,4 @@ fn cone_depth(light: ExtinctionLight, c: vec3<i32>) -> f32 {
         prev = end;
     }
     return depth;
-}
-
-@compute @workgroup_size(4, 4, 4)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if any(gid >= params.grid) {
-        return;
-    }
-    let c = vec3<i32>(gid);
-    let p = vec3<f32>(c) + 0.5;
-    var light = params.ambient * textureLoad(ambient, c, 0).rgb;
-    for (var l = 0u; l < params.light_count; l++) {
-        let source = params.lights[l];
-        let f = light_factor(source, p);
-        if f > 0.0 {
-            light += source.colour.rgb * f * exp(-cone_depth(source, c));
-        }
-    }
-    textureStore(light_cache, gid, vec4<f32>(light, 1.0));
 }

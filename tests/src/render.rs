@@ -79,3 +79,28 @@ pub fn gpu_reference(gpu: &GpuContext, volume: &Volume) -> ReferenceRenderer {
     ReferenceRenderer::new(gpu.clone(), volume)
         .unwrap_or_else(|e| panic!("reference renderer of {}: {e}", volume.name))
 }
+
+/// The `raycast` CPU twin's frame of `request` over `packed` (laid out as
+/// `packing`, blocks of `dataset`), lit by whatever light `packed` carries:
+/// what a GPU frame of the same packing is compared with.
+pub fn cpu_raycast(
+    dataset: &Dataset,
+    desc: &shaders::volume_texture::VolumeTexture,
+    packing: &blocks::packing::Packing,
+    packed: &shaders::cpu::PackedTexture,
+    request: &FrameRequest,
+    table: &[[f32; 4]],
+) -> Frame {
+    let layout = shaders::raycast::PackedLayout {
+        atlas_dims: packing.atlas_dims,
+        block_grid: dataset.store.meta().blocks,
+    };
+    let params = shaders::RaycastParams::new(desc, request, table.len() as u32, layout);
+    let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
+    shaders::cpu::raycast(&params, packed, table, &mut rgba);
+    Frame {
+        width: request.width,
+        height: request.height,
+        rgba,
+    }
+}

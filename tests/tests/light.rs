@@ -20,7 +20,7 @@ use shaders::{Camera, FrameRequest, GpuContext, LightSettings, Shading};
 use voxserve_tests::gpu_or_skip;
 use voxserve_tests::image_compare::assert_similar;
 use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
-use voxserve_tests::render::gpu_renderer;
+use voxserve_tests::render::{cpu_raycast, gpu_renderer};
 
 /// Largest accepted mean and maximum absolute difference of light values.
 const STAGE_TOLERANCE: (f64, f64) = (1e-3, 0.05);
@@ -153,18 +153,7 @@ fn compare_stages(
     // the ray caster's arithmetic differs.
     let mut cpu_packed = packed;
     cpu_packed.light = Some(Texture3d::new(atlas, gpu_light));
-    let layout = shaders::raycast::PackedLayout {
-        atlas_dims: packing.atlas_dims,
-        block_grid: dataset.store.meta().blocks,
-    };
-    let raycast_params = shaders::RaycastParams::new(&desc, request, table.len() as u32, layout);
-    let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
-    shaders::cpu::raycast(&raycast_params, &cpu_packed, &table, &mut rgba);
-    let cpu_frame = shaders::Frame {
-        width: request.width,
-        height: request.height,
-        rgba,
-    };
+    let cpu_frame = cpu_raycast(dataset, &desc, &packing, &cpu_packed, request, &table);
     let tolerance = voxserve_tests::Tolerance {
         max_mean: 0.5,
         pixel_threshold: 8,

@@ -22,9 +22,9 @@ use shaders::colour_difference::{colour_difference, object_colour_difference};
 use shaders::extinction::{
     AoMethod, ExtinctionSettings, ExtinctionTimings, ShadowMethod, grid_dims,
 };
-use shaders::{Camera, FrameRequest, GpuContext, Renderer, Shading};
+use shaders::{Camera, Frame, FrameRequest, GpuContext, Renderer, Shading};
 
-use super::light::{merge, write_images};
+use super::light::{adapter_json, merge, write_images};
 use crate::bench::{bench_dataset, timed};
 use crate::cli::BenchExtinctionArgs;
 use crate::commands::say;
@@ -40,15 +40,37 @@ fn timings_of(renderer: &Renderer) -> anyhow::Result<ExtinctionTimings> {
         .ok_or_else(|| anyhow::anyhow!("the last frame computed no extinction terms"))
 }
 
+/// Adds the colour difference of `frame` against `reference` (over the image
+/// and over the object's pixels) to `line`, and writes both frames and the
+/// ΔE image as `STEM-METHOD.png` … when `--images` asks.
+fn compare(
+    args: &BenchExtinctionArgs,
+    stem: &str,
+    method: &str,
+    frame: &Frame,
+    reference: &Frame,
+    line: &mut serde_json::Value,
+) -> anyhow::Result<()> {
+    // Frames are composited over a black background.
+    let image = colour_difference(frame, reference).map_err(anyhow::Error::msg)?;
+    let object = object_colour_difference(frame, reference, [0; 3]).map_err(anyhow::Error::msg)?;
+    if let Some(dir) = &args.images {
+        write_images(dir, stem, method, frame, reference)?;
+    }
+    if let Some(line) = line.as_object_mut() {
+        line.insert("width".into(), args.size.into());
+        line.insert("delta_e_rms".into(), image.rms.into());
+        line.insert("delta_e_6".into(), image.above_6.into());
+        line.insert("delta_e".into(), serde_json::to_value(image)?);
+        line.insert("object_delta_e".into(), serde_json::to_value(object)?);
+    }
+    Ok(())
+}
+
 /// `voxserve bench extinction`; see the module docs.
 pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
     let gpu = GpuContext::new()?;
-    let info = gpu.info.clone();
-    let adapter = serde_json::json!({
-        "adapter": info.name,
-        "backend": info.backend.to_string(),
-        "device_type": format!("{:?}", info.device_type),
-    });
+    let adapter = adapter_json(&gpu);
     for name in &args.datasets {
         let Some((dataset, tf)) = bench_dataset(name, &args.data_dir, &args.data)? else {
             continue;
@@ -76,7 +98,6 @@ pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
             ExtinctionSettings::default(),
         ))?;
         let stats = renderer.last_stats().clone();
-        let background = [0u8; 3];
         for &sat_size in &args.sat_sizes {
             let grid = grid_dims(renderer.volume_texture(), sat_size);
             let cells: u64 = grid.iter().map(|&n| u64::from(n)).product();
@@ -148,20 +169,8 @@ pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
                 if let (Some(reference), true) = (&sampled_frame, radius == args.ao_radius) {
                     let frame =
                         renderer.render(&request(args.size, Shading::Extinction, settings))?;
-                    let image = colour_difference(&frame, reference).map_err(anyhow::Error::msg)?;
-                    let object = object_colour_difference(&frame, reference, background)
-                        .map_err(anyhow::Error::msg)?;
-                    if let Some(dir) = &args.images {
-                        let stem = format!("{name}-sat{sat_size}-ao-shells{shells}");
-                        write_images(dir, &stem, "sat", &frame, reference)?;
-                    }
-                    if let Some(line) = line.as_object_mut() {
-                        line.insert("width".into(), args.size.into());
-                        line.insert("delta_e_rms".into(), image.rms.into());
-                        line.insert("delta_e_6".into(), image.above_6.into());
-                        line.insert("delta_e".into(), serde_json::to_value(image)?);
-                        line.insert("object_delta_e".into(), serde_json::to_value(object)?);
-                    }
+                    let stem = format!("{name}-sat{sat_size}-ao-shells{shells}");
+                    compare(args, &stem, "sat", &frame, reference, &mut line)?;
                 }
                 merge(&mut line, &setting);
                 merge(&mut line, &adapter);
@@ -205,20 +214,8 @@ pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
                 if let Some(reference) = &ray_frame {
                     let frame =
                         renderer.render(&request(args.size, Shading::Extinction, settings))?;
-                    let image = colour_difference(&frame, reference).map_err(anyhow::Error::msg)?;
-                    let object = object_colour_difference(&frame, reference, background)
-                        .map_err(anyhow::Error::msg)?;
-                    if let Some(dir) = &args.images {
-                        let stem = format!("{name}-sat{sat_size}-cone{frequency}");
-                        write_images(dir, &stem, "cone", &frame, reference)?;
-                    }
-                    if let Some(line) = line.as_object_mut() {
-                        line.insert("width".into(), args.size.into());
-                        line.insert("delta_e_rms".into(), image.rms.into());
-                        line.insert("delta_e_6".into(), image.above_6.into());
-                        line.insert("delta_e".into(), serde_json::to_value(image)?);
-                        line.insert("object_delta_e".into(), serde_json::to_value(object)?);
-                    }
+                    let stem = format!("{name}-sat{sat_size}-cone{frequency}");
+                    compare(args, &stem, "cone", &frame, reference, &mut line)?;
                 }
                 merge(&mut line, &setting);
                 merge(&mut line, &adapter);

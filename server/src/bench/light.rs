@@ -52,12 +52,7 @@ fn light_of(renderer: &Renderer) -> anyhow::Result<LightTimings> {
 /// `voxserve bench light`; see the module docs.
 pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
     let gpu = GpuContext::new()?;
-    let info = gpu.info.clone();
-    let adapter = serde_json::json!({
-        "adapter": info.name,
-        "backend": info.backend.to_string(),
-        "device_type": format!("{:?}", info.device_type),
-    });
+    let adapter = adapter_json(&gpu);
     let Some(&first_svr) = args.svr_scales.first() else {
         anyhow::bail!("--svr-scales: expected at least one of 1, 2, 4, 8");
     };
@@ -305,6 +300,15 @@ pub(crate) fn write_images(
             .with_context(|| format!("--images: cannot write {}", path.display()))?;
     }
     Ok(())
+}
+
+/// The adapter's name, backend and device type, for every JSON line.
+pub(crate) fn adapter_json(gpu: &GpuContext) -> serde_json::Value {
+    serde_json::json!({
+        "adapter": gpu.info.name,
+        "backend": gpu.info.backend.to_string(),
+        "device_type": format!("{:?}", gpu.info.device_type),
+    })
 }
 
 /// Adds the fields of `extra` to `line`.

@@ -293,7 +293,7 @@ fn light_factor(light: &LightUniform, p: Vec3) -> f32 {
     smoothstep(light.colour[3], light.spot[3], c)
 }
 
-/// WGSL `cone_depth`.
+/// WGSL `occlusion_depth` of `soft_shadow`.
 fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -> f32 {
     let pos = c.as_vec3() + 0.5;
     let v = towards(light, pos);
@@ -358,8 +358,13 @@ fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -
     depth
 }
 
-/// WGSL `soft_shadow`: the light cache (ambient plus every light through its cone).
-pub fn soft_shadow(p: &ExtinctionParams, sat: &Sat, ambient: &[[f32; 4]]) -> Vec<[f32; 4]> {
+/// WGSL `light_cache_fill` (the entry point of `soft_shadow` and
+/// `shadow_ray`): the light cache with `occlusion_depth` per light and cell.
+fn fill_cache(
+    p: &ExtinctionParams,
+    ambient: &[[f32; 4]],
+    occlusion_depth: impl Fn(&LightUniform, IVec3) -> f32 + Sync,
+) -> Vec<[f32; 4]> {
     let lights = &p.lights[..p.light_count as usize];
     cells(p.grid)
         .map(|gid| {
@@ -369,9 +374,8 @@ pub fn soft_shadow(p: &ExtinctionParams, sat: &Sat, ambient: &[[f32; 4]]) -> Vec
             for source in lights {
                 let f = light_factor(source, pos);
                 if f > 0.0 {
-                    light += Vec4::from(source.colour).xyz()
-                        * f
-                        * (-cone_depth(p, sat, source, c)).exp();
+                    light +=
+                        Vec4::from(source.colour).xyz() * f * (-occlusion_depth(source, c)).exp();
                 }
             }
             f16_round(light.extend(1.0))
@@ -379,7 +383,12 @@ pub fn soft_shadow(p: &ExtinctionParams, sat: &Sat, ambient: &[[f32; 4]]) -> Vec
         .collect()
 }
 
-/// WGSL `ray_depth`.
+/// WGSL `soft_shadow`: the light cache (ambient plus every light through its cone).
+pub fn soft_shadow(p: &ExtinctionParams, sat: &Sat, ambient: &[[f32; 4]]) -> Vec<[f32; 4]> {
+    fill_cache(p, ambient, |light, c| cone_depth(p, sat, light, c))
+}
+
+/// WGSL `occlusion_depth` of `shadow_ray`.
 fn ray_depth(p: &ExtinctionParams, extinction: &[f32], light: &LightUniform, pos: Vec3) -> f32 {
     let v = towards(light, pos);
     let distance = v.length();
@@ -412,22 +421,9 @@ fn ray_depth(p: &ExtinctionParams, extinction: &[f32], light: &LightUniform, pos
 
 /// WGSL `shadow_ray`: the light cache by one classic shadow ray per light.
 pub fn shadow_ray(p: &ExtinctionParams, extinction: &[f32], ambient: &[[f32; 4]]) -> Vec<[f32; 4]> {
-    let lights = &p.lights[..p.light_count as usize];
-    cells(p.grid)
-        .map(|gid| {
-            let pos = Vec3::new(gid[0] as f32, gid[1] as f32, gid[2] as f32) + 0.5;
-            let mut light = p.ambient * Vec4::from(ambient[cell_index(p.grid, gid)]).xyz();
-            for source in lights {
-                let f = light_factor(source, pos);
-                if f > 0.0 {
-                    light += Vec4::from(source.colour).xyz()
-                        * f
-                        * (-ray_depth(p, extinction, source, pos)).exp();
-                }
-            }
-            f16_round(light.extend(1.0))
-        })
-        .collect()
+    fill_cache(p, ambient, |light, c| {
+        ray_depth(p, extinction, light, c.as_vec3() + 0.5)
+    })
 }
 
 /// Everything [`crate::extinction::ExtinctionLighting`] computes, on the CPU.
