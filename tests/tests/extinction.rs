@@ -4,6 +4,9 @@
 //! extinction compositing, SAT queries against brute-force sums, and what is
 //! recomputed when.
 //!
+//! At 256³ the GPU's SAT queries equal brute-force sums of its own cells
+//! exactly (relative tolerance 0).
+//!
 //! Tolerances: the SAT's cells come from `log` of filtered samples, which the
 //! GPU and the CPU compute to a few ulps apart, so SAT entries agree to a
 //! relative 1e-4 (the 64-bit sums themselves are exact); ambient and light
@@ -333,6 +336,68 @@ fn a_sat_query_equals_the_brute_force_sum_at_256_cubed() {
             (depth - exact).abs() <= exact * 1e-6,
             "{lo:?}..{hi:?}: as Δt·τ {depth} vs {exact}"
         );
+    }
+}
+
+#[test]
+fn the_gpu_sat_at_256_cubed_equals_brute_force_sums_of_its_cells() {
+    let Some(gpu) = gpu_or_skip("the_gpu_sat_at_256_cubed_equals_brute_force_sums_of_its_cells")
+    else {
+        return;
+    };
+    let dataset = phantom_64_dataset();
+    let mut renderer = gpu_renderer(gpu, dataset);
+    let request = FrameRequest {
+        width: 16,
+        height: 16,
+        ..extinction_request(ExtinctionSettings {
+            sat_size: 256,
+            lights: Vec::new(),
+            ao_radius: 1,
+            ao_shells: 1,
+            ..ExtinctionSettings::default()
+        })
+    };
+    renderer.render(&request).expect("render");
+    let lighting = renderer.extinction().expect("extinction lighting");
+    let volumes = lighting.volumes().expect("volumes");
+    let grid = lighting.params().expect("params").grid;
+    assert_eq!(grid, [256, 256, 256]);
+    // The GPU's own cells, in the fixed point the SAT sums.
+    let cells: Vec<u64> = volumes
+        .extinction
+        .read(gpu)
+        .expect("extinction readback")
+        .iter()
+        .map(|t| twin::fixed_of(t[0]))
+        .collect();
+    let mut data: [Vec<u64>; 4] = Default::default();
+    data[0] = volumes.read_sat(gpu, 0).expect("SAT readback");
+    let sat = twin::Sat {
+        grid,
+        channels: 1,
+        data,
+    };
+    let boxes: [([i32; 3], [i32; 3]); 4] = [
+        ([0, 0, 0], [255, 255, 255]),
+        ([128, 100, 90], [128, 100, 90]),
+        ([40, 60, 80], [200, 70, 81]),
+        ([-5, 100, 100], [60, 140, 400]),
+    ];
+    for (lo, hi) in boxes {
+        let mut expected = 0u64;
+        for z in lo[2].max(0)..=hi[2].min(255) {
+            for y in lo[1].max(0)..=hi[1].min(255) {
+                let row = (z as usize * 256 + y as usize) * 256;
+                for x in lo[0].max(0)..=hi[0].min(255) {
+                    expected += cells[row + x as usize];
+                }
+            }
+        }
+        let got = sat.cuboid_sum(glam::IVec3::from(lo), glam::IVec3::from(hi), 0);
+        println!("GPU SAT {lo:?}..{hi:?}: {got}, brute force over its cells {expected}");
+        assert_eq!(got, expected, "{lo:?}..{hi:?}");
+        assert!(expected > 0, "{lo:?}..{hi:?} holds extinction");
     }
 }
 

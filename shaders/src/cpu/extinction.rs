@@ -76,8 +76,8 @@ pub fn depth_of(v: u64) -> f32 {
     (hi as f32 * 4_294_967_296.0 + lo as f32) / FIXED_ONE
 }
 
-/// WGSL `fixed_of`.
-fn fixed_of(depth: f32) -> u64 {
+/// WGSL `fixed_of`: a cell's Δt·τ in fixed point.
+pub fn fixed_of(depth: f32) -> u64 {
     // WGSL's f32 → u32 conversion saturates like Rust's `as`.
     u64::from((depth * FIXED_ONE + 0.5) as u32)
 }
