@@ -160,10 +160,13 @@ function lightParams() {
 function showLightPanel() {
   const mode = shadingSelect.value;
   lightPanel.hidden = mode !== 'global' && mode !== 'extinction';
-  for (const row of lightPanel.querySelectorAll('[data-mode]')) {
-    row.hidden = row.dataset.mode !== mode;
-  }
   if (mode === 'global' && light.kind.value === 'spot') light.kind.value = 'point';
+  // Rows of another mode, or of another kind of light, are hidden.
+  for (const row of lightPanel.querySelectorAll('[data-mode], [data-kind]')) {
+    const modeOk = !row.dataset.mode || row.dataset.mode === mode;
+    const kindOk = !row.dataset.kind || row.dataset.kind.split(' ').includes(light.kind.value);
+    row.hidden = !(modeOk && kindOk);
+  }
 }
 
 // Dragging on the image moves the light instead of the camera while the
@@ -278,6 +281,7 @@ async function start() {
   for (const input of Object.values(light)) {
     if (input !== light.drag) input.addEventListener('change', () => requestFrame(false));
   }
+  light.kind.addEventListener('change', showLightPanel);
   document.getElementById('reset').addEventListener('click', () => {
     camera.reset();
     requestFrame(false);
