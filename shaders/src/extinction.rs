@@ -729,6 +729,21 @@ impl ExtinctionParams {
     }
 }
 
+/// Per block (x fastest), 1 where light-cache cells are ever read: blocks
+/// within the reach of a stored one. The ray caster reads the cache one cell
+/// towards the eye from samples in stored blocks, filtering over the cells
+/// around that point, so cells up to 2½ cells from a stored block are read;
+/// the margin covers that in whole blocks.
+pub fn near_cells_mask(packing: &blocks::packing::Packing, params: &ExtinctionParams) -> Vec<u32> {
+    let cell_voxels = (0..3)
+        .map(|a| params.volume_dims[a] / params.grid[a].max(1) as f32)
+        .fold(1.0f32, f32::max);
+    let margin = (2.5 * cell_voxels / blocks::store::BLOCK as f32)
+        .ceil()
+        .max(1.0) as u32;
+    crate::light::near_blocks(packing, params.block_grid, margin)
+}
+
 /// Workgroups for one invocation per cell of `grid`.
 pub fn workgroups(grid: [u32; 3]) -> [u32; 3] {
     grid.map(|d| d.div_ceil(WORKGROUP_EDGE))
@@ -799,9 +814,13 @@ impl ExtinctionPipelines {
             storage_buffer(4),
         ];
         let mut ao = sat_read.to_vec();
-        ao.push(write(5, CACHE_FORMAT));
+        ao.extend([write(5, CACHE_FORMAT), storage_buffer(6)]);
         let mut shadow = sat_read.to_vec();
-        shadow.extend([float_texture_3d(5), write(6, CACHE_FORMAT)]);
+        shadow.extend([
+            float_texture_3d(5),
+            write(6, CACHE_FORMAT),
+            storage_buffer(7),
+        ]);
         let source = crate::wgsl::EXTINCTION_SAT;
         Ok(ExtinctionPipelines {
             reconstruct: ComputeStage::with_entry(
@@ -822,7 +841,12 @@ impl ExtinctionPipelines {
                 gpu,
                 "ambient_occlusion_reference",
                 crate::wgsl::AMBIENT_OCCLUSION_REFERENCE,
-                &[params(), unfilterable_texture_3d(1), write(2, CACHE_FORMAT)],
+                &[
+                    params(),
+                    unfilterable_texture_3d(1),
+                    write(2, CACHE_FORMAT),
+                    storage_buffer(3),
+                ],
             )?,
             soft_shadow: ComputeStage::new(gpu, "soft_shadow", crate::wgsl::SOFT_SHADOW, &shadow)?,
             shadow_ray: ComputeStage::new(
@@ -834,6 +858,7 @@ impl ExtinctionPipelines {
                     unfilterable_texture_3d(1),
                     float_texture_3d(2),
                     write(3, CACHE_FORMAT),
+                    storage_buffer(4),
                 ],
             )?,
             sampler: pipeline::linear_sampler(gpu),
@@ -909,6 +934,8 @@ pub struct ExtinctionVolumes {
     pub ambient: GridTexture,
     /// The light cache the ray caster reads.
     pub light_cache: GridTexture,
+    /// [`near_cells_mask`]: per block, 1 where the cache's cells are read.
+    near_blocks: wgpu::Buffer,
     params: wgpu::Buffer,
     scan_params: [wgpu::Buffer; 3],
     channels: u32,
@@ -921,6 +948,7 @@ impl ExtinctionVolumes {
         gpu: &GpuContext,
         grid: [u32; 3],
         channels: u32,
+        blocks: usize,
     ) -> Result<ExtinctionVolumes, GpuError> {
         let cells: u64 = grid.iter().map(|&n| u64::from(n)).product();
         let bytes = cells * 8;
@@ -963,27 +991,30 @@ impl ExtinctionVolumes {
                 mapped_at_creation: false,
             })
         };
-        let (sat, params, scan_params) = gpu.scoped("allocating the summed-area table", || {
-            (
-                [
-                    buffer("SAT τ", bytes),
-                    buffer("SAT τ·R", colour_size),
-                    buffer("SAT τ·G", colour_size),
-                    buffer("SAT τ·B", colour_size),
-                ],
-                uniform("extinction params"),
-                [
-                    uniform("SAT scan x"),
-                    uniform("SAT scan y"),
-                    uniform("SAT scan z"),
-                ],
-            )
-        })?;
+        let (sat, params, scan_params, near_blocks) =
+            gpu.scoped("allocating the summed-area table", || {
+                (
+                    [
+                        buffer("SAT τ", bytes),
+                        buffer("SAT τ·R", colour_size),
+                        buffer("SAT τ·G", colour_size),
+                        buffer("SAT τ·B", colour_size),
+                    ],
+                    uniform("extinction params"),
+                    [
+                        uniform("SAT scan x"),
+                        uniform("SAT scan y"),
+                        uniform("SAT scan z"),
+                    ],
+                    buffer("near blocks", (blocks.max(1) * 4) as u64),
+                )
+            })?;
         Ok(ExtinctionVolumes {
             sat,
             extinction: GridTexture::new(gpu, "extinction", grid, EXTINCTION_FORMAT)?,
             ambient: GridTexture::new(gpu, "ambient occlusion", grid, CACHE_FORMAT)?,
             light_cache: GridTexture::new(gpu, "light cache", grid, CACHE_FORMAT)?,
+            near_blocks,
             params,
             scan_params,
             channels,
@@ -1027,8 +1058,10 @@ impl ExtinctionVolumes {
         resources
     }
 
-    fn fits(&self, grid: [u32; 3], channels: u32) -> bool {
-        self.extinction.dims == grid && self.channels == channels
+    fn fits(&self, grid: [u32; 3], channels: u32, blocks: usize) -> bool {
+        self.extinction.dims == grid
+            && self.channels == channels
+            && self.near_blocks.size() >= (blocks.max(1) * 4) as u64
     }
 }
 
@@ -1121,14 +1154,24 @@ impl ExtinctionLighting {
         let sat_key = (data_version, tf.clone(), settings.sat_key());
         if self.sat_for.as_ref() != Some(&sat_key) {
             self.invalidate();
+            let mask = near_cells_mask(&inputs.atlas.packing, &params);
             if !self
                 .volumes
                 .as_ref()
-                .is_some_and(|v| v.fits(params.grid, params.channels))
+                .is_some_and(|v| v.fits(params.grid, params.channels, mask.len()))
             {
                 // The old buffers go before the new ones are made.
                 self.volumes = None;
-                self.volumes = Some(ExtinctionVolumes::new(gpu, params.grid, params.channels)?);
+                self.volumes = Some(ExtinctionVolumes::new(
+                    gpu,
+                    params.grid,
+                    params.channels,
+                    mask.len(),
+                )?);
+            }
+            if let Some(v) = &self.volumes {
+                gpu.queue
+                    .write_buffer(&v.near_blocks, 0, bytemuck::cast_slice(&mask));
             }
             timings.sat_ms = self.build_sat(gpu, inputs, &params)?;
             self.sat_for = Some(sat_key);
@@ -1206,7 +1249,10 @@ impl ExtinctionLighting {
         match method {
             AoMethod::Sat => {
                 let mut resources = v.sat_bindings();
-                resources.push(wgpu::BindingResource::TextureView(&v.ambient.view));
+                resources.extend([
+                    wgpu::BindingResource::TextureView(&v.ambient.view),
+                    v.near_blocks.as_entire_binding(),
+                ]);
                 run(gpu, &p.ambient_occlusion, &resources, groups)
             }
             AoMethod::Sampled => run(
@@ -1216,6 +1262,7 @@ impl ExtinctionLighting {
                     v.params.as_entire_binding(),
                     wgpu::BindingResource::TextureView(&v.extinction.view),
                     wgpu::BindingResource::TextureView(&v.ambient.view),
+                    v.near_blocks.as_entire_binding(),
                 ],
                 groups,
             ),
@@ -1235,6 +1282,7 @@ impl ExtinctionLighting {
                 resources.extend([
                     wgpu::BindingResource::TextureView(&v.ambient.view),
                     wgpu::BindingResource::TextureView(&v.light_cache.view),
+                    v.near_blocks.as_entire_binding(),
                 ]);
                 run(gpu, &p.soft_shadow, &resources, groups)
             }
@@ -1246,6 +1294,7 @@ impl ExtinctionLighting {
                     wgpu::BindingResource::TextureView(&v.extinction.view),
                     wgpu::BindingResource::TextureView(&v.ambient.view),
                     wgpu::BindingResource::TextureView(&v.light_cache.view),
+                    v.near_blocks.as_entire_binding(),
                 ],
                 groups,
             ),

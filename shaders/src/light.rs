@@ -377,7 +377,7 @@ impl LightParams {
     }
 
     /// How many blocks around a non-empty one hold SVR points that
-    /// `direct_light` and `in_scatter` may read ([`svr_blocks`]): a segment or
+    /// `direct_light` and `in_scatter` may read ([`near_blocks`]): a segment or
     /// R_Ω, whichever is longer, in voxels of the smallest spacing (so never
     /// short along a coarser axis), plus one SVR cell for interpolation and
     /// two voxels to spare.
@@ -553,14 +553,15 @@ pub fn slot_blocks(packing: &Packing) -> Vec<u32> {
     slots
 }
 
-/// Per block of the block grid (x fastest): 1 where the SVR is read — blocks
-/// within `margin_blocks` (along every axis) of a non-empty block — else 0.
-/// `global_opacity` computes SVR points only there: `direct_light` reads the
-/// SVR one segment from a stored voxel and `in_scatter` at R_Ω from one, so
-/// points far from every kept block are never read, and the SVR's cost
-/// follows the kept blocks, not the volume. A separable dilation, so the cost
-/// is linear in blocks whatever the margin.
-pub fn svr_blocks(packing: &Packing, grid: [u32; 3], margin_blocks: u32) -> Vec<u32> {
+/// Per block of the block grid (x fastest): 1 for blocks within
+/// `margin_blocks` (along every axis) of a non-empty block, else 0 — where a
+/// light term is ever read. `global_opacity` computes SVR points only there
+/// (`direct_light` reads the SVR one segment from a stored voxel and
+/// `in_scatter` at R_Ω from one), and the extinction stages fill only light-cache
+/// cells there (the ray caster reads the cache one cell from a stored sample),
+/// so the light's cost follows the kept blocks, not the volume. A separable
+/// dilation, so the cost is linear in blocks whatever the margin.
+pub fn near_blocks(packing: &Packing, grid: [u32; 3], margin_blocks: u32) -> Vec<u32> {
     let [nx, ny, nz] = grid.map(|g| g as usize);
     let m = margin_blocks as usize;
     let mut mask: Vec<u32> = packing
@@ -828,7 +829,7 @@ pub struct LightVolumes {
     params: wgpu::Buffer,
     slot_blocks: wgpu::Buffer,
     slot_capacity: usize,
-    /// [`svr_blocks`], one u32 per block.
+    /// [`near_blocks`] for the SVR's margin, one u32 per block.
     svr_blocks: wgpu::Buffer,
     block_count: usize,
 }
@@ -1047,7 +1048,7 @@ impl Illumination {
         let slots = slot_blocks(packing);
         let atlas_dims = inputs.atlas.layout.atlas_dims;
         let svr = params.svr_dims;
-        let svr_mask = svr_blocks(packing, params.block_grid, params.svr_margin_blocks());
+        let svr_mask = near_blocks(packing, params.block_grid, params.svr_margin_blocks());
         if !self
             .volumes
             .as_ref()
@@ -1197,7 +1198,7 @@ mod tests {
     }
 
     #[test]
-    fn svr_blocks_mark_exactly_the_blocks_within_the_margin_of_a_kept_one() {
+    fn near_blocks_mark_exactly_the_blocks_within_the_margin_of_a_kept_one() {
         let grid = [7u32, 5, 4];
         let n = (grid[0] * grid[1] * grid[2]) as usize;
         let mut lod = vec![blocks::lod::EMPTY; n];
@@ -1215,7 +1216,7 @@ mod tests {
             slot: vec![0; n],
         };
         for margin in 0..4u32 {
-            let mask = svr_blocks(&packing, grid, margin);
+            let mask = near_blocks(&packing, grid, margin);
             for z in 0..grid[2] {
                 for y in 0..grid[1] {
                     for x in 0..grid[0] {

@@ -84,16 +84,25 @@ pub const EXTINCTION_SAT: &str = extinction_stage!(
 );
 
 /// The `ambient_occlusion` stage (`shaders/wgsl/ambient_occlusion.wgsl`).
-pub const AMBIENT_OCCLUSION: &str =
-    extinction_stage!("../wgsl/ambient_occlusion.wgsl", "../wgsl/shared/sat.wgsl");
+pub const AMBIENT_OCCLUSION: &str = extinction_stage!(
+    "../wgsl/shared/blocks.wgsl",
+    "../wgsl/shared/near_cells.wgsl",
+    "../wgsl/ambient_occlusion.wgsl",
+    "../wgsl/shared/sat.wgsl"
+);
 
 /// The `ambient_occlusion_reference` stage
 /// (`shaders/wgsl/ambient_occlusion_reference.wgsl`).
-pub const AMBIENT_OCCLUSION_REFERENCE: &str =
-    extinction_stage!("../wgsl/ambient_occlusion_reference.wgsl");
+pub const AMBIENT_OCCLUSION_REFERENCE: &str = extinction_stage!(
+    "../wgsl/shared/blocks.wgsl",
+    "../wgsl/shared/near_cells.wgsl",
+    "../wgsl/ambient_occlusion_reference.wgsl"
+);
 
 /// The `soft_shadow` stage (`shaders/wgsl/soft_shadow.wgsl`).
 pub const SOFT_SHADOW: &str = extinction_stage!(
+    "../wgsl/shared/blocks.wgsl",
+    "../wgsl/shared/near_cells.wgsl",
     "../wgsl/shared/extinction_light.wgsl",
     "../wgsl/soft_shadow.wgsl",
     "../wgsl/shared/sat.wgsl",
@@ -102,6 +111,8 @@ pub const SOFT_SHADOW: &str = extinction_stage!(
 
 /// The `shadow_ray` stage (`shaders/wgsl/shadow_ray.wgsl`).
 pub const SHADOW_RAY: &str = extinction_stage!(
+    "../wgsl/shared/blocks.wgsl",
+    "../wgsl/shared/near_cells.wgsl",
     "../wgsl/shared/extinction_light.wgsl",
     "../wgsl/shadow_ray.wgsl",
     "../wgsl/shared/light_cache_fill.wgsl"

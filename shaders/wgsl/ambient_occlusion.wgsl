@@ -23,6 +23,8 @@
 //   1–4 sat_tau, sat_r, sat_g, sat_b   storage array<vec2<u32>> (read)
 //   5 ambient            storage texture rgba16float, grid-shaped (written):
 //                        I_AO per channel (rgb; grey without colour bleeding), a: I_AO of τ
+//                        (1 in cells the ray caster never reads, shared/near_cells.wgsl)
+//   6 near_blocks        storage array<u32>, per block: 1 near a stored block
 // CPU twin: shaders::cpu::extinction::ambient_occlusion (shaders/src/cpu/extinction.rs).
 
 @group(0) @binding(0) var<uniform> params: ExtinctionParams;
@@ -31,6 +33,7 @@
 @group(0) @binding(3) var<storage, read> sat_g: array<vec2<u32>>;
 @group(0) @binding(4) var<storage, read> sat_b: array<vec2<u32>>;
 @group(0) @binding(5) var ambient: texture_storage_3d<rgba16float, write>;
+@group(0) @binding(6) var<storage, read> near_blocks: array<u32>;
 
 @compute @workgroup_size(4, 4, 4)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -38,6 +41,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let c = vec3<i32>(gid);
+    if !cell_is_read(c) {
+        textureStore(ambient, gid, vec4<f32>(1.0));
+        return;
+    }
     let colour = params.channels == 4u;
     // Sums of the cube inside the current shell: the cell itself first.
     var inner = array<vec2<u32>, 4>(

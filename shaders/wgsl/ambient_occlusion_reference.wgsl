@@ -10,12 +10,15 @@
 // Bindings (group 0):
 //   0 params             uniform ExtinctionParams (ao_norm: the sphere's norm)
 //   1 extinction         texture_3d<f32> (r32float), Δt·τ per cell
-//   2 ambient            storage texture rgba16float, grid-shaped (written)
+//   2 ambient            storage texture rgba16float, grid-shaped (written; 1 in
+//                        cells the ray caster never reads, shared/near_cells.wgsl)
+//   3 near_blocks        storage array<u32>, per block: 1 near a stored block
 // CPU twin: shaders::cpu::extinction::ambient_occlusion_reference.
 
 @group(0) @binding(0) var<uniform> params: ExtinctionParams;
 @group(0) @binding(1) var extinction: texture_3d<f32>;
 @group(0) @binding(2) var ambient: texture_storage_3d<rgba16float, write>;
+@group(0) @binding(3) var<storage, read> near_blocks: array<u32>;
 
 @compute @workgroup_size(4, 4, 4)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -23,6 +26,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let c = vec3<i32>(gid);
+    if !cell_is_read(c) {
+        textureStore(ambient, gid, vec4<f32>(1.0));
+        return;
+    }
     let r = i32(params.ao_radius);
     let r2 = r * r;
     let last = vec3<i32>(params.grid) - vec3<i32>(1);

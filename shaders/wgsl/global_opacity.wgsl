@@ -5,7 +5,7 @@
 // interpolation in its atlas. When s_i falls in an empty block, where no α_lp
 // is stored, the ray advances to where it leaves that block (fig. 4): nothing
 // in between is opaque. The grid is regular, not packed, so it interpolates
-// linearly everywhere. Points in blocks that svr_blocks marks 0 — farther from
+// linearly everywhere. Points in blocks that svr_blocks (near_blocks) marks 0 — farther from
 // every non-empty block than a segment or R_Ω — are never read and are left 0.
 //
 // Dispatch: one invocation per SVR point, workgroups of 4×4×4.

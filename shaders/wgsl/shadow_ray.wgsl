@@ -12,12 +12,14 @@
 //   1 extinction         texture_3d<f32> (r32float), Δt·τ per cell
 //   2 ambient            texture_3d<f32> (rgba16float), I_AO
 //   3 light_cache        storage texture rgba16float, grid-shaped (written)
+//   4 near_blocks        storage array<u32>, per block: 1 near a stored block
 // CPU twin: shaders::cpu::extinction::shadow_ray (shaders/src/cpu/extinction.rs).
 
 @group(0) @binding(0) var<uniform> params: ExtinctionParams;
 @group(0) @binding(1) var extinction: texture_3d<f32>;
 @group(0) @binding(2) var ambient: texture_3d<f32>;
 @group(0) @binding(3) var light_cache: texture_storage_3d<rgba16float, write>;
+@group(0) @binding(4) var<storage, read> near_blocks: array<u32>;
 
 // The most samples of one shadow ray.
 const MAX_RAY_STEPS: u32 = 8192u;

@@ -21,6 +21,7 @@
 //                        sat_tau is queried, the others share ambient_occlusion's list)
 //   5 ambient            texture_3d<f32> (rgba16float), I_AO from ambient_occlusion
 //   6 light_cache        storage texture rgba16float, grid-shaped (written)
+//   7 near_blocks        storage array<u32>, per block: 1 near a stored block
 // CPU twin: shaders::cpu::extinction::soft_shadow (shaders/src/cpu/extinction.rs).
 
 @group(0) @binding(0) var<uniform> params: ExtinctionParams;
@@ -30,6 +31,7 @@
 @group(0) @binding(4) var<storage, read> sat_b: array<vec2<u32>>;
 @group(0) @binding(5) var ambient: texture_3d<f32>;
 @group(0) @binding(6) var light_cache: texture_storage_3d<rgba16float, write>;
+@group(0) @binding(7) var<storage, read> near_blocks: array<u32>;
 
 // Σ_k h_k · SAT(Q_k): the optical depth through the cone from cell c towards
 // `light` (shared/light_cache_fill.wgsl calls it per light).

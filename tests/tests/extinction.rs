@@ -101,6 +101,9 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
         .table(desc.tf_domain, 1024)
         .expect("table");
     let settings = &request.extinction;
+    let near = shaders::extinction::near_cells_mask(&packing, &params);
+    let read = near.iter().filter(|&&b| b != 0).count();
+    println!("{case}: {read} of {} blocks near stored ones", near.len());
 
     let (cpu_sat, cpu_extinction) = twin::extinction_sat(&params, &packed, &table);
     let channels = params.channels as usize;
@@ -140,8 +143,8 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
 
     let gpu_ambient = volumes.ambient.read(gpu).expect("ambient readback");
     let cpu_ambient = match settings.ao_method {
-        AoMethod::Sat => twin::ambient_occlusion(&params, &gpu_sat),
-        AoMethod::Sampled => twin::ambient_occlusion_reference(&params, &gpu_extinction),
+        AoMethod::Sat => twin::ambient_occlusion(&params, &gpu_sat, &near),
+        AoMethod::Sampled => twin::ambient_occlusion_reference(&params, &gpu_extinction, &near),
     };
     let ao_stage = match settings.ao_method {
         AoMethod::Sat => "ambient_occlusion",
@@ -153,11 +156,11 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
     let (shadow_stage, cpu_cache) = match settings.shadow_method {
         ShadowMethod::Cone => (
             "soft_shadow",
-            twin::soft_shadow(&params, &gpu_sat, &gpu_ambient),
+            twin::soft_shadow(&params, &gpu_sat, &gpu_ambient, &near),
         ),
         ShadowMethod::Ray => (
             "shadow_ray",
-            twin::shadow_ray(&params, &gpu_extinction, &gpu_ambient),
+            twin::shadow_ray(&params, &gpu_extinction, &gpu_ambient, &near),
         ),
     };
     check_terms(case, shadow_stage, &gpu_cache, &cpu_cache);

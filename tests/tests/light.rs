@@ -14,7 +14,7 @@
 use blocks::Preset;
 use server::Dataset;
 use shaders::cpu::Texture3d;
-use shaders::light::{DirectLightMethod, LightParams, LightSource, slot_blocks, svr_blocks};
+use shaders::light::{DirectLightMethod, LightParams, LightSource, near_blocks, slot_blocks};
 use shaders::volume_texture::VolumeTexture;
 use shaders::{Camera, FrameRequest, GpuContext, LightSettings, Shading};
 use voxserve_tests::gpu_or_skip;
@@ -115,7 +115,7 @@ fn compare_stages(
     check_stage(case, "local_opacity", &gpu_local, &cpu_local);
     let local_texture = Texture3d::new(atlas, gpu_local.clone());
     if method == DirectLightMethod::Piecewise {
-        let svr = svr_blocks(&packing, params.block_grid, params.svr_margin_blocks());
+        let svr = near_blocks(&packing, params.block_grid, params.svr_margin_blocks());
         let cpu_shadow =
             shaders::cpu::light::global_opacity(&params, &local_texture, &packed, &svr);
         check_stage(case, "global_opacity", &gpu_shadow, &cpu_shadow);

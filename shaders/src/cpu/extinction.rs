@@ -193,12 +193,28 @@ pub fn sat_from_cells(grid: [u32; 3], cells: &[u64]) -> Sat {
     }
 }
 
+/// WGSL `cell_is_read` (`shared/near_cells.wgsl`).
+pub fn cell_is_read(p: &ExtinctionParams, near_blocks: &[u32], c: IVec3) -> bool {
+    let grid = Vec3::new(p.grid[0] as f32, p.grid[1] as f32, p.grid[2] as f32);
+    let tc = (c.as_vec3() + 0.5) / grid;
+    let g = p.block_grid;
+    let last = IVec3::new(g[0] as i32 - 1, g[1] as i32 - 1, g[2] as i32 - 1);
+    let b = (tc * Vec3::from(p.volume_dims) / super::packed::BLOCK)
+        .floor()
+        .as_ivec3()
+        .clamp(IVec3::ZERO, last);
+    near_blocks[(b.x as u32 + g[0] * (b.y as u32 + g[1] * b.z as u32)) as usize] != 0
+}
+
 /// WGSL `ambient_occlusion`: I_AO per cell (rgb, a: grey).
-pub fn ambient_occlusion(p: &ExtinctionParams, sat: &Sat) -> Vec<[f32; 4]> {
+pub fn ambient_occlusion(p: &ExtinctionParams, sat: &Sat, near_blocks: &[u32]) -> Vec<[f32; 4]> {
     let colour = p.channels == 4;
     cells(p.grid)
         .map(|gid| {
             let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+            if !cell_is_read(p, near_blocks, c) {
+                return [1.0; 4];
+            }
             let mut inner = [sat.cuboid_sum(c, c, 0), 0, 0, 0];
             if colour {
                 for (ch, v) in inner.iter_mut().enumerate().skip(1) {
@@ -236,11 +252,18 @@ pub fn ambient_occlusion(p: &ExtinctionParams, sat: &Sat) -> Vec<[f32; 4]> {
 }
 
 /// WGSL `ambient_occlusion_reference`: I_AO by explicit sampling of the sphere.
-pub fn ambient_occlusion_reference(p: &ExtinctionParams, extinction: &[f32]) -> Vec<[f32; 4]> {
+pub fn ambient_occlusion_reference(
+    p: &ExtinctionParams,
+    extinction: &[f32],
+    near_blocks: &[u32],
+) -> Vec<[f32; 4]> {
     let grid = p.grid;
     cells(grid)
         .map(|gid| {
             let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+            if !cell_is_read(p, near_blocks, c) {
+                return [1.0; 4];
+            }
             let r = p.ao_radius as i32;
             let r2 = r * r;
             let last = IVec3::new(grid[0] as i32, grid[1] as i32, grid[2] as i32) - 1;
@@ -363,12 +386,16 @@ fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -
 fn fill_cache(
     p: &ExtinctionParams,
     ambient: &[[f32; 4]],
+    near_blocks: &[u32],
     occlusion_depth: impl Fn(&LightUniform, IVec3) -> f32 + Sync,
 ) -> Vec<[f32; 4]> {
     let lights = &p.lights[..p.light_count as usize];
     cells(p.grid)
         .map(|gid| {
             let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
+            if !cell_is_read(p, near_blocks, c) {
+                return [0.0; 4];
+            }
             let pos = c.as_vec3() + 0.5;
             let mut light = p.ambient * Vec4::from(ambient[cell_index(p.grid, gid)]).xyz();
             for source in lights {
@@ -384,8 +411,15 @@ fn fill_cache(
 }
 
 /// WGSL `soft_shadow`: the light cache (ambient plus every light through its cone).
-pub fn soft_shadow(p: &ExtinctionParams, sat: &Sat, ambient: &[[f32; 4]]) -> Vec<[f32; 4]> {
-    fill_cache(p, ambient, |light, c| cone_depth(p, sat, light, c))
+pub fn soft_shadow(
+    p: &ExtinctionParams,
+    sat: &Sat,
+    ambient: &[[f32; 4]],
+    near_blocks: &[u32],
+) -> Vec<[f32; 4]> {
+    fill_cache(p, ambient, near_blocks, |light, c| {
+        cone_depth(p, sat, light, c)
+    })
 }
 
 /// WGSL `occlusion_depth` of `shadow_ray`.
@@ -420,8 +454,13 @@ fn ray_depth(p: &ExtinctionParams, extinction: &[f32], light: &LightUniform, pos
 }
 
 /// WGSL `shadow_ray`: the light cache by one classic shadow ray per light.
-pub fn shadow_ray(p: &ExtinctionParams, extinction: &[f32], ambient: &[[f32; 4]]) -> Vec<[f32; 4]> {
-    fill_cache(p, ambient, |light, c| {
+pub fn shadow_ray(
+    p: &ExtinctionParams,
+    extinction: &[f32],
+    ambient: &[[f32; 4]],
+    near_blocks: &[u32],
+) -> Vec<[f32; 4]> {
+    fill_cache(p, ambient, near_blocks, |light, c| {
         ray_depth(p, extinction, light, c.as_vec3() + 0.5)
     })
 }
@@ -440,21 +479,23 @@ pub struct CpuExtinction {
 }
 
 /// The whole computation as [`crate::extinction::ExtinctionLighting`] runs it
-/// with `settings`' methods.
+/// with `settings`' methods, filling the cells `near_blocks`
+/// ([`crate::extinction::near_cells_mask`]) marks.
 pub fn compute_extinction(
     p: &ExtinctionParams,
     settings: &ExtinctionSettings,
     packed: &PackedTexture,
     transfer_function: &[[f32; 4]],
+    near_blocks: &[u32],
 ) -> CpuExtinction {
     let (sat, extinction) = extinction_sat(p, packed, transfer_function);
     let ambient = match settings.ao_method {
-        AoMethod::Sat => ambient_occlusion(p, &sat),
-        AoMethod::Sampled => ambient_occlusion_reference(p, &extinction),
+        AoMethod::Sat => ambient_occlusion(p, &sat, near_blocks),
+        AoMethod::Sampled => ambient_occlusion_reference(p, &extinction, near_blocks),
     };
     let light_cache = match settings.shadow_method {
-        ShadowMethod::Cone => soft_shadow(p, &sat, &ambient),
-        ShadowMethod::Ray => shadow_ray(p, &extinction, &ambient),
+        ShadowMethod::Cone => soft_shadow(p, &sat, &ambient, near_blocks),
+        ShadowMethod::Ray => shadow_ray(p, &extinction, &ambient, near_blocks),
     };
     CpuExtinction {
         sat,

@@ -163,7 +163,7 @@ pub fn local_opacity(
 
 /// Twin of `global_opacity` (α_g, eq. 7): the SVR, `p.svr_dims` points.
 /// `index` supplies the block index (its atlas is not read); points in blocks
-/// that `svr_blocks` ([`crate::light::svr_blocks`]) marks 0 are left 0.
+/// that `svr_blocks` ([`crate::light::near_blocks`] for the SVR's margin) marks 0 are left 0.
 pub fn global_opacity(
     p: &LightParams,
     local_opacity: &Texture3d,

@@ -38,7 +38,7 @@ use blocks::lod::LodSelection;
 use blocks::transfer_function::TABLE_LEN;
 
 use crate::extinction::ExtinctionParams;
-use crate::light::{DirectLightMethod, LightParams, slot_blocks, svr_blocks};
+use crate::light::{DirectLightMethod, LightParams, near_blocks, slot_blocks};
 use crate::packed::assemble_cpu;
 use crate::raycast::{PackedLayout, RaycastParams};
 use crate::renderer::{DeviceBudget, budget_voxels, select_levels};
@@ -89,8 +89,9 @@ pub fn render_packed(
     }
     if request.shading == Shading::Extinction {
         let params = ExtinctionParams::new(&desc, &request.extinction, layout, table.len() as u32);
+        let near = crate::extinction::near_cells_mask(&packing, &params);
         let computed =
-            extinction::compute_extinction(&params, &request.extinction, &packed, &table);
+            extinction::compute_extinction(&params, &request.extinction, &packed, &table, &near);
         packed.light_cache = Some(light_cache_textures(params.grid, &computed.light_cache));
     }
     let params = RaycastParams::new(&desc, request, table.len() as u32, layout);
@@ -121,7 +122,7 @@ pub fn light_for(
 ) -> light::CpuLight {
     let params = LightParams::new(desc, &request.light, packing, layout, table.len() as u32);
     let directions = params.scatter_directions(&request.light);
-    let svr = svr_blocks(packing, params.block_grid, params.svr_margin_blocks());
+    let svr = near_blocks(packing, params.block_grid, params.svr_margin_blocks());
     light::compute_light(
         &params,
         packed,
