@@ -16,7 +16,7 @@
 //!   an unlit and a gradient-shaded frame at `--size`².
 //!
 //! Stage timings come from renders at a small image size (the stages do not
-//! depend on it), each the median of `--repeats` runs (the settings nudged by
+//! depend on it), each the fastest of `--repeats` runs (the settings nudged by
 //! a negligible amount so the stage runs again) except the SAT build and the
 //! sampled AO (one run each: the latter takes minutes at 256³); frames
 //! compared or timed are `--size`².
@@ -70,16 +70,16 @@ fn compare(
     Ok(())
 }
 
-/// The median of `repeats` timings `time(r)` (r = 0, 1, …).
-fn median_ms(
+/// The fastest of `repeats` timings `time(r)` (r = 0, 1, …): on a shared
+/// machine the least disturbed run is the best estimate of the stage's cost.
+fn fastest_ms(
     repeats: u32,
     mut time: impl FnMut(u32) -> anyhow::Result<f64>,
 ) -> anyhow::Result<f64> {
-    let mut ms = (0..repeats.max(1))
+    let ms = (0..repeats.max(1))
         .map(&mut time)
         .collect::<anyhow::Result<Vec<f64>>>()?;
-    ms.sort_by(f64::total_cmp);
-    Ok(ms[ms.len() / 2])
+    Ok(ms.into_iter().fold(f64::INFINITY, f64::min))
 }
 
 /// `settings` with the cone's growth moved by a negligible amount, so the
@@ -180,7 +180,7 @@ pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
                     ao_shells: shells,
                     ..ambient_only.clone()
                 };
-                let ao_ms = median_ms(args.repeats, |r| {
+                let ao_ms = fastest_ms(args.repeats, |r| {
                     let nudged = ExtinctionSettings {
                         ao_strength: settings.ao_strength + 1e-3 * (r + 1) as f32,
                         ..settings.clone()
@@ -218,7 +218,7 @@ pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
                 ..shadows_only.clone()
             };
             let (ray_ms, ray_frame) = if with_reference {
-                let ms = median_ms(args.repeats, |r| {
+                let ms = fastest_ms(args.repeats, |r| {
                     renderer.render(&request(
                         SMALL_EDGE,
                         Shading::Extinction,
@@ -236,7 +236,7 @@ pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
                     cone_frequency: frequency,
                     ..shadows_only.clone()
                 };
-                let shadow_ms = median_ms(args.repeats, |r| {
+                let shadow_ms = fastest_ms(args.repeats, |r| {
                     renderer.render(&request(
                         SMALL_EDGE,
                         Shading::Extinction,
