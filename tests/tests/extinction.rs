@@ -296,6 +296,20 @@ fn light_cache_follows_algorithm_1() {
     );
 }
 
+/// The sum of `cells` (256³, x fastest) over lo..=hi clamped to the grid.
+fn brute_force_sum(cells: &[u64], lo: [i32; 3], hi: [i32; 3]) -> u64 {
+    let mut sum = 0u64;
+    for z in lo[2].max(0)..=hi[2].min(255) {
+        for y in lo[1].max(0)..=hi[1].min(255) {
+            let row = (z as usize * 256 + y as usize) * 256;
+            for x in lo[0].max(0)..=hi[0].min(255) {
+                sum += cells[row + x as usize];
+            }
+        }
+    }
+    sum
+}
+
 #[test]
 fn a_sat_query_equals_the_brute_force_sum_at_256_cubed() {
     // A 256³ SAT of cells up to the largest Δt·τ (so 32-bit or f32 sums would
@@ -321,15 +335,7 @@ fn a_sat_query_equals_the_brute_force_sum_at_256_cubed() {
         ([-10, 200, 250], [10, 300, 400]),
     ];
     for (lo, hi) in boxes {
-        let mut expected = 0u64;
-        for z in lo[2].max(0)..=hi[2].min(255) {
-            for y in lo[1].max(0)..=hi[1].min(255) {
-                let row = (z as usize * 256 + y as usize) * 256;
-                for x in lo[0].max(0)..=hi[0].min(255) {
-                    expected += values[row + x as usize];
-                }
-            }
-        }
+        let expected = brute_force_sum(&values, lo, hi);
         let got = sat.cuboid_sum(glam::IVec3::from(lo), glam::IVec3::from(hi), 0);
         println!("{lo:?}..{hi:?}: SAT {got}, brute force {expected}");
         assert_eq!(got, expected, "{lo:?}..{hi:?}");
@@ -388,15 +394,7 @@ fn the_gpu_sat_at_256_cubed_equals_brute_force_sums_of_its_cells() {
         ([-5, 100, 100], [60, 140, 400]),
     ];
     for (lo, hi) in boxes {
-        let mut expected = 0u64;
-        for z in lo[2].max(0)..=hi[2].min(255) {
-            for y in lo[1].max(0)..=hi[1].min(255) {
-                let row = (z as usize * 256 + y as usize) * 256;
-                for x in lo[0].max(0)..=hi[0].min(255) {
-                    expected += cells[row + x as usize];
-                }
-            }
-        }
+        let expected = brute_force_sum(&cells, lo, hi);
         let got = sat.cuboid_sum(glam::IVec3::from(lo), glam::IVec3::from(hi), 0);
         println!("GPU SAT {lo:?}..{hi:?}: {got}, brute force over its cells {expected}");
         assert_eq!(got, expected, "{lo:?}..{hi:?}");
