@@ -578,30 +578,33 @@ impl AoShells {
             prev = r.max(prev + 1);
             radii.push(prev);
         }
-        let mut weights = Vec::with_capacity(radii.len());
-        let mut norm = 0.0f64;
-        let mut inner = 0i32;
-        for &r in &radii {
-            let r = r as i32;
-            let (mut sum, mut count) = (0.0f64, 0u32);
-            for z in -r..=r {
-                for y in -r..=r {
-                    for x in -r..=r {
-                        if x.abs().max(y.abs()).max(z.abs()) > inner {
-                            sum += 1.0 / f64::from(x * x + y * y + z * z);
-                            count += 1;
-                        }
+        // One pass over the outer cube: each cell adds 1/|o|² to the shell
+        // its Chebyshev distance falls in (the params are built every frame).
+        let mut sums = vec![0.0f64; radii.len()];
+        let mut counts = vec![0u32; radii.len()];
+        let r = prev as i32;
+        for z in -r..=r {
+            for y in -r..=r {
+                for x in -r..=r {
+                    let d = x.abs().max(y.abs()).max(z.abs()) as u32;
+                    if d == 0 {
+                        continue;
                     }
+                    let shell = radii.partition_point(|&edge| edge < d);
+                    sums[shell] += 1.0 / f64::from(x * x + y * y + z * z);
+                    counts[shell] += 1;
                 }
             }
-            weights.push((sum / f64::from(count)) as f32);
-            norm += sum;
-            inner = r;
         }
+        let weights = sums
+            .iter()
+            .zip(&counts)
+            .map(|(s, &n)| (s / f64::from(n)) as f32)
+            .collect();
         AoShells {
             radii,
             weights,
-            norm: norm as f32,
+            norm: sums.iter().sum::<f64>() as f32,
         }
     }
 }

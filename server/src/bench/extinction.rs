@@ -27,7 +27,7 @@ use shaders::extinction::{
 };
 use shaders::{Camera, Frame, FrameRequest, GpuContext, Renderer, Shading};
 
-use super::light::{adapter_json, merge, write_images};
+use super::light::{adapter_json, merge, unlit_and_gradient_ms, write_images};
 use crate::bench::{bench_dataset, timed};
 use crate::cli::BenchExtinctionArgs;
 use crate::commands::say;
@@ -270,16 +270,7 @@ pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
             renderer.render(&lit)?;
             let update = timings_of(&renderer)?;
             let (_, lit_ms) = timed(args.frames, || renderer.render(&lit))?;
-            let unlit = FrameRequest {
-                shading: Shading::Unshaded,
-                ..lit.clone()
-            };
-            let (_, unlit_ms) = timed(args.frames, || renderer.render(&unlit))?;
-            let gradient = FrameRequest {
-                shading: Shading::Gradient,
-                ..lit.clone()
-            };
-            let (_, gradient_ms) = timed(args.frames, || renderer.render(&gradient))?;
+            let (unlit_ms, gradient_ms) = unlit_and_gradient_ms(&mut renderer, &lit, args.frames)?;
             let mut line = serde_json::json!({
                 "bench": "extinction-frame",
                 "width": args.size,

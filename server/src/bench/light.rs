@@ -186,16 +186,7 @@ pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
             let b = light_of(&renderer)?;
             renderer.render_converged(&lit)?;
             let (_, c_ms) = timed(args.frames, || renderer.render(&lit))?;
-            let unlit = FrameRequest {
-                shading: Shading::Unshaded,
-                ..lit.clone()
-            };
-            let (_, unlit_ms) = timed(args.frames, || renderer.render(&unlit))?;
-            let gradient = FrameRequest {
-                shading: Shading::Gradient,
-                ..lit.clone()
-            };
-            let (_, gradient_ms) = timed(args.frames, || renderer.render(&gradient))?;
+            let (unlit_ms, gradient_ms) = unlit_and_gradient_ms(&mut renderer, &lit, args.frames)?;
             let a_ms = update_ms(&a);
             let mut line = serde_json::json!({
                 "bench": "light-table-left",
@@ -300,6 +291,24 @@ pub(crate) fn write_images(
             .with_context(|| format!("--images: cannot write {}", path.display()))?;
     }
     Ok(())
+}
+
+/// Milliseconds per frame of `lit` rendered unshaded and with gradient
+/// shading instead, `frames` timed each: what a lit frame is compared with.
+pub(crate) fn unlit_and_gradient_ms(
+    renderer: &mut Renderer,
+    lit: &FrameRequest,
+    frames: u32,
+) -> anyhow::Result<(f64, f64)> {
+    let mut ms = [0.0; 2];
+    for (out, shading) in ms.iter_mut().zip([Shading::Unshaded, Shading::Gradient]) {
+        let request = FrameRequest {
+            shading,
+            ..lit.clone()
+        };
+        *out = timed(frames, || renderer.render(&request))?.1;
+    }
+    Ok((ms[0], ms[1]))
 }
 
 /// The adapter's name, backend and device type, for every JSON line.
