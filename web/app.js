@@ -1,7 +1,10 @@
 // voxserve's web client: shows frames rendered on the server and sends the
-// camera and transfer-function choices back. No build step; plain ES modules.
+// view back. No build step; plain ES modules. Every setting's default, range,
+// choices and doc come from the server (GET /api/settings, settings.js): the
+// client only lays out controls and composes them into view settings.
 
 import { OrbitCamera, attachGestures } from './camera.js';
+import { Schema, control } from './settings.js';
 import { ViewStream } from './stream.js';
 import { TfEditor } from './tf-editor.js';
 
@@ -9,33 +12,50 @@ import { TfEditor } from './tf-editor.js';
 // The server renders smaller, lossy frames while the view keeps changing and
 // the full lossless frame once it is still.
 const MAX_EDGE = 1536;
+// The data reductions the Detail menu offers (those within the setting's range).
+const REDUCTIONS = [1, 4, 9, 35];
+// Where a light turned from directional into a point or spot light starts:
+// half-extents of the volume from its centre (outside it), and a spot's
+// half-angle. Layout choices of the panel, not settings: the server's
+// default light is directional.
+const PLACED_DISTANCE = 1.5;
+const SPOT_ANGLE = 30;
 
 const canvas = document.getElementById('view');
 const context = canvas.getContext('2d');
 const presetSelect = document.getElementById('preset');
-const shadingSelect = document.getElementById('shading');
-const compositingSelect = document.getElementById('compositing');
-const projectionSelect = document.getElementById('projection');
 const reductionSelect = document.getElementById('reduction');
 const clipBox = document.getElementById('clip');
 const lightPanel = document.getElementById('light-panel');
-const light = Object.fromEntries(
-  ['kind', 'drag', 'azimuth', 'elevation', 'distance', 'colour', 'intensity', 'bias', 'scatter',
-    'ambient', 'ao-radius', 'ao-strength', 'bleeding', 'cone', 'spot']
-    .map((name) => [name, document.getElementById(`light-${name}`)]),
-);
 const errorBox = document.getElementById('error');
 const fidelity = document.getElementById('fidelity');
+const lightInputs = Object.fromEntries(
+  ['kind', 'drag', 'azimuth', 'elevation', 'distance', 'spot']
+    .map((name) => [name, document.getElementById(`light-${name}`)]),
+);
+// The toolbar's selects of choice settings, by setting name.
+const toolbarSelects = Object.fromEntries(
+  [...document.querySelectorAll('#toolbar select[data-setting]')].map((s) => [s.dataset.setting, s]),
+);
 
-const camera = new OrbitCamera();
+let schema = null;
+let camera = null;
 let dataset = null;
 let stream = null;
 // The edited transfer function (the `tf` text), or null for the preset's.
 let customTf = null;
 const tfEditor = new TfEditor(document.getElementById('tf'), document.getElementById('tf-colour'), (text) => {
   customTf = text;
-  requestFrame(true);
+  requestFrame();
 });
+// Per lit mode: its light as the panel shows it, and its other settings' controls.
+const modes = {
+  global: { light: null, controls: [] },
+  extinction: { light: null, controls: [] },
+};
+// The controls of the light's colour and intensity (shared by both modes).
+let colourControl = null;
+let intensityControl = null;
 
 // Loads the chosen preset's transfer function into the editor.
 function loadPreset() {
@@ -78,26 +98,53 @@ function viewport() {
   return { size: { w, h }, dpr: Number(dpr.toFixed(3)) };
 }
 
-// Clip sliders: [axis][0 = min, 1 = max], values 0..1000.
-const clipSliders = ['x', 'y', 'z'].map((axis) => {
-  const row = document.createElement('div');
-  row.className = 'clip-axis';
-  row.append(axis);
-  const pair = [0, 1000].map((value, i) => {
-    const slider = document.createElement('input');
-    slider.type = 'range';
-    slider.min = 0;
-    slider.max = 1000;
-    slider.value = value;
-    slider.title = `${axis} ${i === 0 ? 'from' : 'to'}`;
-    row.append(slider);
-    return slider;
-  });
-  clipBox.append(row);
-  return pair;
-});
+// Fills a toolbar select with a choice setting's choices, its default chosen.
+function fillChoices(select, setting) {
+  select.replaceChildren();
+  for (const choice of setting.choices) {
+    const option = new Option(choice.name, choice.name);
+    option.title = choice.doc;
+    select.add(option);
+  }
+  select.value = setting.default;
+  select.title = setting.doc;
+}
 
-// The clip box parameter. Keeps each axis's min below its max.
+// The Detail menu: data reductions within the setting's range, the default chosen.
+function fillReductions(setting) {
+  const offered = [...new Set([setting.default, ...REDUCTIONS])]
+    .filter((r) => r >= setting.min && r <= setting.max)
+    .sort((a, b) => a - b);
+  for (const r of offered) reductionSelect.add(new Option(r === 1 ? 'full (1:1)' : `${r}:1`, String(r)));
+  reductionSelect.value = String(setting.default);
+}
+
+// Clip sliders, [axis][0 = min, 1 = max], values 0..1000, from the clip default.
+function buildClipSliders(setting) {
+  const [x0, y0, z0, x1, y1, z1] = setting.default.split(',').map(Number);
+  const lo = [x0, y0, z0];
+  const hi = [x1, y1, z1];
+  return ['x', 'y', 'z'].map((axis, a) => {
+    const row = document.createElement('div');
+    row.className = 'clip-axis';
+    row.append(axis);
+    const pair = [lo[a], hi[a]].map((value, i) => {
+      const slider = document.createElement('input');
+      slider.type = 'range';
+      slider.min = 0;
+      slider.max = 1000;
+      slider.value = Math.round(value * 1000);
+      slider.title = `${axis} ${i === 0 ? 'from' : 'to'}`;
+      row.append(slider);
+      return slider;
+    });
+    clipBox.append(row);
+    return pair;
+  });
+}
+let clipSliders = [];
+
+// The clip setting's text. Keeps each axis's min below its max.
 function clipParam() {
   const lo = [];
   const hi = [];
@@ -107,74 +154,159 @@ function clipParam() {
     lo.push(a / 1000);
     hi.push(b / 1000);
   }
-  return { clip: [...lo, ...hi].join(',') };
+  return [...lo, ...hi].join(',');
 }
 
-// The light of the illumination panel as `kind:…` text (view settings `light`
-// and `lights`), with the direction from the centre in patient LPS: azimuth 0
-// is anterior (−y), 90 the patient's left (+x).
-function lightSource() {
-  const a = (Number(light.azimuth.value) * Math.PI) / 180;
-  const e = (Number(light.elevation.value) * Math.PI) / 180;
+// A light's position text (`kind:…`, as the settings `light` and `lights`
+// take it) → the panel's state: the direction from the centre as azimuth
+// (0 anterior, 90 the patient's left) and elevation, a distance in
+// half-extents for point and spot lights, and a spot's half-angle.
+function placement(source) {
+  const [kind, at, axis, angle] = source.split(':');
+  const xyz = at.split(',').map(Number);
+  const v = kind === 'directional' || kind === 'dir' ? xyz : xyz.map((c) => c - 0.5);
+  const length = Math.hypot(...v) || 1;
+  return {
+    kind: kind === 'dir' ? 'directional' : kind,
+    azimuth: (Math.atan2(v[0], -v[1]) * 180) / Math.PI,
+    elevation: (Math.asin(v[2] / length) * 180) / Math.PI,
+    distance: kind === 'directional' || kind === 'dir' ? PLACED_DISTANCE : 2 * length,
+    spot: kind === 'spot' ? Number(angle) : SPOT_ANGLE,
+    axis,
+  };
+}
+
+// The panel's light → its position text.
+function sourceText(light) {
+  const a = (light.azimuth * Math.PI) / 180;
+  const e = (light.elevation * Math.PI) / 180;
   const v = [Math.sin(a) * Math.cos(e), -Math.cos(a) * Math.cos(e), Math.sin(e)];
   const xyz = (w) => w.map((c) => c.toFixed(3)).join(',');
-  const r = Number(light.distance.value) / 200;
-  const at = v.map((c) => 0.5 + c * r);
-  switch (light.kind.value) {
+  const at = v.map((c) => 0.5 + (c * light.distance) / 2);
+  switch (light.kind) {
     case 'point': return `point:${xyz(at)}`;
-    case 'spot': return `spot:${xyz(at)}:${xyz(v.map((c) => -c))}:${light.spot.value}`;
+    case 'spot': return `spot:${xyz(at)}:${xyz(v.map((c) => -c))}:${light.spot}`;
     default: return `directional:${xyz(v)}`;
   }
 }
 
-// The illumination panel's view settings for the lit shading modes.
+// Each lit mode's light as its settings' defaults say.
+function defaultLights() {
+  modes.global.light = {
+    ...placement(schema.default('light')),
+    colour: schema.default('light_colour'),
+    intensity: schema.default('light_intensity'),
+  };
+  // The first light of `lights` (`kind:position[:axis:angle]:rrggbb:intensity`).
+  const first = schema.default('lights').split(';')[0];
+  const parts = first ? first.split(':') : [];
+  const fields = parts[0] === 'spot' ? 4 : 2;
+  modes.extinction.light = first
+    ? {
+      ...placement(parts.slice(0, fields).join(':')),
+      colour: parts[fields] || schema.default('light_colour'),
+      intensity: parts[fields + 1] === undefined ? schema.default('light_intensity') : Number(parts[fields + 1]),
+    }
+    : { ...modes.global.light };
+}
+
+// The current lit mode's entry of `modes`, or null for unlit shading.
+function litMode() {
+  return modes[toolbarSelects.shading.value] || null;
+}
+
+// Shows the panel's controls for the current mode's light.
+function showLight() {
+  const mode = litMode();
+  if (!mode) return;
+  const light = mode.light;
+  lightInputs.kind.value = light.kind;
+  for (const name of ['azimuth', 'elevation', 'distance', 'spot']) {
+    lightInputs[name].value = light[name];
+    lightInputs[name].nextElementSibling.textContent = Number(light[name].toPrecision(3));
+  }
+  colourControl.setting.value = light.colour;
+  intensityControl.setting.value = light.intensity;
+}
+
+// Reads the panel's controls into the current mode's light.
+function readLight() {
+  const mode = litMode();
+  if (!mode) return;
+  const light = mode.light;
+  light.kind = lightInputs.kind.value;
+  for (const name of ['azimuth', 'elevation', 'distance', 'spot']) {
+    light[name] = Number(lightInputs[name].value);
+    lightInputs[name].nextElementSibling.textContent = Number(light[name].toPrecision(3));
+  }
+  light.colour = colourControl.setting.value;
+  light.intensity = intensityControl.setting.value;
+}
+
+// The lit mode's view settings: its light and every control of its group.
 function lightParams() {
-  const colour = light.colour.value.slice(1);
-  const intensity = Number(light.intensity.value) / 100;
-  if (shadingSelect.value === 'global') {
+  const shading = toolbarSelects.shading.value;
+  const mode = litMode();
+  if (!mode) return {};
+  const params = Object.fromEntries(mode.controls.map((c) => [c.dataset.setting, c.setting.value]));
+  const light = mode.light;
+  if (shading === 'global') {
     // Global light has no spot light: a spot becomes a point light there.
-    const source = lightSource().replace(/^spot:([^:]*):.*$/, 'point:$1');
-    return {
-      light: source,
-      light_colour: colour,
-      light_intensity: intensity,
-      bias: Number(light.bias.value) / 100,
-      scatter_radius: light.scatter.value,
-    };
+    const source = sourceText(light.kind === 'spot' ? { ...light, kind: 'point' } : light);
+    return { ...params, light: source, light_colour: light.colour, light_intensity: light.intensity };
   }
-  if (shadingSelect.value === 'extinction') {
-    return {
-      lights: `${lightSource()}:${colour}:${intensity}`,
-      ambient: Number(light.ambient.value) / 100,
-      ao_radius: light['ao-radius'].value,
-      ao_shells: Math.min(3, Number(light['ao-radius'].value)),
-      ao_strength: Number(light['ao-strength'].value) / 100,
-      colour_bleeding: light.bleeding.checked,
-      cone_angle: light.cone.value,
-    };
+  // The server refuses more shells than the radius: follow the radius down.
+  if ('ao_shells' in params && params.ao_shells > params.ao_radius) {
+    params.ao_shells = params.ao_radius;
+    mode.controls.find((c) => c.dataset.setting === 'ao_shells').setting.value = params.ao_radius;
   }
-  return {};
+  return { ...params, lights: `${sourceText(light)}:${light.colour}:${light.intensity}` };
+}
+
+// Builds the Illumination panel's controls from the schema: colour and
+// intensity of the light, then each lit mode's other settings (advanced
+// ones under "More").
+function buildLightPanel() {
+  const onInput = () => {
+    readLight();
+    requestFrame();
+  };
+  colourControl = control(schema.get('light_colour'), onInput);
+  intensityControl = control(schema.get('light_intensity'), onInput);
+  document.getElementById('light-common').append(colourControl, intensityControl);
+  const composed = new Set(['light', 'light_colour', 'light_intensity', 'lights']);
+  for (const [name, group] of [['global', 'global_light'], ['extinction', 'extinction']]) {
+    for (const setting of schema.inGroup(group)) {
+      if (composed.has(setting.name)) continue;
+      const c = control(setting, () => requestFrame());
+      c.dataset.mode = name;
+      modes[name].controls.push(c);
+      const where = setting.ui === 'advanced' ? 'light-more' : 'light-settings';
+      document.getElementById(where).append(c);
+    }
+  }
 }
 
 // Shows the illumination panel for the lit modes, with the rows of the mode.
 function showLightPanel() {
-  const mode = shadingSelect.value;
-  lightPanel.hidden = mode !== 'global' && mode !== 'extinction';
-  if (mode === 'global' && light.kind.value === 'spot') light.kind.value = 'point';
+  const mode = toolbarSelects.shading.value;
+  lightPanel.hidden = !litMode();
+  if (lightPanel.hidden) return;
+  if (mode === 'global' && lightInputs.kind.value === 'spot') lightInputs.kind.value = 'point';
   // Rows of another mode, or of another kind of light, are hidden.
   for (const row of lightPanel.querySelectorAll('[data-mode], [data-kind]')) {
     const modeOk = !row.dataset.mode || row.dataset.mode === mode;
-    const kindOk = !row.dataset.kind || row.dataset.kind.split(' ').includes(light.kind.value);
+    const kindOk = !row.dataset.kind || row.dataset.kind.split(' ').includes(lightInputs.kind.value);
     row.hidden = !(modeOk && kindOk);
   }
 }
 
 // Dragging on the image moves the light instead of the camera while the
 // panel's box is ticked or Shift is held; the wheel moves a point or spot light
-// nearer or farther (into the volume below distance 100).
+// nearer or farther (into the volume below distance 1).
 function attachLightDrag() {
   let last = null;
-  const active = (e) => !lightPanel.hidden && (light.drag.checked || e.shiftKey);
+  const active = (e) => !lightPanel.hidden && (lightInputs.drag.checked || e.shiftKey);
   canvas.addEventListener('pointerdown', (e) => {
     if (!active(e)) return;
     e.stopImmediatePropagation();
@@ -184,12 +316,11 @@ function attachLightDrag() {
   canvas.addEventListener('pointermove', (e) => {
     if (!last || e.pointerId !== last.id) return;
     e.stopImmediatePropagation();
-    const dx = e.clientX - last.x;
-    const dy = e.clientY - last.y;
+    const light = litMode().light;
+    light.azimuth = ((light.azimuth - (e.clientX - last.x) * 0.5 + 540) % 360) - 180;
+    light.elevation = Math.max(-90, Math.min(90, light.elevation - (e.clientY - last.y) * 0.5));
     last = { id: e.pointerId, x: e.clientX, y: e.clientY };
-    const azimuth = ((Number(light.azimuth.value) - dx * 0.5 + 540) % 360) - 180;
-    light.azimuth.value = String(azimuth);
-    light.elevation.value = String(Math.max(-90, Math.min(90, Number(light.elevation.value) - dy * 0.5)));
+    showLight();
     requestFrame();
   }, { capture: true });
   const end = (e) => {
@@ -201,45 +332,36 @@ function attachLightDrag() {
   canvas.addEventListener('pointerup', end, { capture: true });
   canvas.addEventListener('pointercancel', end, { capture: true });
   canvas.addEventListener('wheel', (e) => {
-    if (!active(e) || light.kind.value === 'directional') return;
+    if (!active(e) || lightInputs.kind.value === 'directional') return;
     e.preventDefault();
     e.stopImmediatePropagation();
-    light.distance.value = String(Number(light.distance.value) * Math.exp(e.deltaY * 0.001));
+    const light = litMode().light;
+    light.distance = Math.min(Number(lightInputs.distance.max), light.distance * Math.exp(e.deltaY * 0.001));
+    showLight();
     requestFrame();
   }, { capture: true, passive: false });
 }
 
-// Sends the view; the server renders what it needs (the argument, whether the
-// user is dragging, is no longer needed: the server sees the messages come).
+// Sends the view; the server renders what it needs (it sees the messages come
+// and renders small lossy frames while they do).
 function requestFrame() {
   if (!dataset || !stream) return;
   const { size, dpr } = viewport();
+  const choices = Object.fromEntries(Object.entries(toolbarSelects).map(([name, s]) => [name, s.value]));
   stream.update({
     dataset: dataset.id,
     ...camera.params(),
     ...size,
     ...(customTf ? { tf: customTf } : { preset: presetSelect.value }),
-    shading: shadingSelect.value,
-    compositing: compositingSelect.value,
-    proj: projectionSelect.value,
-    reduction: reductionSelect.value,
-    ...clipParam(),
+    ...choices,
+    reduction: Number(reductionSelect.value),
+    clip: clipParam(),
     ...lightParams(),
   }, dpr);
 }
 
-async function start() {
-  resizeCanvas();
-  let datasets;
-  try {
-    const response = await fetch('/api/datasets');
-    datasets = await response.json();
-  } catch (e) {
-    errorBox.textContent = `cannot load the dataset list: ${e.message}`;
-    errorBox.hidden = false;
-    return;
-  }
-  // The dataset picker: the server's datasets, the default (first) chosen.
+// The dataset picker: the server's datasets, the first chosen.
+function buildDatasetPicker(datasets) {
   const datasetSelect = document.getElementById('dataset');
   for (const d of datasets) {
     const [nx, ny, nz] = d.dims;
@@ -260,37 +382,71 @@ async function start() {
   datasetSelect.addEventListener('change', () => {
     choose(datasetSelect.value);
     camera.reset();
-    requestFrame(false);
+    requestFrame();
   });
-  stream = new ViewStream(drawFrame, showError, () => {});
+}
 
-  attachLightDrag();
-  attachGestures(canvas, camera, requestFrame);
+function attachControls() {
   presetSelect.addEventListener('change', () => {
     loadPreset();
-    requestFrame(false);
+    requestFrame();
   });
-  for (const select of [shadingSelect, compositingSelect, projectionSelect, reductionSelect]) {
-    select.addEventListener('change', () => requestFrame(false));
+  for (const select of [...Object.values(toolbarSelects), reductionSelect]) {
+    select.addEventListener('change', () => requestFrame());
   }
+  toolbarSelects.shading.addEventListener('change', () => {
+    showLight();
+    showLightPanel();
+  });
   for (const slider of clipSliders.flat()) {
-    slider.addEventListener('input', () => requestFrame(true));
+    slider.addEventListener('input', () => requestFrame());
   }
-  shadingSelect.addEventListener('change', showLightPanel);
-  showLightPanel();
-  for (const input of Object.values(light)) {
-    if (input !== light.drag) input.addEventListener('change', () => requestFrame(false));
+  for (const name of ['azimuth', 'elevation', 'distance', 'spot']) {
+    lightInputs[name].addEventListener('input', () => {
+      readLight();
+      requestFrame();
+    });
   }
-  light.kind.addEventListener('change', showLightPanel);
+  lightInputs.kind.addEventListener('change', () => {
+    readLight();
+    showLightPanel();
+    requestFrame();
+  });
   document.getElementById('reset').addEventListener('click', () => {
     camera.reset();
-    requestFrame(false);
+    requestFrame();
   });
   window.addEventListener('resize', () => {
     resizeCanvas();
-    requestFrame(true);
+    requestFrame();
   });
-  requestFrame(false);
+}
+
+async function start() {
+  resizeCanvas();
+  let datasets;
+  try {
+    const [loaded, response] = await Promise.all([Schema.load(), fetch('/api/datasets')]);
+    schema = loaded;
+    datasets = await response.json();
+  } catch (e) {
+    showError(`cannot load the settings or the dataset list: ${e.message}`);
+    return;
+  }
+  camera = new OrbitCamera(schema);
+  for (const [name, select] of Object.entries(toolbarSelects)) fillChoices(select, schema.get(name));
+  fillReductions(schema.get('reduction'));
+  clipSliders = buildClipSliders(schema.get('clip'));
+  buildLightPanel();
+  defaultLights();
+  buildDatasetPicker(datasets);
+  stream = new ViewStream(drawFrame, showError, () => {});
+  attachLightDrag();
+  attachGestures(canvas, camera, () => requestFrame());
+  attachControls();
+  showLight();
+  showLightPanel();
+  requestFrame();
 }
 
 start();

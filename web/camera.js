@@ -1,33 +1,42 @@
 // Orbit camera state and the pointer, wheel and touch gestures that change it.
-// Angles in degrees, distance in bounding-sphere radii: the units of the
-// `az`, `el` and `dist` parameters of GET /api/render
-// (keep in sync with server/src/frame_query.rs and shaders/src/camera.rs).
+// Angles in degrees, distance in bounding-sphere radii: the view settings
+// `az`, `el` and `dist`, whose defaults and ranges come from the server's
+// schema (GET /api/settings).
 
-export const DEFAULT_CAMERA = Object.freeze({ az: 0, el: 0, dist: 3 });
-const MIN_DIST = 0.05;
-const MAX_DIST = 100;
 const DEGREES_PER_PIXEL = 0.4;
 
 export class OrbitCamera {
-  constructor() {
+  // `schema`: the view settings (settings.js `Schema`).
+  constructor(schema) {
+    this.az0 = schema.default('az');
+    this.el0 = schema.default('el');
+    this.dist0 = schema.default('dist');
+    const el = schema.get('el');
+    const dist = schema.get('dist');
+    this.elRange = [el.min, el.max];
+    this.distRange = [dist.min, dist.max];
     this.reset();
   }
 
   reset() {
-    Object.assign(this, DEFAULT_CAMERA);
+    this.az = this.az0;
+    this.el = this.el0;
+    this.dist = this.dist0;
   }
 
   orbit(dxPixels, dyPixels) {
     this.az = wrapDegrees(this.az - dxPixels * DEGREES_PER_PIXEL);
-    this.el = clamp(this.el + dyPixels * DEGREES_PER_PIXEL, -90, 90);
+    this.el = clamp(this.el + dyPixels * DEGREES_PER_PIXEL, ...this.elRange);
   }
 
   zoom(factor) {
-    this.dist = clamp(this.dist * factor, MIN_DIST, MAX_DIST);
+    this.dist = clamp(this.dist * factor, ...this.distRange);
   }
 
+  // The view settings, as numbers.
   params() {
-    return { az: this.az.toFixed(2), el: this.el.toFixed(2), dist: this.dist.toFixed(3) };
+    const round = (v, digits) => Number(v.toFixed(digits));
+    return { az: round(this.az, 2), el: round(this.el, 2), dist: round(this.dist, 3) };
   }
 }
 

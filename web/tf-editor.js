@@ -8,8 +8,8 @@
 // - drag empty space for window/level: across moves every point (level), up
 //   and down widens or narrows their spread about the middle (window).
 //
-// The text form is the `tf` parameter of server/src/frame_query.rs (keep in
-// sync): `VALUE:RRGGBB:OPACITY,…` in physical units.
+// The text form is the `tf` view setting's (GET /api/settings says what it
+// takes): `VALUE:RRGGBB:OPACITY,…` in physical units.
 
 const HANDLE = 6;
 

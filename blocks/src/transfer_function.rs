@@ -226,6 +226,16 @@ impl Preset {
         }
     }
 
+    /// The preset a volume of `modality` starts with: CT bone for CT, MR for
+    /// MR, generic otherwise.
+    pub fn for_modality(modality: Option<&str>) -> Preset {
+        match modality {
+            Some("CT") => Preset::CtBone,
+            Some("MR") => Preset::Mr,
+            _ => Preset::Generic,
+        }
+    }
+
     /// A one-line description for menus and `--help`.
     pub fn description(self) -> &'static str {
         match self {

@@ -3,8 +3,9 @@
 //! | route | answer |
 //! |---|---|
 //! | `GET /` and other paths | the web client (`web/`) |
-//! | `GET /api/render?…` | a PNG of one frame; parameters in [`crate::frame_query`]; headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
+//! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
 //! | `GET /api/stream` | a WebSocket view session: [`crate::protocol`], [`crate::stream`] |
+//! | `GET /api/settings` | every view setting (name, flag, group, kind, range or choices, unit, default, doc, what it takes), as JSON: the web client builds its controls from it |
 //! | `GET /api/datasets` | the datasets offered, as JSON |
 //! | `GET /api/datasets/{id}` | one dataset's description; 404 for an unknown id |
 //! | `GET /api/datasets/{id}/render?…` | `GET /api/render` for that dataset (thumbnails, embedding) |
@@ -26,7 +27,7 @@ use tokio::net::TcpListener;
 use crate::dataset::DatasetInfo;
 use crate::metrics::{Format, FrameTimes, Metrics, Quality, Source};
 use crate::stream::{SessionCounter, StreamSettings};
-use crate::{AppError, Dataset, RenderService, encode, frame_query, web};
+use crate::{AppError, Dataset, RenderService, View, encode, web};
 
 /// What every handler shares.
 #[derive(Debug, Clone)]
@@ -70,6 +71,7 @@ pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/api/render", get(render))
         .route("/api/stream", get(crate::stream::handler))
+        .route("/api/settings", get(settings))
         .route("/api/datasets", get(datasets))
         .route("/api/datasets/{id}", get(dataset))
         .route("/api/datasets/{id}/render", get(dataset_render))
@@ -97,6 +99,10 @@ async fn static_file(uri: Uri) -> Result<Response, AppError> {
 
 async fn healthz(State(state): State<AppState>) -> Json<serde_json::Value> {
     Json(serde_json::json!({ "status": "ok", "adapter": state.renderer.adapter() }))
+}
+
+async fn settings() -> Json<serde_json::Value> {
+    Json(crate::view::describe())
 }
 
 async fn datasets(State(state): State<AppState>) -> Json<Vec<DatasetInfo>> {
@@ -160,9 +166,11 @@ async fn render(
 
 /// Renders the frame `pairs` (query parameters) ask for, as a PNG response.
 async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Response, AppError> {
-    let (dataset, request) =
-        frame_query::parse(pairs, &state.datasets).map_err(AppError::BadRequest)?;
-    let rendered = state.renderer.render(dataset, request).await?;
+    let view = View::from_query(pairs, &state.datasets).map_err(AppError::BadRequest)?;
+    let dataset = view
+        .dataset(&state.datasets)
+        .map_err(|e| AppError::BadRequest(e.to_string()))?;
+    let rendered = state.renderer.render(dataset, view.frame).await?;
     let encode_start = Instant::now();
     let frame = rendered.frame;
     let png = tokio::task::spawn_blocking(move || encode::png(&frame))

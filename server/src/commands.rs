@@ -7,10 +7,10 @@ use std::time::Instant;
 use anyhow::Context;
 use blocks::ingest::dicom::FolderScan;
 use blocks::ingest::{self, VolumeSource};
-use shaders::{Camera, FrameRequest, GpuContext, Renderer};
+use shaders::{GpuContext, Renderer};
 use tokio::net::TcpListener;
 
-use crate::cli::{DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs};
+use crate::cli::{Command, DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs, SettingsArgs};
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
 
@@ -21,6 +21,28 @@ pub const CPU_TWIN_FEATURES: shaders::wgpu::Features =
 
 /// The atlas edge limit the CPU twin packs to (what Vulkan adapters commonly allow).
 pub const CPU_TWIN_MAX_EDGE: u32 = 2048;
+
+/// Runs one of the server's subcommands.
+pub fn run(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Serve(args) => tokio::runtime::Runtime::new()
+            .map_err(anyhow::Error::from)
+            .and_then(|rt| rt.block_on(serve(args))),
+        Command::Render(args) => render(*args),
+        Command::Info(args) => info(&args),
+        Command::Ingest(args) => ingest(&args),
+        Command::Settings(args) => settings(&args),
+    }
+}
+
+/// `voxserve settings`: every view setting, as Markdown tables or JSON.
+pub fn settings(args: &SettingsArgs) -> anyhow::Result<()> {
+    if args.json {
+        say(&serde_json::to_string_pretty(&crate::view::describe())?)
+    } else {
+        say(shaders::settings::markdown::<crate::View>().trim())
+    }
+}
 
 /// Loads the dataset named on the command line: the phantom, a brick store, or
 /// a volume file or DICOM folder bricked in memory.
@@ -133,31 +155,12 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
 /// `voxserve render`: one frame to a PNG file.
 pub fn render(args: RenderArgs) -> anyhow::Result<()> {
     let dataset = load_dataset(&args.dataset, &args.data)?;
-    let preset = match &args.preset {
-        Some(name) => name.parse()?,
-        None => dataset.default_preset(),
-    };
-    let request = FrameRequest {
-        camera: Camera {
-            azimuth_deg: args.azimuth,
-            elevation_deg: args.elevation,
-            distance: args.distance,
-            fov_y_deg: args.fov,
-            projection: args.projection.parse().map_err(anyhow::Error::msg)?,
-        },
-        shading: args.shading.parse().map_err(anyhow::Error::msg)?,
-        step_voxels: args.step,
-        clip: args.clip,
-        reduction: args.reduction,
-        background: args.background,
-        light: args.light.settings(),
-        extinction: args.extinction.settings(),
-        compositing: args.compositing,
-        ..FrameRequest::new(
-            args.width,
-            args.height,
-            preset.transfer_function(dataset.value_range()),
-        )
+    let request = args.view.frame;
+    let classification = match (&request.tf, request.preset) {
+        (Some(_), _) => "its own transfer function".to_owned(),
+        (None, preset) => preset
+            .unwrap_or_else(|| dataset.default_preset())
+            .to_string(),
     };
     let start = Instant::now();
     let (frame, reduction, levels, device) = if args.cpu {
@@ -200,8 +203,8 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
     let png = encode::png(&frame)?;
     std::fs::write(&out, png).with_context(|| format!("cannot write {}", out.display()))?;
     say(&format!(
-        "wrote {} ({}x{}, {preset}, {}; reduction {reduction:.1}:1, blocks per level {levels:?}) \
-         in {ms:.0} ms on {device}",
+        "wrote {} ({}x{}, {classification}, {}; reduction {reduction:.1}:1, blocks per level \
+         {levels:?}) in {ms:.0} ms on {device}",
         out.display(),
         frame.width,
         frame.height,

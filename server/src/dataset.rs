@@ -150,11 +150,7 @@ impl Dataset {
 
     /// The preset to start with: CT bone for CT, MR for MR, generic otherwise.
     pub fn default_preset(&self) -> Preset {
-        match self.store.meta().modality.as_deref() {
-            Some("CT") => Preset::CtBone,
-            Some("MR") => Preset::Mr,
-            _ => Preset::Generic,
-        }
+        Preset::for_modality(self.store.meta().modality.as_deref())
     }
 
     /// The level-0 histogram summed over every block, and the physical range

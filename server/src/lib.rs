@@ -6,7 +6,10 @@
 //!   a listener until a shutdown future resolves (tests use port 0).
 //! - [`error`]: [`AppError`]: client errors become 4xx with a message naming the
 //!   field; internal errors become a generic 500 and are logged once.
-//! - [`frame_query`]: the query string of `GET /api/render` → a [`shaders::FrameRequest`].
+//! - [`view`]: [`View`], what a client asks to see (a dataset and a frame
+//!   request), read from `GET /api/render`'s query or merged from view-session
+//!   patches, every setting checked as the schema (`shaders::settings`)
+//!   declares it; `GET /api/settings` describes them.
 //! - [`render_service`]: [`RenderService`], one worker thread that owns the GPU
 //!   renderer and serves render jobs from all requests in arrival order.
 //! - [`stream`]: view sessions over WebSocket (`GET /api/stream`): latest state
@@ -18,28 +21,28 @@
 //! - [`metrics`]: `GET /metrics`, OpenMetrics text (sessions, frames, render,
 //!   encode and queue time histograms, block cache hits).
 //! - [`web`]: the static web client from `web/`, compiled into the binary.
-//! - [`cli`]: the command line's subcommands and flags.
-//! - [`commands`]: what `serve`, `render`, `info` and `ingest` do.
-//! - [`bench`]: `voxserve bench render | read | blocks | light`, JSON lines.
-//! - [`reference_data`]: the real datasets of `../shared/data` that tests and
-//!   benchmarks use, with how to read them and a transfer function for each.
+//! - [`cli`]: the command line's subcommands and flags (`render`'s view flags
+//!   from the settings schema).
+//! - [`commands`]: what `serve`, `render`, `info`, `ingest` and `settings` do.
+//!
+//! The benchmarks (`voxserve bench`) are in the binary's module tree
+//! (`server/src/bench/`), not in this library.
 
 pub mod app;
-pub mod bench;
 pub mod cli;
 pub mod commands;
 pub mod dataset;
 pub mod encode;
 pub mod error;
-pub mod frame_query;
 pub mod metrics;
 pub mod protocol;
-pub mod reference_data;
 pub mod render_service;
 pub mod stream;
+pub mod view;
 pub mod web;
 
 pub use app::{AppState, run};
 pub use dataset::Dataset;
 pub use error::AppError;
 pub use render_service::RenderService;
+pub use view::View;

@@ -1,11 +1,41 @@
-//! The `voxserve` binary: parses the command line and runs a subcommand.
+//! The `voxserve` binary: parses the command line and runs a subcommand. The
+//! benchmarks (`voxserve bench`) and the real datasets they measure live here,
+//! in the binary's own module tree, not in the server library.
+
+mod bench;
 
 use std::io::IsTerminal;
 use std::process::ExitCode;
 
-use clap::Parser;
-use server::cli::{BenchCommand, Cli, Command};
+use clap::{Parser, Subcommand};
+use server::cli::Command;
 use tracing_subscriber::EnvFilter;
+
+/// Remote viewing of large 3D scans and simulations in a browser.
+///
+/// voxserve renders volumes on the GPU (through wgpu: Vulkan, Metal, DX12 or GL;
+/// Mesa's lavapipe where there is no GPU) and serves the frames to a thin web
+/// client. Without a dataset it serves a built-in CT head phantom.
+///
+/// Environment: WGPU_BACKEND picks the graphics backend (vulkan, gl, metal, dx12),
+/// WGPU_ADAPTER_NAME picks an adapter by part of its name, RUST_LOG sets the log
+/// level (default info).
+#[derive(Debug, Parser)]
+#[command(name = "voxserve", version)]
+struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    command: Subcommands,
+}
+
+/// The server's subcommands, and `bench`.
+#[derive(Debug, Subcommand)]
+enum Subcommands {
+    #[command(flatten)]
+    Server(Box<Command>),
+    /// Measure phantom generation, frame rendering and slab reading; prints JSON lines.
+    Bench(bench::args::BenchArgs),
+}
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
@@ -18,20 +48,8 @@ fn main() -> ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Serve(args) => tokio::runtime::Runtime::new()
-            .map_err(anyhow::Error::from)
-            .and_then(|rt| rt.block_on(server::commands::serve(args))),
-        Command::Render(args) => server::commands::render(args),
-        Command::Info(args) => server::commands::info(&args),
-        Command::Ingest(args) => server::commands::ingest(&args),
-        Command::Bench(args) => match &args.what {
-            BenchCommand::Render(a) => server::bench::render(a),
-            BenchCommand::Read(a) => server::bench::read(a),
-            BenchCommand::Blocks(a) => server::bench::blocks(a),
-            BenchCommand::Light(a) => server::bench::light(a),
-            BenchCommand::Stream(a) => server::bench::stream(a),
-            BenchCommand::Extinction(a) => server::bench::extinction(a),
-        },
+        Subcommands::Server(command) => server::commands::run(*command),
+        Subcommands::Bench(args) => bench::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -39,5 +57,15 @@ fn main() -> ExitCode {
             tracing::error!("{e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    #[test]
+    fn the_command_line_is_well_formed() {
+        super::Cli::command().debug_assert();
     }
 }

@@ -5,7 +5,7 @@
 //!
 //! | message | meaning |
 //! |---|---|
-//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds any of the parameters of `GET /api/render` (see [`crate::frame_query`]: `az`, `el`, `dist`, `fov`, `proj`, `w`, `h`, `preset`, `shading`, `step`, `clip`, `reduction`, `bg`, `dataset`, `compositing`, the global light's (`light`, `light_colour`, …) and extinction-based illumination's (`lights`, `ambient`, `ao_radius`, `colour_bleeding`, …)), as JSON numbers or strings; they are merged into the session's view, so a camera move sends only `az` and `el`. A setting given as `null` is removed (back to its default; e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
+//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds view settings (those of `GET /api/render`, as `GET /api/settings` lists them: [`crate::view`]), typed: numbers as JSON numbers, switches as `true`/`false`, choices and text forms (`clip`, `light`, `tf`, …) as strings; they are merged into the session's view, so a camera move sends only `az` and `el`. A setting given as `null` goes back to its default (e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
 //! | `{"type":"ack","frame":F}` | the client has drawn frame `F`; the server sends at most [`crate::stream::StreamSettings::frames_in_flight`] frames ahead of the last acknowledged one. |
 //!
 //! A message that is not JSON, has an unknown type or field, or sets a value
@@ -39,7 +39,7 @@
 //! | 32 | f32 | data reduction rendered at |
 //! | 36 | f32 | milliseconds the render waited for the GPU behind other sessions |
 
-use serde_json::Value;
+use serde_json::{Map, Value};
 
 /// The protocol's version, sent in `hello`.
 pub const PROTOCOL: u32 = 1;
@@ -164,13 +164,13 @@ impl FrameHeader {
 /// A client message, checked.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ClientMessage {
-    /// Change the view: `set` as `GET /api/render` parameter pairs; `None`
-    /// removes a setting (back to its default).
+    /// Change the view: `set` holds view settings as JSON; `null` sets one
+    /// back to its default.
     View {
         /// The message's id.
         id: u32,
-        /// Parameters to merge into the view.
-        set: Vec<(String, Option<String>)>,
+        /// Settings to merge into the view (checked when merged).
+        set: Map<String, Value>,
         /// Device pixel ratio, if given.
         dpr: Option<f64>,
     },
@@ -251,35 +251,16 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, Refusal> {
         }),
         _ => {
             let id = whole("id")?;
-            let mut set = Vec::new();
-            match fields.get("set") {
-                None => {}
-                Some(Value::Object(map)) => {
-                    for (name, v) in map {
-                        let text = match v {
-                            Value::String(s) => Some(s.clone()),
-                            Value::Number(n) => Some(n.to_string()),
-                            Value::Bool(b) => Some(b.to_string()),
-                            Value::Null => None,
-                            _ => {
-                                return Err(refuse(
-                                    Some(id),
-                                    format!(
-                                        "view setting {name}: expected a number, a string or null"
-                                    ),
-                                ));
-                            }
-                        };
-                        set.push((name.clone(), text));
-                    }
-                }
+            let set = match fields.get("set") {
+                None => Map::new(),
+                Some(Value::Object(map)) => map.clone(),
                 Some(_) => {
                     return Err(refuse(
                         Some(id),
                         "view message field 'set': expected an object of settings".into(),
                     ));
                 }
-            }
+            };
             let dpr = match fields.get("dpr") {
                 None => None,
                 Some(v) => Some(
@@ -342,11 +323,10 @@ mod tests {
             ),
             Ok(ClientMessage::View {
                 id: 3,
-                set: vec![
-                    ("az".into(), Some("30".into())),
-                    ("shading".into(), Some("global".into())),
-                    ("preset".into(), None),
-                ],
+                set: serde_json::json!({"az": 30, "shading": "global", "preset": null})
+                    .as_object()
+                    .cloned()
+                    .unwrap_or_default(),
                 dpr: Some(2.0),
             })
         );
@@ -366,10 +346,6 @@ mod tests {
             (r#"{"type":"view","set":{}}"#, "field 'id'"),
             (r#"{"type":"view","id":-4}"#, "field 'id'"),
             (r#"{"type":"view","id":1,"set":[1]}"#, "field 'set'"),
-            (
-                r#"{"type":"view","id":1,"set":{"az":[1]}}"#,
-                "view setting az",
-            ),
             (r#"{"type":"view","id":1,"dpr":100}"#, "field 'dpr' = 100"),
             (r#"{"type":"ack","frame":"x"}"#, "field 'frame'"),
         ] {

@@ -222,7 +222,9 @@ impl RenderService {
             .map_err(|_| AppError::Internal("the render worker dropped a job".into()))?;
         result.map_err(|e| match e {
             GpuError::InvalidRequest(m) => AppError::BadRequest(m),
-            GpuError::Unsupported { .. } => AppError::BadRequest(e.to_string()),
+            GpuError::Unsupported { .. } | GpuError::Setting(_) => {
+                AppError::BadRequest(e.to_string())
+            }
             other => AppError::Internal(other.to_string()),
         })
     }

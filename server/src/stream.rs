@@ -24,7 +24,6 @@
 //! session's view is its own; when the socket closes the session ends and
 //! frees its place ([`StreamSettings::max_sessions`]).
 
-use std::collections::BTreeMap;
 use std::future::Future;
 use std::pin::Pin;
 use std::sync::Arc;
@@ -38,7 +37,7 @@ use shaders::frame::MAX_IMAGE_EDGE;
 use shaders::{FrameRequest, Shading};
 
 use crate::protocol::{self, ClientMessage, Encoding, FrameHeader};
-use crate::{AppError, AppState, Dataset, encode, frame_query, metrics};
+use crate::{AppError, AppState, Dataset, encode, metrics};
 
 /// How view sessions trade quality for speed; see the module docs.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -139,8 +138,8 @@ type Job = Pin<Box<dyn Future<Output = Result<(FrameHeader, Vec<u8>), String>> +
 /// The session's view and where its frames stand.
 #[derive(Debug)]
 struct View {
-    /// The `GET /api/render` parameters set so far (`w` and `h` in CSS pixels).
-    params: BTreeMap<String, String>,
+    /// The settings merged so far (`w` and `h` in CSS pixels).
+    settings: crate::View,
     dpr: f64,
     /// The last view message applied.
     message_id: u32,
@@ -160,18 +159,12 @@ impl View {
         state: &AppState,
         quality: Quality,
     ) -> Result<(Dataset, FrameRequest), String> {
-        let mut pairs: Vec<(String, String)> = Vec::with_capacity(self.params.len());
-        for (name, value) in &self.params {
-            if name == "w" || name == "h" {
-                continue;
-            }
-            pairs.push((name.clone(), value.clone()));
-        }
-        let (w, h) = self.size()?;
-        pairs.push(("w".into(), w.to_string()));
-        pairs.push(("h".into(), h.to_string()));
-        let (dataset, mut request) = frame_query::parse(&pairs, &state.datasets)
-            .map_err(|e| e.replacen("query parameter", "view setting", 1))?;
+        let dataset = self
+            .settings
+            .dataset(&state.datasets)
+            .map_err(|e| format!("view setting {e}"))?;
+        let mut request = self.settings.frame.clone();
+        (request.width, request.height) = device_size(&request, self.dpr)?;
         if quality == Quality::Interactive {
             let s = state.stream.interactive_scale;
             request.width = ((request.width as f32 * s).round() as u32).max(1);
@@ -180,35 +173,26 @@ impl View {
             // (global light) or the summed-area table (extinction) twice a gesture.
             if !matches!(request.shading, Shading::GlobalLight | Shading::Extinction) {
                 request.reduction = (request.reduction * state.stream.interactive_reduction)
-                    .min(shaders::frame::MAX_REDUCTION);
+                    .min(shaders::frame::MAX_REDUCTION as f32);
             }
         }
         Ok((dataset.clone(), request))
     }
+}
 
-    /// The frame size in device pixels.
-    fn size(&self) -> Result<(u32, u32), String> {
-        let css = |name: &str| -> Result<f64, String> {
-            match self.params.get(name) {
-                None => Ok(512.0),
-                Some(text) => text
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|v| v.is_finite() && *v >= 1.0)
-                    .ok_or_else(|| format!("view setting {name}={text:?}: expected a viewport size in CSS pixels, at least 1")),
-            }
-        };
-        let (w, h) = (css("w")?, css("h")?);
-        let (pw, ph) = ((w * self.dpr).round(), (h * self.dpr).round());
-        let max = f64::from(MAX_IMAGE_EDGE);
-        if pw > max || ph > max {
-            return Err(format!(
-                "viewport {w}×{h} at device pixel ratio {} is {pw}×{ph} pixels: expected at most {MAX_IMAGE_EDGE} per side",
-                self.dpr
-            ));
-        }
-        Ok((pw.max(1.0) as u32, ph.max(1.0) as u32))
+/// The frame size in device pixels of a viewport of `request.width` ×
+/// `request.height` CSS pixels at device pixel ratio `dpr`.
+fn device_size(request: &FrameRequest, dpr: f64) -> Result<(u32, u32), String> {
+    let (w, h) = (f64::from(request.width), f64::from(request.height));
+    let (pw, ph) = ((w * dpr).round(), (h * dpr).round());
+    let max = f64::from(MAX_IMAGE_EDGE);
+    if pw > max || ph > max {
+        return Err(format!(
+            "viewport {w}×{h} at device pixel ratio {dpr} is {pw}×{ph} pixels: expected at most \
+             {MAX_IMAGE_EDGE} per side"
+        ));
     }
+    Ok((pw.max(1.0) as u32, ph.max(1.0) as u32))
 }
 
 /// Sends one JSON text message; false when the socket is gone.
@@ -232,7 +216,7 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
     }
     state.metrics.session_opened();
     let mut view = View {
-        params: BTreeMap::new(),
+        settings: crate::View::default(),
         dpr: 1.0,
         message_id: 0,
         changed_at: Instant::now(),
@@ -319,8 +303,8 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
                     Ok(ClientMessage::Ack { frame }) => acked = acked.max(frame.min(sent)),
                     Ok(ClientMessage::View { id, set, dpr }) => {
                         match apply(&view, &state, &set, dpr) {
-                            Ok((params, dpr)) => {
-                                view.params = params;
+                            Ok((settings, dpr)) => {
+                                view.settings = settings;
                                 view.dpr = dpr;
                                 view.message_id = id;
                                 view.changed_at = Instant::now();
@@ -385,31 +369,19 @@ async fn run_session(mut socket: WebSocket, state: AppState) {
     }
 }
 
-/// The view with `set` and `dpr` applied, checked by building its frame
-/// request; the old view stays when it fails.
+/// The view with `set` and `dpr` applied, checked; the old view stays when
+/// it fails.
 fn apply(
     view: &View,
     state: &AppState,
-    set: &[(String, Option<String>)],
+    set: &serde_json::Map<String, serde_json::Value>,
     dpr: Option<f64>,
-) -> Result<(BTreeMap<String, String>, f64), String> {
-    let mut next = View {
-        params: view.params.clone(),
-        dpr: dpr.unwrap_or(view.dpr),
-        message_id: view.message_id,
-        changed_at: view.changed_at,
-        dirty: false,
-        full_sent: false,
-        converged: false,
-    };
-    for (name, value) in set {
-        match value {
-            Some(value) => next.params.insert(name.clone(), value.clone()),
-            None => next.params.remove(name),
-        };
-    }
-    next.request(state, Quality::Full)?;
-    Ok((next.params, next.dpr))
+) -> Result<(crate::View, f64), String> {
+    let mut settings = view.settings.clone();
+    settings.patch(set, &state.datasets)?;
+    let dpr = dpr.unwrap_or(view.dpr);
+    device_size(&settings.frame, dpr)?;
+    Ok((settings, dpr))
 }
 
 /// Renders and encodes one frame.

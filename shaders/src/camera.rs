@@ -8,17 +8,9 @@
 //! multiples of the box's bounding-sphere radius, so one camera frames every
 //! dataset alike.
 
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Quat, Vec3};
 
-/// The largest elevation magnitude, degrees (the view stays defined at ±90 too,
-/// the limit only keeps the orbit from flipping over the pole).
-pub const MAX_ELEVATION_DEG: f32 = 90.0;
-/// The smallest distance, in bounding-sphere radii (inside the volume).
-pub const MIN_DISTANCE: f32 = 0.05;
-/// The largest distance, in bounding-sphere radii.
-pub const MAX_DISTANCE: f32 = 100.0;
-/// The accepted vertical fields of view, degrees.
-pub const FOV_RANGE_DEG: (f32, f32) = (1.0, 120.0);
+use crate::settings::Choice;
 
 /// How the camera projects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
@@ -31,57 +23,49 @@ pub enum Projection {
     Orthographic,
 }
 
-impl Projection {
-    /// Both projections.
-    pub const ALL: [Projection; 2] = [Projection::Perspective, Projection::Orthographic];
+impl Choice for Projection {
+    const ALL: &'static [Projection] = &[Projection::Perspective, Projection::Orthographic];
 
-    /// The name in URLs and on the command line.
-    pub fn name(self) -> &'static str {
+    fn name(self) -> &'static str {
         match self {
             Projection::Perspective => "perspective",
             Projection::Orthographic => "orthographic",
         }
     }
-}
 
-impl std::str::FromStr for Projection {
-    type Err = String;
-
-    fn from_str(name: &str) -> Result<Projection, String> {
-        Projection::ALL
-            .into_iter()
-            .find(|p| p.name() == name)
-            .ok_or_else(|| {
-                format!("unknown projection '{name}': expected perspective or orthographic")
-            })
+    fn doc(self) -> &'static str {
+        match self {
+            Projection::Perspective => "rays fan out from the eye",
+            Projection::Orthographic => {
+                "parallel rays, as tall as the perspective view at the volume's centre"
+            }
+        }
     }
 }
 
-/// An orbit camera.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Camera {
-    /// Rotation about the z axis, degrees; 0 looks from −y (anterior).
-    pub azimuth_deg: f32,
-    /// Angle above the x–y plane, degrees, −90..=90.
-    pub elevation_deg: f32,
-    /// Distance of the eye from the box centre, in bounding-sphere radii.
-    pub distance: f32,
-    /// Vertical field of view, degrees.
-    pub fov_y_deg: f32,
-    /// Perspective or orthographic.
-    pub projection: Projection,
-}
+crate::choice_setting!(Projection);
 
-impl Default for Camera {
-    /// A front view that frames the whole box.
-    fn default() -> Camera {
-        Camera {
-            azimuth_deg: 0.0,
-            elevation_deg: 0.0,
-            distance: 3.0,
-            fov_y_deg: 30.0,
-            projection: Projection::Perspective,
-        }
+crate::settings! {
+    /// An orbit camera around the volume's centre.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Camera in Camera {
+        /// Camera azimuth in degrees about the vertical axis: 0 looks at the
+        /// face (from anterior), 90 from the patient's left.
+        pub azimuth_deg: f32 = 0.0, "az" | "azimuth", degrees(-3600.0, 3600.0);
+        /// Camera elevation in degrees above the horizontal.
+        pub elevation_deg: f32 = 0.0, "el" | "elevation", degrees(-90.0, 90.0);
+        /// Camera distance from the volume's centre, in radii of its bounding
+        /// sphere (below 1 the camera is inside the volume).
+        pub distance: f32 = 3.0, "dist" | "distance",
+            number(0.05, 100.0, "a number of bounding-sphere radii", "radii");
+        /// Vertical field of view in degrees; orthographic views are as tall
+        /// as perspective ones at the volume's centre.
+        pub fov_y_deg: f32 = 30.0, "fov", degrees(1.0, 120.0);
+        /// Camera roll in degrees: the image turns counter-clockwise about the
+        /// line of sight.
+        pub roll_deg: f32 = 0.0, "roll", degrees(-360.0, 360.0);
+        /// Camera projection.
+        pub projection: Projection = Projection::Perspective, "proj" | "projection", by_type();
     }
 }
 
@@ -106,8 +90,12 @@ impl Camera {
         // From the centre towards the eye.
         let toward_eye = Vec3::new(sin_az * cos_el, -cos_az * cos_el, sin_el);
         // Right stays horizontal, so the basis is defined even looking straight down.
-        let right = Vec3::new(cos_az, sin_az, 0.0);
-        let up = toward_eye.cross(right);
+        let level_right = Vec3::new(cos_az, sin_az, 0.0);
+        let level_up = toward_eye.cross(level_right);
+        // Roll turns the image counter-clockwise: the camera's axes turn the
+        // other way about the line of sight.
+        let roll = Quat::from_axis_angle(toward_eye, -self.roll_deg.to_radians());
+        let (right, up) = (roll * level_right, roll * level_up);
         CameraBasis {
             eye: toward_eye * self.distance * radius,
             forward: -toward_eye,
@@ -145,28 +133,6 @@ impl Camera {
             }
         };
         proj * view
-    }
-
-    /// Checks that every field is finite and in range, naming the first that is not.
-    pub fn validate(&self) -> Result<(), String> {
-        let check = |name: &str, value: f32, lo: f32, hi: f32| {
-            if value.is_finite() && (lo..=hi).contains(&value) {
-                Ok(())
-            } else {
-                Err(format!(
-                    "camera {name} = {value}: expected a number from {lo} to {hi}"
-                ))
-            }
-        };
-        check("azimuth", self.azimuth_deg, -3600.0, 3600.0)?;
-        check(
-            "elevation",
-            self.elevation_deg,
-            -MAX_ELEVATION_DEG,
-            MAX_ELEVATION_DEG,
-        )?;
-        check("distance", self.distance, MIN_DISTANCE, MAX_DISTANCE)?;
-        check("fov", self.fov_y_deg, FOV_RANGE_DEG.0, FOV_RANGE_DEG.1)
     }
 }
 
@@ -236,19 +202,34 @@ mod tests {
             "{top}"
         );
         assert_eq!(
-            "orthographic".parse::<Projection>(),
-            Ok(Projection::Orthographic)
+            Projection::named("orthographic"),
+            Some(Projection::Orthographic)
         );
     }
 
     #[test]
     fn validation_names_the_field() {
+        use crate::settings::Settings;
         let cam = Camera {
             elevation_deg: f32::NAN,
             ..Camera::default()
         };
-        let msg = cam.validate().expect_err("NaN elevation");
-        assert!(msg.contains("elevation"), "{msg}");
-        assert!(Camera::default().validate().is_ok());
+        let e = cam.validate_fields().expect_err("NaN elevation");
+        assert_eq!(e.setting, "el", "{e}");
+        assert!(Camera::default().validate_fields().is_ok());
+    }
+
+    #[test]
+    fn roll_turns_the_image_counter_clockwise() {
+        let level = Camera::default().basis(1.0);
+        let rolled = Camera {
+            roll_deg: 90.0,
+            ..Camera::default()
+        }
+        .basis(1.0);
+        // The volume's top (z) now points to the image's left.
+        assert!(close(rolled.forward, level.forward));
+        assert!(close(rolled.right, -Vec3::Z), "{rolled:?}");
+        assert!(close(rolled.up, Vec3::X), "{rolled:?}");
     }
 }

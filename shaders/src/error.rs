@@ -71,6 +71,10 @@ pub enum GpuError {
     /// The request itself is invalid (image size, parameters).
     #[error("{0}")]
     InvalidRequest(String),
+    /// A setting of the request is out of range: which, its value and what
+    /// was expected.
+    #[error(transparent)]
+    Setting(#[from] crate::settings::SettingError),
     /// Volume data could not be prepared.
     #[error(transparent)]
     Data(#[from] blocks::Error),

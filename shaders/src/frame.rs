@@ -1,16 +1,19 @@
 //! [`FrameRequest`], what a client asks to see, and [`Frame`], the pixels it gets.
 
 use std::fmt;
-use std::str::FromStr;
 
-use blocks::TransferFunction;
+use blocks::{Preset, TransferFunction};
 
 use crate::Camera;
 use crate::extinction::ExtinctionSettings;
 use crate::light::LightSettings;
+use crate::settings::{Choice, SettingError, Settings, TextSetting};
 
 /// The largest image edge in pixels.
 pub const MAX_IMAGE_EDGE: u32 = 4096;
+
+/// The largest data reduction a request may ask for.
+pub const MAX_REDUCTION: f64 = 10_000.0;
 
 /// How samples make a pixel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
@@ -34,6 +37,43 @@ pub enum Shading {
     Extinction,
 }
 
+impl Choice for Shading {
+    const ALL: &'static [Shading] = &[
+        Shading::Unshaded,
+        Shading::Gradient,
+        Shading::Mip,
+        Shading::MinIp,
+        Shading::GlobalLight,
+        Shading::Extinction,
+    ];
+
+    fn name(self) -> &'static str {
+        match self {
+            Shading::Unshaded => "unshaded",
+            Shading::Gradient => "gradient",
+            Shading::Mip => "mip",
+            Shading::MinIp => "minip",
+            Shading::GlobalLight => "global",
+            Shading::Extinction => "extinction",
+        }
+    }
+
+    fn doc(self) -> &'static str {
+        match self {
+            Shading::Unshaded => "compositing of transfer-function colours, unlit",
+            Shading::Gradient => "compositing lit by the data's gradient (Blinn-Phong)",
+            Shading::Mip => "maximum intensity projection",
+            Shading::MinIp => "minimum intensity projection of visible values",
+            Shading::GlobalLight => {
+                "global light propagation: shadows and first-order scattering from the light"
+            }
+            Shading::Extinction => {
+                "extinction-based: ambient occlusion and soft shadows from a summed-area table"
+            }
+        }
+    }
+}
+
 /// How samples along a ray combine.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum Compositing {
@@ -45,81 +85,51 @@ pub enum Compositing {
     Extinction,
 }
 
-impl Compositing {
-    /// The mode's name in URLs and on the command line.
-    pub fn name(self) -> &'static str {
+impl Choice for Compositing {
+    const ALL: &'static [Compositing] = &[Compositing::Alpha, Compositing::Extinction];
+
+    fn name(self) -> &'static str {
         match self {
             Compositing::Alpha => "alpha",
             Compositing::Extinction => "extinction",
         }
     }
-}
 
-impl fmt::Display for Compositing {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for Compositing {
-    type Err = String;
-
-    fn from_str(name: &str) -> Result<Compositing, String> {
-        match name {
-            "alpha" => Ok(Compositing::Alpha),
-            "extinction" => Ok(Compositing::Extinction),
-            _ => Err(format!(
-                "unknown compositing '{name}': expected alpha or extinction"
-            )),
-        }
-    }
-}
-
-impl Shading {
-    /// Every shading mode.
-    pub const ALL: [Shading; 6] = [
-        Shading::Unshaded,
-        Shading::Gradient,
-        Shading::Mip,
-        Shading::MinIp,
-        Shading::GlobalLight,
-        Shading::Extinction,
-    ];
-
-    /// The mode's name in URLs and on the command line.
-    pub fn name(self) -> &'static str {
+    fn doc(self) -> &'static str {
         match self {
-            Shading::Unshaded => "unshaded",
-            Shading::Gradient => "gradient",
-            Shading::Mip => "mip",
-            Shading::MinIp => "minip",
-            Shading::GlobalLight => "global",
-            Shading::Extinction => "extinction",
+            Compositing::Alpha => "front-to-back alpha-blending",
+            Compositing::Extinction => {
+                "summed extinction coefficients exponentiated (eq. 2 of Schlegel et al.)"
+            }
         }
     }
 }
 
-impl fmt::Display for Shading {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
+impl Choice for Preset {
+    const ALL: &'static [Preset] = &Preset::ALL;
+
+    fn name(self) -> &'static str {
+        Preset::name(self)
+    }
+
+    fn doc(self) -> &'static str {
+        self.description()
     }
 }
 
-impl FromStr for Shading {
-    type Err = String;
+crate::choice_setting!(Shading, Compositing, Preset);
 
-    fn from_str(name: &str) -> Result<Shading, String> {
-        Shading::ALL
-            .into_iter()
-            .find(|s| s.name() == name)
-            .ok_or_else(|| {
-                format!(
-                    "unknown shading '{name}': expected unshaded, gradient, mip, minip, global or \
-                     extinction"
-                )
-            })
-    }
+macro_rules! display_choice {
+    ($($t:ty),*) => {$(
+        impl fmt::Display for $t {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(Choice::name(*self))
+            }
+        }
+    )*};
 }
+
+display_choice!(Shading, Compositing, crate::Projection);
 
 /// An axis-aligned clip box in the volume's index space, as fractions of its
 /// extent along x, y, z (0..1 keeps everything).
@@ -131,52 +141,43 @@ pub struct ClipBox {
     pub max: [f32; 3],
 }
 
+impl ClipBox {
+    /// The whole volume.
+    pub const ALL: ClipBox = ClipBox {
+        min: [0.0; 3],
+        max: [1.0; 3],
+    };
+}
+
 impl Default for ClipBox {
     fn default() -> ClipBox {
-        ClipBox {
-            min: [0.0; 3],
-            max: [1.0; 3],
-        }
+        ClipBox::ALL
     }
 }
 
-impl FromStr for ClipBox {
-    type Err = String;
+impl TextSetting for ClipBox {
+    fn expected() -> String {
+        "six fractions x0,y0,z0,x1,y1,z1 from 0 to 1 with each min below its max".into()
+    }
 
-    /// `x0,y0,z0,x1,y1,z1`, each a fraction 0..1 of the volume's extent.
-    fn from_str(text: &str) -> Result<ClipBox, String> {
-        let refuse = || {
-            format!(
-                "clip box '{text}': expected six fractions x0,y0,z0,x1,y1,z1 from 0 to 1 with each \
-                 min below its max"
-            )
-        };
+    fn parse_text(text: &str) -> Result<ClipBox, String> {
         let values: Vec<f32> = text
             .split(',')
             .map(|v| v.trim().parse::<f32>())
             .collect::<Result<_, _>>()
-            .map_err(|_| refuse())?;
+            .map_err(|_| Self::expected())?;
         let [x0, y0, z0, x1, y1, z1] = values[..] else {
-            return Err(refuse());
+            return Err(Self::expected());
         };
         let clip = ClipBox {
             min: [x0, y0, z0],
             max: [x1, y1, z1],
         };
-        clip.validate().map_err(|_| refuse())?;
-        Ok(clip)
+        clip.check_value().map(|()| clip)
     }
-}
 
-/// A colour written as six hex digits `rrggbb` (an optional leading `#`) →
-/// channels in 0..=1.
-pub fn parse_colour(text: &str) -> Result<[f32; 3], String> {
-    blocks::transfer_function::parse_rgb_hex(text)
-}
-
-impl ClipBox {
-    /// Checks the corners: finite, within 0..1, min below max on every axis.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Finite, within 0..1, min below max on every axis.
+    fn check_value(&self) -> Result<(), String> {
         let ok = (0..3).all(|a| {
             let (lo, hi) = (self.min[a], self.max[a]);
             lo.is_finite()
@@ -185,112 +186,145 @@ impl ClipBox {
                 && (0.0..=1.0).contains(&hi)
                 && lo < hi
         });
-        if ok {
-            Ok(())
-        } else {
-            Err(format!(
-                "clip box {:?}..{:?}: expected fractions 0..1 with min below max on every axis",
-                self.min, self.max
-            ))
-        }
+        if ok { Ok(()) } else { Err(Self::expected()) }
+    }
+
+    fn text(&self) -> String {
+        let [x0, y0, z0] = self.min;
+        let [x1, y1, z1] = self.max;
+        format!("{x0},{y0},{z0},{x1},{y1},{z1}")
     }
 }
 
-/// Everything needed to render one frame of a volume.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameRequest {
-    /// Where the eye is.
-    pub camera: Camera,
-    /// Image width in pixels, 1..=[`MAX_IMAGE_EDGE`].
-    pub width: u32,
-    /// Image height in pixels, 1..=[`MAX_IMAGE_EDGE`].
-    pub height: u32,
-    /// Value → colour and opacity.
-    pub transfer_function: TransferFunction,
-    /// How samples are lit.
-    pub shading: Shading,
-    /// Distance between samples along a ray, in voxels of the smallest spacing.
-    pub step_voxels: f32,
-    /// Background colour (sRGB, 0..=1).
-    pub background: [f32; 3],
-    /// The part of the volume shown.
-    pub clip: ClipBox,
-    /// Data reduction to render at (full-volume voxels per voxel kept on the
-    /// GPU), 1 or more; the device budget may force more.
-    pub reduction: f32,
-    /// Jump over empty blocks (turned off only to measure what skipping saves).
-    pub skip_empty: bool,
-    /// The light of [`Shading::GlobalLight`].
-    pub light: LightSettings,
-    /// The illumination of [`Shading::Extinction`].
-    pub extinction: ExtinctionSettings,
-    /// How samples combine along a ray.
-    pub compositing: Compositing,
+impl TextSetting for TransferFunction {
+    fn expected() -> String {
+        format!(
+            "VALUE:RRGGBB:OPACITY,… in physical units, at most {} points in non-decreasing order",
+            blocks::transfer_function::MAX_POINTS
+        )
+    }
+
+    fn parse_text(text: &str) -> Result<TransferFunction, String> {
+        TransferFunction::parse(text).map_err(|e| format!("{} ({e})", Self::expected()))
+    }
+
+    fn check_value(&self) -> Result<(), String> {
+        TransferFunction::new(self.points().to_vec())
+            .map(|_| ())
+            .map_err(|e| format!("{} ({e})", Self::expected()))
+    }
+
+    fn text(&self) -> String {
+        self.to_string()
+    }
 }
 
-/// The largest data reduction a request may ask for.
-pub const MAX_REDUCTION: f32 = 10_000.0;
+crate::text_setting!(ClipBox, TransferFunction);
 
-/// The accepted sample steps, in voxels.
-pub const STEP_RANGE_VOXELS: (f32, f32) = (0.05, 4.0);
+crate::settings! {
+    /// Everything needed to render one frame of a volume: what a client asks
+    /// to see. Its settings are declared here (and in the structs it nests);
+    /// `render`'s flags, `/api/render`'s query, view-session patches and
+    /// `GET /api/settings` all come from them.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct FrameRequest in Shading {
+        /// Image width in pixels.
+        pub width: u32 = 512, "w" | "width",
+            whole(1, MAX_IMAGE_EDGE, "a whole number of pixels", "px"), group Image;
+        /// Image height in pixels.
+        pub height: u32 = 512, "h" | "height",
+            whole(1, MAX_IMAGE_EDGE, "a whole number of pixels", "px"), group Image;
+        /// Background colour as six hex digits rrggbb.
+        pub background: [f32; 3] = [0.0; 3], "bg" | "background", by_type(), group Image;
+        /// Transfer-function preset [default: ct-bone for CT, mr for MR, else generic].
+        pub preset: Option<Preset> = None, "preset", by_type(), group Classification;
+        /// A transfer function instead of a preset: VALUE:RRGGBB:OPACITY,… in
+        /// physical units (e.g. HU), opacity per step of the smallest spacing.
+        pub tf: Option<TransferFunction> = None, "tf", by_type(), group Classification;
+        /// How samples are lit.
+        pub shading: Shading = Shading::Gradient, "shading", by_type();
+        /// How samples combine along a ray.
+        pub compositing: Compositing = Compositing::Alpha, "compositing", by_type();
+        /// Distance between samples along a ray, in voxels of the smallest
+        /// spacing; smaller is finer.
+        pub step_voxels: f32 = 0.5, "step", number(0.05, 4.0, "a number of voxels", "voxels");
+        /// Data reduction: full-volume voxels per voxel kept on the GPU; the
+        /// transfer function chooses the blocks' levels of detail to meet it
+        /// (the device budget may force more).
+        pub reduction: f32 = 1.0, "reduction",
+            number(1.0, MAX_REDUCTION, "a data reduction ratio", ":1"), group Detail;
+        /// Show only this box of the volume: six fractions of its extent
+        /// x0,y0,z0,x1,y1,z1.
+        pub clip: ClipBox = ClipBox::ALL, "clip", by_type(), group Clip;
+    }
+    groups {
+        /// Where the eye is.
+        pub camera: Camera,
+        /// The light of [`Shading::GlobalLight`].
+        pub light: LightSettings,
+        /// The illumination of [`Shading::Extinction`].
+        pub extinction: ExtinctionSettings,
+    }
+    plain {
+        /// Jump over empty blocks (turned off only to measure what skipping saves).
+        pub skip_empty: bool = true,
+    }
+}
 
 impl FrameRequest {
-    /// A request with the default camera, shading, step and background.
-    pub fn new(width: u32, height: u32, transfer_function: TransferFunction) -> FrameRequest {
+    /// A request with default settings and the transfer function `tf`.
+    pub fn new(width: u32, height: u32, tf: TransferFunction) -> FrameRequest {
         FrameRequest {
-            camera: Camera::default(),
             width,
             height,
-            transfer_function,
-            shading: Shading::default(),
-            step_voxels: 0.5,
-            background: [0.0, 0.0, 0.0],
-            clip: ClipBox::default(),
-            reduction: 1.0,
-            skip_empty: true,
-            light: LightSettings::default(),
-            extinction: ExtinctionSettings::default(),
-            compositing: Compositing::default(),
+            tf: Some(tf),
+            ..FrameRequest::default()
         }
     }
 
-    /// Checks sizes, camera and step, naming the first field out of range.
-    pub fn validate(&self) -> Result<(), String> {
-        for (name, value) in [("width", self.width), ("height", self.height)] {
-            if !(1..=MAX_IMAGE_EDGE).contains(&value) {
-                return Err(format!(
-                    "image {name} = {value}: expected 1 to {MAX_IMAGE_EDGE} pixels"
-                ));
-            }
+    /// The transfer function to classify with: `tf` when given, else the
+    /// preset (by default the one for `modality`) laid over `value_range`.
+    pub fn transfer_function(
+        &self,
+        value_range: [f32; 2],
+        modality: Option<&str>,
+    ) -> TransferFunction {
+        match (&self.tf, self.preset) {
+            (Some(tf), _) => tf.clone(),
+            (None, Some(preset)) => preset.transfer_function(value_range),
+            (None, None) => Preset::for_modality(modality).transfer_function(value_range),
         }
-        self.camera.validate()?;
-        let (lo, hi) = STEP_RANGE_VOXELS;
-        if !(self.step_voxels.is_finite() && (lo..=hi).contains(&self.step_voxels)) {
-            return Err(format!(
-                "step = {}: expected {lo} to {hi} voxels",
-                self.step_voxels
+    }
+
+    /// The transfer function to classify the store described by `meta` with.
+    pub fn store_transfer_function(&self, meta: &blocks::store::StoreMeta) -> TransferFunction {
+        self.transfer_function(
+            meta.value_range().map(|v| v as f32),
+            meta.modality.as_deref(),
+        )
+    }
+
+    /// The transfer function to classify `volume` with.
+    pub fn volume_transfer_function(&self, volume: &blocks::Volume) -> TransferFunction {
+        self.transfer_function(volume.value_range, volume.modality.as_deref())
+    }
+
+    /// Checks every setting, and what no single setting can: a transfer
+    /// function and a preset are not both given, and the settings of the
+    /// shading's illumination agree with each other.
+    pub fn validate(&self) -> Result<(), SettingError> {
+        self.validate_fields()?;
+        if let (Some(tf), Some(preset)) = (&self.tf, self.preset) {
+            return Err(SettingError::of_value(
+                "tf",
+                format!("{:?}", tf.text()),
+                format!("a transfer function or a preset, not both (preset={preset}); remove one"),
             ));
         }
-        self.clip.validate()?;
-        if !(self.reduction.is_finite() && (1.0..=MAX_REDUCTION).contains(&self.reduction)) {
-            return Err(format!(
-                "reduction = {}: expected 1 to {MAX_REDUCTION}",
-                self.reduction
-            ));
+        match self.shading {
+            Shading::Extinction => self.extinction.validate(),
+            _ => Ok(()),
         }
-        if self.shading == Shading::GlobalLight {
-            self.light.validate()?;
-        }
-        if self.shading == Shading::Extinction {
-            self.extinction.validate()?;
-        }
-        if !self.background.iter().all(|c| (0.0..=1.0).contains(c)) {
-            return Err(format!(
-                "background = {:?}: expected each channel in 0..=1",
-                self.background
-            ));
-        }
-        Ok(())
     }
 }
 
@@ -327,25 +361,39 @@ impl Frame {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use blocks::Preset;
+    use crate::settings::Raw;
 
     #[test]
-    fn validation_names_the_bad_field() {
+    fn validation_names_the_bad_setting() {
         let tf = Preset::CtBone.transfer_function([-1024.0, 3071.0]);
         let mut r = FrameRequest::new(64, 64, tf);
         assert!(r.validate().is_ok());
         r.width = 0;
-        assert!(r.validate().expect_err("w=0").contains("width = 0"));
+        let e = r.validate().expect_err("w=0");
+        assert_eq!((e.setting.as_str(), e.value.as_str()), ("w", "0"), "{e}");
         r.width = 100_000;
-        assert!(r.validate().expect_err("huge").contains("1 to 4096"));
+        assert!(
+            r.validate()
+                .expect_err("huge")
+                .expected
+                .contains("1 to 4096")
+        );
         r.width = 64;
         r.step_voxels = f32::NAN;
-        assert!(r.validate().expect_err("NaN step").contains("step"));
+        assert_eq!(r.validate().expect_err("NaN step").setting, "step");
+        r.step_voxels = 0.5;
+        r.preset = Some(Preset::Mr);
+        assert!(
+            r.validate()
+                .expect_err("both")
+                .expected
+                .contains("not both")
+        );
     }
 
     #[test]
     fn clip_boxes_and_colours_parse_or_say_what_was_expected() {
-        let clip: ClipBox = "0, 0.25, 0, 1, 1, 0.5".parse().expect("valid");
+        let clip = ClipBox::parse_text("0, 0.25, 0, 1, 1, 0.5").expect("valid");
         assert_eq!(clip.min, [0.0, 0.25, 0.0]);
         assert_eq!(clip.max, [1.0, 1.0, 0.5]);
         for bad in [
@@ -356,24 +404,46 @@ mod tests {
             "0,0,0,1,1,1.5",
             "x,0,0,1,1,1",
         ] {
-            let e = bad.parse::<ClipBox>().expect_err(bad);
-            assert!(e.contains("expected six fractions"), "{bad}: {e}");
+            let e = ClipBox::parse_text(bad).expect_err(bad);
+            assert!(e.contains("six fractions"), "{bad}: {e}");
         }
-        assert_eq!(parse_colour("#ff8000"), Ok([1.0, 128.0 / 255.0, 0.0]));
-        assert_eq!(parse_colour("000000"), Ok([0.0; 3]));
+        let mut r = FrameRequest::default();
+        r.set_named("bg", &Raw::Text("#ff8000")).expect("colour");
+        assert_eq!(r.background, [1.0, 128.0 / 255.0, 0.0]);
         for bad in ["red", "fff", "ff00zz", "#ff80000", "ffé000"] {
-            assert!(
-                parse_colour(bad).expect_err(bad).contains("six hex digits"),
-                "{bad}"
-            );
+            let e = r.set_named("bg", &Raw::Text(bad)).expect_err(bad);
+            assert!(e.expected.contains("six hex digits"), "{bad}: {e}");
         }
     }
 
     #[test]
     fn shading_names_round_trip() {
-        for s in Shading::ALL {
-            assert_eq!(s.name().parse::<Shading>(), Ok(s));
+        for &s in Shading::ALL {
+            assert_eq!(Shading::named(s.name()), Some(s));
         }
-        assert!("phong".parse::<Shading>().is_err());
+        assert!(Shading::named("phong").is_none());
+    }
+
+    #[test]
+    fn the_transfer_function_comes_from_tf_then_preset_then_modality() {
+        let range = [-1024.0, 3071.0];
+        let mut r = FrameRequest::default();
+        assert_eq!(
+            r.transfer_function(range, Some("CT")),
+            Preset::CtBone.transfer_function(range)
+        );
+        assert_eq!(
+            r.transfer_function(range, None),
+            Preset::Generic.transfer_function(range)
+        );
+        r.preset = Some(Preset::CtAngio);
+        assert_eq!(
+            r.transfer_function(range, Some("MR")),
+            Preset::CtAngio.transfer_function(range)
+        );
+        let own = TransferFunction::parse("0:ffffff:0,100:ffffff:1").expect("tf");
+        r.preset = None;
+        r.tf = Some(own.clone());
+        assert_eq!(r.transfer_function(range, Some("CT")), own);
     }
 }

@@ -8,8 +8,13 @@
 //!   scopes turned into [`GpuError`], waiting and readback.
 //! - [`camera`]: [`Camera`], an orbit camera around the volume with a
 //!   perspective or orthographic [`Projection`], and its matrices.
-//! - [`frame`]: [`FrameRequest`] (what to draw: camera, transfer function,
-//!   [`Shading`], [`ClipBox`], data reduction) and [`Frame`] (RGBA8 pixels).
+//! - [`settings`]: the view-settings schema: [`settings!`] declares each
+//!   setting once (name, type, default, range, unit, group, doc); command
+//!   line, query, view sessions and `GET /api/settings` derive from it;
+//!   [`SettingError`] names a refused setting, its value and what was expected.
+//! - [`frame`]: [`FrameRequest`] (what to draw: camera, classification,
+//!   [`Shading`], [`ClipBox`], data reduction, the illumination modes'
+//!   settings) and [`Frame`] (RGBA8 pixels).
 //! - [`volume_texture`]: how voxels become texels (format and the texel value →
 //!   transfer-function coordinate map), shared by the atlas, the reference
 //!   texture and the CPU twins.
@@ -51,6 +56,7 @@ pub mod packed;
 pub mod pipeline;
 pub mod raycast;
 pub mod renderer;
+pub mod settings;
 pub mod volume_texture;
 pub mod wgsl;
 
@@ -64,3 +70,4 @@ pub use gpu::GpuContext;
 pub use light::{LightSettings, LightSource};
 pub use raycast::{MarchPipeline, RaycastParams, Stage};
 pub use renderer::{ReferenceRenderer, RenderStats, Renderer};
+pub use settings::{Choice, SettingError, Settings};

@@ -91,9 +91,10 @@ impl FrameResources {
         &mut self,
         gpu: &GpuContext,
         request: &FrameRequest,
+        tf: &TransferFunction,
         desc: &VolumeTexture,
     ) -> Result<(), GpuError> {
-        request.validate().map_err(GpuError::InvalidRequest)?;
+        request.validate()?;
         let max = gpu.device.limits().max_texture_dimension_2d;
         if request.width > max || request.height > max {
             return Err(GpuError::Unsupported {
@@ -104,11 +105,11 @@ impl FrameResources {
                 ),
             });
         }
-        if self.uploaded_tf.as_ref() != Some(&request.transfer_function) {
-            let table = request.transfer_function.table(desc.tf_domain, TABLE_LEN)?;
+        if self.uploaded_tf.as_ref() != Some(tf) {
+            let table = tf.table(desc.tf_domain, TABLE_LEN)?;
             gpu.queue
                 .write_buffer(&self.transfer_function, 0, bytemuck::cast_slice(&table));
-            self.uploaded_tf = Some(request.transfer_function.clone());
+            self.uploaded_tf = Some(tf.clone());
         }
         Ok(())
     }
@@ -351,21 +352,28 @@ impl Renderer {
     /// Prepares the blocks, brings the request's light up to date (all of
     /// global light's refinements when `converge`) and draws.
     fn render_lit(&mut self, request: &FrameRequest, converge: bool) -> Result<Frame, GpuError> {
-        let mut stats = self.prepare(request)?;
+        let tf = request.store_transfer_function(self.cache.store().meta());
+        let mut stats = self.prepare(request, &tf)?;
         match request.shading {
-            Shading::GlobalLight => stats.light = Some(self.update_light(request, converge)?),
-            Shading::Extinction => stats.extinction = Some(self.update_extinction(request)?),
+            Shading::GlobalLight => {
+                stats.light = Some(self.update_light(request, &tf, converge)?);
+            }
+            Shading::Extinction => stats.extinction = Some(self.update_extinction(request, &tf)?),
             _ => {}
         }
         self.draw(request, stats)
     }
 
     /// Checks the request and brings the resident blocks up to date.
-    fn prepare(&mut self, request: &FrameRequest) -> Result<RenderStats, GpuError> {
-        self.frame.prepare(&self.gpu, request, &self.desc)?;
+    fn prepare(
+        &mut self,
+        request: &FrameRequest,
+        tf: &TransferFunction,
+    ) -> Result<RenderStats, GpuError> {
+        self.frame.prepare(&self.gpu, request, tf, &self.desc)?;
         let budget = budget_voxels(self.full_voxels, request.reduction);
         let mut stats = RenderStats::default();
-        self.make_resident(&request.transfer_function, budget, &mut stats)?;
+        self.make_resident(tf, budget, &mut stats)?;
         Ok(stats)
     }
 
@@ -373,6 +381,7 @@ impl Renderer {
     fn update_light(
         &mut self,
         request: &FrameRequest,
+        tf: &TransferFunction,
         converge: bool,
     ) -> Result<LightTimings, GpuError> {
         if self.illumination.is_none() {
@@ -389,7 +398,7 @@ impl Renderer {
         let mut timings = illumination.update(
             &self.gpu,
             inputs,
-            &request.transfer_function,
+            tf,
             &request.light,
             self.data_version,
             self.light_method,
@@ -403,7 +412,11 @@ impl Renderer {
 
     /// Brings the light cache up to date for `request` (nothing when only the
     /// camera moved).
-    fn update_extinction(&mut self, request: &FrameRequest) -> Result<ExtinctionTimings, GpuError> {
+    fn update_extinction(
+        &mut self,
+        request: &FrameRequest,
+        tf: &TransferFunction,
+    ) -> Result<ExtinctionTimings, GpuError> {
         if self.extinction.is_none() {
             self.extinction = Some(ExtinctionLighting::new(&self.gpu)?);
         }
@@ -418,7 +431,7 @@ impl Renderer {
         extinction.update(
             &self.gpu,
             inputs,
-            &request.transfer_function,
+            tf,
             &request.extinction,
             self.data_version,
         )
@@ -543,6 +556,8 @@ pub struct ReferenceRenderer {
     gpu: GpuContext,
     pipeline: MarchPipeline,
     volume: GpuVolume,
+    /// The volume's physical value range and modality, for presets.
+    classification: ([f32; 2], Option<String>),
     frame: FrameResources,
 }
 
@@ -550,12 +565,14 @@ impl ReferenceRenderer {
     /// Compiles the pipeline and uploads `volume`.
     pub fn new(gpu: GpuContext, volume: &Volume) -> Result<ReferenceRenderer, GpuError> {
         let pipeline = MarchPipeline::new(&gpu, Stage::Reference)?;
+        let classification = (volume.value_range, volume.modality.clone());
         let volume = GpuVolume::upload(&gpu, volume)?;
         let frame = FrameResources::new(&gpu)?;
         Ok(ReferenceRenderer {
             gpu,
             pipeline,
             volume,
+            classification,
             frame,
         })
     }
@@ -567,7 +584,10 @@ impl ReferenceRenderer {
 
     /// Renders one frame and reads it back (`reduction` and `skip_empty` do not apply).
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.frame.prepare(&self.gpu, request, &self.volume.desc)?;
+        let (range, modality) = &self.classification;
+        let tf = request.transfer_function(*range, modality.as_deref());
+        self.frame
+            .prepare(&self.gpu, request, &tf, &self.volume.desc)?;
         let params = RaycastParams::new(
             &self.volume.desc,
             request,

@@ -10,6 +10,9 @@
 //! - [`render`]: packed and reference renders of a dataset on the GPU and the
 //!   CPU twins, set up alike.
 //! - [`data`]: the real datasets in `../shared/data`, or a printed reason to skip.
+//! - [`reference_data`]: those datasets as the benchmarks read them (how to
+//!   open each, a transfer function that shows it): the binary's own list,
+//!   compiled in here too so tests and benchmarks describe the same views.
 //! - [`checks`]: facts that show a volume is really in an image (coverage,
 //!   left–right symmetry, centroid).
 //! - [`server`]: a real server on port 0 for end-to-end tests.
@@ -19,6 +22,8 @@ pub mod data;
 pub mod gpu;
 pub mod image_compare;
 pub mod phantom;
+#[path = "../../server/src/bench/reference_data.rs"]
+pub mod reference_data;
 pub mod render;
 pub mod server;
 

@@ -97,7 +97,7 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
     let desc: VolumeTexture = *renderer.volume_texture();
     let packed = shaders::packed::assemble_cpu(&dataset.cache, &packing, &desc).expect("atlas");
     let table = request
-        .transfer_function
+        .store_transfer_function(dataset.store.meta())
         .table(desc.tf_domain, 1024)
         .expect("table");
     let settings = &request.extinction;
@@ -288,7 +288,7 @@ fn light_cache_follows_algorithm_1() {
         ao.sat_ms == 0.0 && ao.ambient_occlusion_ms > 0.0 && ao.soft_shadow_ms > 0.0,
         "an AO change recomputes AO and the cache: {ao:?}"
     );
-    request.transfer_function = Preset::CtBone.transfer_function(phantom_64().value_range);
+    request.tf = Some(Preset::CtBone.transfer_function(phantom_64().value_range));
     let tf = frame(&request);
     assert!(
         tf.sat_ms > 0.0 && tf.ambient_occlusion_ms > 0.0 && tf.soft_shadow_ms > 0.0,
@@ -416,13 +416,13 @@ fn bad_extinction_settings_are_refused_before_anything_runs() {
         2048,
     );
     assert!(
-        matches!(&cpu, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("shells = 20")),
+        matches!(&cpu, Err(shaders::GpuError::Setting(e)) if e.to_string().contains("ao_shells=20")),
         "{cpu:?}"
     );
     if let Some(gpu) = gpu_or_skip("bad_extinction_settings_are_refused_before_anything_runs") {
         let result = gpu_renderer(gpu, dataset).render(&request);
         assert!(
-            matches!(&result, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("shells")),
+            matches!(&result, Err(shaders::GpuError::Setting(e)) if e.setting == "ao_shells"),
             "{result:?}"
         );
     }

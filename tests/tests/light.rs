@@ -105,7 +105,7 @@ fn compare_stages(
     let desc: VolumeTexture = *renderer.volume_texture();
     let packed = shaders::packed::assemble_cpu(&dataset.cache, &packing, &desc).expect("atlas");
     let table = request
-        .transfer_function
+        .store_transfer_function(dataset.store.meta())
         .table(desc.tf_domain, 1024)
         .expect("table");
     let slots = slot_blocks(&packing);
@@ -281,7 +281,7 @@ fn light_is_recomputed_on_light_and_tf_changes_refined_per_frame_and_kept_on_cam
         "{recoloured:?}"
     );
     // The transfer function and the light itself change the light.
-    request.transfer_function = Preset::CtBone.transfer_function(phantom_64().value_range);
+    request.tf = Some(Preset::CtBone.transfer_function(phantom_64().value_range));
     assert!(
         frame(&request).recomputed,
         "a new transfer function relights"
@@ -312,13 +312,13 @@ fn bad_light_settings_are_refused_before_anything_runs() {
         2048,
     );
     assert!(
-        matches!(&cpu, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("SVR scale = 3")),
+        matches!(&cpu, Err(shaders::GpuError::Setting(e)) if e.to_string().contains("svr=3")),
         "{cpu:?}"
     );
     if let Some(gpu) = gpu_or_skip("bad_light_settings_are_refused_before_anything_runs") {
         let result = gpu_renderer(gpu, dataset).render(&request);
         assert!(
-            matches!(&result, Err(shaders::GpuError::InvalidRequest(m)) if m.contains("SVR scale = 3")),
+            matches!(&result, Err(shaders::GpuError::Setting(e)) if e.to_string().contains("svr=3")),
             "{result:?}"
         );
     }

@@ -14,13 +14,13 @@
 use blocks::Volume;
 use blocks::ingest;
 use server::Dataset;
-use server::reference_data::{ReferenceDataset, reference_dataset};
 use shaders::colour_difference::colour_difference;
 use shaders::{Camera, Frame, FrameRequest, Shading};
 use voxserve_tests::image_compare::{
     assert_golden, assert_matches_golden, assert_similar, to_image,
 };
 use voxserve_tests::phantom::TEST_CACHE_BYTES;
+use voxserve_tests::reference_data::{ReferenceDataset, reference_dataset};
 use voxserve_tests::render::{cpu_packed, cpu_reference, gpu_reference, gpu_renderer};
 use voxserve_tests::{Tolerance, gpu_or_skip};
 

@@ -257,14 +257,14 @@ fn image_sizes_outside_1_to_4096_are_refused_before_rendering() {
         let request = FrameRequest::new(w, h, tf.clone());
         let cpu =
             shaders::cpu::render_packed(&dataset.cache, &request, wgpu::Features::empty(), 2048);
-        let Err(GpuError::InvalidRequest(message)) = cpu else {
+        let Err(GpuError::Setting(refusal)) = cpu else {
             panic!("{w}x{h}: expected a refusal from the CPU twin, got {cpu:?}");
         };
-        assert!(message.contains("1 to 4096"), "{message}");
+        assert!(refusal.expected.contains("1 to 4096"), "{refusal}");
         if let Some(r) = renderer.as_mut() {
             let gpu_result = r.render(&request);
             assert!(
-                matches!(&gpu_result, Err(GpuError::InvalidRequest(m)) if m.contains("1 to 4096")),
+                matches!(&gpu_result, Err(GpuError::Setting(e)) if e.expected.contains("1 to 4096")),
                 "{w}x{h}: {gpu_result:?}"
             );
         }

@@ -51,7 +51,7 @@ fn camera_changes_upload_nothing_and_tf_changes_only_what_changed() {
 
     // Bone is visible wherever soft tissue is: every bone block is already resident.
     let bone = FrameRequest {
-        transfer_function: Preset::CtBone.transfer_function(range),
+        tf: Some(Preset::CtBone.transfer_function(range)),
         ..turned.clone()
     };
     let frame = renderer.render(&bone).expect("bone");

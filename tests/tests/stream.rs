@@ -365,7 +365,7 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
         ),
         (
             serde_json::json!({"type": "view", "id": 6, "set": {"w": 100000}}).to_string(),
-            "expected at most 4096 per side",
+            "view setting w=100000: expected a whole number of pixels from 1 to 4096",
         ),
         (
             serde_json::json!({"type": "view", "id": 7, "set": {"dataset": "lung"}}).to_string(),
@@ -429,7 +429,7 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
             m["message"]
                 .as_str()
                 .unwrap_or_default()
-                .contains("tf and preset"),
+                .contains("a transfer function or a preset, not both"),
             "{m}"
         ),
         Received::Frame(h, _) => panic!("tf beside a preset should be refused, got {h:?}"),

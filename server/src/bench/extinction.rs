@@ -27,10 +27,10 @@ use shaders::extinction::{
 };
 use shaders::{Camera, Frame, FrameRequest, GpuContext, Renderer, Shading};
 
+use super::args::BenchExtinctionArgs;
 use super::light::{adapter_json, merge, unlit_and_gradient_ms, write_images};
 use crate::bench::{bench_dataset, timed};
-use crate::cli::BenchExtinctionArgs;
-use crate::commands::say;
+use server::commands::say;
 
 /// Image edge of frames rendered only to run the stages.
 const SMALL_EDGE: u32 = 32;

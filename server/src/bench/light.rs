@@ -27,9 +27,9 @@ use shaders::colour_difference::{colour_difference, object_colour_difference};
 use shaders::light::{DirectLightMethod, LightTimings, svr_dims};
 use shaders::{Camera, FrameRequest, GpuContext, LightSettings, Renderer, Shading};
 
+use super::args::BenchLightArgs;
 use crate::bench::{bench_dataset, timed};
-use crate::cli::BenchLightArgs;
-use crate::commands::say;
+use server::commands::say;
 
 /// Image edge of frames rendered only to run the light stages.
 const SMALL_EDGE: u32 = 64;
@@ -286,7 +286,7 @@ pub(crate) fn write_images(
         ("delta-e", &error),
     ] {
         let path = dir.join(format!("{stem}-{suffix}.png"));
-        let bytes = crate::encode::png(frame)?;
+        let bytes = server::encode::png(frame)?;
         std::fs::write(&path, bytes)
             .with_context(|| format!("--images: cannot write {}", path.display()))?;
     }

@@ -22,12 +22,12 @@ use shaders::GpuContext;
 use tokio::net::TcpListener;
 use tokio_tungstenite::tungstenite::Message;
 
-use crate::cli::BenchStreamArgs;
-use crate::commands::{load_dataset, say};
-use crate::encode::Lossless;
-use crate::protocol::FrameHeader;
-use crate::stream::StreamSettings;
-use crate::{AppState, Dataset, RenderService};
+use super::args::BenchStreamArgs;
+use server::commands::{load_dataset, say};
+use server::encode::Lossless;
+use server::protocol::FrameHeader;
+use server::stream::StreamSettings;
+use server::{AppState, Dataset, RenderService};
 
 type Socket =
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
@@ -54,7 +54,7 @@ async fn start_server(
         let shutdown = async {
             let _ = stopped.await;
         };
-        if let Err(e) = crate::run(listener, state, shutdown).await {
+        if let Err(e) = server::run(listener, state, shutdown).await {
             tracing::error!("benchmark server failed: {e}");
         }
     });

@@ -55,22 +55,19 @@ pub fn render_packed(
     features: wgpu::Features,
     max_edge: u32,
 ) -> Result<(Frame, LodSelection), GpuError> {
-    request.validate().map_err(GpuError::InvalidRequest)?;
+    request.validate()?;
     let store = cache.store();
+    let tf = request.store_transfer_function(store.meta());
     let desc = VolumeTexture::new(
         VolumeDescription::of_store(store.meta(), store.voxel_type()),
         features,
     );
     let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
     let budget = budget_voxels(full_voxels, request.reduction);
-    let (selection, packing) = select_levels(
-        store,
-        &request.transfer_function,
-        budget,
-        DeviceBudget::unlimited(max_edge),
-    )?;
+    let (selection, packing) =
+        select_levels(store, &tf, budget, DeviceBudget::unlimited(max_edge))?;
     let mut packed = assemble_cpu(cache, &packing, &desc)?;
-    let table = request.transfer_function.table(desc.tf_domain, TABLE_LEN)?;
+    let table = tf.table(desc.tf_domain, TABLE_LEN)?;
     let layout = PackedLayout {
         atlas_dims: packing.atlas_dims,
         block_grid: store.meta().blocks,
@@ -142,10 +139,12 @@ pub fn render_reference(
     request: &FrameRequest,
     features: wgpu::Features,
 ) -> Result<Frame, GpuError> {
-    request.validate().map_err(GpuError::InvalidRequest)?;
+    request.validate()?;
     let desc = VolumeTexture::for_volume(volume, features);
     let texture = Texture3d::new(desc.dims, desc.texel_values(&volume.voxels));
-    let table = request.transfer_function.table(desc.tf_domain, TABLE_LEN)?;
+    let table = request
+        .volume_transfer_function(volume)
+        .table(desc.tf_domain, TABLE_LEN)?;
     let params = RaycastParams::new(&desc, request, table.len() as u32, PackedLayout::default());
     let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
     reference(&params, &texture, &table, &mut rgba);

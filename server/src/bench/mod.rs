@@ -8,20 +8,35 @@ use std::time::Instant;
 use anyhow::Context;
 use blocks::ingest;
 use shaders::colour_difference::colour_difference;
-use shaders::{Camera, Frame, FrameRequest, GpuContext, ReferenceRenderer, Renderer};
+use shaders::{Camera, Choice, Frame, FrameRequest, GpuContext, ReferenceRenderer, Renderer};
 
-use crate::Dataset;
-use crate::cli::{BenchBlocksArgs, BenchReadArgs, BenchRenderArgs};
-use crate::commands::{CPU_TWIN_FEATURES, say};
-use crate::dataset::PHANTOM_ID;
-use crate::reference_data::{self, reference_dataset};
+use args::{BenchArgs, BenchBlocksArgs, BenchCommand, BenchReadArgs, BenchRenderArgs};
+use reference_data::reference_dataset;
+use server::Dataset;
+use server::commands::{CPU_TWIN_FEATURES, say};
+use server::dataset::PHANTOM_ID;
 
+pub mod args;
 mod extinction;
 mod light;
+pub mod reference_data;
 mod stream;
-pub use extinction::extinction;
-pub use light::light;
-pub use stream::stream;
+
+use extinction::extinction;
+use light::light;
+use stream::stream;
+
+/// Runs the benchmark `args` names.
+pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+    match &args.what {
+        BenchCommand::Render(a) => render(a),
+        BenchCommand::Read(a) => read(a),
+        BenchCommand::Blocks(a) => blocks(a),
+        BenchCommand::Light(a) => light(a),
+        BenchCommand::Stream(a) => stream(a),
+        BenchCommand::Extinction(a) => extinction(a),
+    }
+}
 
 /// `voxserve bench render`: for each dataset, the packed renderer at every
 /// image size and data reduction, with and without empty-block skipping, against
@@ -154,7 +169,7 @@ pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
 pub(crate) fn bench_dataset(
     name: &str,
     data_dir: &Path,
-    data: &crate::cli::DataArgs,
+    data: &server::cli::DataArgs,
 ) -> anyhow::Result<Option<(Dataset, blocks::TransferFunction)>> {
     if name == PHANTOM_ID {
         let dataset = Dataset::phantom(data.phantom_size, data.cache_bytes())?;

@@ -21,8 +21,8 @@
 //! one more direction (B) until all J are in; a camera change recomputes nothing.
 //! Every stage's time is reported apart ([`LightTimings`]).
 
-use std::fmt;
-use std::str::FromStr;
+mod settings;
+
 use std::time::Instant;
 
 use blocks::packing::Packing;
@@ -32,231 +32,29 @@ use glam::{Mat4, Vec3};
 use crate::packed::GpuAtlas;
 use crate::pipeline::{self, ComputeStage, run};
 use crate::raycast::{PackedLayout, VolumePlacement};
+use crate::settings::{Json, Settings};
 use crate::volume_texture::VolumeTexture;
 use crate::{GpuContext, GpuError};
 
-/// The accepted segment lengths L, in voxels (the paper's best: 8–16).
-pub const SEGMENT_RANGE: (u32, u32) = (4, 32);
-/// The accepted SVR scales: one SVR point per scale³ voxels.
-pub const SVR_SCALES: [u32; 4] = [1, 2, 4, 8];
-/// The largest scattering radius R_Ω, in voxels.
-pub const MAX_SCATTER_RADIUS: f32 = 64.0;
-/// The most in-scattering directions J (a subdivided octahedron has 258 at level 3).
-pub const MAX_DIRECTIONS: u32 = 258;
-/// The largest light intensity I0.
-pub const MAX_INTENSITY: f32 = 16.0;
-/// The accepted Henyey–Greenstein asymmetry g.
-pub const PHASE_G_RANGE: (f32, f32) = (-0.9, 0.9);
+pub use settings::{
+    LightSettings, LightSource, MAX_DIRECTIONS, MAX_INTENSITY, MAX_LIGHT_DISTANCE, check_direction,
+    check_position, parse_vec3,
+};
+
+/// The stages of global light propagation in the order they run: a change of
+/// a setting recomputes from the stage it `affects` on; `in_scatter` is then
+/// refined one direction per frame.
+pub const STAGES: [&str; 4] = [
+    "local_opacity",
+    "global_opacity",
+    "direct_light",
+    "in_scatter",
+];
+
 /// Invocations per workgroup along each axis of the light stages.
 pub const WORKGROUP_EDGE: u32 = 4;
 /// The light volumes' texel format: one f32 per texel.
 pub const LIGHT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
-
-/// Where the light is.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum LightSource {
-    /// A point light, as fractions of the volume's box along its index axes
-    /// (0..1 is inside the volume; anything else is outside).
-    Point([f32; 3]),
-    /// A directional light: the vector towards the light, in patient space
-    /// (LPS: x to the patient's left, y posterior, z superior).
-    Directional([f32; 3]),
-}
-
-impl fmt::Display for LightSource {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            LightSource::Point([x, y, z]) => {
-                write!(f, "point light at ({x}, {y}, {z}) of the volume")
-            }
-            LightSource::Directional([x, y, z]) => {
-                write!(f, "directional light towards ({x}, {y}, {z})")
-            }
-        }
-    }
-}
-
-/// Three comma-separated finite numbers, for light positions and directions.
-pub fn parse_vec3(text: &str) -> Result<[f32; 3], String> {
-    let values: Option<Vec<f32>> = text
-        .split(',')
-        .map(|v| v.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
-        .collect();
-    match values.as_deref() {
-        Some(&[x, y, z]) => Ok([x, y, z]),
-        _ => Err(format!("'{text}': expected three numbers x,y,z")),
-    }
-}
-
-/// How the volume is lit by global light propagation.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LightSettings {
-    /// The light.
-    pub source: LightSource,
-    /// Its colour (linear, 0..1 per channel).
-    pub colour: [f32; 3],
-    /// Its intensity I0 (0..=[`MAX_INTENSITY`]).
-    pub intensity: f32,
-    /// Segment length L of the local piecewise integration, in voxels.
-    pub segment_voxels: u32,
-    /// SVR resolution: one point per `svr_scale`³ voxels (1, 2, 4 or 8).
-    pub svr_scale: u32,
-    /// Scattering radius R_Ω in voxels (0: no in-scattering, I_s = I_d).
-    pub scatter_radius_voxels: f32,
-    /// In-scattering directions J (1: the light's direction only).
-    pub directions: u32,
-    /// Henyey–Greenstein asymmetry g of the phase function (0: isotropic, the
-    /// paper's choice; > 0 favours directions near the light's).
-    pub phase_g: f32,
-    /// The minimum light level I_bias (0..1), applied at render time.
-    pub bias: f32,
-}
-
-impl Default for LightSettings {
-    fn default() -> LightSettings {
-        LightSettings {
-            // Above, in front of and to the patient's right: in the default view
-            // (from anterior) the light comes from the upper left.
-            source: LightSource::Directional([-0.6, -0.5, 0.62]),
-            colour: [1.0; 3],
-            intensity: 1.0,
-            segment_voxels: 8,
-            svr_scale: 2,
-            scatter_radius_voxels: 8.0,
-            directions: 18,
-            phase_g: 0.0,
-            bias: 0.15,
-        }
-    }
-}
-
-/// What a light computation depends on beyond the data and transfer function:
-/// every setting but colour and I_bias, which apply at render time.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LightKey {
-    source: LightSource,
-    intensity: f32,
-    segment_voxels: u32,
-    svr_scale: u32,
-    scatter_radius_voxels: f32,
-    directions: u32,
-    phase_g: f32,
-}
-
-impl LightSettings {
-    /// Checks every field, naming the first one out of range.
-    pub fn validate(&self) -> Result<(), String> {
-        let (lo, hi) = SEGMENT_RANGE;
-        if !(lo..=hi).contains(&self.segment_voxels) {
-            return Err(format!(
-                "segment length = {}: expected {lo} to {hi} voxels",
-                self.segment_voxels
-            ));
-        }
-        if !SVR_SCALES.contains(&self.svr_scale) {
-            return Err(format!(
-                "SVR scale = {}: expected 1, 2, 4 or 8",
-                self.svr_scale
-            ));
-        }
-        if !(self.scatter_radius_voxels.is_finite()
-            && (0.0..=MAX_SCATTER_RADIUS).contains(&self.scatter_radius_voxels))
-        {
-            return Err(format!(
-                "scattering radius = {}: expected 0 to {MAX_SCATTER_RADIUS} voxels",
-                self.scatter_radius_voxels
-            ));
-        }
-        if !(1..=MAX_DIRECTIONS).contains(&self.directions) {
-            return Err(format!(
-                "scattering directions = {}: expected 1 to {MAX_DIRECTIONS}",
-                self.directions
-            ));
-        }
-        let (glo, ghi) = PHASE_G_RANGE;
-        if !(self.phase_g.is_finite() && (glo..=ghi).contains(&self.phase_g)) {
-            return Err(format!(
-                "phase asymmetry g = {}: expected {glo} to {ghi}",
-                self.phase_g
-            ));
-        }
-        if !(self.bias.is_finite() && (0.0..=1.0).contains(&self.bias)) {
-            return Err(format!("light bias = {}: expected 0 to 1", self.bias));
-        }
-        if !(self.intensity.is_finite() && (0.0..=MAX_INTENSITY).contains(&self.intensity)) {
-            return Err(format!(
-                "light intensity = {}: expected 0 to {MAX_INTENSITY}",
-                self.intensity
-            ));
-        }
-        if !self.colour.iter().all(|c| (0.0..=1.0).contains(c)) {
-            return Err(format!(
-                "light colour = {:?}: expected each channel in 0..=1",
-                self.colour
-            ));
-        }
-        self.source.check()
-    }
-
-    /// The settings a computed light depends on.
-    pub fn key(&self) -> LightKey {
-        LightKey {
-            source: self.source,
-            intensity: self.intensity,
-            segment_voxels: self.segment_voxels,
-            svr_scale: self.svr_scale,
-            scatter_radius_voxels: self.scatter_radius_voxels,
-            directions: self.directions,
-            phase_g: self.phase_g,
-        }
-    }
-}
-
-impl FromStr for LightSource {
-    type Err = String;
-
-    /// `point:x,y,z` (fractions of the volume's box) or `directional:x,y,z`
-    /// (towards the light, patient space).
-    fn from_str(text: &str) -> Result<LightSource, String> {
-        let refuse = |why: String| {
-            format!("light '{text}': {why}; expected point:x,y,z or directional:x,y,z")
-        };
-        let (kind, rest) = text
-            .split_once(':')
-            .ok_or_else(|| refuse("no kind".into()))?;
-        let v = parse_vec3(rest).map_err(refuse)?;
-        let source = match kind.trim() {
-            "point" => LightSource::Point(v),
-            "directional" | "dir" => LightSource::Directional(v),
-            other => return Err(refuse(format!("unknown kind '{other}'"))),
-        };
-        source
-            .check()
-            .map_err(|why| format!("light '{text}': {why}"))?;
-        Ok(source)
-    }
-}
-
-impl LightSource {
-    /// Refuses a point light beyond ±100 volume boxes and a zero direction.
-    pub fn check(&self) -> Result<(), String> {
-        match *self {
-            LightSource::Point(p) if p.iter().any(|c| !c.is_finite() || c.abs() > 100.0) => {
-                Err(format!(
-                    "light position = {p:?}: expected fractions of the volume's box within ±100"
-                ))
-            }
-            LightSource::Directional(d)
-                if !Vec3::from(d).is_finite() || Vec3::from(d).length() <= 1e-6 =>
-            {
-                Err(format!(
-                    "light direction = {d:?}: expected a finite, non-zero vector"
-                ))
-            }
-            _ => Ok(()),
-        }
-    }
-}
 
 /// The uniforms of the light stages.
 // keep in sync with shaders/wgsl/shared/light_params.wgsl `LightParams`
@@ -944,7 +742,7 @@ pub struct Illumination {
     pipelines: LightPipelines,
     volumes: Option<LightVolumes>,
     /// (data version, transfer function, light key, method) of the stored light.
-    computed_for: Option<(u64, blocks::TransferFunction, LightKey, DirectLightMethod)>,
+    computed_for: Option<(u64, blocks::TransferFunction, Vec<Json>, DirectLightMethod)>,
     directions: Vec<ScatterDirection>,
     params: Option<LightParams>,
     refined: usize,
@@ -1000,10 +798,15 @@ impl Illumination {
         data_version: u64,
         method: DirectLightMethod,
     ) -> Result<LightTimings, GpuError> {
-        settings.validate().map_err(GpuError::InvalidRequest)?;
+        settings.validate_fields()?;
         let start = Instant::now();
         let mut timings = LightTimings::default();
-        let key = (data_version, tf.clone(), settings.key(), method);
+        let key = (
+            data_version,
+            tf.clone(),
+            crate::settings::stage_key(settings, &STAGES, "in_scatter"),
+            method,
+        );
         if self.computed_for.as_ref() != Some(&key) {
             self.computed_for = None;
             self.recompute(gpu, inputs, settings, method, &mut timings)?;
@@ -1268,56 +1071,56 @@ mod tests {
 
     #[test]
     fn settings_are_checked_field_by_field() {
-        assert!(LightSettings::default().validate().is_ok());
+        assert!(LightSettings::default().validate_fields().is_ok());
         let bad = [
             (
                 LightSettings {
                     segment_voxels: 2,
                     ..Default::default()
                 },
-                "segment length = 2",
+                "segment=2",
             ),
             (
                 LightSettings {
                     svr_scale: 3,
                     ..Default::default()
                 },
-                "SVR scale = 3",
+                "svr=3: expected 1, 2, 4 or 8",
             ),
             (
                 LightSettings {
                     scatter_radius_voxels: f32::NAN,
                     ..Default::default()
                 },
-                "scattering radius",
+                "scatter_radius",
             ),
             (
                 LightSettings {
                     directions: 0,
                     ..Default::default()
                 },
-                "scattering directions = 0",
+                "directions=0",
             ),
             (
                 LightSettings {
                     bias: 1.5,
                     ..Default::default()
                 },
-                "light bias = 1.5",
+                "bias=1.5",
             ),
             (
                 LightSettings {
                     phase_g: 1.0,
                     ..Default::default()
                 },
-                "phase asymmetry",
+                "phase_g",
             ),
             (
                 LightSettings {
                     source: LightSource::Directional([0.0; 3]),
                     ..Default::default()
                 },
-                "non-zero",
+                "zero",
             ),
             (
                 LightSettings {
@@ -1328,22 +1131,23 @@ mod tests {
             ),
         ];
         for (settings, want) in bad {
-            let e = settings.validate().expect_err(want);
+            let e = settings.validate_fields().expect_err(want).to_string();
             assert!(e.contains(want), "{e}");
         }
+        use crate::settings::TextSetting;
         assert_eq!(
-            "point:0.5,0.5,0.5".parse::<LightSource>(),
+            LightSource::parse_text("point:0.5,0.5,0.5"),
             Ok(LightSource::Point([0.5; 3]))
         );
         assert_eq!(
-            "directional:0,0,1".parse::<LightSource>(),
+            LightSource::parse_text("directional:0,0,1"),
             Ok(LightSource::Directional([0.0, 0.0, 1.0]))
         );
         for bad in ["sun:0,0,1", "point:1,2", "point", "directional:a,b,c"] {
             assert!(
-                bad.parse::<LightSource>()
+                LightSource::parse_text(bad)
                     .expect_err(bad)
-                    .contains("expected point:x,y,z"),
+                    .contains("point:x,y,z"),
                 "{bad}"
             );
         }

@@ -12,8 +12,6 @@ use blocks::{Preset, TfPoint, TransferFunction};
 /// One real dataset.
 #[derive(Debug, Clone)]
 pub struct ReferenceDataset {
-    /// Short name: `engine`, `bonsai`, `cthead`, `vhf`.
-    pub name: &'static str,
     /// The file or DICOM folder.
     pub path: PathBuf,
     /// What the file's header (or name) does not say.
@@ -88,7 +86,6 @@ pub fn reference_dataset(dir: &Path, name: &str) -> Option<ReferenceDataset> {
         _ => return None,
     };
     Some(ReferenceDataset {
-        name: NAMES.iter().find(|&&n| n == name).copied()?,
         path: dir.join(file),
         options,
         transfer_function,

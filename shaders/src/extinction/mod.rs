@@ -24,34 +24,29 @@
 //! only; a camera change recomputes nothing. The ray caster reads the light
 //! cache with one lookup per sample.
 
-use std::fmt;
-use std::str::FromStr;
+mod settings;
+
 use std::time::Instant;
 
 use glam::{Mat3, Vec3};
 
-use crate::light::{LightInputs, MAX_INTENSITY, parse_vec3, texture_transforms};
+use crate::light::{LightInputs, texture_transforms};
 use crate::pipeline::{self, ComputeStage, run};
 use crate::raycast::VolumePlacement;
+use crate::settings::{Json, stage_key};
 use crate::volume_texture::VolumeTexture;
 use crate::{GpuContext, GpuError};
 
-/// The accepted SAT grid sizes (cells along the volume's longest side).
-pub const SAT_SIZE_RANGE: (u32, u32) = (16, 256);
-/// The accepted ambient-occlusion radii, in grid cells.
-pub const AO_RADIUS_RANGE: (u32, u32) = (1, 32);
-/// The most ambient-occlusion shells.
-pub const MAX_AO_SHELLS: u32 = 16;
-/// The most lights at once.
-pub const MAX_LIGHTS: usize = 4;
-/// The largest cone half-angle, in degrees.
-pub const MAX_CONE_ANGLE: f32 = 45.0;
-/// The accepted cone sampling frequencies (cuboids per grid side at the start).
-pub const CONE_FREQUENCY_RANGE: (f32, f32) = (1.0, 1000.0);
-/// The largest growth of the cone's cuboids per step.
-pub const MAX_CONE_GROWTH: f32 = 1.0;
-/// The largest ambient-occlusion strength.
-pub const MAX_AO_STRENGTH: f32 = 16.0;
+pub use settings::{
+    AoMethod, ExtinctionLight, ExtinctionLightKind, ExtinctionSettings, MAX_AO_SHELLS, MAX_LIGHTS,
+    ShadowMethod,
+};
+
+/// The stages of extinction-based illumination in the order they run (the
+/// paper's algorithm 1): a change of a setting recomputes from the stage it
+/// `affects` on.
+pub const STAGES: [&str; 3] = ["extinction_sat", "ambient_occlusion", "soft_shadow"];
+
 /// Samples per grid side of the reference shadow ray (the paper's 250 per unit).
 pub const SHADOW_RAY_SAMPLES: f32 = 250.0;
 /// Fixed-point scale of SAT cells: one unit of Δt·τ.
@@ -68,392 +63,6 @@ pub const EXTINCTION_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float
 pub const WORKGROUP_EDGE: u32 = 4;
 /// Invocations per workgroup along each axis of the scan (per line).
 pub const SCAN_WORKGROUP_EDGE: u32 = 8;
-
-/// Where a light of the light cache is and how it shines.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ExtinctionLightKind {
-    /// A point light, as fractions of the volume's box (0..1 is inside).
-    Point([f32; 3]),
-    /// A directional light: the vector towards it, in patient space (LPS).
-    Directional([f32; 3]),
-    /// A spot light at `position` (fractions of the box) shining along
-    /// `direction` (patient space) within `angle` degrees of its axis.
-    Spot {
-        /// Where it is, fractions of the volume's box.
-        position: [f32; 3],
-        /// Its axis, patient space.
-        direction: [f32; 3],
-        /// Half-angle of its cone of light, degrees (0 < angle ≤ 90).
-        angle: f32,
-    },
-}
-
-/// One light of extinction-based illumination.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ExtinctionLight {
-    /// Where it is.
-    pub kind: ExtinctionLightKind,
-    /// Its colour (0..1 per channel).
-    pub colour: [f32; 3],
-    /// Its intensity (0..=[`MAX_INTENSITY`]).
-    pub intensity: f32,
-}
-
-/// How the ambient occlusion is computed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum AoMethod {
-    /// Cuboid shells queried from the SAT (the paper's).
-    #[default]
-    Sat,
-    /// Explicit sampling of the spherical neighbourhood (reference).
-    Sampled,
-}
-
-/// How the shadows are computed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum ShadowMethod {
-    /// Cone of cuboid SAT queries (the paper's).
-    #[default]
-    Cone,
-    /// One classic shadow ray per light (reference).
-    Ray,
-}
-
-/// The settings of extinction-based illumination.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ExtinctionSettings {
-    /// SAT and light-cache grid cells along the volume's longest side (the
-    /// others in proportion to the volume's extent).
-    pub sat_size: u32,
-    /// Ambient light I_A.
-    pub ambient: f32,
-    /// Ambient-occlusion radius R, in grid cells.
-    pub ao_radius: u32,
-    /// Ambient-occlusion shells (at most R).
-    pub ao_shells: u32,
-    /// Scales the ambient occlusion's exponent, the weighted mean Δt·τ of the
-    /// neighbourhood (0.4: a flat opaque surface keeps about 45 % of the ambient light).
-    pub ao_strength: f32,
-    /// Colour bleeding (eq. 5): neighbours tint the ambient light.
-    pub colour_bleeding: bool,
-    /// The lights (0 to [`MAX_LIGHTS`]).
-    pub lights: Vec<ExtinctionLight>,
-    /// Half-angle of the shadow cone, degrees (0: a ray of cuboids one cell wide).
-    pub cone_angle: f32,
-    /// Cuboids per grid side at the cone's start.
-    pub cone_frequency: f32,
-    /// Growth of each cuboid's length over the one before (0.05: 5 %).
-    pub cone_growth: f32,
-    /// How the ambient occlusion is computed.
-    pub ao_method: AoMethod,
-    /// How the shadows are computed.
-    pub shadow_method: ShadowMethod,
-}
-
-impl Default for ExtinctionSettings {
-    fn default() -> ExtinctionSettings {
-        ExtinctionSettings {
-            sat_size: 128,
-            ambient: 0.5,
-            ao_radius: 8,
-            ao_shells: 3,
-            ao_strength: 0.4,
-            colour_bleeding: false,
-            lights: vec![ExtinctionLight {
-                // As global light propagation's default: from the upper left
-                // in the default view.
-                kind: ExtinctionLightKind::Directional([-0.6, -0.5, 0.62]),
-                colour: [1.0; 3],
-                intensity: 0.8,
-            }],
-            cone_angle: 3.0,
-            cone_frequency: 50.0,
-            cone_growth: 0.05,
-            ao_method: AoMethod::Sat,
-            shadow_method: ShadowMethod::Cone,
-        }
-    }
-}
-
-impl ExtinctionSettings {
-    /// Checks every field, naming the first one out of range.
-    pub fn validate(&self) -> Result<(), String> {
-        let (lo, hi) = SAT_SIZE_RANGE;
-        if !(lo..=hi).contains(&self.sat_size) {
-            return Err(format!(
-                "SAT size = {}: expected {lo} to {hi} cells",
-                self.sat_size
-            ));
-        }
-        if !(self.ambient.is_finite() && (0.0..=MAX_INTENSITY).contains(&self.ambient)) {
-            return Err(format!(
-                "ambient light = {}: expected 0 to {MAX_INTENSITY}",
-                self.ambient
-            ));
-        }
-        let (lo, hi) = AO_RADIUS_RANGE;
-        if !(lo..=hi).contains(&self.ao_radius) {
-            return Err(format!(
-                "ambient occlusion radius = {}: expected {lo} to {hi} cells",
-                self.ao_radius
-            ));
-        }
-        if !(1..=MAX_AO_SHELLS.min(self.ao_radius)).contains(&self.ao_shells) {
-            return Err(format!(
-                "ambient occlusion shells = {}: expected 1 to {} (at most {MAX_AO_SHELLS} and at \
-                 most the radius)",
-                self.ao_shells,
-                MAX_AO_SHELLS.min(self.ao_radius)
-            ));
-        }
-        if !(self.ao_strength.is_finite() && (0.0..=MAX_AO_STRENGTH).contains(&self.ao_strength)) {
-            return Err(format!(
-                "ambient occlusion strength = {}: expected 0 to {MAX_AO_STRENGTH}",
-                self.ao_strength
-            ));
-        }
-        if self.lights.len() > MAX_LIGHTS {
-            return Err(format!(
-                "lights: {} given, expected at most {MAX_LIGHTS}",
-                self.lights.len()
-            ));
-        }
-        for light in &self.lights {
-            light.validate()?;
-        }
-        if !(self.cone_angle.is_finite() && (0.0..=MAX_CONE_ANGLE).contains(&self.cone_angle)) {
-            return Err(format!(
-                "cone angle = {}: expected 0 to {MAX_CONE_ANGLE} degrees",
-                self.cone_angle
-            ));
-        }
-        let (lo, hi) = CONE_FREQUENCY_RANGE;
-        if !(self.cone_frequency.is_finite() && (lo..=hi).contains(&self.cone_frequency)) {
-            return Err(format!(
-                "cone sampling frequency = {}: expected {lo} to {hi} cuboids per volume side",
-                self.cone_frequency
-            ));
-        }
-        if !(self.cone_growth.is_finite() && (0.0..=MAX_CONE_GROWTH).contains(&self.cone_growth)) {
-            return Err(format!(
-                "cone growth = {}: expected 0 to {MAX_CONE_GROWTH}",
-                self.cone_growth
-            ));
-        }
-        if self.ao_method == AoMethod::Sampled && self.colour_bleeding {
-            return Err(
-                "ambient occlusion method = sampled: the sampled reference is grey only; turn \
-                 colour bleeding off"
-                    .into(),
-            );
-        }
-        Ok(())
-    }
-
-    /// What the SAT depends on beyond the data and transfer function.
-    fn sat_key(&self) -> (u32, bool) {
-        (self.sat_size, self.colour_bleeding)
-    }
-
-    /// What the ambient term depends on beyond the SAT.
-    fn ao_key(&self) -> (u32, u32, f32, AoMethod) {
-        (
-            self.ao_radius,
-            self.ao_shells,
-            self.ao_strength,
-            self.ao_method,
-        )
-    }
-
-    /// What the light cache depends on beyond the SAT and the ambient term.
-    fn shadow_key(&self) -> ShadowKey {
-        ShadowKey {
-            ambient: self.ambient,
-            lights: self.lights.clone(),
-            cone: [self.cone_angle, self.cone_frequency, self.cone_growth],
-            method: self.shadow_method,
-        }
-    }
-}
-
-#[derive(Debug, Clone, PartialEq)]
-struct ShadowKey {
-    ambient: f32,
-    lights: Vec<ExtinctionLight>,
-    cone: [f32; 3],
-    method: ShadowMethod,
-}
-
-impl ExtinctionLight {
-    /// Checks position, direction, angle, colour and intensity.
-    pub fn validate(&self) -> Result<(), String> {
-        let finite = |v: [f32; 3]| v.iter().all(|c| c.is_finite());
-        match self.kind {
-            ExtinctionLightKind::Point(p) | ExtinctionLightKind::Spot { position: p, .. }
-                if !finite(p) || p.iter().any(|c| c.abs() > 100.0) =>
-            {
-                return Err(format!(
-                    "light position = {p:?}: expected fractions of the volume's box within ±100"
-                ));
-            }
-            ExtinctionLightKind::Directional(d)
-            | ExtinctionLightKind::Spot { direction: d, .. }
-                if !finite(d) || Vec3::from(d).length() <= 1e-6 =>
-            {
-                return Err(format!(
-                    "light direction = {d:?}: expected a finite, non-zero vector"
-                ));
-            }
-            ExtinctionLightKind::Spot { angle, .. }
-                if !(angle.is_finite() && angle > 0.0 && angle <= 90.0) =>
-            {
-                return Err(format!(
-                    "spot light angle = {angle}: expected more than 0 and at most 90 degrees"
-                ));
-            }
-            _ => {}
-        }
-        if !self.colour.iter().all(|c| (0.0..=1.0).contains(c)) {
-            return Err(format!(
-                "light colour = {:?}: expected each channel in 0..=1",
-                self.colour
-            ));
-        }
-        if !(self.intensity.is_finite() && (0.0..=MAX_INTENSITY).contains(&self.intensity)) {
-            return Err(format!(
-                "light intensity = {}: expected 0 to {MAX_INTENSITY}",
-                self.intensity
-            ));
-        }
-        Ok(())
-    }
-}
-
-impl fmt::Display for ExtinctionLight {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let v = |v: [f32; 3]| format!("{},{},{}", v[0], v[1], v[2]);
-        match self.kind {
-            ExtinctionLightKind::Point(p) => write!(f, "point:{}", v(p))?,
-            ExtinctionLightKind::Directional(d) => write!(f, "directional:{}", v(d))?,
-            ExtinctionLightKind::Spot {
-                position,
-                direction,
-                angle,
-            } => write!(f, "spot:{}:{}:{angle}", v(position), v(direction))?,
-        }
-        let [r, g, b] = self.colour.map(|c| (c * 255.0).round() as u8);
-        write!(f, ":{r:02x}{g:02x}{b:02x}:{}", self.intensity)
-    }
-}
-
-impl FromStr for ExtinctionLight {
-    type Err = String;
-
-    /// `point:x,y,z`, `directional:x,y,z` or `spot:x,y,z:dx,dy,dz:angle`, each
-    /// optionally followed by `:rrggbb` and `:intensity`.
-    fn from_str(text: &str) -> Result<ExtinctionLight, String> {
-        let refuse = |why: String| {
-            format!(
-                "light '{text}': {why}; expected point:x,y,z, directional:x,y,z or \
-                 spot:x,y,z:dx,dy,dz:angle, each optionally followed by :rrggbb and :intensity"
-            )
-        };
-        let parts: Vec<&str> = text.split(':').map(str::trim).collect();
-        let (kind, rest) = match parts.as_slice() {
-            ["point", p, rest @ ..] => (
-                ExtinctionLightKind::Point(parse_vec3(p).map_err(refuse)?),
-                rest,
-            ),
-            ["directional" | "dir", d, rest @ ..] => (
-                ExtinctionLightKind::Directional(parse_vec3(d).map_err(refuse)?),
-                rest,
-            ),
-            ["spot", p, d, angle, rest @ ..] => (
-                ExtinctionLightKind::Spot {
-                    position: parse_vec3(p).map_err(refuse)?,
-                    direction: parse_vec3(d).map_err(refuse)?,
-                    angle: angle
-                        .parse()
-                        .map_err(|_| refuse(format!("spot angle '{angle}' is not a number")))?,
-                },
-                rest,
-            ),
-            [kind, ..] => return Err(refuse(format!("unknown kind or missing fields '{kind}'"))),
-            [] => return Err(refuse("empty".into())),
-        };
-        let mut light = ExtinctionLight {
-            kind,
-            colour: [1.0; 3],
-            intensity: 1.0,
-        };
-        match rest {
-            [] => {}
-            [colour] => light.colour = crate::frame::parse_colour(colour).map_err(refuse)?,
-            [colour, intensity] => {
-                light.colour = crate::frame::parse_colour(colour).map_err(refuse)?;
-                light.intensity = intensity
-                    .parse()
-                    .map_err(|_| refuse(format!("intensity '{intensity}' is not a number")))?;
-            }
-            _ => return Err(refuse("too many fields".into())),
-        }
-        light
-            .validate()
-            .map_err(|why| format!("light '{text}': {why}"))?;
-        Ok(light)
-    }
-}
-
-/// Lights separated by `;` (an empty text: no lights).
-pub fn parse_lights(text: &str) -> Result<Vec<ExtinctionLight>, String> {
-    let lights: Vec<ExtinctionLight> = text
-        .split(';')
-        .filter(|t| !t.trim().is_empty())
-        .map(str::parse)
-        .collect::<Result<_, _>>()?;
-    if lights.len() > MAX_LIGHTS {
-        return Err(format!(
-            "lights: {} given, expected at most {MAX_LIGHTS}",
-            lights.len()
-        ));
-    }
-    Ok(lights)
-}
-
-/// The lights as [`parse_lights`] reads them.
-pub fn format_lights(lights: &[ExtinctionLight]) -> String {
-    lights
-        .iter()
-        .map(ToString::to_string)
-        .collect::<Vec<_>>()
-        .join(";")
-}
-
-impl FromStr for AoMethod {
-    type Err = String;
-
-    fn from_str(text: &str) -> Result<AoMethod, String> {
-        match text {
-            "sat" => Ok(AoMethod::Sat),
-            "sampled" => Ok(AoMethod::Sampled),
-            _ => Err(format!(
-                "ambient occlusion method '{text}': expected sat or sampled"
-            )),
-        }
-    }
-}
-
-impl FromStr for ShadowMethod {
-    type Err = String;
-
-    fn from_str(text: &str) -> Result<ShadowMethod, String> {
-        match text {
-            "cone" => Ok(ShadowMethod::Cone),
-            "ray" => Ok(ShadowMethod::Ray),
-            _ => Err(format!("shadow method '{text}': expected cone or ray")),
-        }
-    }
-}
 
 /// One light in the uniforms, grid coordinates.
 // keep in sync with shaders/wgsl/shared/extinction_params.wgsl `ExtinctionLight`
@@ -1090,9 +699,9 @@ pub struct ExtinctionTimings {
 pub struct ExtinctionLighting {
     pipelines: ExtinctionPipelines,
     volumes: Option<ExtinctionVolumes>,
-    sat_for: Option<(u64, blocks::TransferFunction, (u32, bool))>,
-    ao_for: Option<(u32, u32, f32, AoMethod)>,
-    shadows_for: Option<ShadowKey>,
+    sat_for: Option<(u64, blocks::TransferFunction, Vec<Json>)>,
+    ao_for: Option<Vec<Json>>,
+    shadows_for: Option<Vec<Json>>,
     params: Option<ExtinctionParams>,
 }
 
@@ -1146,7 +755,7 @@ impl ExtinctionLighting {
         settings: &ExtinctionSettings,
         data_version: u64,
     ) -> Result<ExtinctionTimings, GpuError> {
-        settings.validate().map_err(GpuError::InvalidRequest)?;
+        settings.validate()?;
         let start = Instant::now();
         let params =
             ExtinctionParams::new(inputs.texture, settings, inputs.atlas.layout, inputs.tf_len);
@@ -1154,7 +763,11 @@ impl ExtinctionLighting {
             grid: params.grid,
             ..ExtinctionTimings::default()
         };
-        let sat_key = (data_version, tf.clone(), settings.sat_key());
+        let sat_key = (
+            data_version,
+            tf.clone(),
+            stage_key(settings, &STAGES, "extinction_sat"),
+        );
         if self.sat_for.as_ref() != Some(&sat_key) {
             self.invalidate();
             let mask = near_cells_mask(&inputs.atlas.packing, &params);
@@ -1185,12 +798,13 @@ impl ExtinctionLighting {
         gpu.queue
             .write_buffer(&volumes.params, 0, bytemuck::bytes_of(&params));
         self.params = Some(params);
-        if self.ao_for != Some(settings.ao_key()) {
+        let ao_key = stage_key(settings, &STAGES, "ambient_occlusion");
+        if self.ao_for.as_ref() != Some(&ao_key) {
             self.shadows_for = None;
             timings.ambient_occlusion_ms = self.ambient(gpu, settings.ao_method)?;
-            self.ao_for = Some(settings.ao_key());
+            self.ao_for = Some(ao_key);
         }
-        let shadow_key = settings.shadow_key();
+        let shadow_key = stage_key(settings, &STAGES, "soft_shadow");
         if self.shadows_for.as_ref() != Some(&shadow_key) {
             timings.soft_shadow_ms = self.shadows(gpu, settings.shadow_method)?;
             self.shadows_for = Some(shadow_key);
@@ -1352,11 +966,14 @@ mod tests {
 
     #[test]
     fn lights_parse_print_and_refuse_bad_fields() {
-        let lights = parse_lights("point:0.5,0.5,1.2;spot:0,0,0:1,1,1:30:ff8000:2").expect("valid");
+        use crate::settings::TextSetting;
+        type Lights = Vec<ExtinctionLight>;
+        let lights =
+            Lights::parse_text("point:0.5,0.5,1.2;spot:0,0,0:1,1,1:30:ff8000:2").expect("valid");
         assert_eq!(lights.len(), 2);
         assert_eq!(lights[0].colour, [1.0; 3]);
         assert_eq!(lights[1].intensity, 2.0);
-        assert_eq!(parse_lights(&format_lights(&lights)), Ok(lights));
+        assert_eq!(Lights::parse_text(&lights.text()), Ok(lights));
         for (text, field) in [
             ("lamp:1,2,3", "unknown kind"),
             ("point:1,2", "three numbers"),
@@ -1366,11 +983,15 @@ mod tests {
             ("spot:0,0,0:0,0,1:120", "angle"),
             ("directional:nan,0,1", "three numbers"),
         ] {
-            let e = parse_lights(text).expect_err(text);
+            let e = Lights::parse_text(text).expect_err(text);
             assert!(e.contains(field), "{text}: {e}");
         }
         let five = ["point:0,0,0"; 5].join(";");
-        assert!(parse_lights(&five).expect_err("five").contains("at most 4"));
+        assert!(
+            Lights::parse_text(&five)
+                .expect_err("five")
+                .contains("at most 4")
+        );
     }
 
     #[test]
@@ -1383,49 +1004,49 @@ mod tests {
                     sat_size: 8,
                     ..ok.clone()
                 },
-                "SAT size",
+                "sat_size=8",
             ),
             (
                 ExtinctionSettings {
                     ao_shells: 9,
                     ..ok.clone()
                 },
-                "shells",
+                "ao_shells=9",
             ),
             (
                 ExtinctionSettings {
                     ao_radius: 0,
                     ..ok.clone()
                 },
-                "radius",
+                "ao_radius=0",
             ),
             (
                 ExtinctionSettings {
                     cone_angle: f32::NAN,
                     ..ok.clone()
                 },
-                "cone angle",
+                "cone_angle",
             ),
             (
                 ExtinctionSettings {
                     cone_frequency: 0.0,
                     ..ok.clone()
                 },
-                "frequency",
+                "cone_frequency=0",
             ),
             (
                 ExtinctionSettings {
                     cone_growth: 2.0,
                     ..ok.clone()
                 },
-                "growth",
+                "cone_growth=2",
             ),
             (
                 ExtinctionSettings {
                     ambient: -1.0,
                     ..ok.clone()
                 },
-                "ambient",
+                "ambient=-1",
             ),
             (
                 ExtinctionSettings {
@@ -1437,7 +1058,7 @@ mod tests {
             ),
         ];
         for (settings, field) in cases {
-            let e = settings.validate().expect_err(field);
+            let e = settings.validate().expect_err(field).to_string();
             assert!(e.contains(field), "{field}: {e}");
         }
     }

@@ -1,0 +1,401 @@
+//! The `voxserve` command line's subcommands and flags (clap): `serve`,
+//! `render`, `info`, `ingest` and `settings`. The binary adds `bench`. The
+//! view flags of `render` come from the settings schema ([`ViewArgs`]).
+
+mod view_args;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use blocks::ingest::OpenOptions;
+use blocks::ingest::raw::{self, RawOptions};
+use clap::builder::PossibleValuesParser;
+use clap::{Args, Subcommand};
+use shaders::settings::{Raw, SettingValue, Settings};
+
+pub use view_args::ViewArgs;
+
+use crate::dataset::PHANTOM_ID;
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Serve the web client and the render API, and print the URL to open.
+    Serve(ServeArgs),
+    /// Render one frame to a PNG file.
+    Render(Box<RenderArgs>),
+    /// Read a volume file or DICOM folder and print what it holds.
+    Info(InfoArgs),
+    /// Write a volume file or DICOM folder as a brick store (OME-Zarr, 16³ blocks
+    /// at every level of detail), slab by slab in bounded memory.
+    Ingest(IngestArgs),
+    /// List every view setting: name, flag, what it takes and its default
+    /// (`--json`: as `GET /api/settings` gives them).
+    Settings(SettingsArgs),
+}
+
+/// `voxserve settings`.
+#[derive(Debug, Args)]
+pub struct SettingsArgs {
+    /// Print JSON (as `GET /api/settings`) instead of Markdown tables.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Where the volume comes from.
+#[derive(Debug, Clone, Args)]
+pub struct DataArgs {
+    /// Edge length in voxels of the built-in phantom (16 to 512); it is generated at start.
+    #[arg(long, default_value_t = blocks::phantom::DEFAULT_SIZE,
+          value_parser = clap::value_parser!(u32).range(
+              i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
+    pub phantom_size: u32,
+    /// Decoded blocks kept in memory, MiB (the two coarsest levels stay resident on top).
+    #[arg(long, default_value_t = 1024, value_name = "MIB",
+          value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
+    pub cache_mib: u64,
+    /// Voxels kept on the GPU at most, MiB: a volume whose selected blocks need
+    /// more renders at coarser levels of detail.
+    #[arg(long, default_value_t = 2048, value_name = "MIB",
+          value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
+    pub gpu_budget_mib: u64,
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+impl DataArgs {
+    /// `--cache-mib` in bytes.
+    pub fn cache_bytes(&self) -> u64 {
+        self.cache_mib << 20
+    }
+
+    /// `--gpu-budget-mib` in bytes.
+    pub fn gpu_budget_bytes(&self) -> u64 {
+        self.gpu_budget_mib << 20
+    }
+}
+
+/// How to read a volume file where its headers leave choices.
+#[derive(Debug, Clone, Default, Args)]
+pub struct InputArgs {
+    /// The DICOM series to read from a folder that holds several (an id as
+    /// `voxserve info FOLDER` lists them).
+    #[arg(long, value_name = "UID")]
+    pub series: Option<String>,
+    /// Raw files: dimensions as XxYxZ, e.g. 256x256x128 [default: from the file name].
+    #[arg(long, value_name = "XxYxZ", value_parser = parse_dims)]
+    pub raw_dims: Option<[u64; 3]>,
+    /// Raw files: the voxel type [default: from the file name].
+    #[arg(long, value_name = "TYPE", value_parser = PossibleValuesParser::new(
+        ["uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64"]))]
+    pub raw_type: Option<String>,
+    /// Raw files: the byte order [default: from the file name (…be/…le), else little].
+    #[arg(long, value_name = "ORDER", value_parser = PossibleValuesParser::new(["little", "big"]))]
+    pub raw_endian: Option<String>,
+    /// Raw files: bytes to skip at the start (a header voxserve does not read).
+    #[arg(long, value_name = "BYTES", default_value_t = 0)]
+    pub raw_offset: u64,
+    /// Raw files: voxel spacing in mm as X,Y,Z [default: 1,1,1].
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_spacing)]
+    pub raw_spacing: Option<[f64; 3]>,
+}
+
+impl InputArgs {
+    /// The reader options these flags give.
+    pub fn open_options(&self) -> OpenOptions {
+        OpenOptions {
+            series: self.series.clone(),
+            raw: RawOptions {
+                dims: self.raw_dims,
+                sample: self.raw_type.as_deref().and_then(raw::sample_type),
+                big_endian: self.raw_endian.as_deref().map(|e| e == "big"),
+                offset: self.raw_offset,
+                spacing: self.raw_spacing,
+            },
+        }
+    }
+}
+
+/// `voxserve ingest`.
+#[derive(Debug, Args)]
+pub struct IngestArgs {
+    /// A volume file (raw, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd, .dcm) or a folder of DICOM files.
+    pub input: PathBuf,
+    /// The store to write (a folder; written under a temporary name and renamed when complete).
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Replace the store if it exists (the old one stays until the new one is complete).
+    #[arg(long)]
+    pub force: bool,
+    /// zstd compression level, 1 (fast) to 19 (small).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(i32).range(1..=19))]
+    pub zstd_level: i32,
+    #[command(flatten)]
+    pub input_options: InputArgs,
+}
+
+/// `voxserve info`.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// A volume file (raw, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd, .dcm) or a folder of DICOM files.
+    pub path: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// `voxserve serve`.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// The datasets to serve, the first being the default: `phantom` (the
+    /// built-in CT head phantom), brick stores (`voxserve ingest`), volume
+    /// files or folders of DICOM files (bricked in memory at start).
+    #[arg(default_values_t = [PHANTOM_ID.to_owned()], value_name = "DATASET")]
+    pub datasets: Vec<String>,
+    /// Also serve every brick store in this folder (after the DATASETs).
+    #[arg(long = "data", value_name = "DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// Datasets whose blocks stay on the GPU at once; the one used least
+    /// recently is released when another is needed.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub resident_datasets: u64,
+    /// Address and port to listen on; port 0 picks a free port.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub addr: SocketAddr,
+    #[command(flatten)]
+    pub stream: StreamArgs,
+    #[command(flatten)]
+    pub data: DataArgs,
+}
+
+/// How view sessions (`/api/stream`) trade quality for speed.
+#[derive(Debug, Clone, Args)]
+pub struct StreamArgs {
+    /// Milliseconds without a view change after which the full-quality,
+    /// lossless frame is rendered.
+    #[arg(long, default_value_t = 150, value_parser = clap::value_parser!(u64).range(0..=60_000))]
+    pub idle_ms: u64,
+    /// Image size while the user interacts, as a fraction of the full size.
+    #[arg(long, default_value_t = 0.5, value_parser = finite_in(0.1, 1.0))]
+    pub interactive_scale: f32,
+    /// Data reduction while the user interacts, as a multiple of the view's
+    /// (not applied with global light or extinction-based illumination, whose
+    /// light would be recomputed).
+    #[arg(long, default_value_t = 4.0, value_parser = finite_in(1.0, 1000.0))]
+    pub interactive_reduction: f32,
+    /// JPEG quality (1 to 100) of frames while the user interacts.
+    #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub jpeg_quality: u8,
+    /// Format of the lossless full frames: webp (lossless WebP, about 28 %
+    /// smaller than PNG) or png (a little faster to encode); `bench stream`
+    /// measures both.
+    #[arg(long, default_value = "webp", value_parser = |t: &str| t.parse::<crate::encode::Lossless>())]
+    pub lossless: crate::encode::Lossless,
+    /// Frames a session sends ahead of the client's acknowledgements.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub frames_in_flight: u32,
+    /// View sessions open at most; more are refused (HTTP 503).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    pub max_sessions: u64,
+}
+
+impl StreamArgs {
+    /// The settings these flags give.
+    pub fn settings(&self) -> crate::stream::StreamSettings {
+        crate::stream::StreamSettings {
+            idle_ms: self.idle_ms,
+            interactive_scale: self.interactive_scale,
+            interactive_reduction: self.interactive_reduction,
+            jpeg_quality: self.jpeg_quality,
+            lossless: self.lossless,
+            frames_in_flight: self.frames_in_flight,
+            max_sessions: usize::try_from(self.max_sessions).unwrap_or(usize::MAX),
+        }
+    }
+}
+
+/// `voxserve render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// The dataset to render: `phantom` (the built-in CT head phantom), a brick
+    /// store (`voxserve ingest`), a volume file or a folder of DICOM files.
+    #[arg(default_value = PHANTOM_ID)]
+    pub dataset: String,
+    /// The PNG file to write [default: DATASET.png].
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+    /// The view: one flag per setting of `/api/render` (see `voxserve
+    /// settings`).
+    #[command(flatten)]
+    pub view: ViewArgs,
+    /// Render on the CPU with the ray caster's CPU twin instead of the GPU (slow;
+    /// for checking, or where no GPU driver is installed).
+    #[arg(long)]
+    pub cpu: bool,
+    #[command(flatten)]
+    pub data: DataArgs,
+}
+
+/// A clap value parser for a finite number in `lo..=hi`.
+pub fn finite_in(
+    lo: f32,
+    hi: f32,
+) -> impl Fn(&str) -> Result<f32, String> + Clone + Send + Sync + 'static {
+    move |text| {
+        let expected = || format!("expected a number from {lo} to {hi}, got '{text}'");
+        let value: f32 = text.trim().parse().map_err(|_| expected())?;
+        if value.is_finite() && (lo..=hi).contains(&value) {
+            Ok(value)
+        } else {
+            Err(expected())
+        }
+    }
+}
+
+/// A clap value parser for a value of the view setting `name` (benchmarks
+/// sweep settings): read and checked as the setting takes it.
+///
+/// # Panics
+/// When no view setting is called `name` (a programming error, caught by
+/// `the_cli_is_well_formed`).
+pub fn setting_value<T: SettingValue>(
+    name: &'static str,
+) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static {
+    let check = crate::View::setting(name)
+        .unwrap_or_else(|| panic!("no view setting is called {name}"))
+        .spec()
+        .check;
+    move |text| T::read(&Raw::Text(text), &check).map_err(|expected| format!("expected {expected}"))
+}
+
+/// Parses `XxYxZ` dimensions.
+fn parse_dims(text: &str) -> Result<[u64; 3], String> {
+    let parts: Vec<&str> = text.split('x').collect();
+    let parsed: Option<Vec<u64>> = parts.iter().map(|p| p.trim().parse().ok()).collect();
+    match parsed {
+        Some(v) if v.len() == 3 && v.iter().all(|&d| d > 0) => Ok([v[0], v[1], v[2]]),
+        _ => Err(format!(
+            "expected three positive whole numbers like 256x256x128, got '{text}'"
+        )),
+    }
+}
+
+/// Parses `X,Y,Z` spacing in mm.
+fn parse_spacing(text: &str) -> Result<[f64; 3], String> {
+    let parsed: Option<Vec<f64>> = text.split(',').map(|p| p.trim().parse().ok()).collect();
+    match parsed {
+        Some(v) if v.len() == 3 && v.iter().all(|s| s.is_finite() && *s > 0.0) => {
+            Ok([v[0], v[1], v[2]])
+        }
+        _ => Err(format!(
+            "expected three positive numbers of mm like 1,1,2.5, got '{text}'"
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::{CommandFactory, Parser};
+    use shaders::Settings;
+
+    /// The subcommands as the binary parses them (it adds `bench`).
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(subcommand)]
+        command: Command,
+    }
+
+    #[test]
+    fn the_cli_is_well_formed() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn render_flags_parse_and_bad_values_are_refused_with_the_flag_named() {
+        let cli = Cli::try_parse_from([
+            "voxserve",
+            "render",
+            "--azimuth",
+            "-45",
+            "--width",
+            "64",
+            "--preset",
+            "ct-angio",
+        ])
+        .expect("valid");
+        let Command::Render(args) = cli.command else {
+            panic!("expected render");
+        };
+        assert_eq!(args.view.frame.camera.azimuth_deg, -45.0);
+        assert_eq!(args.view.frame.width, 64);
+        assert_eq!(args.view.frame.preset, Some(blocks::Preset::CtAngio));
+        // Every setting of the frame request is a flag.
+        let render = Cli::command();
+        let render = render.find_subcommand("render").expect("render");
+        for setting in shaders::FrameRequest::settings() {
+            let flag = setting.spec().flag();
+            assert!(
+                render.get_arguments().any(|a| a.get_long() == Some(&*flag)),
+                "render lacks --{flag}"
+            );
+        }
+        for bad in [
+            ["--width", "0"],
+            ["--width", "100000"],
+            ["--azimuth", "north"],
+            ["--elevation", "NaN"],
+            ["--preset", "bone"],
+            ["--shading", "phong"],
+            ["--lights", "lamp:0,0,0"],
+            ["--ao-radius", "64"],
+            ["--sat-size", "1024"],
+            ["--compositing", "over"],
+            ["--shadow-method", "rays"],
+            ["--projection", "fisheye"],
+            ["--clip", "0,0,0,1,1"],
+            ["--reduction", "0.5"],
+            ["--background", "blue"],
+            ["--gpu-budget-mib", "0"],
+            ["--raw-dims", "256x256"],
+            ["--raw-spacing", "1,0,1"],
+            ["--raw-type", "uint12"],
+        ] {
+            let err = Cli::try_parse_from(["voxserve", "render", bad[0], bad[1]])
+                .expect_err("invalid")
+                .to_string();
+            assert!(err.contains(bad[0]), "{bad:?}: {err}");
+        }
+    }
+
+    #[test]
+    fn raw_flags_become_open_options() {
+        let cli = Cli::try_parse_from([
+            "voxserve",
+            "info",
+            "x.bin",
+            "--raw-dims",
+            "4x5x6",
+            "--raw-type",
+            "int16",
+            "--raw-endian",
+            "big",
+            "--raw-offset",
+            "12",
+            "--raw-spacing",
+            "1,1,2.5",
+        ])
+        .expect("valid");
+        let Command::Info(args) = cli.command else {
+            panic!("expected info");
+        };
+        let o = args.input.open_options();
+        assert_eq!(o.raw.dims, Some([4, 5, 6]));
+        assert_eq!(o.raw.sample, raw::sample_type("int16"));
+        assert_eq!(o.raw.big_endian, Some(true));
+        assert_eq!(o.raw.offset, 12);
+        assert_eq!(o.raw.spacing, Some([1.0, 1.0, 2.5]));
+    }
+}
