@@ -77,69 +77,20 @@ pub fn parse_name(name: &str) -> Option<([u64; 3], SampleType, Option<bool>)> {
 
 /// Opens a raw file with `options`, filling gaps from the file name.
 pub fn open(path: &Path, options: &RawOptions) -> Result<StreamSource, Error> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let from_name = parse_name(&name);
     let mut notes = Vec::new();
-    let dims = options.dims.or(from_name.map(|n| n.0)).ok_or_else(|| {
-        field(
-            path,
-            "dims",
-            "not given: expected --raw-dims XxYxZ or a file name like volume_256x256x128_uint8.raw",
-        )
-    })?;
-    let sample = options
-        .sample
-        .or(from_name.map(|n| n.1))
-        .ok_or_else(|| {
-            field(
-                path,
-                "type",
-                format!("not given: expected --raw-type (one of {SAMPLE_NAMES}) or the type in the file name"),
-            )
-        })?;
-    let big_endian = match options.big_endian.or(from_name.and_then(|n| n.2)) {
-        Some(b) => b,
-        None => {
-            if sample.size() > 1 {
-                notes.push("byte order not given: assumed little-endian".to_owned());
-            }
-            false
-        }
-    };
+    let layout = Layout::resolve(path, options, &mut notes)?;
     let spacing = options.spacing.unwrap_or_else(|| {
         notes.push("spacing not given: assumed 1 mm on every axis".to_owned());
         [1.0; 3]
     });
     check_spacing(path, "spacing", spacing)?;
-    let dims = check_dims(path, "dims", dims, sample.size() as u64)?;
-
-    let size = super::header::file_len(path)?;
-    let needed = super::stream::volume_bytes(dims, sample);
-    let available = size.saturating_sub(options.offset);
-    if available != needed {
-        return Err(field(
-            path,
-            "size",
-            format!(
-                "{available} bytes after a {}-byte header offset, but {} × {} × {} voxels of \
-                 {} bytes take {needed}: expected the file size to match (check dims, type and \
-                 header offset)",
-                options.offset,
-                dims[0],
-                dims[1],
-                dims[2],
-                sample.size()
-            ),
-        ));
-    }
+    let dims = check_dims(path, "dims", layout.dims, layout.sample.size() as u64)?;
+    check_size(path, options.offset, dims, layout.sample)?;
     let info = VolumeInfo {
         path: path.to_owned(),
         format: Format::Raw,
         dims,
-        voxel_type: sample.voxel_type(),
+        voxel_type: layout.sample.voxel_type(),
         spacing,
         origin: [0.0; 3],
         direction: IDENTITY,
@@ -156,10 +107,90 @@ pub fn open(path: &Path, options: &RawOptions) -> Result<StreamSource, Error> {
             compression: Compression::None,
             file_offset: options.offset,
             skip: 0,
-            sample,
-            big_endian,
+            sample: layout.sample,
+            big_endian: layout.big_endian,
         },
     )
+}
+
+/// Dimensions, sample type and byte order: from the options, else from the
+/// file name.
+struct Layout {
+    dims: [u64; 3],
+    sample: SampleType,
+    big_endian: bool,
+}
+
+impl Layout {
+    /// Refuses a file whose dimensions or type neither the options nor the name
+    /// give; an unknown byte order of multi-byte samples is taken as
+    /// little-endian, with a note.
+    fn resolve(
+        path: &Path,
+        options: &RawOptions,
+        notes: &mut Vec<String>,
+    ) -> Result<Layout, Error> {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let from_name = parse_name(&name);
+        let dims = options.dims.or(from_name.map(|n| n.0)).ok_or_else(|| {
+            field(
+                path,
+                "dims",
+                "not given: expected --raw-dims XxYxZ or a file name like volume_256x256x128_uint8.raw",
+            )
+        })?;
+        let sample = options
+            .sample
+            .or(from_name.map(|n| n.1))
+            .ok_or_else(|| {
+                field(
+                    path,
+                    "type",
+                    format!("not given: expected --raw-type (one of {SAMPLE_NAMES}) or the type in the file name"),
+                )
+            })?;
+        let big_endian = match options.big_endian.or(from_name.and_then(|n| n.2)) {
+            Some(b) => b,
+            None => {
+                if sample.size() > 1 {
+                    notes.push("byte order not given: assumed little-endian".to_owned());
+                }
+                false
+            }
+        };
+        Ok(Layout {
+            dims,
+            sample,
+            big_endian,
+        })
+    }
+}
+
+/// Checks that the file holds exactly the voxels after the header offset: a
+/// raw file has nothing else to tell a wrong layout by.
+fn check_size(path: &Path, offset: u64, dims: [u32; 3], sample: SampleType) -> Result<(), Error> {
+    let size = super::header::file_len(path)?;
+    let needed = super::stream::volume_bytes(dims, sample);
+    let available = size.saturating_sub(offset);
+    if available != needed {
+        return Err(field(
+            path,
+            "size",
+            format!(
+                "{available} bytes after a {offset}-byte header offset, but {} × {} × {} voxels of \
+                 {} bytes take {needed}: expected the file size to match (check dims, type and \
+                 header offset)",
+                dims[0],
+                dims[1],
+                dims[2],
+                sample.size()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
