@@ -118,6 +118,7 @@ impl InputArgs {
                 big_endian: self.raw_endian.as_deref().map(|e| e == "big"),
                 offset: self.raw_offset,
                 spacing: self.raw_spacing,
+                direction: None,
             },
         }
     }

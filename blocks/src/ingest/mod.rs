@@ -406,9 +406,7 @@ pub fn spacing_and_direction(columns: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]
 /// Checks that the index axes' directions are finite and span space (no two
 /// parallel), naming the field: a flat direction matrix cannot place voxels.
 pub fn check_direction(path: &Path, field: &str, d: [[f64; 3]; 3]) -> Result<(), Error> {
-    let det = d[0][0] * (d[1][1] * d[2][2] - d[1][2] * d[2][1])
-        - d[1][0] * (d[0][1] * d[2][2] - d[0][2] * d[2][1])
-        + d[2][0] * (d[0][1] * d[1][2] - d[0][2] * d[1][1]);
+    let det = determinant(d);
     if det.is_finite() && det.abs() > 1e-6 {
         Ok(())
     } else {
@@ -418,6 +416,14 @@ pub fn check_direction(path: &Path, field: &str, d: [[f64; 3]; 3]) -> Result<(),
             message: format!("axes {d:?}: expected three independent directions"),
         })
     }
+}
+
+/// The determinant of the matrix whose columns are `d`: zero when two columns
+/// are parallel.
+pub(crate) fn determinant(d: [[f64; 3]; 3]) -> f64 {
+    d[0][0] * (d[1][1] * d[2][2] - d[1][2] * d[2][1])
+        - d[1][0] * (d[0][1] * d[2][2] - d[0][2] * d[2][1])
+        + d[2][0] * (d[0][1] * d[1][2] - d[0][2] * d[1][1])
 }
 
 /// Checks that spacings are finite and positive, naming the field.
