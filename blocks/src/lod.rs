@@ -142,18 +142,15 @@ fn block_errors(stats: &BlockStats, b: usize, arc: &[f64; HISTOGRAM_BINS]) -> [f
     errors
 }
 
-/// Selects every block's level under `budget_voxels`; see the module docs.
-pub fn select(
+/// Per block, `None` when it is empty under `tf` (its level-0 value range has
+/// no opacity), else the error of each of its levels ([`block_errors`]).
+fn classify_blocks(
     stats: &BlockStats,
     value_map: ValueMap,
     tf: &TransferFunction,
-    full_voxels: u64,
-    budget_voxels: u64,
-) -> LodSelection {
-    let blocks = stats.block_count();
-    let arc = bin_arc_lengths(stats, value_map, tf);
-    // Empty test and errors, block by block.
-    let per_block: Vec<Option<[f64; LEVELS]>> = (0..blocks)
+    arc: &[f64; HISTOGRAM_BINS],
+) -> Vec<Option<[f64; LEVELS]>> {
+    (0..stats.block_count())
         .into_par_iter()
         .map(|b| {
             let [lo, hi] = stats.min_max(0, b);
@@ -162,27 +159,17 @@ pub fn select(
             }
             let (a, z) = (value_map.physical(lo), value_map.physical(hi));
             let opacity = tf.max_opacity(a.min(z) as f32, a.max(z) as f32);
-            (opacity > 0.0).then(|| block_errors(stats, b, &arc))
+            (opacity > 0.0).then(|| block_errors(stats, b, arc))
         })
-        .collect();
+        .collect()
+}
 
-    let mut lod: Vec<u8> = per_block
-        .iter()
-        .map(|e| {
-            if e.is_some() {
-                (LEVELS - 1) as u8
-            } else {
-                EMPTY
-            }
-        })
-        .collect();
-    let non_empty = lod.iter().filter(|&&l| l != EMPTY).count();
-    let mut kept = non_empty as u64 * block_voxels(LEVELS - 1);
-    let mut error: f64 = per_block.iter().flatten().map(|e| e[LEVELS - 1]).sum();
-
-    // Every refinement, keyed so an ascending sort gives descending gain, and for
-    // equal gains a block's coarser step first. Gains are made non-increasing
-    // along each block's steps, so the sort never puts a step before its predecessor.
+/// Every refinement of every non-empty block, in the order they are taken:
+/// keys (gain, step, block) whose ascending order gives descending gain, and
+/// for equal gains a block's coarser step first. Gains are made non-increasing
+/// along each block's steps, so the sort never puts a step before its
+/// predecessor. The block is the key's low 28 bits.
+fn refinement_order(per_block: &[Option<[f64; LEVELS]>]) -> Vec<u64> {
     let mut steps: Vec<u64> = per_block
         .par_iter()
         .enumerate()
@@ -201,6 +188,34 @@ pub fn select(
         })
         .collect();
     steps.par_sort_unstable();
+    steps
+}
+
+/// Selects every block's level under `budget_voxels`; see the module docs.
+pub fn select(
+    stats: &BlockStats,
+    value_map: ValueMap,
+    tf: &TransferFunction,
+    full_voxels: u64,
+    budget_voxels: u64,
+) -> LodSelection {
+    let arc = bin_arc_lengths(stats, value_map, tf);
+    let per_block = classify_blocks(stats, value_map, tf, &arc);
+
+    let mut lod: Vec<u8> = per_block
+        .iter()
+        .map(|e| {
+            if e.is_some() {
+                (LEVELS - 1) as u8
+            } else {
+                EMPTY
+            }
+        })
+        .collect();
+    let non_empty = lod.iter().filter(|&&l| l != EMPTY).count();
+    let mut kept = non_empty as u64 * block_voxels(LEVELS - 1);
+    let mut error: f64 = per_block.iter().flatten().map(|e| e[LEVELS - 1]).sum();
+    let steps = refinement_order(&per_block);
 
     let over_budget = kept > budget_voxels;
     if !over_budget {

@@ -184,70 +184,13 @@ pub fn head(size: u32) -> Result<Volume, Error> {
             expected: format!("an edge length in voxels from {MIN_SIZE} to {MAX_SIZE}"),
         });
     }
-    let n = size as usize;
-    let to_normalized = |i: usize| (i as f32 + 0.5) / size as f32 * 2.0 - 1.0;
+    let grid = Grid { size };
+    let n = grid.n();
     let mut voxels = vec![0u16; n * n * n];
     voxels
         .par_chunks_mut(n * n)
         .enumerate()
-        .for_each(|(k, slice)| {
-            let z = to_normalized(k);
-            // Per row, a difference array (+Δ where an ellipsoid's inner interval
-            // starts, −Δ one past where it ends) and the soft edges' shares; a prefix
-            // sum of the first plus the second gives every voxel's value.
-            let mut steps = vec![0.0f32; n + 1];
-            let mut edges = vec![0.0f32; n];
-            let voxel = 2.0 / size as f32;
-            let band = BAND_VOXELS * voxel;
-            // Voxel i is inside an interval when its centre (i + 0.5) / n * 2 - 1 lies in it.
-            let first = |x: f32| ((x + 1.0) * 0.5 * size as f32 - 0.5).ceil().max(0.0) as usize;
-            let last = |x: f32| {
-                let i = ((x + 1.0) * 0.5 * size as f32 - 0.5).floor();
-                if i < 0.0 {
-                    None
-                } else {
-                    Some((i as usize).min(n - 1))
-                }
-            };
-            for (j, row) in slice.chunks_mut(n).enumerate() {
-                // Index y grows towards posterior (LPS); the table's y grows anterior.
-                let y = -to_normalized(j);
-                steps.fill(0.0);
-                edges.fill(0.0);
-                for e in &HEAD {
-                    let Some((o0, o1)) = e.row_interval(y, z, band) else {
-                        continue;
-                    };
-                    let (Some(outer_last), outer_first) = (last(o1), first(o0)) else {
-                        continue;
-                    };
-                    let inner = e
-                        .row_interval(y, z, -band)
-                        .and_then(|(i0, i1)| Some((first(i0), last(i1)?)))
-                        .filter(|(a, b)| a <= b);
-                    let mut soft = |i: usize| {
-                        let d = e.signed_distance([to_normalized(i), y, z]) / voxel;
-                        edges[i] += e.delta_hu * coverage(d);
-                    };
-                    match inner {
-                        Some((inner_first, inner_last)) => {
-                            steps[inner_first] += e.delta_hu;
-                            steps[inner_last + 1] -= e.delta_hu;
-                            (outer_first..inner_first).for_each(&mut soft);
-                            (inner_last + 1..=outer_last).for_each(&mut soft);
-                        }
-                        None => (outer_first..=outer_last).for_each(&mut soft),
-                    }
-                }
-                let row_start = ((k * n + j) * n) as u64;
-                let mut hu = AIR_HU;
-                for (i, stored) in row.iter_mut().enumerate() {
-                    hu += steps[i];
-                    let value = hu + edges[i] + noise_hu(row_start + i as u64) + STORED_OFFSET;
-                    *stored = value.round().clamp(0.0, f32::from(u16::MAX)) as u16;
-                }
-            }
-        });
+        .for_each(|(k, slice)| fill_slice(grid, k, slice));
     let spacing = EDGE_MM / size as f32;
     let mut volume = Volume::new(
         "head phantom",
@@ -264,6 +207,103 @@ pub fn head(size: u32) -> Result<Volume, Error> {
     volume.unit = Some("HU".into());
     volume.modality = Some("CT".into());
     Ok(volume)
+}
+
+/// The voxel grid of a `size`³ phantom in normalized coordinates (−1..1).
+#[derive(Debug, Clone, Copy)]
+struct Grid {
+    size: u32,
+}
+
+impl Grid {
+    /// Voxels along each axis.
+    fn n(self) -> usize {
+        self.size as usize
+    }
+
+    /// The normalized coordinate of voxel `i`'s centre.
+    fn to_normalized(self, i: usize) -> f32 {
+        (i as f32 + 0.5) / self.size as f32 * 2.0 - 1.0
+    }
+
+    /// One voxel's width in normalized units.
+    fn voxel(self) -> f32 {
+        2.0 / self.size as f32
+    }
+
+    /// The first voxel whose centre lies at or after `x`: voxel i is inside an
+    /// interval when its centre (i + 0.5) / n * 2 - 1 lies in it.
+    fn first(self, x: f32) -> usize {
+        ((x + 1.0) * 0.5 * self.size as f32 - 0.5).ceil().max(0.0) as usize
+    }
+
+    /// The last voxel whose centre lies at or before `x`, or `None` when none does.
+    fn last(self, x: f32) -> Option<usize> {
+        let i = ((x + 1.0) * 0.5 * self.size as f32 - 0.5).floor();
+        if i < 0.0 {
+            None
+        } else {
+            Some((i as usize).min(self.n() - 1))
+        }
+    }
+}
+
+/// Fills z-slice `k` (`n`² stored values), row by row.
+fn fill_slice(grid: Grid, k: usize, slice: &mut [u16]) {
+    let n = grid.n();
+    let z = grid.to_normalized(k);
+    // Per row, a difference array (+Δ where an ellipsoid's inner interval
+    // starts, −Δ one past where it ends) and the soft edges' shares; a prefix
+    // sum of the first plus the second gives every voxel's value.
+    let mut steps = vec![0.0f32; n + 1];
+    let mut edges = vec![0.0f32; n];
+    for (j, row) in slice.chunks_mut(n).enumerate() {
+        // Index y grows towards posterior (LPS); the table's y grows anterior.
+        let y = -grid.to_normalized(j);
+        steps.fill(0.0);
+        edges.fill(0.0);
+        for e in &HEAD {
+            add_to_row(grid, e, y, z, &mut steps, &mut edges);
+        }
+        let row_start = ((k * n + j) * n) as u64;
+        let mut hu = AIR_HU;
+        for (i, stored) in row.iter_mut().enumerate() {
+            hu += steps[i];
+            let value = hu + edges[i] + noise_hu(row_start + i as u64) + STORED_OFFSET;
+            *stored = value.round().clamp(0.0, f32::from(u16::MAX)) as u16;
+        }
+    }
+}
+
+/// Adds ellipsoid `e` to the row at (`y`, `z`): its value over the voxels deep
+/// inside as a step in `steps`, and its share of the voxels in the soft band
+/// near the surface into `edges`.
+fn add_to_row(grid: Grid, e: &Ellipsoid, y: f32, z: f32, steps: &mut [f32], edges: &mut [f32]) {
+    let voxel = grid.voxel();
+    let band = BAND_VOXELS * voxel;
+    let Some((o0, o1)) = e.row_interval(y, z, band) else {
+        return;
+    };
+    let (Some(outer_last), outer_first) = (grid.last(o1), grid.first(o0)) else {
+        return;
+    };
+    let inner = e
+        .row_interval(y, z, -band)
+        .and_then(|(i0, i1)| Some((grid.first(i0), grid.last(i1)?)))
+        .filter(|(a, b)| a <= b);
+    let mut soft = |i: usize| {
+        let d = e.signed_distance([grid.to_normalized(i), y, z]) / voxel;
+        edges[i] += e.delta_hu * coverage(d);
+    };
+    match inner {
+        Some((inner_first, inner_last)) => {
+            steps[inner_first] += e.delta_hu;
+            steps[inner_last + 1] -= e.delta_hu;
+            (outer_first..inner_first).for_each(&mut soft);
+            (inner_last + 1..=outer_last).for_each(&mut soft);
+        }
+        None => (outer_first..=outer_last).for_each(&mut soft),
+    }
 }
 
 #[cfg(test)]

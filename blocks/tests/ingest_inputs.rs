@@ -6,7 +6,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use blocks::ingest::raw::RawOptions;
+use blocks::ingest::raw::{self, RawOptions};
 use blocks::ingest::stream::SampleType;
 use blocks::ingest::{self, OpenOptions, VolumeSource};
 use blocks::{Error, VoxelData, VoxelType};
@@ -90,12 +90,126 @@ fn raw_reads_layout_from_the_name_or_the_options_and_swaps_big_endian() {
             big_endian: Some(false),
             offset: 10,
             spacing: Some([0.5, 0.5, 2.0]),
+            direction: None,
         },
     };
     let mut source = ingest::open(&plain, &options).expect("raw with options");
     assert_eq!(source.info().spacing, [0.5, 0.5, 2.0]);
     let v = ingest::load(source.as_mut()).expect("load");
     assert_eq!(v.voxels, VoxelData::U16(ramp_u16()));
+}
+
+#[test]
+fn raw_takes_a_direction_and_keeps_the_voxels() {
+    let dir = temp();
+    let path = dir.path().join("ramp_4x3x2_uint16.raw");
+    write(&path, &le_bytes(&ramp_u16()));
+    // Stored top to bottom: index axis z points inferior.
+    let flipped = OpenOptions {
+        raw: RawOptions {
+            direction: Some(raw::flip_axes(raw::parse_flip("z").expect("z"))),
+            ..RawOptions::default()
+        },
+        ..OpenOptions::default()
+    };
+    let mut source = ingest::open(&path, &flipped).expect("raw with a flipped z");
+    let info = source.info().clone();
+    assert_eq!(
+        info.direction,
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]
+    );
+    assert!(
+        !info.notes.iter().any(|n| n.contains("direction")),
+        "{:?}",
+        info.notes
+    );
+    let v = ingest::load(source.as_mut()).expect("load");
+    assert_eq!(v.voxels, VoxelData::U16(ramp_u16()));
+    assert_eq!(v.direction[2], [0.0, 0.0, -1.0]);
+    // No direction: the identity, as before.
+    assert_eq!(
+        open(&path).expect("plain").info().direction,
+        ingest::IDENTITY
+    );
+}
+
+#[test]
+fn bad_raw_directions_are_refused_naming_the_field() {
+    let dir = temp();
+    let path = dir.path().join("ramp_4x3x2_uint16.raw");
+    write(&path, &le_bytes(&ramp_u16()));
+    let with = |direction: [[f64; 3]; 3]| {
+        let options = OpenOptions {
+            raw: RawOptions {
+                direction: Some(direction),
+                ..RawOptions::default()
+            },
+            ..OpenOptions::default()
+        };
+        ingest::open(&path, &options)
+    };
+    let cases: [([[f64; 3]; 3], &str); 4] = [
+        (
+            [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            "direction: column y [0.0, 0.0, 0.0]: expected a finite, non-zero vector",
+        ),
+        (
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, f64::INFINITY]],
+            "direction: column z [0.0, 0.0, inf]: expected a finite, non-zero vector",
+        ),
+        (
+            [[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            "expected three independent unit vectors",
+        ),
+        (
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.0, 0.0009]],
+            "expected three independent unit vectors",
+        ),
+    ];
+    for (direction, expected) in cases {
+        let msg = message_naming(with(direction), "ramp_4x3x2_uint16.raw");
+        assert!(msg.contains("ramp_4x3x2_uint16.raw: direction: "), "{msg}");
+        assert!(msg.contains(expected), "{msg}");
+    }
+    // A column that is not unit length is normalised, and the note says so.
+    let info = with([[0.0, 3.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        .expect("normalised")
+        .info()
+        .clone();
+    assert_eq!(info.direction[0], [0.0, 1.0, 0.0]);
+    assert!(
+        info.notes
+            .iter()
+            .any(|n| n.contains("column x [0.0, 3.0, 0.0] has length 3.0000: normalised")),
+        "{:?}",
+        info.notes
+    );
+}
+
+#[test]
+fn raw_options_for_a_file_with_headers_are_refused_naming_them() {
+    let dir = temp();
+    let path = dir.path().join("headed.nrrd");
+    let mut bytes =
+        b"NRRD0004\ntype: uint16\ndimension: 3\nsizes: 4 3 2\nendian: little\nencoding: raw\n\n"
+            .to_vec();
+    bytes.extend(le_bytes(&ramp_u16()));
+    write(&path, &bytes);
+    let options = OpenOptions {
+        raw: RawOptions {
+            spacing: Some([1.0, 1.0, 2.0]),
+            direction: Some(raw::flip_axes([false, false, true])),
+            ..RawOptions::default()
+        },
+        ..OpenOptions::default()
+    };
+    let msg = message_naming(ingest::open(&path, &options), "headed.nrrd");
+    assert!(
+        msg.contains("--raw-spacing, --raw-direction or --raw-flip: raw-file options"),
+        "{msg}"
+    );
+    // Without them the file opens.
+    assert!(ingest::open(&path, &OpenOptions::default()).is_ok());
 }
 
 #[test]

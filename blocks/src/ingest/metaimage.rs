@@ -11,7 +11,7 @@
 //! matrix.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use super::header::{boolean, field, numbers, read_text_header, three};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
@@ -40,134 +40,270 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             .is_some_and(|(k, _)| k.trim().eq_ignore_ascii_case("ElementDataFile"))
     };
     let head = read_text_header(path, is_data_file_line)?;
-    let mut fields = HashMap::new();
-    for line in &head.lines {
-        if line.trim().is_empty() {
-            continue;
+    let fields = Fields::read(path, &head.lines)?;
+    let data_file = fields.require("ElementDataFile")?;
+    let samples = Samples::read(&fields)?;
+    let mut notes = Vec::new();
+    let geometry = Geometry::read(&fields, samples.ndims, &mut notes)?;
+    let dims = check_dims(path, "DimSize", samples.sizes, samples.sample.size() as u64)?;
+    let encoding = Encoding::read(&fields)?;
+    let (data_path, file_offset) = data_location(
+        &fields,
+        data_file,
+        head.len,
+        encoding.compressed,
+        dims,
+        samples.sample,
+    )?;
+    let info = VolumeInfo {
+        path: path.to_owned(),
+        format: Format::MetaImage,
+        dims,
+        voxel_type: samples.sample.voxel_type(),
+        spacing: geometry.spacing,
+        origin: geometry.origin,
+        direction: geometry.direction,
+        value_map: ValueMap::IDENTITY,
+        unit: None,
+        modality: fields
+            .get("Modality")
+            .map(|m| m.trim_start_matches("MET_MOD_").to_owned()),
+        description: None,
+        notes,
+    };
+    StreamSource::new(
+        info,
+        StreamLayout {
+            data_path,
+            compression: if encoding.compressed {
+                Compression::Zlib
+            } else {
+                Compression::None
+            },
+            file_offset,
+            skip: 0,
+            sample: samples.sample,
+            big_endian: encoding.big_endian,
+        },
+    )
+}
+
+/// The `Key = Value` fields of a header; keys match in any case.
+struct Fields<'a> {
+    /// The header file, named in messages.
+    path: &'a Path,
+    /// Values by lower-case key.
+    by_key: HashMap<String, String>,
+}
+
+impl<'a> Fields<'a> {
+    fn read(path: &'a Path, lines: &[String]) -> Result<Fields<'a>, Error> {
+        let mut by_key = HashMap::new();
+        for line in lines {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let Some((key, value)) = line.split_once('=') else {
+                return Err(field(
+                    path,
+                    "header",
+                    format!("line '{line}': expected 'Key = Value'"),
+                ));
+            };
+            by_key.insert(key.trim().to_ascii_lowercase(), value.trim().to_owned());
         }
-        let Some((key, value)) = line.split_once('=') else {
+        Ok(Fields { path, by_key })
+    }
+
+    fn get(&self, name: &str) -> Option<&str> {
+        self.by_key
+            .get(&name.to_ascii_lowercase())
+            .map(String::as_str)
+    }
+
+    /// The first of `names` (synonyms) the header has, with its value.
+    fn first(&self, names: &[&'static str]) -> Option<(&'static str, &str)> {
+        names.iter().find_map(|n| self.get(n).map(|v| (*n, v)))
+    }
+
+    fn require(&self, name: &'static str) -> Result<&str, Error> {
+        self.get(name)
+            .ok_or_else(|| field(self.path, name, "missing: expected this field"))
+    }
+}
+
+/// What the header says about the samples: an image of `NDims` axes of one
+/// scalar type.
+struct Samples {
+    /// 3 for a volume, 2 for one slice.
+    ndims: usize,
+    sample: SampleType,
+    /// Samples along x, y, z (one slice along z for a 2D image).
+    sizes: [u64; 3],
+}
+
+impl Samples {
+    fn read(fields: &Fields<'_>) -> Result<Samples, Error> {
+        let path = fields.path;
+        if let Some(object) = fields.get("ObjectType")
+            && !object.eq_ignore_ascii_case("Image")
+        {
             return Err(field(
                 path,
-                "header",
-                format!("line '{line}': expected 'Key = Value'"),
+                "ObjectType",
+                format!("'{object}': expected Image"),
             ));
-        };
-        fields.insert(key.trim().to_ascii_lowercase(), value.trim().to_owned());
-    }
-    let get = |name: &str| fields.get(&name.to_ascii_lowercase()).map(String::as_str);
-    let first = |names: &[&'static str]| names.iter().find_map(|n| get(n).map(|v| (*n, v)));
-    let require = |name: &'static str| {
-        get(name).ok_or_else(|| field(path, name, "missing: expected this field"))
-    };
-
-    let data_file = require("ElementDataFile")?;
-    if let Some(object) = get("ObjectType")
-        && !object.eq_ignore_ascii_case("Image")
-    {
-        return Err(field(
-            path,
-            "ObjectType",
-            format!("'{object}': expected Image"),
-        ));
-    }
-    let ndims: usize = require("NDims")?
-        .parse()
-        .map_err(|_| field(path, "NDims", "expected a whole number"))?;
-    if !(2..=3).contains(&ndims) {
-        return Err(field(
-            path,
-            "NDims",
-            format!("{ndims}: expected 3 (a volume) or 2 (one slice)"),
-        ));
-    }
-    if let Some(channels) = get("ElementNumberOfChannels")
-        && channels != "1"
-    {
-        return Err(field(
-            path,
-            "ElementNumberOfChannels",
-            format!("{channels}: expected 1 (scalar voxels)"),
-        ));
-    }
-    let type_name = require("ElementType")?;
-    let sample = sample_type(type_name).ok_or_else(|| {
-        field(
-            path,
-            "ElementType",
-            format!("'{type_name}': expected MET_UCHAR, MET_CHAR, MET_USHORT, MET_SHORT, MET_UINT, MET_INT, MET_FLOAT or MET_DOUBLE"),
-        )
-    })?;
-    let mut sizes: Vec<u64> = numbers(path, "DimSize", require("DimSize")?, ndims)?;
-    let mut notes = Vec::new();
-    let mut spacing: Vec<f64> = match first(&["ElementSpacing", "ElementSize"]) {
-        Some((name, text)) => numbers(path, name, text, ndims)?,
-        None => {
-            notes.push("no ElementSpacing: assumed 1 mm".to_owned());
-            vec![1.0; ndims]
         }
-    };
-    let mut origin: Vec<f64> = match first(&["Offset", "Origin", "Position"]) {
-        Some((name, text)) => numbers(path, name, text, ndims)?,
-        None => vec![0.0; ndims],
-    };
-    let mut matrix: Vec<f64> = match first(&["TransformMatrix", "Rotation", "Orientation"]) {
-        Some((name, text)) => numbers(path, name, text, ndims * ndims)?,
-        None => (0..ndims * ndims)
-            .map(|i| if i % (ndims + 1) == 0 { 1.0 } else { 0.0 })
-            .collect(),
-    };
-    if ndims == 2 {
-        sizes.push(1);
-        spacing.push(1.0);
-        origin.push(0.0);
-        matrix = vec![
-            matrix[0], matrix[1], 0.0, matrix[2], matrix[3], 0.0, 0.0, 0.0, 1.0,
-        ];
+        let ndims: usize = fields
+            .require("NDims")?
+            .parse()
+            .map_err(|_| field(path, "NDims", "expected a whole number"))?;
+        if !(2..=3).contains(&ndims) {
+            return Err(field(
+                path,
+                "NDims",
+                format!("{ndims}: expected 3 (a volume) or 2 (one slice)"),
+            ));
+        }
+        if let Some(channels) = fields.get("ElementNumberOfChannels")
+            && channels != "1"
+        {
+            return Err(field(
+                path,
+                "ElementNumberOfChannels",
+                format!("{channels}: expected 1 (scalar voxels)"),
+            ));
+        }
+        let type_name = fields.require("ElementType")?;
+        let sample = sample_type(type_name).ok_or_else(|| {
+            field(
+                path,
+                "ElementType",
+                format!("'{type_name}': expected MET_UCHAR, MET_CHAR, MET_USHORT, MET_SHORT, MET_UINT, MET_INT, MET_FLOAT or MET_DOUBLE"),
+            )
+        })?;
+        let sizes: Vec<u64> = numbers(path, "DimSize", fields.require("DimSize")?, ndims)?;
+        Ok(Samples {
+            ndims,
+            sample,
+            sizes: [sizes[0], sizes[1], sizes.get(2).copied().unwrap_or(1)],
+        })
     }
-    let spacing = three(&spacing);
-    check_spacing(path, "ElementSpacing", spacing)?;
-    if !origin.iter().chain(&matrix).all(|v| v.is_finite()) {
-        return Err(field(
-            path,
-            "Offset or TransformMatrix",
-            "expected finite numbers",
-        ));
-    }
-    let direction = [
-        [matrix[0], matrix[1], matrix[2]],
-        [matrix[3], matrix[4], matrix[5]],
-        [matrix[6], matrix[7], matrix[8]],
-    ];
-    super::check_direction(path, "TransformMatrix", direction)?;
-    if let Some(orientation) = get("AnatomicalOrientation") {
-        notes.push(format!(
-            "AnatomicalOrientation {orientation} (geometry from TransformMatrix)"
-        ));
-    }
-    let dims = check_dims(
-        path,
-        "DimSize",
-        [sizes[0], sizes[1], sizes[2]],
-        sample.size() as u64,
-    )?;
+}
 
-    let big_endian = match first(&["BinaryDataByteOrderMSB", "ElementByteOrderMSB"]) {
-        Some((name, text)) => boolean(path, name, text)?,
-        None => false,
-    };
-    let compressed = match get("CompressedData") {
-        Some(text) => boolean(path, "CompressedData", text)?,
-        None => false,
-    };
-    if get("BinaryData").is_some_and(|b| boolean(path, "BinaryData", b).ok() == Some(false)) {
-        return Err(field(
-            path,
-            "BinaryData",
-            "False: expected binary voxel data (text data is not supported)",
-        ));
+/// Where the voxels sit in the physical frame (LPS, as ITK writes it).
+struct Geometry {
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    direction: [[f64; 3]; 3],
+}
+
+impl Geometry {
+    /// Reads `ElementSpacing`, `Offset` and `TransformMatrix` (or their
+    /// synonyms); a 2D image gets a unit z axis. Assumptions go to `notes`.
+    fn read(fields: &Fields<'_>, ndims: usize, notes: &mut Vec<String>) -> Result<Geometry, Error> {
+        let path = fields.path;
+        let mut spacing: Vec<f64> = match fields.first(&["ElementSpacing", "ElementSize"]) {
+            Some((name, text)) => numbers(path, name, text, ndims)?,
+            None => {
+                notes.push("no ElementSpacing: assumed 1 mm".to_owned());
+                vec![1.0; ndims]
+            }
+        };
+        let mut origin: Vec<f64> = match fields.first(&["Offset", "Origin", "Position"]) {
+            Some((name, text)) => numbers(path, name, text, ndims)?,
+            None => vec![0.0; ndims],
+        };
+        let mut matrix: Vec<f64> =
+            match fields.first(&["TransformMatrix", "Rotation", "Orientation"]) {
+                Some((name, text)) => numbers(path, name, text, ndims * ndims)?,
+                None => (0..ndims * ndims)
+                    .map(|i| if i % (ndims + 1) == 0 { 1.0 } else { 0.0 })
+                    .collect(),
+            };
+        if ndims == 2 {
+            spacing.push(1.0);
+            origin.push(0.0);
+            matrix = vec![
+                matrix[0], matrix[1], 0.0, matrix[2], matrix[3], 0.0, 0.0, 0.0, 1.0,
+            ];
+        }
+        let spacing = three(&spacing);
+        check_spacing(path, "ElementSpacing", spacing)?;
+        if !origin.iter().chain(&matrix).all(|v| v.is_finite()) {
+            return Err(field(
+                path,
+                "Offset or TransformMatrix",
+                "expected finite numbers",
+            ));
+        }
+        let direction = [
+            [matrix[0], matrix[1], matrix[2]],
+            [matrix[3], matrix[4], matrix[5]],
+            [matrix[6], matrix[7], matrix[8]],
+        ];
+        super::check_direction(path, "TransformMatrix", direction)?;
+        if let Some(orientation) = fields.get("AnatomicalOrientation") {
+            notes.push(format!(
+                "AnatomicalOrientation {orientation} (geometry from TransformMatrix)"
+            ));
+        }
+        Ok(Geometry {
+            spacing,
+            origin: three(&origin),
+            direction,
+        })
     }
+}
+
+/// How the voxel bytes are stored: byte order and zlib compression; text data
+/// is refused.
+struct Encoding {
+    big_endian: bool,
+    compressed: bool,
+}
+
+impl Encoding {
+    fn read(fields: &Fields<'_>) -> Result<Encoding, Error> {
+        let path = fields.path;
+        let big_endian = match fields.first(&["BinaryDataByteOrderMSB", "ElementByteOrderMSB"]) {
+            Some((name, text)) => boolean(path, name, text)?,
+            None => false,
+        };
+        let compressed = match fields.get("CompressedData") {
+            Some(text) => boolean(path, "CompressedData", text)?,
+            None => false,
+        };
+        if fields
+            .get("BinaryData")
+            .is_some_and(|b| boolean(path, "BinaryData", b).ok() == Some(false))
+        {
+            return Err(field(
+                path,
+                "BinaryData",
+                "False: expected binary voxel data (text data is not supported)",
+            ));
+        }
+        Ok(Encoding {
+            big_endian,
+            compressed,
+        })
+    }
+}
+
+/// Where the voxels are: the data file (`LOCAL`: after the header) and the
+/// offset of the stream in it, after `HeaderSize`.
+fn data_location(
+    fields: &Fields<'_>,
+    data_file: &str,
+    header_len: u64,
+    compressed: bool,
+    dims: [u32; 3],
+    sample: SampleType,
+) -> Result<(PathBuf, u64), Error> {
+    let path = fields.path;
     let (data_path, mut file_offset) = if data_file.eq_ignore_ascii_case("LOCAL") {
-        (path.to_owned(), head.len)
+        (path.to_owned(), header_len)
     } else if data_file.starts_with("LIST")
         || data_file.contains('%')
         || data_file.split_whitespace().count() > 1
@@ -182,7 +318,7 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     } else {
         (path.parent().unwrap_or(Path::new(".")).join(data_file), 0)
     };
-    match get("HeaderSize") {
+    match fields.get("HeaderSize") {
         None => {}
         Some("-1") if !compressed => {
             file_offset = trailing_data_offset(&data_path, dims, sample)?;
@@ -197,33 +333,5 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             })?;
         }
     }
-    let info = VolumeInfo {
-        path: path.to_owned(),
-        format: Format::MetaImage,
-        dims,
-        voxel_type: sample.voxel_type(),
-        spacing,
-        origin: three(&origin),
-        direction,
-        value_map: ValueMap::IDENTITY,
-        unit: None,
-        modality: get("Modality").map(|m| m.trim_start_matches("MET_MOD_").to_owned()),
-        description: None,
-        notes,
-    };
-    StreamSource::new(
-        info,
-        StreamLayout {
-            data_path,
-            compression: if compressed {
-                Compression::Zlib
-            } else {
-                Compression::None
-            },
-            file_offset,
-            skip: 0,
-            sample,
-            big_endian,
-        },
-    )
+    Ok((data_path, file_offset))
 }

@@ -146,17 +146,33 @@ pub fn open(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>,
         path: path.to_owned(),
         source,
     })?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let ext = |e: &str| name.ends_with(e);
+    let headed = meta.is_dir()
+        || [
+            ".nrrd", ".nhdr", ".nii", ".nii.gz", ".hdr", ".mha", ".mhd", ".dcm",
+        ]
+        .iter()
+        .any(|e| ext(e));
+    let given = options.raw.given();
+    if headed && !given.is_empty() {
+        return Err(Error::Field {
+            path: path.to_owned(),
+            field: given.join(", "),
+            message: "raw-file options, but this input has headers that say its layout and \
+                      geometry: expected them only for headerless raw files"
+                .into(),
+        });
+    }
     if meta.is_dir() {
         return Ok(Box::new(dicom::open_folder(
             path,
             options.series.as_deref(),
         )?));
     }
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().to_lowercase())
-        .unwrap_or_default();
-    let ext = |e: &str| name.ends_with(e);
     if ext(".nrrd") || ext(".nhdr") {
         return Ok(Box::new(nrrd::open(path)?));
     }
@@ -406,9 +422,7 @@ pub fn spacing_and_direction(columns: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]
 /// Checks that the index axes' directions are finite and span space (no two
 /// parallel), naming the field: a flat direction matrix cannot place voxels.
 pub fn check_direction(path: &Path, field: &str, d: [[f64; 3]; 3]) -> Result<(), Error> {
-    let det = d[0][0] * (d[1][1] * d[2][2] - d[1][2] * d[2][1])
-        - d[1][0] * (d[0][1] * d[2][2] - d[0][2] * d[2][1])
-        + d[2][0] * (d[0][1] * d[1][2] - d[0][2] * d[1][1]);
+    let det = determinant(d);
     if det.is_finite() && det.abs() > 1e-6 {
         Ok(())
     } else {
@@ -418,6 +432,14 @@ pub fn check_direction(path: &Path, field: &str, d: [[f64; 3]; 3]) -> Result<(),
             message: format!("axes {d:?}: expected three independent directions"),
         })
     }
+}
+
+/// The determinant of the matrix whose columns are `d`: zero when two columns
+/// are parallel.
+pub(crate) fn determinant(d: [[f64; 3]; 3]) -> f64 {
+    d[0][0] * (d[1][1] * d[2][2] - d[1][2] * d[2][1])
+        - d[1][0] * (d[0][1] * d[2][2] - d[0][2] * d[2][1])
+        + d[2][0] * (d[0][1] * d[1][2] - d[0][2] * d[1][1])
 }
 
 /// Checks that spacings are finite and positive, naming the field.

@@ -58,6 +58,45 @@ fn is_gzip(path: &Path) -> Result<bool, Error> {
 
 /// Opens a NIfTI-1 dataset.
 pub fn open(path: &Path) -> Result<StreamSource, Error> {
+    let (h, gz) = read_header(path)?;
+    let shape = Shape::read(path, &h)?;
+    let mut notes = Vec::new();
+    let geometry = Geometry::read(path, &h, shape.rank, &mut notes)?;
+    let data = DataLocation::read(path, &h, gz, &mut notes)?;
+    let description = String::from_utf8_lossy(&h.descrip)
+        .trim_matches(char::from(0))
+        .trim()
+        .to_owned();
+    let info = VolumeInfo {
+        path: path.to_owned(),
+        format: Format::Nifti,
+        dims: shape.dims,
+        voxel_type: shape.sample.voxel_type(),
+        spacing: geometry.spacing,
+        origin: geometry.origin,
+        direction: geometry.direction,
+        value_map: value_map(&h),
+        unit: None,
+        modality: None,
+        description: (!description.is_empty()).then_some(description),
+        notes,
+    };
+    StreamSource::new(
+        info,
+        StreamLayout {
+            data_path: data.path,
+            compression: data.compression,
+            file_offset: data.file_offset,
+            skip: data.skip,
+            sample: shape.sample,
+            big_endian: h.endianness == nifti::Endianness::Big,
+        },
+    )
+}
+
+/// Reads the header with the `nifti` crate, through gzip when the file starts
+/// with gzip's magic; says whether it did.
+fn read_header(path: &Path) -> Result<(nifti::NiftiHeader, bool), Error> {
     let gz = is_gzip(path)?;
     let file = BufReader::new(open_file(path)?);
     let parsed = if gz {
@@ -77,51 +116,103 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             format!("{other}: expected a NIfTI-1 header"),
         ),
     })?;
+    Ok((h, gz))
+}
 
-    let sample = sample_type(h.datatype).ok_or_else(|| {
-        field(
-            path,
-            "datatype",
-            format!(
-                "{} ({}): expected uint8 (2), int16 (4), int32 (8), float32 (16), float64 (64), \
-                 int8 (256), uint16 (512) or uint32 (768)",
-                h.datatype,
-                datatype_name(h.datatype)
-            ),
-        )
-    })?;
-    let rank = usize::from(h.dim[0]);
-    if !(1..=7).contains(&rank) {
-        return Err(field(
-            path,
-            "dim[0]",
-            format!("{rank}: expected 1 to 7 dimensions"),
-        ));
-    }
-    let extra: u64 = h.dim[4..=rank.max(3)]
-        .iter()
-        .map(|&d| u64::from(d.max(1)))
-        .product();
-    if rank > 3 && extra > 1 {
-        return Err(field(
+/// The sample type and the dimensions of the one 3D volume a header describes.
+struct Shape {
+    sample: SampleType,
+    /// `dim[0]`: how many of `dim[1..]` count.
+    rank: usize,
+    dims: [u32; 3],
+}
+
+impl Shape {
+    fn read(path: &Path, h: &nifti::NiftiHeader) -> Result<Shape, Error> {
+        let sample = sample_type(h.datatype).ok_or_else(|| {
+            field(
+                path,
+                "datatype",
+                format!(
+                    "{} ({}): expected uint8 (2), int16 (4), int32 (8), float32 (16), float64 (64), \
+                     int8 (256), uint16 (512) or uint32 (768)",
+                    h.datatype,
+                    datatype_name(h.datatype)
+                ),
+            )
+        })?;
+        let rank = usize::from(h.dim[0]);
+        if !(1..=7).contains(&rank) {
+            return Err(field(
+                path,
+                "dim[0]",
+                format!("{rank}: expected 1 to 7 dimensions"),
+            ));
+        }
+        let extra: u64 = h.dim[4..=rank.max(3)]
+            .iter()
+            .map(|&d| u64::from(d.max(1)))
+            .product();
+        if rank > 3 && extra > 1 {
+            return Err(field(
+                path,
+                "dim",
+                format!(
+                    "{:?}: {extra} volumes: expected a single 3D volume",
+                    &h.dim[1..=rank]
+                ),
+            ));
+        }
+        let size = |i: usize| if i <= rank { u64::from(h.dim[i]) } else { 1 };
+        let dims = check_dims(
             path,
             "dim",
-            format!(
-                "{:?}: {extra} volumes: expected a single 3D volume",
-                &h.dim[1..=rank]
-            ),
-        ));
+            [size(1), size(2), size(3)],
+            sample.size() as u64,
+        )?;
+        Ok(Shape { sample, rank, dims })
     }
-    let size = |i: usize| if i <= rank { u64::from(h.dim[i]) } else { 1 };
-    let dims = check_dims(
-        path,
-        "dim",
-        [size(1), size(2), size(3)],
-        sample.size() as u64,
-    )?;
+}
 
-    let mut notes = Vec::new();
-    let unit_to_mm = match h.xyzt_units & 0x07 {
+/// Where the voxels sit in LPS, in mm.
+struct Geometry {
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    direction: [[f64; 3]; 3],
+}
+
+impl Geometry {
+    /// The geometry of the header's affine (see [`affine_ras`]), converted from
+    /// RAS in the header's unit to LPS in mm, and checked.
+    fn read(
+        path: &Path,
+        h: &nifti::NiftiHeader,
+        rank: usize,
+        notes: &mut Vec<String>,
+    ) -> Result<Geometry, Error> {
+        let unit_to_mm = unit_to_mm(h, notes);
+        let (columns, origin_ras) = affine_ras(h, rank, notes);
+        // RAS → LPS: negate x and y; then units → mm.
+        let to_lps = |v: [f64; 3]| [-v[0] * unit_to_mm, -v[1] * unit_to_mm, v[2] * unit_to_mm];
+        let (spacing, direction) = spacing_and_direction(columns.map(to_lps));
+        let geometry_field = if h.sform_code > 0 { "srow" } else { "pixdim" };
+        check_spacing(path, geometry_field, spacing)?;
+        super::check_direction(path, geometry_field, direction)?;
+        let origin = to_lps(origin_ras);
+        if !origin.iter().all(|o| o.is_finite()) {
+            return Err(field(path, "qoffset or srow", "expected a finite origin"));
+        }
+        Ok(Geometry {
+            spacing,
+            origin,
+            direction,
+        })
+    }
+}
+
+/// Millimetres per spatial unit of `xyzt_units` (mm, with a note, when unset).
+fn unit_to_mm(h: &nifti::NiftiHeader, notes: &mut Vec<String>) -> f64 {
+    match h.xyzt_units & 0x07 {
         1 => 1000.0,
         3 => 0.001,
         2 => 1.0,
@@ -129,7 +220,17 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             notes.push("spatial unit not given: assumed mm".to_owned());
             1.0
         }
-    };
+    }
+}
+
+/// The affine's columns (index axes scaled by the voxel size) and its origin, in
+/// RAS and the header's unit, as the standard prefers: the sform when
+/// `sform_code > 0`, else the qform, else the voxel sizes alone.
+fn affine_ras(
+    h: &nifti::NiftiHeader,
+    rank: usize,
+    notes: &mut Vec<String>,
+) -> ([[f64; 3]; 3], [f64; 3]) {
     let pixdim = |i: usize| {
         if i <= rank {
             f64::from(h.pixdim[i]).abs()
@@ -137,7 +238,7 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             1.0
         }
     };
-    let (columns, origin_ras) = if h.sform_code > 0 {
+    if h.sform_code > 0 {
         let rows = [h.srow_x, h.srow_y, h.srow_z].map(|r| r.map(f64::from));
         let columns = [0, 1, 2].map(|c| [rows[0][c], rows[1][c], rows[2][c]]);
         (columns, [rows[0][3], rows[1][3], rows[2][3]])
@@ -165,19 +266,12 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             ],
             [0.0; 3],
         )
-    };
-    // RAS → LPS: negate x and y; then units → mm.
-    let to_lps = |v: [f64; 3]| [-v[0] * unit_to_mm, -v[1] * unit_to_mm, v[2] * unit_to_mm];
-    let (spacing, direction) = spacing_and_direction(columns.map(to_lps));
-    let geometry_field = if h.sform_code > 0 { "srow" } else { "pixdim" };
-    check_spacing(path, geometry_field, spacing)?;
-    super::check_direction(path, geometry_field, direction)?;
-    let origin = to_lps(origin_ras);
-    if !origin.iter().all(|o| o.is_finite()) {
-        return Err(field(path, "qoffset or srow", "expected a finite origin"));
     }
+}
 
-    let value_map = if h.scl_slope.is_finite() && h.scl_slope != 0.0 {
+/// `scl_slope`/`scl_inter` as a value map; a slope of 0 or NaN means no scaling.
+fn value_map(h: &nifti::NiftiHeader) -> ValueMap {
+    if h.scl_slope.is_finite() && h.scl_slope != 0.0 {
         ValueMap {
             slope: h.scl_slope,
             intercept: if h.scl_inter.is_finite() {
@@ -188,75 +282,72 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
         }
     } else {
         ValueMap::IDENTITY
-    };
+    }
+}
 
-    // Where the voxels are.
-    let magic = &h.magic[..3];
-    let vox_offset = f64::from(h.vox_offset).max(0.0) as u64;
-    let (data_path, compression, offset) = if magic == b"ni1" {
-        let img = pair_data_file(path)?;
-        let gz = is_gzip(&img)?;
-        (
-            img,
-            if gz {
-                Compression::Gzip
-            } else {
-                Compression::None
-            },
-            vox_offset,
-        )
-    } else {
-        let offset = if vox_offset < MIN_SINGLE_FILE_OFFSET {
-            notes.push(format!(
-                "vox_offset {vox_offset} is below {MIN_SINGLE_FILE_OFFSET}, invalid for a single file: using {MIN_SINGLE_FILE_OFFSET}"
-            ));
-            MIN_SINGLE_FILE_OFFSET
+/// Where the voxels are: this file after `vox_offset`, or the `.img` of a pair.
+struct DataLocation {
+    path: PathBuf,
+    compression: Compression,
+    /// Where the (possibly compressed) stream starts in the file.
+    file_offset: u64,
+    /// Bytes of the decompressed stream before the first voxel.
+    skip: u64,
+}
+
+impl DataLocation {
+    /// `gz` says whether the header file is gzip-compressed. A single file's
+    /// `vox_offset` below the header's end is corrected, with a note.
+    fn read(
+        path: &Path,
+        h: &nifti::NiftiHeader,
+        gz: bool,
+        notes: &mut Vec<String>,
+    ) -> Result<DataLocation, Error> {
+        let magic = &h.magic[..3];
+        let vox_offset = f64::from(h.vox_offset).max(0.0) as u64;
+        let (data_path, compression, offset) = if magic == b"ni1" {
+            let img = pair_data_file(path)?;
+            let gz = is_gzip(&img)?;
+            (
+                img,
+                if gz {
+                    Compression::Gzip
+                } else {
+                    Compression::None
+                },
+                vox_offset,
+            )
         } else {
-            vox_offset
-        };
-        (
-            path.to_owned(),
-            if gz {
-                Compression::Gzip
+            let offset = if vox_offset < MIN_SINGLE_FILE_OFFSET {
+                notes.push(format!(
+                    "vox_offset {vox_offset} is below {MIN_SINGLE_FILE_OFFSET}, invalid for a single file: using {MIN_SINGLE_FILE_OFFSET}"
+                ));
+                MIN_SINGLE_FILE_OFFSET
             } else {
-                Compression::None
-            },
-            offset,
-        )
-    };
-    let (file_offset, skip) = match compression {
-        Compression::None => (offset, 0),
-        _ => (0, offset),
-    };
-    let description = String::from_utf8_lossy(&h.descrip)
-        .trim_matches(char::from(0))
-        .trim()
-        .to_owned();
-    let info = VolumeInfo {
-        path: path.to_owned(),
-        format: Format::Nifti,
-        dims,
-        voxel_type: sample.voxel_type(),
-        spacing,
-        origin,
-        direction,
-        value_map,
-        unit: None,
-        modality: None,
-        description: (!description.is_empty()).then_some(description),
-        notes,
-    };
-    StreamSource::new(
-        info,
-        StreamLayout {
-            data_path,
+                vox_offset
+            };
+            (
+                path.to_owned(),
+                if gz {
+                    Compression::Gzip
+                } else {
+                    Compression::None
+                },
+                offset,
+            )
+        };
+        let (file_offset, skip) = match compression {
+            Compression::None => (offset, 0),
+            _ => (0, offset),
+        };
+        Ok(DataLocation {
+            path: data_path,
             compression,
             file_offset,
             skip,
-            sample,
-            big_endian: h.endianness == nifti::Endianness::Big,
-        },
-    )
+        })
+    }
 }
 
 /// The `.img` (or `.img.gz`) beside a `.hdr`.

@@ -5,7 +5,8 @@
 //!
 //! No NRRD crate exists; this reads the part of the format volumes use.
 
-use std::path::Path;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 
 use super::header::{self, field, numbers, read_text_header, three, vector};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
@@ -58,142 +59,266 @@ fn space_to_lps(path: &Path, space: &str) -> Result<([f64; 3], Option<String>), 
 /// Opens a NRRD file (`.nrrd` attached or `.nhdr` detached).
 pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let head = read_text_header(path, str::is_empty)?;
-    let magic = head.lines.first().map(String::as_str).unwrap_or_default();
-    if !magic.starts_with("NRRD000") {
-        return Err(field(
-            path,
-            "magic",
-            format!("'{magic}': expected a first line NRRD0001 to NRRD0005"),
-        ));
-    }
-    let mut fields = std::collections::HashMap::new();
-    for line in &head.lines[1..] {
-        if line.is_empty() || line.starts_with('#') || line.contains(":=") {
-            continue; // blank end, comment, or key/value pair
-        }
-        let Some((key, value)) = line.split_once(": ") else {
-            return Err(field(
-                path,
-                "header",
-                format!("line '{line}': expected 'field: value'"),
-            ));
-        };
-        fields.insert(key.trim().to_owned(), value.trim().to_owned());
-    }
-    let get = |name: &str| fields.get(name).map(String::as_str);
-    let require = |name: &str| {
-        get(name).ok_or_else(|| field(path, name, "missing: expected this required field"))
-    };
-
-    let dimension: usize = require("dimension")?
-        .parse()
-        .map_err(|_| field(path, "dimension", "expected a whole number"))?;
-    if !(2..=3).contains(&dimension) {
-        return Err(field(
-            path,
-            "dimension",
-            format!(
-                "{dimension}: expected 3 (a volume) or 2 (one slice); vector or time series data is not supported"
-            ),
-        ));
-    }
-    let type_name = require("type")?;
-    let sample = sample_type(type_name).ok_or_else(|| {
-        field(
-            path,
-            "type",
-            format!("'{type_name}': expected an integer type of 8 to 32 bits, float or double"),
-        )
-    })?;
-    let mut sizes: Vec<u64> = numbers(path, "sizes", require("sizes")?, dimension)?;
-    let encoding = require("encoding")?;
-    let compression = match encoding {
-        "raw" => Compression::None,
-        "gzip" | "gz" => Compression::Gzip,
-        other => {
-            return Err(field(
-                path,
-                "encoding",
-                format!("'{other}': expected raw or gzip"),
-            ));
-        }
-    };
-    let big_endian = match get("endian") {
-        Some("big") => true,
-        Some("little") => false,
-        Some(other) => {
-            return Err(field(
-                path,
-                "endian",
-                format!("'{other}': expected little or big"),
-            ));
-        }
-        None if sample.size() > 1 => {
-            return Err(field(
-                path,
-                "endian",
-                "missing: expected little or big for multi-byte types",
-            ));
-        }
-        None => false,
-    };
-
+    let fields = Fields::read(path, &head.lines)?;
+    let samples = Samples::read(&fields)?;
     let mut notes = Vec::new();
-    let (signs, space_note) = match get("space") {
-        Some(space) => space_to_lps(path, space)?,
-        None => ([1.0; 3], None),
+    let geometry = Geometry::read(&fields, samples.dimension, &mut notes)?;
+    let dims = check_dims(path, "sizes", samples.sizes, samples.sample.size() as u64)?;
+    let (data_path, file_offset, skip) =
+        data_location(&fields, head.len, samples.compression, dims, samples.sample)?;
+    let info = VolumeInfo {
+        path: path.to_owned(),
+        format: Format::Nrrd,
+        dims,
+        voxel_type: samples.sample.voxel_type(),
+        spacing: geometry.spacing,
+        origin: geometry.origin,
+        direction: geometry.direction,
+        value_map: ValueMap::IDENTITY,
+        unit: None,
+        modality: None,
+        description: fields.get("content").map(str::to_owned),
+        notes,
     };
-    notes.extend(space_note);
-    let (mut spacing, mut direction) = if let Some(dirs) = get("space directions") {
-        let vectors: Vec<&str> = dirs.split_whitespace().collect();
-        if vectors.len() != dimension {
+    StreamSource::new(
+        info,
+        StreamLayout {
+            data_path,
+            compression: samples.compression,
+            file_offset,
+            skip,
+            sample: samples.sample,
+            big_endian: samples.big_endian,
+        },
+    )
+}
+
+/// The fields of a NRRD header by name, read after checking the magic line;
+/// comments and `key:=value` pairs are passed over.
+struct Fields<'a> {
+    /// The header file, named in messages.
+    path: &'a Path,
+    by_name: HashMap<String, String>,
+}
+
+impl<'a> Fields<'a> {
+    fn read(path: &'a Path, lines: &[String]) -> Result<Fields<'a>, Error> {
+        let magic = lines.first().map(String::as_str).unwrap_or_default();
+        if !magic.starts_with("NRRD000") {
             return Err(field(
                 path,
-                "space directions",
-                format!("'{dirs}': expected {dimension} vectors"),
+                "magic",
+                format!("'{magic}': expected a first line NRRD0001 to NRRD0005"),
             ));
         }
-        let mut columns = [[0.0; 3]; 3];
-        for (column, text) in columns.iter_mut().zip(&vectors) {
-            let v = vector(path, "space directions", text, 3)?;
-            *column = [v[0] * signs[0], v[1] * signs[1], v[2] * signs[2]];
-        }
-        if dimension == 2 {
-            columns[2] = [0.0, 0.0, 1.0];
-        }
-        spacing_and_direction(columns)
-    } else {
-        let spacing = match get("spacings") {
-            Some(text) => {
-                let mut s: Vec<f64> = numbers(path, "spacings", text, dimension)?;
-                s.resize(3, 1.0);
-                three(&s)
+        let mut by_name = HashMap::new();
+        for line in &lines[1..] {
+            if line.is_empty() || line.starts_with('#') || line.contains(":=") {
+                continue; // blank end, comment, or key/value pair
             }
-            None => {
-                notes.push("no spacings or space directions: assumed 1 mm".to_owned());
-                [1.0; 3]
+            let Some((key, value)) = line.split_once(": ") else {
+                return Err(field(
+                    path,
+                    "header",
+                    format!("line '{line}': expected 'field: value'"),
+                ));
+            };
+            by_name.insert(key.trim().to_owned(), value.trim().to_owned());
+        }
+        Ok(Fields { path, by_name })
+    }
+
+    fn get(&self, name: &str) -> Option<&str> {
+        self.by_name.get(name).map(String::as_str)
+    }
+
+    fn require(&self, name: &str) -> Result<&str, Error> {
+        self.get(name)
+            .ok_or_else(|| field(self.path, name, "missing: expected this required field"))
+    }
+}
+
+/// What the header says about the samples: how many, their type, and how they
+/// are stored.
+struct Samples {
+    /// 3 for a volume, 2 for one slice.
+    dimension: usize,
+    sample: SampleType,
+    /// Samples along x, y, z (one slice along z for a 2D image).
+    sizes: [u64; 3],
+    compression: Compression,
+    big_endian: bool,
+}
+
+impl Samples {
+    fn read(fields: &Fields<'_>) -> Result<Samples, Error> {
+        let path = fields.path;
+        let dimension: usize = fields
+            .require("dimension")?
+            .parse()
+            .map_err(|_| field(path, "dimension", "expected a whole number"))?;
+        if !(2..=3).contains(&dimension) {
+            return Err(field(
+                path,
+                "dimension",
+                format!(
+                    "{dimension}: expected 3 (a volume) or 2 (one slice); vector or time series data is not supported"
+                ),
+            ));
+        }
+        let type_name = fields.require("type")?;
+        let sample = sample_type(type_name).ok_or_else(|| {
+            field(
+                path,
+                "type",
+                format!("'{type_name}': expected an integer type of 8 to 32 bits, float or double"),
+            )
+        })?;
+        let sizes: Vec<u64> = numbers(path, "sizes", fields.require("sizes")?, dimension)?;
+        let compression = match fields.require("encoding")? {
+            "raw" => Compression::None,
+            "gzip" | "gz" => Compression::Gzip,
+            other => {
+                return Err(field(
+                    path,
+                    "encoding",
+                    format!("'{other}': expected raw or gzip"),
+                ));
             }
         };
-        (spacing, super::IDENTITY)
-    };
-    if dimension == 2 {
-        sizes.push(1);
-        spacing[2] = 1.0;
-        direction[2] = [0.0, 0.0, 1.0];
+        let big_endian = match fields.get("endian") {
+            Some("big") => true,
+            Some("little") => false,
+            Some(other) => {
+                return Err(field(
+                    path,
+                    "endian",
+                    format!("'{other}': expected little or big"),
+                ));
+            }
+            None if sample.size() > 1 => {
+                return Err(field(
+                    path,
+                    "endian",
+                    "missing: expected little or big for multi-byte types",
+                ));
+            }
+            None => false,
+        };
+        Ok(Samples {
+            dimension,
+            sample,
+            sizes: [sizes[0], sizes[1], sizes.get(2).copied().unwrap_or(1)],
+            compression,
+            big_endian,
+        })
     }
-    check_spacing(path, "space directions or spacings", spacing)?;
-    super::check_direction(path, "space directions", direction)?;
-    let origin = match get("space origin") {
-        Some(text) => {
-            let v = vector(path, "space origin", text, 3)?;
-            [v[0] * signs[0], v[1] * signs[1], v[2] * signs[2]]
-        }
-        None => [0.0; 3],
-    };
-    let dims = check_dims(path, "sizes", three_u64(&sizes), sample.size() as u64)?;
+}
 
-    // Where the voxels are: after the header, or in the data file.
-    let detached = get("data file").or(get("datafile"));
+/// Where the voxels sit in LPS.
+struct Geometry {
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    direction: [[f64; 3]; 3],
+}
+
+impl Geometry {
+    /// Reads `space`, `space directions` (or `spacings`) and `space origin`,
+    /// converted to LPS; a 2D image gets a unit z axis. Assumptions go to `notes`.
+    fn read(
+        fields: &Fields<'_>,
+        dimension: usize,
+        notes: &mut Vec<String>,
+    ) -> Result<Geometry, Error> {
+        let path = fields.path;
+        let (signs, space_note) = match fields.get("space") {
+            Some(space) => space_to_lps(path, space)?,
+            None => ([1.0; 3], None),
+        };
+        notes.extend(space_note);
+        let (mut spacing, mut direction) = match fields.get("space directions") {
+            Some(dirs) => space_directions(path, dirs, dimension, signs)?,
+            None => (spacings(fields, dimension, notes)?, super::IDENTITY),
+        };
+        if dimension == 2 {
+            spacing[2] = 1.0;
+            direction[2] = [0.0, 0.0, 1.0];
+        }
+        check_spacing(path, "space directions or spacings", spacing)?;
+        super::check_direction(path, "space directions", direction)?;
+        let origin = match fields.get("space origin") {
+            Some(text) => {
+                let v = vector(path, "space origin", text, 3)?;
+                [v[0] * signs[0], v[1] * signs[1], v[2] * signs[2]]
+            }
+            None => [0.0; 3],
+        };
+        Ok(Geometry {
+            spacing,
+            origin,
+            direction,
+        })
+    }
+}
+
+/// Spacings and unit directions from `space directions`, one vector per axis,
+/// each multiplied by `signs` into LPS.
+fn space_directions(
+    path: &Path,
+    dirs: &str,
+    dimension: usize,
+    signs: [f64; 3],
+) -> Result<([f64; 3], [[f64; 3]; 3]), Error> {
+    let vectors: Vec<&str> = dirs.split_whitespace().collect();
+    if vectors.len() != dimension {
+        return Err(field(
+            path,
+            "space directions",
+            format!("'{dirs}': expected {dimension} vectors"),
+        ));
+    }
+    let mut columns = [[0.0; 3]; 3];
+    for (column, text) in columns.iter_mut().zip(&vectors) {
+        let v = vector(path, "space directions", text, 3)?;
+        *column = [v[0] * signs[0], v[1] * signs[1], v[2] * signs[2]];
+    }
+    if dimension == 2 {
+        columns[2] = [0.0, 0.0, 1.0];
+    }
+    Ok(spacing_and_direction(columns))
+}
+
+/// Spacings from `spacings`, or 1 mm (with a note) when the header has none.
+fn spacings(
+    fields: &Fields<'_>,
+    dimension: usize,
+    notes: &mut Vec<String>,
+) -> Result<[f64; 3], Error> {
+    Ok(match fields.get("spacings") {
+        Some(text) => {
+            let mut s: Vec<f64> = numbers(fields.path, "spacings", text, dimension)?;
+            s.resize(3, 1.0);
+            three(&s)
+        }
+        None => {
+            notes.push("no spacings or space directions: assumed 1 mm".to_owned());
+            [1.0; 3]
+        }
+    })
+}
+
+/// Where the voxels are: the data file (the header itself when attached), the
+/// offset of the stream in it, and the bytes to skip in the decompressed
+/// stream, after `data file`, `line skip` and `byte skip`.
+fn data_location(
+    fields: &Fields<'_>,
+    header_len: u64,
+    compression: Compression,
+    dims: [u32; 3],
+    sample: SampleType,
+) -> Result<(PathBuf, u64, u64), Error> {
+    let path = fields.path;
+    let detached = fields.get("data file").or(fields.get("datafile"));
     let (data_path, mut file_offset) = match detached {
         Some(name) if name.starts_with("LIST") || name.split_whitespace().count() > 1 => {
             return Err(field(
@@ -206,16 +331,16 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             let base = path.parent().unwrap_or(Path::new("."));
             (base.join(name), 0)
         }
-        None => (path.to_owned(), head.len),
+        None => (path.to_owned(), header_len),
     };
-    if let Some(lines) = get("line skip").or(get("lineskip")) {
+    if let Some(lines) = fields.get("line skip").or(fields.get("lineskip")) {
         let lines: u64 = lines
             .parse()
             .map_err(|_| field(path, "line skip", "expected a whole number"))?;
         file_offset = skip_lines(&data_path, file_offset, lines)?;
     }
     let mut skip = 0;
-    match get("byte skip").or(get("byteskip")) {
+    match fields.get("byte skip").or(fields.get("byteskip")) {
         None => {}
         Some("-1") if compression == Compression::None => {
             file_offset = trailing_data_offset(&data_path, dims, sample)?;
@@ -235,35 +360,7 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
             }
         }
     }
-    let info = VolumeInfo {
-        path: path.to_owned(),
-        format: Format::Nrrd,
-        dims,
-        voxel_type: sample.voxel_type(),
-        spacing,
-        origin,
-        direction,
-        value_map: ValueMap::IDENTITY,
-        unit: None,
-        modality: None,
-        description: get("content").map(str::to_owned),
-        notes,
-    };
-    StreamSource::new(
-        info,
-        StreamLayout {
-            data_path,
-            compression,
-            file_offset,
-            skip,
-            sample,
-            big_endian,
-        },
-    )
-}
-
-fn three_u64(v: &[u64]) -> [u64; 3] {
-    [v[0], v[1], v[2]]
+    Ok((data_path, file_offset, skip))
 }
 
 /// The offset after skipping `lines` text lines from `offset` in `path`.

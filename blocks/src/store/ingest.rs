@@ -25,7 +25,7 @@ use zarrs::storage::{ReadableStorageTraits, ReadableWritableStorageTraits};
 use super::pyramid::{self, LEVELS, level_dims};
 use super::stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
 use super::{FORMAT_VERSION, SHARD, StoreMeta, store_error};
-use crate::ingest::{self, VolumeSource};
+use crate::ingest::{self, VolumeInfo, VolumeSource};
 use crate::{Error, VoxelData, VoxelType};
 
 /// How to ingest.
@@ -231,6 +231,45 @@ fn write_store(
     let stats = ingest::scan(source, |z| progress(IngestProgress::Scanning(z, nz)))?;
     let range = stats.stored_range;
     let scan_seconds = start.elapsed().as_secs_f64();
+    let arrays = level_arrays(storage, path, &info, options.zstd_level)?;
+    let grid = info.dims.map(|n| n.div_ceil(BLOCK));
+    let (min_max, histogram) = stats_arrays(storage, path, grid)?;
+
+    let writer = SlabWriter {
+        arrays: &arrays,
+        min_max: &min_max,
+        histogram: &histogram,
+        dims: info.dims,
+        voxel_type: info.voxel_type,
+        path,
+        last_row: grid[2] - 1,
+        abort_after_slabs: options.abort_after_slabs,
+    };
+    let uniform_blocks = write_slabs(source, writer, grid, range, progress)?;
+
+    // Root metadata last: only now does the folder describe a complete store.
+    store_root_metadata(storage, path, &info, range, grid)?;
+
+    Ok(IngestSummary {
+        dims: info.dims,
+        voxel_type: info.voxel_type,
+        source_bytes: info.total_bytes(),
+        store_bytes: 0,
+        blocks: grid.iter().map(|&g| g as usize).product(),
+        uniform_blocks,
+        scan_seconds,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Creates the zarr array of every level (z, y, x; shards of [`SHARD`]³ holding
+/// [`BLOCK`]³ inner chunks, zstd at `zstd_level`) and stores its metadata.
+fn level_arrays(
+    storage: &Arc<dyn ReadableWritableStorageTraits>,
+    path: &Path,
+    info: &VolumeInfo,
+    zstd_level: i32,
+) -> Result<Vec<WritableArray>, Error> {
     let (zarr_dtype, fill) = zarr_type(info.voxel_type);
     let mut arrays = Vec::with_capacity(LEVELS);
     for level in 0..LEVELS {
@@ -242,7 +281,7 @@ fn write_store(
             fill.clone(),
         )
         .subchunk_shape(vec![u64::from(BLOCK); 3])
-        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(options.zstd_level, true))])
+        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(zstd_level, true))])
         .dimension_names(["z", "y", "x"].into())
         .build(storage.clone(), &format!("/{level}"))
         .map_err(|e| zarr_error(path, "array", e))?;
@@ -251,22 +290,24 @@ fn write_store(
             .map_err(|e| zarr_error(path, "array metadata", e))?;
         arrays.push(array);
     }
-    let grid = info.dims.map(|n| n.div_ceil(BLOCK));
-    let (min_max, histogram) = stats_arrays(storage, path, grid)?;
+    Ok(arrays)
+}
 
+/// Second pass: reads `source` one row of blocks (16 slices) at a time,
+/// computes the row's levels and statistics and hands them to `writer`.
+/// Returns the number of uniform level-0 blocks.
+fn write_slabs(
+    source: &mut dyn VolumeSource,
+    writer: SlabWriter<'_>,
+    grid: [u32; 3],
+    range: [f64; 2],
+    progress: &mut dyn FnMut(IngestProgress),
+) -> Result<usize, Error> {
+    let (dims, path) = (writer.dims, writer.path);
+    let nz = dims[2];
     // Reading and averaging run on this thread while a writer thread hands the
     // previous slab to zarrs: the two overlap, with at most one slab waiting.
-    let writer = SlabWriter {
-        arrays: &arrays,
-        min_max: &min_max,
-        histogram: &histogram,
-        dims: info.dims,
-        voxel_type: info.voxel_type,
-        path,
-        last_row: grid[2] - 1,
-        abort_after_slabs: options.abort_after_slabs,
-    };
-    let uniform_blocks = std::thread::scope(|scope| -> Result<usize, Error> {
+    std::thread::scope(|scope| -> Result<usize, Error> {
         let (send, receive) = std::sync::mpsc::sync_channel::<Slab>(1);
         let written = scope.spawn(move || writer.run(receive));
         let mut uniform_blocks = 0;
@@ -281,7 +322,7 @@ fn write_store(
                     break;
                 }
             };
-            let slab_dims = [info.dims[0], info.dims[1], depth];
+            let slab_dims = [dims[0], dims[1], depth];
             let levels = pyramid::levels(slab, slab_dims);
             let mut stats = BlockStats::new([grid[0], grid[1], 1], range);
             stats.fill_row(0, &levels, slab_dims);
@@ -301,9 +342,18 @@ fn write_store(
             .join()
             .map_err(|_| store_error(path, "writer", "the writer thread panicked"))?;
         produced.and(written).map(|()| uniform_blocks)
-    })?;
+    })
+}
 
-    // Root metadata last: only now does the folder describe a complete store.
+/// Stores the root group's attributes: the OME-Zarr `multiscales` and
+/// voxserve's [`StoreMeta`] (marked complete).
+fn store_root_metadata(
+    storage: &Arc<dyn ReadableWritableStorageTraits>,
+    path: &Path,
+    info: &VolumeInfo,
+    range: [f64; 2],
+    grid: [u32; 3],
+) -> Result<(), Error> {
     let meta = StoreMeta {
         format_version: FORMAT_VERSION,
         complete: true,
@@ -337,17 +387,7 @@ fn write_store(
         .build(storage.clone(), "/")
         .and_then(|g| g.store_metadata().map_err(Into::into))
         .map_err(|e| zarr_error(path, "root metadata", e))?;
-
-    Ok(IngestSummary {
-        dims: info.dims,
-        voxel_type: info.voxel_type,
-        source_bytes: info.total_bytes(),
-        store_bytes: 0,
-        blocks: grid.iter().map(|&g| g as usize).product(),
-        uniform_blocks,
-        scan_seconds,
-        seconds: start.elapsed().as_secs_f64(),
-    })
+    Ok(())
 }
 
 /// One slab's output on its way to the writer.
@@ -423,9 +463,10 @@ impl SlabWriter<'_> {
     }
 }
 
-/// The two statistics arrays under `/voxserve`, one chunk per level and block row.
+/// A zarr array the ingest writes into.
 type WritableArray = Array<dyn ReadableWritableStorageTraits>;
 
+/// The two statistics arrays under `/voxserve`, one chunk per level and block row.
 fn stats_arrays(
     storage: &Arc<dyn ReadableWritableStorageTraits>,
     path: &Path,

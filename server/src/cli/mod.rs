@@ -98,6 +98,16 @@ pub struct InputArgs {
     /// Raw files: voxel spacing in mm as X,Y,Z [default: 1,1,1].
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_spacing)]
     pub raw_spacing: Option<[f64; 3]>,
+    /// Raw files: the index axes' unit vectors in patient LPS (x to the
+    /// patient's left, y posterior, z superior), column by column:
+    /// x1,y1,z1,x2,y2,z2,x3,y3,z3 [default: 1,0,0,0,1,0,0,0,1].
+    #[arg(long, value_name = "X1,Y1,Z1,…", value_parser = raw::parse_direction,
+          allow_hyphen_values = true, conflicts_with = "raw_flip")]
+    pub raw_direction: Option<[[f64; 3]; 3]>,
+    /// Raw files: index axes that run against patient LPS, e.g. z for a scan
+    /// stored from the top of the head down.
+    #[arg(long, value_name = "AXES", value_parser = raw::parse_flip)]
+    pub raw_flip: Option<[bool; 3]>,
 }
 
 impl InputArgs {
@@ -111,6 +121,7 @@ impl InputArgs {
                 big_endian: self.raw_endian.as_deref().map(|e| e == "big"),
                 offset: self.raw_offset,
                 spacing: self.raw_spacing,
+                direction: self.raw_direction.or(self.raw_flip.map(raw::flip_axes)),
             },
         }
     }
@@ -386,6 +397,8 @@ mod tests {
             "12",
             "--raw-spacing",
             "1,1,2.5",
+            "--raw-flip",
+            "z",
         ])
         .expect("valid");
         let Command::Info(args) = cli.command else {
@@ -397,5 +410,9 @@ mod tests {
         assert_eq!(o.raw.big_endian, Some(true));
         assert_eq!(o.raw.offset, 12);
         assert_eq!(o.raw.spacing, Some([1.0, 1.0, 2.5]));
+        assert_eq!(
+            o.raw.direction,
+            Some([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
+        );
     }
 }

@@ -1,0 +1,170 @@
+//! Placing a series in patient LPS: the index axes from ImageOrientationPatient,
+//! the slices sorted along their normal by ImagePositionPatient, the slice
+//! spacing from position differences (checked for duplicates, gaps and uneven
+//! steps), and a gantry tilt kept as a sheared affine.
+
+use super::slice_header::SliceHeader;
+use crate::Error;
+use crate::ingest::header::field;
+
+/// Relative tolerance on slice spacing: differences between neighbouring slice
+/// positions may deviate this much from the median difference.
+pub const SPACING_TOLERANCE: f64 = 0.01;
+/// Stacking directions further than this from the normal (radians, 0.06°) are
+/// a gantry tilt.
+const TILT_TOLERANCE: f64 = 1e-3;
+
+/// Where a series' voxels sit in patient LPS.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Placement {
+    /// LPS position of voxel (0, 0, 0)'s centre, mm.
+    pub(super) origin: [f64; 3],
+    /// Column spacing (x), row spacing (y) and slice spacing (z), mm.
+    pub(super) spacing: [f64; 3],
+    /// Unit vectors of the index axes: along a row, down a column, and the
+    /// stacking direction.
+    pub(super) direction: [[f64; 3]; 3],
+}
+
+/// Places `slices`, sorting them along the stacking direction. `first` is the
+/// series' first file as listed (before sorting): its orientation and pixel
+/// spacing stand for the series (grouping made them equal), and it is the file
+/// messages name. Assumptions made go to `notes`.
+pub(super) fn place(
+    first: &SliceHeader,
+    slices: &mut [SliceHeader],
+    notes: &mut Vec<String>,
+) -> Result<Placement, Error> {
+    let (row_dir, col_dir) = match first.orientation {
+        Some(o) => ([o[0], o[1], o[2]], [o[3], o[4], o[5]]),
+        None if slices.len() == 1 => {
+            notes.push("no ImageOrientationPatient: assumed axial".to_owned());
+            ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        }
+        None => {
+            return Err(field(
+                &first.path,
+                "ImageOrientationPatient (0020,0037)",
+                "missing: expected it to stack the slices",
+            ));
+        }
+    };
+    let normal = cross(row_dir, col_dir);
+    if (dot(normal, normal) - 1.0).abs() > 1e-3 {
+        return Err(field(
+            &first.path,
+            "ImageOrientationPatient (0020,0037)",
+            format!(
+                "{:?}: expected two orthogonal unit vectors",
+                first.orientation
+            ),
+        ));
+    }
+    let [row_spacing, column_spacing] = first.pixel_spacing.unwrap_or_else(|| {
+        notes.push("no PixelSpacing: assumed 1 mm".to_owned());
+        [1.0, 1.0]
+    });
+    let (slice_dir, slice_spacing) = if slices.len() == 1 {
+        let s = first
+            .spacing_between_slices
+            .or(first.slice_thickness)
+            .unwrap_or(1.0);
+        (normal, if s > 0.0 { s } else { 1.0 })
+    } else {
+        stack_slices(slices, normal, notes)?
+    };
+    let spacing = [column_spacing, row_spacing, slice_spacing];
+    crate::ingest::check_spacing(&first.path, "PixelSpacing (0028,0030)", spacing)?;
+    Ok(Placement {
+        // After sorting, slice 0 is the lowest along the stacking direction.
+        origin: slices[0].position.unwrap_or([0.0; 3]),
+        spacing,
+        direction: [row_dir, col_dir, slice_dir],
+    })
+}
+
+/// Sorts `slices` along `normal`, checks their spacing, and returns the stacking
+/// direction and slice spacing (a sheared direction when the gantry is tilted).
+fn stack_slices(
+    slices: &mut [SliceHeader],
+    normal: [f64; 3],
+    notes: &mut Vec<String>,
+) -> Result<([f64; 3], f64), Error> {
+    for s in slices.iter() {
+        if s.position.is_none() {
+            return Err(field(
+                &s.path,
+                "ImagePositionPatient (0020,0032)",
+                "missing: expected it on every slice to place the slice",
+            ));
+        }
+    }
+    let at = |s: &SliceHeader| dot(s.position.unwrap_or_default(), normal);
+    slices.sort_by(|a, b| at(a).total_cmp(&at(b)));
+    let distances: Vec<f64> = slices.windows(2).map(|w| at(&w[1]) - at(&w[0])).collect();
+    let mut sorted = distances.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    for (w, d) in slices.windows(2).zip(&distances) {
+        let (a, b) = (&w[0], &w[1]);
+        let place = |s: &SliceHeader| format!("{} (at {:.3} mm)", s.path.display(), at(s));
+        if *d < 1e-3 {
+            return Err(field(
+                &b.path,
+                "ImagePositionPatient (0020,0032)",
+                format!(
+                    "same position as {}: expected one slice per position (duplicates or repeated acquisitions)",
+                    place(a)
+                ),
+            ));
+        }
+        if (d - median).abs() > SPACING_TOLERANCE * median {
+            let missing = (d / median).round() - 1.0;
+            let message = if missing >= 1.0 {
+                format!(
+                    "missing slice: from {} to {} the gap is {d:.3} mm, expected {median:.3} mm (about {missing} slice(s) missing)",
+                    place(a),
+                    place(b)
+                )
+            } else {
+                format!(
+                    "uneven slice spacing: from {} to {} the gap is {d:.3} mm, expected {median:.3} mm ± {}%",
+                    place(a),
+                    place(b),
+                    SPACING_TOLERANCE * 100.0
+                )
+            };
+            return Err(field(&b.path, "ImagePositionPatient (0020,0032)", message));
+        }
+    }
+    let (first, last) = (
+        slices[0].position.unwrap_or_default(),
+        slices[slices.len() - 1].position.unwrap_or_default(),
+    );
+    let steps = (slices.len() - 1) as f64;
+    let step = [0, 1, 2].map(|i| (last[i] - first[i]) / steps);
+    let length = dot(step, step).sqrt();
+    let along = dot(step, normal) / length;
+    if along < 1.0 - TILT_TOLERANCE {
+        let angle = along.clamp(-1.0, 1.0).acos().to_degrees();
+        notes.push(format!(
+            "gantry tilt of {angle:.2}°: slices are stacked {length:.3} mm apart along a direction \
+             {angle:.2}° off their normal; kept as a sheared affine"
+        ));
+        Ok((step.map(|x| x / length), length))
+    } else {
+        Ok((normal, median))
+    }
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}

@@ -1,0 +1,156 @@
+//! [`DicomSeries`]: a checked, sorted series of slices as a [`VolumeSource`],
+//! read a slab of slices at a time with the slices decoded in parallel.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use super::geometry;
+use super::pixels::{self, PixelFormat};
+use super::slice_header::SliceHeader;
+use crate::ingest::{Format, VolumeInfo, VolumeSource, check_dims, check_slab};
+use crate::{Error, ValueMap, VoxelData, VoxelType};
+
+/// A DICOM series as a [`VolumeSource`].
+#[derive(Debug)]
+pub struct DicomSeries {
+    info: VolumeInfo,
+    slices: Vec<SliceHeader>,
+    format: PixelFormat,
+    /// Per-slice rescale to f32, when slices disagree on it.
+    rescale_each: bool,
+    /// The value padded pixels take, in the output domain.
+    padding_replacement: Option<f64>,
+}
+
+impl DicomSeries {
+    /// Checks `slices` (one pixel format, one geometry), sorts them along the
+    /// stacking direction and works out the volume's geometry and value map.
+    /// `path` is the folder or file the series came from.
+    pub(super) fn new(path: &Path, mut slices: Vec<SliceHeader>) -> Result<DicomSeries, Error> {
+        // The first file as listed, before sorting: it stands for the series
+        // where all slices agree, and messages name it.
+        let first = slices[0].clone();
+        let mut notes = Vec::new();
+        let format = PixelFormat::of_series(&slices)?;
+        if format.monochrome1 {
+            notes.push("MONOCHROME1: values inverted so that higher is brighter".to_owned());
+        }
+        let placement = geometry::place(&first, &mut slices, &mut notes)?;
+        let dims = check_dims(
+            path,
+            "Rows, Columns and slices",
+            [
+                u64::from(first.columns),
+                u64::from(first.rows),
+                slices.len() as u64,
+            ],
+            u64::from(format.sample_bytes()),
+        )?;
+        let rescale_each = slices
+            .iter()
+            .any(|s| s.slope != first.slope || s.intercept != first.intercept);
+        let (voxel_type, value_map) = if rescale_each {
+            notes.push("RescaleSlope/RescaleIntercept differ between slices: each slice rescaled to physical values (float32)".to_owned());
+            (VoxelType::F32, ValueMap::IDENTITY)
+        } else {
+            (
+                format.voxel_type(),
+                ValueMap {
+                    slope: first.slope as f32,
+                    intercept: first.intercept as f32,
+                },
+            )
+        };
+        let info = VolumeInfo {
+            path: path.to_owned(),
+            format: Format::Dicom,
+            dims,
+            voxel_type,
+            spacing: placement.spacing,
+            origin: placement.origin,
+            direction: placement.direction,
+            value_map,
+            unit: unit(&first),
+            modality: first.modality.clone(),
+            description: first.series_description.clone(),
+            notes,
+        };
+        let mut series = DicomSeries {
+            info,
+            slices,
+            format,
+            rescale_each,
+            padding_replacement: None,
+        };
+        if series.slices.iter().any(|s| s.padding.is_some()) {
+            series.padding_replacement = Some(series.lowest_unpadded_value()?);
+            series.info.notes.push(format!(
+                "PixelPaddingValue: padded pixels set to the lowest other value ({})",
+                series.padding_replacement.unwrap_or_default()
+            ));
+        }
+        Ok(series)
+    }
+
+    /// The SeriesInstanceUID.
+    pub fn series_uid(&self) -> &str {
+        &self.slices[0].series_uid
+    }
+
+    /// The lowest non-padding value of the series in the output domain (one pass
+    /// over the pixels, made only for series that declare padding).
+    fn lowest_unpadded_value(&self) -> Result<f64, Error> {
+        let lows: Vec<f64> = (0..self.slices.len())
+            .into_par_iter()
+            .map(|i| {
+                self.decode(i)
+                    .map(|(values, _)| values.into_iter().flatten().fold(f64::INFINITY, f64::min))
+            })
+            .collect::<Result<_, _>>()?;
+        let low = lows.into_iter().fold(f64::INFINITY, f64::min);
+        Ok(if low.is_finite() { low } else { 0.0 })
+    }
+
+    /// Decodes slice `i` into output-domain values, `None` for padded pixels.
+    fn decode(&self, i: usize) -> Result<(Vec<Option<f64>>, usize), Error> {
+        pixels::decode(&self.slices[i], &self.format, self.rescale_each)
+    }
+
+    /// Slice `i` as output voxels.
+    fn slice(&self, i: usize) -> Result<VoxelData, Error> {
+        let (values, _) = self.decode(i)?;
+        let fill = self.padding_replacement.unwrap_or(0.0);
+        Ok(pixels::to_voxels(values, fill, self.info.voxel_type))
+    }
+}
+
+/// The unit of physical values: RescaleType when it names one, HU for CT,
+/// Units for PET.
+fn unit(first: &SliceHeader) -> Option<String> {
+    match (&first.rescale_type, first.modality.as_deref()) {
+        (Some(t), _) if t != "US" => Some(t.clone()),
+        (_, Some("CT")) => Some("HU".to_owned()),
+        (_, Some("PT")) => first.units.clone(),
+        _ => None,
+    }
+}
+
+impl VolumeSource for DicomSeries {
+    fn info(&self) -> &VolumeInfo {
+        &self.info
+    }
+
+    fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
+        check_slab(&self.info, z0, depth)?;
+        let slices: Vec<VoxelData> = (z0..z0 + depth)
+            .into_par_iter()
+            .map(|z| self.slice(z as usize))
+            .collect::<Result<_, _>>()?;
+        let mut out = VoxelData::zeros(self.info.voxel_type, 0);
+        for s in slices {
+            out.append(s)?;
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,155 @@
+//! What one DICOM file's header says: [`SliceHeader`], read up to the pixel
+//! data, with the attributes grouping, placing and decoding a slice need.
+
+use std::path::{Path, PathBuf};
+
+use dicom_dictionary_std::tags;
+use dicom_object::{DefaultDicomObject, OpenFileOptions};
+
+use crate::Error;
+use crate::ingest::header::{field, read_prefix};
+
+/// What one file's header says, read up to the pixel data.
+#[derive(Debug, Clone)]
+pub(super) struct SliceHeader {
+    pub(super) path: PathBuf,
+    pub(super) series_uid: String,
+    pub(super) series_description: Option<String>,
+    pub(super) modality: Option<String>,
+    pub(super) rows: u32,
+    pub(super) columns: u32,
+    /// Row direction (x) then column direction (y), LPS.
+    pub(super) orientation: Option<[f64; 6]>,
+    pub(super) position: Option<[f64; 3]>,
+    /// Spacing between rows (y), then between columns (x).
+    pub(super) pixel_spacing: Option<[f64; 2]>,
+    pub(super) slice_thickness: Option<f64>,
+    pub(super) spacing_between_slices: Option<f64>,
+    pub(super) bits_allocated: u16,
+    pub(super) bits_stored: u16,
+    pub(super) high_bit: u16,
+    pub(super) pixel_representation: u16,
+    pub(super) samples_per_pixel: u16,
+    pub(super) photometric: String,
+    pub(super) frames: u32,
+    pub(super) slope: f64,
+    pub(super) intercept: f64,
+    pub(super) padding: Option<(i64, i64)>,
+    pub(super) rescale_type: Option<String>,
+    pub(super) units: Option<String>,
+}
+
+impl SliceHeader {
+    /// The key that splits a series into stacks of one geometry.
+    pub(super) fn geometry_key(&self) -> String {
+        let round = |v: f64| format!("{v:.4}");
+        let iop = self
+            .orientation
+            .map(|o| o.map(round).join(","))
+            .unwrap_or_default();
+        let ps = self
+            .pixel_spacing
+            .map(|p| p.map(round).join(","))
+            .unwrap_or_default();
+        format!("{}x{}|{iop}|{ps}", self.columns, self.rows)
+    }
+}
+
+/// Reads the header of one file (up to the pixel data).
+pub(super) fn read_header(path: &Path) -> Result<Option<SliceHeader>, Error> {
+    let prefix = read_prefix(path, 132)?;
+    if prefix.get(128..132) != Some(b"DICM") {
+        return Err(field(
+            path,
+            "preamble",
+            "no 'DICM' marker at byte 128: expected a DICOM file (move other files out of the series folder)",
+        ));
+    }
+    let obj = OpenFileOptions::new()
+        .read_until(tags::PIXEL_DATA)
+        .open_file(path)
+        .map_err(|e| {
+            field(
+                path,
+                "header",
+                format!("{e}: expected a readable DICOM file"),
+            )
+        })?;
+    let Some(rows) = opt_int::<u32>(&obj, tags::ROWS) else {
+        return Ok(None); // no image: DICOMDIR, structured report, …
+    };
+    let text = |tag| {
+        obj.element_opt(tag)
+            .ok()
+            .flatten()
+            .and_then(|e| e.to_str().ok())
+            .map(|s| s.trim().to_owned())
+            .filter(|s| !s.is_empty())
+    };
+    let floats = |tag| {
+        obj.element_opt(tag)
+            .ok()
+            .flatten()
+            .and_then(|e| e.to_multi_float64().ok())
+    };
+    let fixed =
+        |tag, n: usize| floats(tag).filter(|v| v.len() == n && v.iter().all(|x| x.is_finite()));
+    let series_uid = text(tags::SERIES_INSTANCE_UID).ok_or_else(|| {
+        field(
+            path,
+            "SeriesInstanceUID (0020,000E)",
+            "missing: expected every image to name its series",
+        )
+    })?;
+    let padding = opt_int::<i64>(&obj, tags::PIXEL_PADDING_VALUE).map(|p| {
+        let limit = opt_int::<i64>(&obj, tags::PIXEL_PADDING_RANGE_LIMIT).unwrap_or(p);
+        (p.min(limit), p.max(limit))
+    });
+    Ok(Some(SliceHeader {
+        path: path.to_owned(),
+        series_uid,
+        series_description: text(tags::SERIES_DESCRIPTION),
+        modality: text(tags::MODALITY),
+        rows,
+        columns: opt_int(&obj, tags::COLUMNS).unwrap_or(0),
+        orientation: fixed(tags::IMAGE_ORIENTATION_PATIENT, 6)
+            .map(|v| [v[0], v[1], v[2], v[3], v[4], v[5]]),
+        position: fixed(tags::IMAGE_POSITION_PATIENT, 3).map(|v| [v[0], v[1], v[2]]),
+        pixel_spacing: fixed(tags::PIXEL_SPACING, 2).map(|v| [v[0], v[1]]),
+        slice_thickness: fixed(tags::SLICE_THICKNESS, 1).map(|v| v[0]),
+        spacing_between_slices: fixed(tags::SPACING_BETWEEN_SLICES, 1).map(|v| v[0]),
+        bits_allocated: opt_int(&obj, tags::BITS_ALLOCATED).unwrap_or(16),
+        bits_stored: opt_int(&obj, tags::BITS_STORED).unwrap_or(16),
+        high_bit: opt_int(&obj, tags::HIGH_BIT).unwrap_or(15),
+        pixel_representation: opt_int(&obj, tags::PIXEL_REPRESENTATION).unwrap_or(0),
+        samples_per_pixel: opt_int(&obj, tags::SAMPLES_PER_PIXEL).unwrap_or(1),
+        photometric: text(tags::PHOTOMETRIC_INTERPRETATION).unwrap_or_else(|| "MONOCHROME2".into()),
+        frames: opt_int(&obj, tags::NUMBER_OF_FRAMES).unwrap_or(1),
+        slope: fixed(tags::RESCALE_SLOPE, 1).map_or(1.0, |v| v[0]),
+        intercept: fixed(tags::RESCALE_INTERCEPT, 1).map_or(0.0, |v| v[0]),
+        padding,
+        rescale_type: text(tags::RESCALE_TYPE),
+        units: text(tags::UNITS),
+    }))
+}
+
+/// An integer attribute, or `None` when absent or not an integer.
+fn opt_int<T: DicomInt>(obj: &DefaultDicomObject, tag: dicom_core::Tag) -> Option<T> {
+    obj.element_opt(tag).ok().flatten().and_then(T::read)
+}
+
+/// The integer types attributes are read as.
+trait DicomInt: Sized {
+    fn read(e: &dicom_object::mem::InMemElement) -> Option<Self>;
+}
+
+macro_rules! impl_dicom_int {
+    ($($t:ty),*) => {$(
+        impl DicomInt for $t {
+            fn read(e: &dicom_object::mem::InMemElement) -> Option<Self> {
+                e.to_int::<$t>().ok()
+            }
+        }
+    )*};
+}
+impl_dicom_int!(u16, u32, i64);
