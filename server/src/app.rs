@@ -101,8 +101,8 @@ async fn healthz(State(state): State<AppState>) -> Json<serde_json::Value> {
     Json(serde_json::json!({ "status": "ok", "adapter": state.renderer.adapter() }))
 }
 
-async fn settings() -> Json<serde_json::Value> {
-    Json(crate::view::describe())
+async fn settings(State(state): State<AppState>) -> Json<serde_json::Value> {
+    Json(crate::view::describe(&state.datasets))
 }
 
 async fn datasets(State(state): State<AppState>) -> Json<Vec<DatasetInfo>> {

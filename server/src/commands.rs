@@ -38,7 +38,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
 /// `voxserve settings`: every view setting, as Markdown tables or JSON.
 pub fn settings(args: &SettingsArgs) -> anyhow::Result<()> {
     if args.json {
-        say(&serde_json::to_string_pretty(&crate::view::describe())?)
+        say(&serde_json::to_string_pretty(&crate::view::describe(&[]))?)
     } else {
         say(shaders::settings::markdown::<crate::View>().trim())
     }

@@ -18,8 +18,9 @@ shaders::settings! {
     /// What a client asks to see: a dataset, and a frame of it.
     #[derive(Debug, Clone, PartialEq)]
     pub struct View in Data {
-        /// The dataset to show, by id [default: the server's first].
-        pub dataset: Option<String> = None, "dataset", by_type();
+        /// The dataset to show, by id [default: the server's first]; `render`
+        /// takes it as its argument (a path, or `phantom`).
+        pub dataset: Option<String> = None, "dataset" | "DATASET", by_type();
     }
     groups {
         /// The frame.
@@ -123,7 +124,7 @@ impl View {
     /// The dataset shown: the one named, else the first of `datasets`.
     ///
     /// # Errors
-    /// When the named dataset is not among `datasets`.
+    /// When the named dataset is not among `datasets` (as [`describe`] lists them).
     pub fn dataset<'d>(&self, datasets: &'d [Dataset]) -> Result<&'d Dataset, SettingError> {
         let known = || {
             let ids: Vec<&str> = datasets.iter().map(|d| d.id.as_str()).collect();
@@ -142,9 +143,22 @@ impl View {
 }
 
 /// `GET /api/settings`: every view setting (name, flag, group, kind, range
-/// or choices, unit, default, doc, what it takes), grouped.
-pub fn describe() -> Json {
-    shaders::settings::describe_all::<View>()
+/// or choices, unit, default, doc, what it takes), grouped; the dataset's
+/// choices are `datasets` (none listed when empty).
+pub fn describe(datasets: &[Dataset]) -> Json {
+    let mut description = shaders::settings::describe_all::<View>();
+    let entry = description["settings"]
+        .as_array_mut()
+        .and_then(|all| all.iter_mut().find(|s| s["name"] == "dataset"));
+    if let (Some(entry), false) = (entry, datasets.is_empty()) {
+        let ids: Vec<&str> = datasets.iter().map(|d| d.id.as_str()).collect();
+        entry["expected"] = Json::String(format!("one of {}", ids.join(", ")));
+        entry["choices"] = datasets
+            .iter()
+            .map(|d| serde_json::json!({"name": d.id, "doc": d.name()}))
+            .collect();
+    }
+    description
 }
 
 #[cfg(test)]
@@ -420,7 +434,7 @@ mod tests {
 
     #[test]
     fn the_description_lists_every_setting_with_its_default() {
-        let json = describe();
+        let json = describe(&datasets());
         let settings = json["settings"].as_array().expect("settings");
         assert_eq!(settings.len(), View::settings().len());
         let az = settings.iter().find(|s| s["name"] == "az").expect("az");
