@@ -21,6 +21,9 @@
 //! - [`raycast`]: the ray-marching stages `raycast` (packed blocks) and
 //!   `reference` (one plain texture): [`RaycastParams`] (mirrored in WGSL) and
 //!   [`MarchPipeline`].
+//! - [`packed_volume`]: [`packed_volume::PackedVolume`], the uniform block
+//!   every stage reading packed blocks shares (volume and atlas sizes, the
+//!   texel → transfer-function map), and [`packed_volume::PackedLayout`].
 //! - [`packed`]: the atlas and block index on the GPU ([`packed::GpuAtlas`]),
 //!   uploaded in rows of slots and updated block by block.
 //! - [`light`]: global light propagation (local piecewise integration, the
@@ -51,8 +54,11 @@ pub mod error;
 pub mod extinction;
 pub mod frame;
 pub mod gpu;
+#[cfg(test)]
+mod layout;
 pub mod light;
 pub mod packed;
+pub mod packed_volume;
 pub mod pipeline;
 pub mod raycast;
 pub mod renderer;

@@ -14,7 +14,7 @@ use blocks::store::LEVELS;
 use rayon::prelude::*;
 
 use crate::cpu::{PackedTexture, Texture3d};
-use crate::raycast::PackedLayout;
+use crate::packed_volume::PackedLayout;
 use crate::volume_texture::{VolumeTexture, create_texture_3d, write_box};
 use crate::{GpuContext, GpuError};
 

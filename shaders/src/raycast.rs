@@ -10,6 +10,7 @@
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
 
+use crate::packed_volume::{PackedLayout, PackedVolume};
 use crate::pipeline::ComputeStage;
 use crate::volume_texture::VolumeTexture;
 use crate::{Compositing, FrameRequest, GpuContext, GpuError, Shading};
@@ -50,19 +51,17 @@ pub const MODE_MINIP: u32 = 2;
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RaycastParams {
     /// Clip space → model space, column major.
-    pub inv_view_proj: [[f32; 4]; 4],
+    pub inv_view_proj: Mat4,
     /// Model space → texture space (affine), column major.
-    pub texture_from_model: [[f32; 4]; 4],
+    pub texture_from_model: Mat4,
     /// Texture-space derivatives → model-space gradients (upper 3×3 used).
-    pub gradient_from_texture: [[f32; 4]; 4],
-    /// One level-0 voxel in texture coordinates: 1 / dims.
-    pub texel: [f32; 3],
-    /// Distance between samples (mm).
-    pub step: f32,
+    pub gradient_from_texture: Mat4,
+    /// The packed volume (`atlas_size` 1 and `block_grid` 0 for the reference stage).
+    pub volume: PackedVolume,
     /// Unit vector towards the light, model space.
     pub light_dir: [f32; 3],
-    /// The step transfer-function opacities refer to (mm).
-    pub reference_step: f32,
+    /// Distance between samples (mm).
+    pub step: f32,
     /// Clip box lower corner, texture space.
     pub clip_min: [f32; 3],
     /// Accumulated opacity at which a ray stops.
@@ -71,26 +70,12 @@ pub struct RaycastParams {
     pub clip_max: [f32; 3],
     /// Gradient magnitude (transfer-function units per mm) under which samples stay unshaded.
     pub gradient_threshold: f32,
-    /// Level-0 voxels along x, y, z.
-    pub volume_dims: [f32; 3],
-    /// Texel value → transfer-function coordinate: scale.
-    pub value_scale: f32,
-    /// Atlas size in texels (packed stage).
-    pub atlas_size: [f32; 3],
-    /// Texel value → transfer-function coordinate: offset.
-    pub value_offset: f32,
     /// Background colour (rgb, a unused).
     pub background: [f32; 4],
     /// Light colour times intensity (rgb) and I_bias (a), for [`FLAG_LIT`].
     pub light: [f32; 4],
     /// Blinn–Phong ambient, diffuse, specular, shininess.
     pub phong: [f32; 4],
-    /// Blocks along x, y, z (packed stage).
-    pub block_grid: [u32; 3],
-    /// Upper bound on samples per ray.
-    pub max_steps: u32,
-    /// Entries in the transfer-function table.
-    pub tf_len: u32,
     /// Image width in pixels.
     pub width: u32,
     /// Image height in pixels.
@@ -99,12 +84,16 @@ pub struct RaycastParams {
     pub flags: u32,
     /// `MODE_*`.
     pub mode: u32,
+    /// Upper bound on samples per ray.
+    pub max_steps: u32,
     /// How far towards the eye (mm) the light is read: one light-cache cell for
     /// extinction-based illumination, so a surface reads the light just outside
     /// it rather than a blend with the shadowed cells behind it; 0 otherwise.
     pub light_offset: f32,
     /// Padding to a multiple of 16 bytes.
-    pub _pad: [u32; 2],
+    pub _pad0: u32,
+    /// Padding to a multiple of 16 bytes.
+    pub _pad1: u32,
 }
 
 /// Where the volume sits in model space: the linear map from texture offsets
@@ -136,15 +125,6 @@ impl VolumePlacement {
         }
         radius
     }
-}
-
-/// What the packed stage needs beyond the volume: the atlas and block grid sizes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct PackedLayout {
-    /// Atlas size in texels.
-    pub atlas_dims: [u32; 3],
-    /// Blocks along x, y, z.
-    pub block_grid: [u32; 3],
 }
 
 impl RaycastParams {
@@ -208,43 +188,27 @@ impl RaycastParams {
         };
         let [r, g, b] = request.background;
         RaycastParams {
-            inv_view_proj: inv_view_proj.to_cols_array_2d(),
-            texture_from_model: texture_from_model.to_cols_array_2d(),
-            gradient_from_texture: gradient_from_texture.to_cols_array_2d(),
-            texel: texture.dims.map(|d| 1.0 / d as f32),
-            step,
+            inv_view_proj,
+            texture_from_model,
+            gradient_from_texture,
+            volume: PackedVolume::new(texture, packed, tf_len),
             light_dir: light.normalize().into(),
-            reference_step: min_spacing,
+            step,
             clip_min: request.clip.min,
             early_termination: EARLY_TERMINATION,
             clip_max: request.clip.max,
             gradient_threshold: GRADIENT_THRESHOLD_PER_VOXEL / min_spacing,
-            volume_dims: texture.dims.map(|d| d as f32),
-            value_scale: texture.value_scale,
-            atlas_size: packed.atlas_dims.map(|d| d.max(1) as f32),
-            value_offset: texture.value_offset,
             background: [r, g, b, 1.0],
             light: lit,
             phong: PHONG,
-            block_grid: packed.block_grid,
-            max_steps,
-            tf_len,
             width: request.width,
             height: request.height,
             flags,
             mode,
+            max_steps,
             light_offset,
-            _pad: [0; 2],
-        }
-    }
-
-    /// The sizes packed addressing needs (the CPU twins').
-    pub fn geometry(&self) -> crate::cpu::packed::PackedGeometry {
-        crate::cpu::packed::PackedGeometry {
-            volume_dims: Vec3::from(self.volume_dims),
-            block_grid: self.block_grid,
-            atlas_size: Vec3::from(self.atlas_size),
-            texel: Vec3::from(self.texel),
+            _pad0: 0,
+            _pad1: 0,
         }
     }
 
@@ -423,7 +387,7 @@ mod tests {
             16,
             PackedLayout::default(),
         );
-        let m = Mat4::from_cols_array_2d(&p.texture_from_model);
+        let m = p.texture_from_model;
         // Texture x runs along model −y over 10 mm; texture y along model +x over 10 mm.
         let tc = |v: Vec3| m.transform_point3(v);
         assert!((tc(Vec3::ZERO) - Vec3::splat(0.5)).length() < 1e-6);

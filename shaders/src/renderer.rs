@@ -22,7 +22,8 @@ use blocks::{TransferFunction, Volume};
 use crate::extinction::{ExtinctionLighting, ExtinctionTimings};
 use crate::light::{DirectLightMethod, Illumination, LightInputs, LightTimings};
 use crate::packed::GpuAtlas;
-use crate::raycast::{MarchBindings, MarchPipeline, PackedLayout, Stage};
+use crate::packed_volume::PackedLayout;
+use crate::raycast::{MarchBindings, MarchPipeline, Stage};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams, Shading};
 

@@ -6,6 +6,8 @@
 macro_rules! march_stage {
     ($($file:literal),+) => {
         concat!(
+            include_str!("../wgsl/shared/packed_volume.wgsl"),
+            "\n",
             include_str!("../wgsl/shared/raycast_params.wgsl"),
             "\n",
             include_str!("../wgsl/shared/hash.wgsl"),
@@ -24,6 +26,8 @@ macro_rules! march_stage {
 macro_rules! light_stage {
     ($($file:literal),+) => {
         concat!(
+            include_str!("../wgsl/shared/packed_volume.wgsl"),
+            "\n",
             include_str!("../wgsl/shared/light_params.wgsl"),
             "\n",
             include_str!("../wgsl/shared/ray.wgsl"),
@@ -66,6 +70,8 @@ pub const RAYCAST_EXTINCTION: &str = march_stage!(
 macro_rules! extinction_stage {
     ($($file:literal),+) => {
         concat!(
+            include_str!("../wgsl/shared/packed_volume.wgsl"),
+            "\n",
             include_str!("../wgsl/shared/extinction_params.wgsl"),
             $("\n", include_str!($file),)+
         )

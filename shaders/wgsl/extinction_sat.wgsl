@@ -57,7 +57,7 @@ fn reconstruct(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let loc = locate(tc);
                 if !loc.empty {
                     let value = textureSampleLevel(atlas, atlas_sampler, atlas_coord(tc, loc), 0.0).r;
-                    let rgba = classify(value * params.value_scale + params.value_offset);
+                    let rgba = classify(value * params.volume.value_scale + params.volume.value_offset);
                     let depth = -log(1.0 - min(rgba.a, MAX_SAMPLE_OPACITY)) * params.opacity_scale;
                     sum += vec4<f32>(depth, depth * rgba.rgb);
                 }

@@ -35,8 +35,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let tc0 = (vec3<f32>(gid) + 0.5) / vec3<f32>(params.svr_dims);
-    let block = min(vec3<u32>(tc0 * params.volume_dims / BLOCK), params.block_grid - 1u);
-    let g = params.block_grid;
+    let block = min(vec3<u32>(tc0 * params.volume.volume_dims / BLOCK), params.volume.block_grid - 1u);
+    let g = params.volume.block_grid;
     if svr_blocks[block.x + g.x * (block.y + g.y * block.z)] == 0u {
         textureStore(shadow_volume, gid, vec4<f32>(0.0));
         return;

@@ -38,7 +38,7 @@ fn sample_at(tc: vec3<f32>, loc: Location) -> f32 {
 // falls in (at that block's level), or from home's apron when that block is
 // empty, so central differences stay right across block borders.
 fn sample_neighbour(tc: vec3<f32>, home: Location) -> f32 {
-    let block = vec3<i32>(floor(tc * params.volume_dims / BLOCK));
+    let block = vec3<i32>(floor(tc * params.volume.volume_dims / BLOCK));
     if all(block == home.block) {
         return sample_at(tc, home);
     }

@@ -91,7 +91,7 @@ pub fn cpu_raycast(
     request: &FrameRequest,
     table: &[[f32; 4]],
 ) -> Frame {
-    let layout = shaders::raycast::PackedLayout {
+    let layout = shaders::packed_volume::PackedLayout {
         atlas_dims: packing.atlas_dims,
         block_grid: dataset.store.meta().blocks,
     };

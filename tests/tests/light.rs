@@ -115,7 +115,11 @@ fn compare_stages(
     check_stage(case, "local_opacity", &gpu_local, &cpu_local);
     let local_texture = Texture3d::new(atlas, gpu_local.clone());
     if method == DirectLightMethod::Piecewise {
-        let svr = near_blocks(&packing, params.block_grid, params.svr_margin_blocks());
+        let svr = near_blocks(
+            &packing,
+            params.volume.block_grid,
+            params.svr_margin_blocks(),
+        );
         let cpu_shadow =
             shaders::cpu::light::global_opacity(&params, &local_texture, &packed, &svr);
         check_stage(case, "global_opacity", &gpu_shadow, &cpu_shadow);

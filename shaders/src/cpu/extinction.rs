@@ -108,7 +108,7 @@ pub fn extinction_sat(
     packed: &PackedTexture,
     transfer_function: &[[f32; 4]],
 ) -> (Sat, Vec<f32>) {
-    let g = p.geometry();
+    let g = p.volume;
     let grid = p.grid;
     let gridf = Vec3::new(grid[0] as f32, grid[1] as f32, grid[2] as f32);
     let n = p.sub as f32;
@@ -125,9 +125,9 @@ pub fn extinction_sat(
                         if !loc.empty {
                             let value = packed.atlas.sample_level(atlas_coord(&g, tc, &loc));
                             let rgba = classify_table(
-                                p.tf_len,
+                                p.volume.tf_len,
                                 transfer_function,
-                                value * p.value_scale + p.value_offset,
+                                value * p.volume.value_scale + p.volume.value_offset,
                             );
                             let depth =
                                 -(1.0 - rgba.w.min(MAX_SAMPLE_OPACITY)).ln() * p.opacity_scale;
@@ -197,9 +197,9 @@ pub fn sat_from_cells(grid: [u32; 3], cells: &[u64]) -> Sat {
 pub fn cell_is_read(p: &ExtinctionParams, near_blocks: &[u32], c: IVec3) -> bool {
     let grid = Vec3::new(p.grid[0] as f32, p.grid[1] as f32, p.grid[2] as f32);
     let tc = (c.as_vec3() + 0.5) / grid;
-    let g = p.block_grid;
+    let g = p.volume.block_grid;
     let last = IVec3::new(g[0] as i32 - 1, g[1] as i32 - 1, g[2] as i32 - 1);
-    let b = (tc * Vec3::from(p.volume_dims) / super::packed::BLOCK)
+    let b = (tc * Vec3::from(p.volume.volume_dims) / super::packed::BLOCK)
         .floor()
         .as_ivec3()
         .clamp(IVec3::ZERO, last);

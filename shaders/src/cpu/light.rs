@@ -5,7 +5,7 @@
 //! Atlas-shaped results are `Vec<f32>` over every atlas texel (x fastest),
 //! zero where no block is stored, as the GPU leaves them.
 
-use glam::{Mat4, Vec3, Vec4Swizzles};
+use glam::{Vec3, Vec4Swizzles};
 use rayon::prelude::*;
 
 use super::Texture3d;
@@ -22,7 +22,7 @@ const OPAQUE: f32 = 1e-3;
 
 /// WGSL `SlotTexel`: the texel's texture-space position, if it is a stored voxel.
 pub fn slot_texel(p: &LightParams, slot_blocks: &[u32], texel: [u32; 3]) -> Option<Vec3> {
-    if (0..3).any(|i| texel[i] as f32 >= p.atlas_size[i]) {
+    if (0..3).any(|i| texel[i] as f32 >= p.volume.atlas_size[i]) {
         return None;
     }
     let mut first_slot = 0u32;
@@ -39,7 +39,7 @@ pub fn slot_texel(p: &LightParams, slot_blocks: &[u32], texel: [u32; 3]) -> Opti
             if b == NO_BLOCK {
                 return None;
             }
-            let [gx, gy, _] = p.block_grid;
+            let [gx, gy, _] = p.volume.block_grid;
             let block = Vec3::new(
                 (b % gx) as f32,
                 ((b / gx) % gy) as f32,
@@ -52,7 +52,7 @@ pub fn slot_texel(p: &LightParams, slot_blocks: &[u32], texel: [u32; 3]) -> Opti
             ) - 1.0;
             let size = (1u32 << level) as f32;
             let pos = block * BLOCK + (q + 0.5) * size;
-            return Some((pos / Vec3::from(p.volume_dims)).clamp(Vec3::ZERO, Vec3::ONE));
+            return Some((pos / Vec3::from(p.volume.volume_dims)).clamp(Vec3::ZERO, Vec3::ONE));
         }
         first_slot += sx * sy * sz;
     }
@@ -68,7 +68,7 @@ struct LightRay {
 
 /// WGSL `ray_along`.
 fn ray_along(p: &LightParams, tc0: Vec3, towards: Vec3, limit: f32) -> LightRay {
-    let texture_from_model = Mat4::from_cols_array_2d(&p.texture_from_model);
+    let texture_from_model = p.texture_from_model;
     let dir = (texture_from_model * towards.extend(0.0)).xyz();
     let exit = intersect_box(tc0, dir, Vec3::ZERO, Vec3::ONE).y;
     LightRay {
@@ -83,7 +83,7 @@ fn towards_light(p: &LightParams, tc0: Vec3) -> (Vec3, f32) {
     if light.w == 0.0 {
         return (light.xyz(), 1e30);
     }
-    let model_from_texture = Mat4::from_cols_array_2d(&p.model_from_texture);
+    let model_from_texture = p.model_from_texture;
     let here = (model_from_texture * tc0.extend(1.0)).xyz();
     let d = light.xyz() - here;
     let distance = d.length();
@@ -107,11 +107,14 @@ fn opacity_at(
     tc: Vec3,
     loc: &BlockLocation,
 ) -> f32 {
-    let value = packed
-        .atlas
-        .sample_level(atlas_coord(&p.geometry(), tc, loc));
-    let a = classify_table(p.tf_len, tf, value * p.value_scale + p.value_offset).w;
-    corrected_opacity(a, p.step / p.reference_step)
+    let value = packed.atlas.sample_level(atlas_coord(&p.volume, tc, loc));
+    let a = classify_table(
+        p.volume.tf_len,
+        tf,
+        value * p.volume.value_scale + p.volume.value_offset,
+    )
+    .w;
+    corrected_opacity(a, p.step / p.volume.reference_step)
 }
 
 /// Runs `texel_main` for every texel of a grid of `dims` (as a dispatch of
@@ -138,7 +141,7 @@ pub fn local_opacity(
     tf: &[[f32; 4]],
     slot_blocks: &[u32],
 ) -> Vec<f32> {
-    let g = p.geometry();
+    let g = p.volume;
     per_texel(p.atlas_dims(), |gid| {
         let Some(tc0) = slot_texel(p, slot_blocks, gid) else {
             return 0.0;
@@ -170,14 +173,14 @@ pub fn global_opacity(
     index: &PackedTexture,
     svr_blocks: &[u32],
 ) -> Vec<f32> {
-    let g = p.geometry();
+    let g = p.volume;
     let svr = Vec3::new(
         p.svr_dims[0] as f32,
         p.svr_dims[1] as f32,
         p.svr_dims[2] as f32,
     );
-    let dims = Vec3::from(p.volume_dims);
-    let [gx, gy, gz] = p.block_grid;
+    let dims = Vec3::from(p.volume.volume_dims);
+    let [gx, gy, gz] = p.volume.block_grid;
     per_texel(p.svr_dims, |gid| {
         let tc0 = (Vec3::new(gid[0] as f32, gid[1] as f32, gid[2] as f32) + 0.5) / svr;
         let block = (tc0 * dims / BLOCK)
@@ -243,7 +246,7 @@ pub fn in_scatter(
     shadow_volume: &Texture3d,
     light_volume: &mut [f32],
 ) {
-    let g = p.geometry();
+    let g = p.volume;
     let stored = light_volume.to_vec();
     let [w, h, _] = p.atlas_dims();
     let next = per_texel(p.atlas_dims(), |gid| {
@@ -300,7 +303,7 @@ pub fn direct_light_reference(
     tf: &[[f32; 4]],
     slot_blocks: &[u32],
 ) -> Vec<f32> {
-    let g = p.geometry();
+    let g = p.volume;
     per_texel(p.atlas_dims(), |gid| {
         let Some(tc0) = slot_texel(p, slot_blocks, gid) else {
             return 0.0;

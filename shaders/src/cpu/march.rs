@@ -3,7 +3,7 @@
 //! storage as a [`Storage`], the counterpart of the functions a WGSL stage
 //! defines (`locate`, `sample_at`, `sample_neighbour`, `light_at`, `empty_exit`).
 
-use glam::{Mat4, Vec2, Vec3, Vec4, Vec4Swizzles};
+use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 
 use super::hash::{pcg_hash, unit_from_hash};
@@ -71,7 +71,7 @@ pub fn classify_table(tf_len: u32, transfer_function: &[[f32; 4]], u: f32) -> Ve
 
 /// WGSL `classify`.
 pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
-    classify_table(p.tf_len, transfer_function, u)
+    classify_table(p.volume.tf_len, transfer_function, u)
 }
 
 /// WGSL `corrected_opacity`.
@@ -81,7 +81,7 @@ pub fn corrected_opacity(a: f32, exponent: f32) -> f32 {
 
 /// WGSL `gradient_at`.
 fn gradient_at<S: Storage>(s: &S, p: &RaycastParams, tc: Vec3, loc: &S::Location) -> Vec3 {
-    let h = Vec3::from(p.texel);
+    let h = Vec3::from(p.volume.texel);
     let dx = Vec3::new(h.x, 0.0, 0.0);
     let dy = Vec3::new(0.0, h.y, 0.0);
     let dz = Vec3::new(0.0, 0.0, h.z);
@@ -132,12 +132,12 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         pixel.x / p.width as f32 * 2.0 - 1.0,
         1.0 - pixel.y / p.height as f32 * 2.0,
     );
-    let inv_view_proj = Mat4::from_cols_array_2d(&p.inv_view_proj);
+    let inv_view_proj = p.inv_view_proj;
     let near = inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
     let far = inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
     let origin = near.xyz() / near.w;
     let dir = (far.xyz() / far.w - origin).normalize();
-    let texture_from_model = Mat4::from_cols_array_2d(&p.texture_from_model);
+    let texture_from_model = p.texture_from_model;
     let tex_origin = (texture_from_model * origin.extend(1.0)).xyz();
     let tex_dir = (texture_from_model * dir.extend(0.0)).xyz();
 
@@ -158,9 +158,9 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         if p.flags & FLAG_JITTER != 0 {
             jitter = unit_from_hash(pcg_hash(gid[1] * p.width + gid[0]));
         }
-        let exponent = p.step / p.reference_step;
+        let exponent = p.step / p.volume.reference_step;
         let first = span.x + jitter * p.step;
-        let gradient_from_texture = Mat4::from_cols_array_2d(&p.gradient_from_texture);
+        let gradient_from_texture = p.gradient_from_texture;
         let mut i = 0u32;
         for _k in 0..p.max_steps {
             let t = first + i as f32 * p.step;
@@ -179,7 +179,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                 i = next;
                 continue;
             }
-            let u = s.sample_at(p, tc, &loc) * p.value_scale + p.value_offset;
+            let u = s.sample_at(p, tc, &loc) * p.volume.value_scale + p.volume.value_offset;
             let rgba = classify(p, tf, u);
             if rgba.w > 0.0 {
                 if p.mode == MODE_COMPOSITE {
@@ -188,7 +188,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                     if p.flags & FLAG_SHADED != 0 {
                         let g = (gradient_from_texture * gradient_at(s, p, tc, &loc).extend(0.0))
                             .xyz()
-                            * p.value_scale;
+                            * p.volume.value_scale;
                         rgb = shade(p, rgb, g, dir);
                     }
                     if p.flags & FLAG_LIT != 0 {

@@ -40,7 +40,8 @@ use blocks::transfer_function::TABLE_LEN;
 use crate::extinction::ExtinctionParams;
 use crate::light::{DirectLightMethod, LightParams, near_blocks, slot_blocks};
 use crate::packed::assemble_cpu;
-use crate::raycast::{PackedLayout, RaycastParams};
+use crate::packed_volume::PackedLayout;
+use crate::raycast::RaycastParams;
 use crate::renderer::{DeviceBudget, budget_voxels, select_levels};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuError, Shading};
@@ -119,7 +120,11 @@ pub fn light_for(
 ) -> light::CpuLight {
     let params = LightParams::new(desc, &request.light, packing, layout, table.len() as u32);
     let directions = params.scatter_directions(&request.light);
-    let svr = near_blocks(packing, params.block_grid, params.svr_margin_blocks());
+    let svr = near_blocks(
+        packing,
+        params.volume.block_grid,
+        params.svr_margin_blocks(),
+    );
     light::compute_light(
         &params,
         packed,

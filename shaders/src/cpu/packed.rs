@@ -6,24 +6,12 @@ use glam::Vec3;
 
 use super::Texture3d;
 use super::march::intersect_box;
+use crate::packed_volume::PackedVolume;
 
 /// Edge of a block in level-0 voxels.
 pub const BLOCK: f32 = 16.0;
 /// The index's level entry of a block that is not stored.
 pub const EMPTY_LEVEL: u16 = u16::MAX;
-
-/// The sizes packed addressing needs, from a stage's uniforms.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PackedGeometry {
-    /// Level-0 voxels along x, y, z.
-    pub volume_dims: Vec3,
-    /// Blocks along x, y, z.
-    pub block_grid: [u32; 3],
-    /// Atlas size in texels.
-    pub atlas_size: Vec3,
-    /// One level-0 voxel in texture coordinates.
-    pub texel: Vec3,
-}
 
 /// The packed stages' voxel bindings on the CPU: the atlas, the block index,
 /// and — for the lit ray caster — the light volume.
@@ -56,9 +44,9 @@ pub struct BlockLocation {
 }
 
 /// WGSL `block_of`.
-pub fn block_of(g: &PackedGeometry, tc: Vec3) -> [i32; 3] {
+pub fn block_of(g: &PackedVolume, tc: Vec3) -> [i32; 3] {
     let last = g.block_grid.map(|n| n as i32 - 1);
-    let b = (tc * g.volume_dims / BLOCK).floor();
+    let b = (tc * Vec3::from(g.volume_dims) / BLOCK).floor();
     [
         (b.x as i32).clamp(0, last[0]),
         (b.y as i32).clamp(0, last[1]),
@@ -67,8 +55,8 @@ pub fn block_of(g: &PackedGeometry, tc: Vec3) -> [i32; 3] {
 }
 
 /// WGSL `atlas_coord`.
-pub fn atlas_coord(g: &PackedGeometry, tc: Vec3, loc: &BlockLocation) -> Vec3 {
-    let p = tc * g.volume_dims;
+pub fn atlas_coord(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
+    let p = tc * Vec3::from(g.volume_dims);
     let block = Vec3::new(
         loc.block[0] as f32,
         loc.block[1] as f32,
@@ -77,24 +65,25 @@ pub fn atlas_coord(g: &PackedGeometry, tc: Vec3, loc: &BlockLocation) -> Vec3 {
     let local = (p - block * BLOCK) * loc.scale;
     let edge = BLOCK * loc.scale;
     let inside = local.clamp(Vec3::splat(-0.5), Vec3::splat(edge + 0.5));
-    (loc.origin + inside) / g.atlas_size
+    (loc.origin + inside) / Vec3::from(g.atlas_size)
 }
 
 /// WGSL `empty_exit`.
-pub fn empty_exit(g: &PackedGeometry, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
+pub fn empty_exit(g: &PackedVolume, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
     let block = Vec3::new(
         loc.block[0] as f32,
         loc.block[1] as f32,
         loc.block[2] as f32,
     );
-    let lo = block * BLOCK * g.texel;
-    let hi = (lo + BLOCK * g.texel).min(Vec3::ONE);
+    let texel = Vec3::from(g.texel);
+    let lo = block * BLOCK * texel;
+    let hi = (lo + BLOCK * texel).min(Vec3::ONE);
     intersect_box(origin, dir, lo, hi).y
 }
 
 impl PackedTexture {
     /// WGSL `locate`.
-    pub fn locate(&self, g: &PackedGeometry, tc: Vec3) -> BlockLocation {
+    pub fn locate(&self, g: &PackedVolume, tc: Vec3) -> BlockLocation {
         let block = block_of(g, tc);
         let [gx, gy, _] = self.grid.map(|n| n as usize);
         let entry =

@@ -11,7 +11,7 @@ impl Storage for PackedTexture {
     type Location = BlockLocation;
 
     fn locate(&self, p: &RaycastParams, tc: Vec3) -> BlockLocation {
-        PackedTexture::locate(self, &p.geometry(), tc)
+        PackedTexture::locate(self, &p.volume, tc)
     }
 
     fn is_empty(loc: &BlockLocation) -> bool {
@@ -19,12 +19,12 @@ impl Storage for PackedTexture {
     }
 
     fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> f32 {
-        self.atlas.sample_level(atlas_coord(&p.geometry(), tc, loc))
+        self.atlas.sample_level(atlas_coord(&p.volume, tc, loc))
     }
 
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &BlockLocation) -> f32 {
-        let g = p.geometry();
-        let b = (tc * g.volume_dims / BLOCK).floor();
+        let g = p.volume;
+        let b = (tc * Vec3::from(g.volume_dims) / BLOCK).floor();
         let block = [b.x as i32, b.y as i32, b.z as i32];
         if block == home.block {
             return self.sample_at(p, tc, home);
@@ -42,13 +42,13 @@ impl Storage for PackedTexture {
             return Vec3::new(r.sample_level(tc), g.sample_level(tc), b.sample_level(tc));
         }
         match &self.light {
-            Some(light) => Vec3::splat(light.sample_level(atlas_coord(&p.geometry(), tc, loc))),
+            Some(light) => Vec3::splat(light.sample_level(atlas_coord(&p.volume, tc, loc))),
             None => Vec3::ONE,
         }
     }
 
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
-        empty_exit(&p.geometry(), origin, dir, loc)
+        empty_exit(&p.volume, origin, dir, loc)
     }
 }
 

@@ -31,6 +31,7 @@ use std::time::Instant;
 use glam::{Mat3, Vec3};
 
 use crate::light::{LightInputs, texture_transforms};
+use crate::packed_volume::{PackedLayout, PackedVolume};
 use crate::pipeline::{self, ComputeStage, run};
 use crate::raycast::VolumePlacement;
 use crate::settings::{Json, stage_key};
@@ -86,22 +87,16 @@ pub struct ExtinctionParams {
     pub grid: [u32; 3],
     /// SAT channels: 1 (τ) or 4 (τ, τ·R, τ·G, τ·B).
     pub channels: u32,
-    /// Level-0 voxels along x, y, z.
-    pub volume_dims: [f32; 3],
-    /// Texel value → transfer-function coordinate: scale.
-    pub value_scale: f32,
-    /// Atlas size in texels.
-    pub atlas_size: [f32; 3],
-    /// Texel value → transfer-function coordinate: offset.
-    pub value_offset: f32,
-    /// Blocks along x, y, z.
-    pub block_grid: [u32; 3],
-    /// Transfer-function entries.
-    pub tf_len: u32,
-    /// One level-0 voxel in texture coordinates.
-    pub texel: [f32; 3],
+    /// The packed volume.
+    pub volume: PackedVolume,
     /// Δt·τ of a cell per unit of −ln(1 − α): cell edge / reference step.
     pub opacity_scale: f32,
+    /// The shadow ray's step, cells.
+    pub ray_step: f32,
+    /// The cone's first cuboid length, cells.
+    pub cone_first: f32,
+    /// Growth of each cuboid's length.
+    pub cone_growth: f32,
     /// The axis a scan pass sums.
     pub axis: u32,
     /// Reconstruction samples per cell edge.
@@ -118,14 +113,14 @@ pub struct ExtinctionParams {
     pub ao_strength: f32,
     /// tan of the cone's half-angle.
     pub cone_tan: f32,
-    /// The cone's first cuboid length, cells.
-    pub cone_first: f32,
-    /// Growth of each cuboid's length.
-    pub cone_growth: f32,
-    /// The shadow ray's step, cells.
-    pub ray_step: f32,
     /// Lights in use.
     pub light_count: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
     /// The lights.
     pub lights: [LightUniform; MAX_LIGHTS],
     /// Half-edge of each ambient-occlusion shell ([`AoShells`]), 4 per row.
@@ -241,7 +236,7 @@ impl ExtinctionParams {
     pub fn new(
         texture: &VolumeTexture,
         settings: &ExtinctionSettings,
-        layout: crate::raycast::PackedLayout,
+        layout: PackedLayout,
         tf_len: u32,
     ) -> ExtinctionParams {
         let grid = grid_dims(texture, settings.sat_size);
@@ -294,14 +289,11 @@ impl ExtinctionParams {
         ExtinctionParams {
             grid,
             channels: if settings.colour_bleeding { 4 } else { 1 },
-            volume_dims: texture.dims.map(|d| d as f32),
-            value_scale: texture.value_scale,
-            atlas_size: layout.atlas_dims.map(|d| d.max(1) as f32),
-            value_offset: texture.value_offset,
-            block_grid: layout.block_grid,
-            tf_len,
-            texel: texture.dims.map(|d| 1.0 / d as f32),
+            volume: PackedVolume::new(texture, layout, tf_len),
             opacity_scale: cell_mm / h,
+            ray_step: size / SHADOW_RAY_SAMPLES,
+            cone_first: (size / settings.cone_frequency).max(1.0),
+            cone_growth: settings.cone_growth,
             axis: 0,
             sub,
             ao_radius: settings.ao_radius,
@@ -310,10 +302,10 @@ impl ExtinctionParams {
             ao_norm,
             ao_strength: settings.ao_strength,
             cone_tan: settings.cone_angle.to_radians().tan(),
-            cone_first: (size / settings.cone_frequency).max(1.0),
-            cone_growth: settings.cone_growth,
-            ray_step: size / SHADOW_RAY_SAMPLES,
             light_count: settings.lights.len() as u32,
+            _pad0: 0,
+            _pad1: 0,
+            _pad2: 0,
             lights,
             shell_radii,
             shell_weights,
@@ -323,16 +315,6 @@ impl ExtinctionParams {
     /// These params for scan pass `axis`.
     pub fn scanning(&self, axis: u32) -> ExtinctionParams {
         ExtinctionParams { axis, ..*self }
-    }
-
-    /// The sizes packed addressing needs (the CPU twins').
-    pub fn geometry(&self) -> crate::cpu::packed::PackedGeometry {
-        crate::cpu::packed::PackedGeometry {
-            volume_dims: Vec3::from(self.volume_dims),
-            block_grid: self.block_grid,
-            atlas_size: Vec3::from(self.atlas_size),
-            texel: Vec3::from(self.texel),
-        }
     }
 
     /// Cells in the grid.
@@ -348,12 +330,12 @@ impl ExtinctionParams {
 /// the margin covers that in whole blocks.
 pub fn near_cells_mask(packing: &blocks::packing::Packing, params: &ExtinctionParams) -> Vec<u32> {
     let cell_voxels = (0..3)
-        .map(|a| params.volume_dims[a] / params.grid[a].max(1) as f32)
+        .map(|a| params.volume.volume_dims[a] / params.grid[a].max(1) as f32)
         .fold(1.0f32, f32::max);
     let margin = (2.5 * cell_voxels / blocks::store::BLOCK as f32)
         .ceil()
         .max(1.0) as u32;
-    crate::light::near_blocks(packing, params.block_grid, margin)
+    crate::light::near_blocks(packing, params.volume.block_grid, margin)
 }
 
 /// Workgroups for one invocation per cell of `grid`.
@@ -922,13 +904,6 @@ impl ExtinctionLighting {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn params_match_the_wgsl_layout() {
-        // 8 rows of 16 bytes, 4 lights of 48, then 8 rows of shells.
-        assert_eq!(size_of::<ExtinctionParams>(), 8 * 16 + 4 * 48 + 8 * 16);
-        assert_eq!(size_of::<LightUniform>(), 48);
-    }
 
     #[test]
     fn shells_grow_by_at_least_one_cell_to_the_sphere_volume() {

@@ -30,8 +30,9 @@ use blocks::store::LEVELS;
 use glam::{Mat4, Vec3};
 
 use crate::packed::GpuAtlas;
+use crate::packed_volume::{PackedLayout, PackedVolume};
 use crate::pipeline::{self, ComputeStage, run};
-use crate::raycast::{PackedLayout, VolumePlacement};
+use crate::raycast::VolumePlacement;
 use crate::settings::{Json, Settings};
 use crate::volume_texture::VolumeTexture;
 use crate::{GpuContext, GpuError};
@@ -62,29 +63,15 @@ pub const LIGHT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct LightParams {
     /// Texture space → model space (affine), column major.
-    pub model_from_texture: [[f32; 4]; 4],
+    pub model_from_texture: Mat4,
     /// Model space → texture space (affine), column major.
-    pub texture_from_model: [[f32; 4]; 4],
+    pub texture_from_model: Mat4,
     /// Point light: model position, w = 1; directional: unit vector towards it, w = 0.
     pub light: [f32; 4],
     /// in_scatter: this step's direction (model space); w = 1: towards the light instead.
     pub scatter_direction: [f32; 4],
-    /// One level-0 voxel in texture coordinates.
-    pub texel: [f32; 3],
-    /// The light step h (mm).
-    pub step: f32,
-    /// Level-0 voxels along x, y, z.
-    pub volume_dims: [f32; 3],
-    /// Texel value → transfer-function coordinate: scale.
-    pub value_scale: f32,
-    /// Atlas size in texels.
-    pub atlas_size: [f32; 3],
-    /// Texel value → transfer-function coordinate: offset.
-    pub value_offset: f32,
-    /// Blocks along x, y, z.
-    pub block_grid: [u32; 3],
-    /// Transfer-function entries.
-    pub tf_len: u32,
+    /// The packed volume.
+    pub volume: PackedVolume,
     /// SVR points along x, y, z.
     pub svr_dims: [u32; 3],
     /// Light intensity I0.
@@ -93,8 +80,8 @@ pub struct LightParams {
     pub segment: f32,
     /// Scattering radius R_Ω (mm).
     pub scatter_radius: f32,
-    /// The step opacities refer to (mm).
-    pub reference_step: f32,
+    /// The light step h (mm).
+    pub step: f32,
     /// in_scatter: blend weight w_j / W_j (eq. 13).
     pub blend: f32,
     /// Per level: slots along x, y, z and the region's first atlas z.
@@ -102,7 +89,11 @@ pub struct LightParams {
     /// Upper bound on the steps of any march.
     pub max_steps: u32,
     /// Padding to a multiple of 16 bytes.
-    pub _pad: [u32; 3],
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
 }
 
 /// The affine maps between texture space and model space of a volume.
@@ -150,27 +141,22 @@ impl LightParams {
             regions[l] = [r.slots[0], r.slots[1], r.slots[2], r.z0];
         }
         LightParams {
-            model_from_texture: model_from_texture.to_cols_array_2d(),
-            texture_from_model: texture_from_model.to_cols_array_2d(),
+            model_from_texture,
+            texture_from_model,
             light: light.into(),
             scatter_direction: [0.0, 0.0, 1.0, 1.0],
-            texel: texture.dims.map(|d| 1.0 / d as f32),
-            step: h,
-            volume_dims: texture.dims.map(|d| d as f32),
-            value_scale: texture.value_scale,
-            atlas_size: layout.atlas_dims.map(|d| d.max(1) as f32),
-            value_offset: texture.value_offset,
-            block_grid: layout.block_grid,
-            tf_len,
+            volume: PackedVolume::new(texture, layout, tf_len),
             svr_dims: svr_dims(texture.dims, settings.svr_scale),
             intensity: settings.intensity,
             segment: settings.segment_voxels as f32 * h,
             scatter_radius: settings.scatter_radius_voxels * h,
-            reference_step: h,
+            step: h,
             blend: 1.0,
             regions,
             max_steps,
-            _pad: [0; 3],
+            _pad0: 0,
+            _pad1: 0,
+            _pad2: 0,
         }
     }
 
@@ -182,7 +168,7 @@ impl LightParams {
     pub fn svr_margin_blocks(&self) -> u32 {
         let reach = self.segment.max(self.scatter_radius) / self.step;
         let cell = (0..3)
-            .map(|i| (self.volume_dims[i] / self.svr_dims[i].max(1) as f32).ceil())
+            .map(|i| (self.volume.volume_dims[i] / self.svr_dims[i].max(1) as f32).ceil())
             .fold(1.0f32, f32::max);
         ((reach + cell + 2.0) / blocks::store::BLOCK as f32).ceil() as u32
     }
@@ -206,19 +192,9 @@ impl LightParams {
         scatter_directions(settings.directions, settings.phase_g, to_light)
     }
 
-    /// The sizes packed addressing needs (the CPU twins').
-    pub fn geometry(&self) -> crate::cpu::packed::PackedGeometry {
-        crate::cpu::packed::PackedGeometry {
-            volume_dims: Vec3::from(self.volume_dims),
-            block_grid: self.block_grid,
-            atlas_size: Vec3::from(self.atlas_size),
-            texel: Vec3::from(self.texel),
-        }
-    }
-
     /// Atlas texels along x, y, z.
     pub fn atlas_dims(&self) -> [u32; 3] {
-        self.atlas_size.map(|s| s as u32)
+        self.volume.atlas_dims()
     }
 }
 
@@ -851,7 +827,11 @@ impl Illumination {
         let slots = slot_blocks(packing);
         let atlas_dims = inputs.atlas.layout.atlas_dims;
         let svr = params.svr_dims;
-        let svr_mask = near_blocks(packing, params.block_grid, params.svr_margin_blocks());
+        let svr_mask = near_blocks(
+            packing,
+            params.volume.block_grid,
+            params.svr_margin_blocks(),
+        );
         if !self
             .volumes
             .as_ref()
@@ -989,16 +969,6 @@ impl Illumination {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn params_match_the_wgsl_layout() {
-        // Two mat4 (64 each), two vec4, five vec3 + scalar, one vec4 of scalars,
-        // five vec4<u32>, then max_steps and padding.
-        assert_eq!(
-            size_of::<LightParams>(),
-            2 * 64 + 2 * 16 + 5 * 16 + 16 + 5 * 16 + 16
-        );
-    }
 
     #[test]
     fn near_blocks_mark_exactly_the_blocks_within_the_margin_of_a_kept_one() {

@@ -1,6 +1,7 @@
 // ExtinctionParams: the uniforms of the extinction-based illumination stages
 // (extinction_sat, ambient_occlusion, soft_shadow and their references).
-// keep in sync with shaders/src/extinction.rs `ExtinctionParams`
+// keep in sync with shaders/src/extinction/mod.rs `ExtinctionParams` (checked
+// field by field: shaders::layout)
 //
 // The stages work on a regular grid (the SAT grid, also the light cache's)
 // covering the volume's box, cell i's centre at texture coordinate (i + 0.5) / n.
@@ -23,20 +24,15 @@ struct ExtinctionParams {
     // Grid cells along x, y, z, and SAT channels (1: τ only; 4: τ and τ·RGB).
     grid: vec3<u32>,
     channels: u32,
-    // Level-0 voxels along x, y, z, and texel value → transfer-function
-    // coordinate: u = value * value_scale + value_offset.
-    volume_dims: vec3<f32>,
-    value_scale: f32,
-    // Atlas size in texels.
-    atlas_size: vec3<f32>,
-    value_offset: f32,
-    // Blocks along x, y, z, and transfer-function entries.
-    block_grid: vec3<u32>,
-    tf_len: u32,
-    // One level-0 voxel in texture coordinates, and Δt·τ of a cell per unit of
-    // −ln(1 − α): the cell's edge over the step opacities refer to.
-    texel: vec3<f32>,
+    // The packed volume (shared/packed_volume.wgsl).
+    volume: PackedVolume,
+    // Δt·τ of a cell per unit of −ln(1 − α): the cell's edge over the step
+    // opacities refer to; the shadow-ray step (cells); the cone's first cuboid
+    // length along the main axis (cells) and its growth per cuboid.
     opacity_scale: f32,
+    ray_step: f32,
+    cone_first: f32,
+    cone_growth: f32,
     // extinction_sat scan: the axis summed (0, 1, 2); samples per cell edge of
     // the reconstruction; ambient occlusion radius R (cells) and shell count.
     axis: u32,
@@ -49,12 +45,11 @@ struct ExtinctionParams {
     ao_norm: f32,
     ao_strength: f32,
     cone_tan: f32,
-    // Cone: first cuboid length along the main axis (cells) and its growth per
-    // cuboid; the shadow-ray step (cells); lights in use.
-    cone_first: f32,
-    cone_growth: f32,
-    ray_step: f32,
+    // Lights in use; padding.
     light_count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
     lights: array<ExtinctionLight, 4>,
     // Ambient-occlusion shells: half-edge (cells) and weight of shell i at
     // [i / 4][i % 4] (shaders/src/extinction.rs `AoShells`).

@@ -7,6 +7,6 @@
 // function, corrected for h against the reference step.
 fn opacity_at(tc: vec3<f32>, loc: Location) -> f32 {
     let value = textureSampleLevel(atlas, atlas_sampler, atlas_coord(tc, loc), 0.0).r;
-    let a = classify(value * params.value_scale + params.value_offset).a;
-    return corrected_opacity(a, params.step / params.reference_step);
+    let a = classify(value * params.volume.value_scale + params.volume.value_offset).a;
+    return corrected_opacity(a, params.step / params.volume.reference_step);
 }

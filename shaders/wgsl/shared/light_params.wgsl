@@ -1,7 +1,8 @@
 // LightParams: the uniforms of the light stages (local_opacity, global_opacity,
 // direct_light, in_scatter, direct_light_reference) of global light
 // propagation (Hernell, Ljung, Ynnerman 2008).
-// keep in sync with shaders/src/light.rs `LightParams`
+// keep in sync with shaders/src/light/mod.rs `LightParams` (checked field by
+// field: shaders::layout)
 //
 // Positions are in texture space (0..1 over the volume's box); distances along
 // rays are model-space millimetres, as in the ray caster.
@@ -16,26 +17,16 @@ struct LightParams {
     // in_scatter: the direction of this refinement step (model space, unit;
     // w = 1: towards the light instead), and its blend weight for eq. 13.
     scatter_direction: vec4<f32>,
-    // One level-0 voxel in texture coordinates (1 / dims), and the light step h (mm).
-    texel: vec3<f32>,
-    step: f32,
-    // Level-0 voxels along x, y, z, and texel value → transfer-function coordinate.
-    volume_dims: vec3<f32>,
-    value_scale: f32,
-    // Atlas size in texels, and the transfer-function offset.
-    atlas_size: vec3<f32>,
-    value_offset: f32,
-    // Blocks along x, y, z, and transfer-function entries.
-    block_grid: vec3<u32>,
-    tf_len: u32,
+    // The packed volume (shared/packed_volume.wgsl).
+    volume: PackedVolume,
     // Points of the shadow volume (SVR) along x, y, z, and the light's intensity I0.
     svr_dims: vec3<u32>,
     intensity: f32,
-    // Segment length L (mm), scattering radius R_Ω (mm), the step opacities
-    // refer to (mm), and the blend weight w_j / W_j of this refinement (eq. 13).
+    // Segment length L (mm), scattering radius R_Ω (mm), the light step h
+    // (mm), and the blend weight w_j / W_j of this refinement (eq. 13).
     segment: f32,
     scatter_radius: f32,
-    reference_step: f32,
+    step: f32,
     blend: f32,
     // Per level: slots along x, y, z, and the atlas z where the level's region starts.
     regions: array<vec4<u32>, 5>,

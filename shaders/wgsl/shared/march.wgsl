@@ -13,7 +13,7 @@
 // Central differences one level-0 voxel apart around a sample in `loc`, per
 // unit of texture coordinate.
 fn gradient_at(tc: vec3<f32>, loc: Location) -> vec3<f32> {
-    let h = params.texel;
+    let h = params.volume.texel;
     let dx = vec3<f32>(h.x, 0.0, 0.0);
     let dy = vec3<f32>(0.0, h.y, 0.0);
     let dz = vec3<f32>(0.0, 0.0, h.z);
@@ -72,7 +72,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (params.flags & FLAG_JITTER) != 0u {
             jitter = unit_from_hash(pcg_hash(gid.y * params.width + gid.x));
         }
-        let exponent = params.step / params.reference_step;
+        let exponent = params.step / params.volume.reference_step;
         let first = span.x + jitter * params.step;
         // Samples sit at t = first + i * step, whatever was skipped: skipping
         // jumps i past an empty block, so it changes no sample's position.
@@ -94,7 +94,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 i = next;
                 continue;
             }
-            let u = sample_at(tc, loc) * params.value_scale + params.value_offset;
+            let u = sample_at(tc, loc) * params.volume.value_scale + params.volume.value_offset;
             let rgba = classify(u);
             if rgba.a > 0.0 {
                 if params.mode == MODE_COMPOSITE {
@@ -102,7 +102,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                     var rgb = rgba.rgb;
                     if (params.flags & FLAG_SHADED) != 0u {
                         let g = (params.gradient_from_texture * vec4<f32>(gradient_at(tc, loc), 0.0)).xyz
-                            * params.value_scale;
+                            * params.volume.value_scale;
                         rgb = shade(rgb, g, dir);
                     }
                     if (params.flags & FLAG_LIT) != 0u {

@@ -4,8 +4,8 @@
 // and its level, or EMPTY_LEVEL when the block is not stored. Slots hold the
 // block at its level with a one-texel apron of its neighbours, so filtering
 // inside a slot is right up to half a texel beyond the block.
-// Needs `params.volume_dims`, `params.block_grid`, `params.atlas_size`,
-// `params.texel` and the binding `block_index: texture_3d<u32>`.
+// Needs `params.volume.volume_dims`, `params.volume.block_grid`, `params.volume.atlas_size`,
+// `params.volume.texel` and the binding `block_index: texture_3d<u32>`.
 // Constants in shared/blocks.wgsl.
 // CPU twin: shaders/src/cpu/packed.rs.
 
@@ -21,8 +21,8 @@ struct Location {
 
 // The block texture coordinate tc falls in (clamped to the grid).
 fn block_of(tc: vec3<f32>) -> vec3<i32> {
-    let last = vec3<i32>(params.block_grid) - vec3<i32>(1);
-    return clamp(vec3<i32>(floor(tc * params.volume_dims / BLOCK)), vec3<i32>(0), last);
+    let last = vec3<i32>(params.volume.block_grid) - vec3<i32>(1);
+    return clamp(vec3<i32>(floor(tc * params.volume.volume_dims / BLOCK)), vec3<i32>(0), last);
 }
 
 fn locate(tc: vec3<f32>) -> Location {
@@ -40,17 +40,17 @@ fn locate(tc: vec3<f32>) -> Location {
 // the block are clamped to its apron, so filtering never reads another slot.
 // Every atlas-shaped texture (data, local opacity, light) is read here.
 fn atlas_coord(tc: vec3<f32>, loc: Location) -> vec3<f32> {
-    let p = tc * params.volume_dims;
+    let p = tc * params.volume.volume_dims;
     let local = (p - vec3<f32>(loc.block) * BLOCK) * loc.scale;
     let edge = BLOCK * loc.scale;
     let inside = clamp(local, vec3<f32>(-0.5), vec3<f32>(edge + 0.5));
-    return (loc.origin + inside) / params.atlas_size;
+    return (loc.origin + inside) / params.volume.atlas_size;
 }
 
 // Where the ray (texture-space origin, direction per mm) leaves block `loc`
 // (model-space t).
 fn empty_exit(origin: vec3<f32>, dir: vec3<f32>, loc: Location) -> f32 {
-    let lo = vec3<f32>(loc.block) * BLOCK * params.texel;
-    let hi = min(lo + BLOCK * params.texel, vec3<f32>(1.0));
+    let lo = vec3<f32>(loc.block) * BLOCK * params.volume.texel;
+    let hi = min(lo + BLOCK * params.volume.texel, vec3<f32>(1.0));
     return intersect_box(origin, dir, lo, hi).y;
 }

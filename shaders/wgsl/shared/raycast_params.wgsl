@@ -1,5 +1,6 @@
 // RaycastParams: the per-frame uniforms of the `raycast` and `reference` stages.
-// keep in sync with shaders/src/raycast.rs `RaycastParams`
+// keep in sync with shaders/src/raycast.rs `RaycastParams` (checked field by
+// field: shaders::layout)
 //
 // Model space is physical millimetres in patient LPS, shifted so the volume's
 // centre is the origin. The volume occupies a parallelepiped there (its index
@@ -13,14 +14,12 @@ struct RaycastParams {
     // Texture-space derivatives (per unit of texture coordinate) to model-space
     // gradients (per mm): the transpose of texture_from_model's linear part.
     gradient_from_texture: mat4x4<f32>,
-    // One level-0 voxel in texture coordinates (1 / dims), and the step between samples (mm).
-    texel: vec3<f32>,
-    step: f32,
-    // Unit vector towards the light (model space), and the step that
-    // transfer-function opacities refer to (mm): opacity correction uses
-    // step / reference_step.
+    // The packed volume (shared/packed_volume.wgsl; the reference stage has
+    // no atlas: atlas_size 1, block_grid 0).
+    volume: PackedVolume,
+    // Unit vector towards the light (model space), and the step between samples (mm).
     light_dir: vec3<f32>,
-    reference_step: f32,
+    step: f32,
     // The clip box in texture space (0..1 keeps everything), and the
     // accumulated opacity at which a ray stops.
     clip_min: vec3<f32>,
@@ -29,13 +28,6 @@ struct RaycastParams {
     // Gradient magnitude (transfer-function units per mm) under which a sample
     // is left unshaded.
     gradient_threshold: f32,
-    // Level-0 voxels along x, y, z, and texel value → transfer-function
-    // coordinate: u = value * value_scale + value_offset.
-    volume_dims: vec3<f32>,
-    value_scale: f32,
-    // Atlas size in texels (packed stage only).
-    atlas_size: vec3<f32>,
-    value_offset: f32,
     // Background colour behind the volume (rgb; a is ignored).
     background: vec4<f32>,
     // Light colour (rgb, times the light's intensity) and I_bias (a), for FLAG_LIT
@@ -43,18 +35,16 @@ struct RaycastParams {
     light: vec4<f32>,
     // Blinn–Phong: ambient, diffuse, specular, shininess.
     phong: vec4<f32>,
-    // Blocks along x, y, z (packed stage only), and the upper bound on samples per ray.
-    block_grid: vec3<u32>,
-    max_steps: u32,
-    // Transfer-function entries, image size, FLAG_* bits.
-    tf_len: u32,
+    // Image size, FLAG_* bits and MODE_*.
     width: u32,
     height: u32,
     flags: u32,
-    // MODE_*; how far towards the eye (mm) the light is read (one light-cache
-    // cell for extinction-based illumination, so a surface reads the light just
-    // outside it, not a blend with the shadowed cells behind it; else 0); padding.
     mode: u32,
+    // The upper bound on samples per ray; how far towards the eye (mm) the
+    // light is read (one light-cache cell for extinction-based illumination, so
+    // a surface reads the light just outside it, not a blend with the shadowed
+    // cells behind it; else 0); padding.
+    max_steps: u32,
     light_offset: f32,
     _pad0: u32,
     _pad1: u32,

@@ -15,7 +15,7 @@ struct SlotTexel {
 fn slot_texel(texel: vec3<u32>) -> SlotTexel {
     var out: SlotTexel;
     out.valid = false;
-    if any(vec3<f32>(texel) >= params.atlas_size) {
+    if any(vec3<f32>(texel) >= params.volume.atlas_size) {
         return out;
     }
     var first_slot = 0u;
@@ -32,14 +32,14 @@ fn slot_texel(texel: vec3<u32>) -> SlotTexel {
             if b == NO_BLOCK {
                 return out;
             }
-            let grid = params.block_grid;
+            let grid = params.volume.block_grid;
             let block = vec3<u32>(b % grid.x, (b / grid.x) % grid.y, b / (grid.x * grid.y));
             // The texel's level-l index within the block: -1 and 16 / 2^l are apron.
             let q = vec3<f32>(texel - vec3<u32>(0u, 0u, region.w) - slot * edge) - 1.0;
             let size = f32(1u << level);
             let p = vec3<f32>(block) * BLOCK + (q + 0.5) * size;
             out.valid = true;
-            out.tc = clamp(p / params.volume_dims, vec3<f32>(0.0), vec3<f32>(1.0));
+            out.tc = clamp(p / params.volume.volume_dims, vec3<f32>(0.0), vec3<f32>(1.0));
             return out;
         }
         first_slot += region.x * region.y * region.z;

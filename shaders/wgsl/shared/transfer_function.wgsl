@@ -1,5 +1,5 @@
 // transfer_function: the 1D RGBA table, read like a 1D texture.
-// Needs `params.tf_len` and the binding `transfer_function: array<vec4<f32>>`.
+// Needs `params.volume.tf_len` and the binding `transfer_function: array<vec4<f32>>`.
 // CPU twin: shaders/src/cpu/march.rs `classify`.
 
 // Largest opacity fed to the opacity correction, so pow() never sees a zero base.
@@ -8,7 +8,7 @@ const MAX_SAMPLE_OPACITY: f32 = 0.9999;
 // The transfer function at coordinate u (0..1), linearly interpolated between entry
 // centres like a 1D texture with clamp to edge.
 fn classify(u: f32) -> vec4<f32> {
-    let n = i32(params.tf_len);
+    let n = i32(params.volume.tf_len);
     let x = clamp(u, 0.0, 1.0) * f32(n) - 0.5;
     let i0f = floor(x);
     let f = x - i0f;
