@@ -201,7 +201,7 @@ async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Re
     set("x-encode-ms", format!("{encode_ms:.1}"));
     set("x-reduction", format!("{:.2}", stats.reduction));
     set("x-levels", format!("{:?}", stats.level_counts));
-    if let Some(light) = &stats.light {
+    if let Some(light) = stats.light() {
         set(
             "x-refinement",
             format!("{}/{}", light.refined, light.directions),

@@ -183,7 +183,7 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         // A still image: the light with every in-scattering direction in.
         let frame = renderer.render_converged(&request)?;
         let stats = renderer.last_stats();
-        if let Some(light) = &stats.light {
+        if let Some(light) = stats.light() {
             tracing::info!(
                 "light: local_opacity {:.0} ms, global_opacity {:.0} ms, direct_light {:.0} ms, \
                  in_scatter {:.0} ms ({} directions)",

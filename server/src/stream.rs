@@ -396,14 +396,13 @@ fn render_job(
     let renderer = state.renderer.clone();
     let jpeg_quality = state.stream.jpeg_quality;
     let lossless = state.stream.lossless;
-    let global = request.shading == Shading::GlobalLight;
     Box::pin(async move {
         let rendered = renderer
             .render_waiting(&dataset, request)
             .await
             .map_err(|e| e.to_string())?;
-        let light = rendered.stats.light;
-        let converged = !global || light.is_some_and(|l| l.refined >= l.directions);
+        let converged = rendered.stats.converged();
+        let light = rendered.stats.light().copied();
         let frame = rendered.frame;
         let (width, height) = (frame.width, frame.height);
         let start = Instant::now();

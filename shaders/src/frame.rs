@@ -6,7 +6,7 @@ use blocks::{Preset, TransferFunction};
 
 use crate::Camera;
 use crate::extinction::ExtinctionSettings;
-use crate::light::LightSettings;
+use crate::global_light::LightSettings;
 use crate::settings::{Choice, SettingError, Settings, TextSetting};
 
 /// The largest image edge in pixels.

@@ -7,7 +7,7 @@ use glam::Mat4;
 use naga::{ArraySize, Module, ScalarKind, TypeInner, VectorSize};
 
 use crate::extinction::{ExtinctionParams, LightUniform};
-use crate::light::LightParams;
+use crate::global_light::LightParams;
 use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
 

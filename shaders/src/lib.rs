@@ -26,18 +26,21 @@
 //!   texel → transfer-function map), and [`packed_volume::PackedLayout`].
 //! - [`packed`]: the atlas and block index on the GPU ([`packed::GpuAtlas`]),
 //!   uploaded in rows of slots and updated block by block.
-//! - [`light`]: global light propagation (local piecewise integration, the
-//!   shadow volume, direct light, first-order in-scattering) in packed block
-//!   coordinates: [`light::LightSettings`], [`light::Illumination`].
+//! - [`illumination`]: the illumination modes behind one interface
+//!   ([`illumination::Mode`], [`illumination::Illumination`]): each mode's
+//!   stages declared once, and the update policy they share.
+//! - [`global_light`]: global light propagation (local piecewise integration,
+//!   the shadow volume, direct light, first-order in-scattering) in packed
+//!   block coordinates, one module per job (settings, uniforms, pipelines,
+//!   resources, update policy).
 //! - [`extinction`]: extinction-based illumination (a 3D summed-area table of
 //!   extinction coefficients; ambient occlusion, colour bleeding and cone soft
-//!   shadows from several lights in a light cache):
-//!   [`extinction::ExtinctionSettings`], [`extinction::ExtinctionLighting`].
+//!   shadows from several lights in a light cache), laid out alike.
 //! - [`pipeline`]: builders for compute stages and their bind group layouts.
 //! - [`renderer`]: [`Renderer`] (a brick store rendered from its packed blocks,
 //!   frame by frame) and [`ReferenceRenderer`] (tests and benchmarks).
-//! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`, `cpu::light`,
-//!   `cpu::extinction`)
+//! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`,
+//!   `cpu::global_light`, `cpu::extinction`)
 //!   and whole-frame CPU renders.
 //! - [`colour_difference`]: CIE ΔE*uv between a frame and its reference (mean,
 //!   RMS, 99th percentile, ΔE₆; over the image or the object's pixels), for
@@ -53,10 +56,11 @@ pub mod cpu;
 pub mod error;
 pub mod extinction;
 pub mod frame;
+pub mod global_light;
 pub mod gpu;
+pub mod illumination;
 #[cfg(test)]
 mod layout;
-pub mod light;
 pub mod packed;
 pub mod packed_volume;
 pub mod pipeline;
@@ -72,8 +76,8 @@ pub use wgpu;
 pub use camera::{Camera, Projection};
 pub use error::GpuError;
 pub use frame::{ClipBox, Compositing, Frame, FrameRequest, Shading};
+pub use global_light::{LightSettings, LightSource};
 pub use gpu::GpuContext;
-pub use light::{LightSettings, LightSource};
 pub use raycast::{MarchPipeline, RaycastParams, Stage};
 pub use renderer::{ReferenceRenderer, RenderStats, Renderer};
 pub use settings::{Choice, SettingError, Settings};

@@ -10,6 +10,7 @@
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
 
+use crate::illumination::Mode;
 use crate::packed_volume::{PackedLayout, PackedVolume};
 use crate::pipeline::ComputeStage;
 use crate::volume_texture::VolumeTexture;
@@ -157,24 +158,18 @@ impl RaycastParams {
         let step = request.step_voxels * min_spacing;
         let max_steps = (2.0 * radius / step).ceil() as u32 + 2;
         let mut flags = FLAG_JITTER;
-        // Extinction-based illumination keeps the gradient factor k of eq. 8.
-        if matches!(request.shading, Shading::Gradient | Shading::Extinction) {
+        if request.shading == Shading::Gradient {
             flags |= FLAG_SHADED;
         }
         if request.skip_empty {
             flags |= FLAG_SKIP_EMPTY;
         }
-        let mut lit = [1.0, 1.0, 1.0, 0.0];
-        if request.shading == Shading::GlobalLight {
-            flags |= FLAG_LIT;
-            let [r, g, b] = request.light.colour.map(|c| c * request.light.intensity);
-            lit = [r, g, b, request.light.bias];
-        }
-        let mut light_offset = 0.0;
-        if request.shading == Shading::Extinction {
-            // The light cache holds the coloured light: white, no bias.
-            flags |= FLAG_LIT;
-            light_offset = crate::extinction::cell_mm(texture, request.extinction.sat_size);
+        let (mut lit, mut light_offset) = ([1.0, 1.0, 1.0, 0.0], 0.0);
+        // A lit mode says how the ray caster reads its light.
+        if let Some(mode) = Mode::of(request.shading) {
+            let light = mode.raycast_light(request, texture);
+            flags |= light.flags;
+            (lit, light_offset) = (light.light, light.light_offset);
         }
         if request.compositing == Compositing::Extinction {
             flags |= FLAG_EXTINCTION;

@@ -19,13 +19,14 @@ use blocks::store::{LEVELS, Store};
 use blocks::transfer_function::TABLE_LEN;
 use blocks::{TransferFunction, Volume};
 
-use crate::extinction::{ExtinctionLighting, ExtinctionTimings};
-use crate::light::{DirectLightMethod, Illumination, LightInputs, LightTimings};
+use crate::extinction::{Extinction, ExtinctionTimings};
+use crate::global_light::{GlobalLight, LightTimings};
+use crate::illumination::{Illumination, Inputs, Mode, Timings};
 use crate::packed::GpuAtlas;
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
-use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams, Shading};
+use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
 /// Rows of a texture-to-buffer copy are padded to this many bytes.
 const ROW_ALIGN: u32 = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
@@ -210,10 +211,41 @@ pub struct RenderStats {
     pub upload_ms: f64,
     /// Milliseconds from dispatch to pixels read back.
     pub draw_ms: f64,
-    /// The light stages of this frame (global light propagation only).
-    pub light: Option<LightTimings>,
-    /// The extinction stages of this frame (extinction-based illumination only).
-    pub extinction: Option<ExtinctionTimings>,
+    /// The illumination mode's stages of this frame (lit shading only).
+    pub illumination: Option<Timings>,
+}
+
+impl RenderStats {
+    /// Global light propagation's stages of this frame.
+    pub fn light(&self) -> Option<&LightTimings> {
+        match &self.illumination {
+            Some(Timings::GlobalLight(t)) => Some(t),
+            _ => None,
+        }
+    }
+
+    /// Extinction-based illumination's stages of this frame.
+    pub fn extinction(&self) -> Option<&ExtinctionTimings> {
+        match &self.illumination {
+            Some(Timings::Extinction(t)) => Some(t),
+            _ => None,
+        }
+    }
+
+    /// Whether the frame is final for its view: nothing more will refine its
+    /// light (always, for modes that do not refine and for unlit shading).
+    pub fn converged(&self) -> bool {
+        self.illumination.as_ref().is_none_or(Timings::converged)
+    }
+}
+
+/// An illumination mode in use: its GPU state and the ray-caster variant
+/// that reads its light.
+#[derive(Debug)]
+struct LitMode {
+    mode: Mode,
+    state: Box<dyn Illumination>,
+    pipeline: MarchPipeline,
 }
 
 /// The blocks on the GPU and what they were selected for.
@@ -237,11 +269,9 @@ pub struct Renderer {
     resident: Option<Resident>,
     /// Bumped whenever the resident blocks change: the light depends on them.
     data_version: u64,
-    lit_pipeline: Option<MarchPipeline>,
-    illumination: Option<Illumination>,
-    light_method: DirectLightMethod,
-    extinction_pipeline: Option<MarchPipeline>,
-    extinction: Option<ExtinctionLighting>,
+    /// The illumination modes used so far: each one's GPU state and the
+    /// ray-caster variant that reads its light.
+    lit: Vec<LitMode>,
     frame: FrameResources,
     last: RenderStats,
 }
@@ -281,11 +311,7 @@ impl Renderer {
             device_budget_bytes: budget_bytes,
             resident: None,
             data_version: 0,
-            lit_pipeline: None,
-            illumination: None,
-            light_method: DirectLightMethod::Piecewise,
-            extinction_pipeline: None,
-            extinction: None,
+            lit: Vec::new(),
             frame,
             last: RenderStats::default(),
         })
@@ -316,25 +342,26 @@ impl Renderer {
         self.resident.as_ref().map(|r| &r.atlas.packing)
     }
 
+    /// The GPU state of illumination mode `mode`, once it was used.
+    pub fn illumination(&self, mode: Mode) -> Option<&dyn Illumination> {
+        self.lit.iter().find(|l| l.mode == mode).map(|l| &*l.state)
+    }
+
     /// The light of global light propagation, once computed.
-    pub fn illumination(&self) -> Option<&Illumination> {
-        self.illumination.as_ref()
+    pub fn global_light(&self) -> Option<&GlobalLight> {
+        self.illumination(Mode::GlobalLight)
+            .and_then(|s| s.as_any().downcast_ref())
     }
 
     /// The extinction-based illumination, once computed.
-    pub fn extinction(&self) -> Option<&ExtinctionLighting> {
-        self.extinction.as_ref()
+    pub fn extinction(&self) -> Option<&Extinction> {
+        self.illumination(Mode::Extinction)
+            .and_then(|s| s.as_any().downcast_ref())
     }
 
     /// The resident atlas, once a frame was rendered.
     pub fn atlas(&self) -> Option<&GpuAtlas> {
         self.resident.as_ref().map(|r| &r.atlas)
-    }
-
-    /// How I_d is computed for [`Shading::GlobalLight`]: the paper's piecewise
-    /// method (the default) or the brute-force reference (tests, benchmarks).
-    pub fn set_light_method(&mut self, method: DirectLightMethod) {
-        self.light_method = method;
     }
 
     /// Renders one frame and reads it back. For [`Shading::GlobalLight`] the
@@ -351,16 +378,12 @@ impl Renderer {
     }
 
     /// Prepares the blocks, brings the request's light up to date (all of
-    /// global light's refinements when `converge`) and draws.
+    /// its refinements when `converge`) and draws.
     fn render_lit(&mut self, request: &FrameRequest, converge: bool) -> Result<Frame, GpuError> {
         let tf = request.store_transfer_function(self.cache.store().meta());
         let mut stats = self.prepare(request, &tf)?;
-        match request.shading {
-            Shading::GlobalLight => {
-                stats.light = Some(self.update_light(request, &tf, converge)?);
-            }
-            Shading::Extinction => stats.extinction = Some(self.update_extinction(request, &tf)?),
-            _ => {}
+        if let Some(mode) = Mode::of(request.shading) {
+            stats.illumination = Some(self.update_illumination(mode, request, &tf, converge)?);
         }
         self.draw(request, stats)
     }
@@ -378,64 +401,36 @@ impl Renderer {
         Ok(stats)
     }
 
-    /// Brings the light up to date for `request` (all of it when `converge`).
-    fn update_light(
+    /// Brings illumination mode `mode` up to date for `request` (every
+    /// refinement when `converge`), making its state on first use.
+    fn update_illumination(
         &mut self,
+        mode: Mode,
         request: &FrameRequest,
         tf: &TransferFunction,
         converge: bool,
-    ) -> Result<LightTimings, GpuError> {
-        if self.illumination.is_none() {
-            self.illumination = Some(Illumination::new(&self.gpu)?);
+    ) -> Result<Timings, GpuError> {
+        if !self.lit.iter().any(|l| l.mode == mode) {
+            self.lit.push(LitMode {
+                mode,
+                state: mode.create(&self.gpu)?,
+                pipeline: MarchPipeline::new(&self.gpu, mode.raycast_stage())?,
+            });
         }
-        if self.lit_pipeline.is_none() {
-            self.lit_pipeline = Some(MarchPipeline::new(&self.gpu, Stage::RaycastLit)?);
-        }
-        let (Some(resident), Some(illumination)) = (&self.resident, self.illumination.as_mut())
+        let (Some(resident), Some(lit)) =
+            (&self.resident, self.lit.iter_mut().find(|l| l.mode == mode))
         else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
-        let inputs = light_inputs(resident, &self.frame, &self.desc);
-        let mut timings = illumination.update(
-            &self.gpu,
-            inputs,
+        let inputs = Inputs {
+            atlas: &resident.atlas,
+            transfer_function: &self.frame.transfer_function,
+            texture: &self.desc,
+            tf_len: TABLE_LEN as u32,
             tf,
-            &request.light,
-            self.data_version,
-            self.light_method,
-        )?;
-        if converge {
-            timings.in_scatter_ms += illumination.converge(&self.gpu, inputs)?;
-            timings.refined = timings.directions;
-        }
-        Ok(timings)
-    }
-
-    /// Brings the light cache up to date for `request` (nothing when only the
-    /// camera moved).
-    fn update_extinction(
-        &mut self,
-        request: &FrameRequest,
-        tf: &TransferFunction,
-    ) -> Result<ExtinctionTimings, GpuError> {
-        if self.extinction.is_none() {
-            self.extinction = Some(ExtinctionLighting::new(&self.gpu)?);
-        }
-        if self.extinction_pipeline.is_none() {
-            self.extinction_pipeline =
-                Some(MarchPipeline::new(&self.gpu, Stage::RaycastExtinction)?);
-        }
-        let (Some(resident), Some(extinction)) = (&self.resident, self.extinction.as_mut()) else {
-            return Err(GpuError::InvalidRequest("no blocks are resident".into()));
+            data_version: self.data_version,
         };
-        let inputs = light_inputs(resident, &self.frame, &self.desc);
-        extinction.update(
-            &self.gpu,
-            inputs,
-            tf,
-            &request.extinction,
-            self.data_version,
-        )
+        lit.state.update(&self.gpu, inputs, request, converge)
     }
 
     /// Renders the frame of `request` from what is resident.
@@ -445,20 +440,10 @@ impl Renderer {
         };
         let params =
             RaycastParams::new(&self.desc, request, TABLE_LEN as u32, resident.atlas.layout);
-        // The lit pipeline and its light, once both exist; else unlit.
-        let lit = match request.shading {
-            Shading::GlobalLight => self.lit_pipeline.as_ref().zip(
-                self.illumination
-                    .as_ref()
-                    .and_then(Illumination::light_volume),
-            ),
-            Shading::Extinction => self.extinction_pipeline.as_ref().zip(
-                self.extinction
-                    .as_ref()
-                    .and_then(ExtinctionLighting::light_cache),
-            ),
-            _ => None,
-        };
+        // The lit mode's pipeline and light, once computed; else unlit.
+        let lit = Mode::of(request.shading)
+            .and_then(|mode| self.lit.iter().find(|l| l.mode == mode))
+            .and_then(|l| Some((&l.pipeline, l.state.light_view()?)));
         let (pipeline, light) = match lit {
             Some((p, light)) => (p, Some(light)),
             None => (&self.pipeline, None),
@@ -719,21 +704,6 @@ pub fn select_levels(
 /// voxel) of a volume of `full_voxels`.
 pub fn budget_voxels(full_voxels: u64, reduction: f32) -> u64 {
     (full_voxels as f64 / f64::from(reduction.max(1.0))).ceil() as u64
-}
-
-/// What the light stages read: the resident blocks and the frame's
-/// transfer-function table.
-fn light_inputs<'a>(
-    resident: &'a Resident,
-    frame: &'a FrameResources,
-    desc: &'a VolumeTexture,
-) -> LightInputs<'a> {
-    LightInputs {
-        atlas: &resident.atlas,
-        transfer_function: &frame.transfer_function,
-        texture: desc,
-        tf_len: TABLE_LEN as u32,
-    }
 }
 
 /// The output texture and readback buffer for `width` × `height`: the one in `slot`

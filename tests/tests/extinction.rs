@@ -16,11 +16,11 @@
 
 use blocks::Preset;
 use server::Dataset;
-use shaders::cpu::extinction as twin;
+use shaders::cpu::extinction::{self as twin, ExtinctionInputs, ExtinctionState};
 use shaders::cpu::light_cache_textures;
 use shaders::extinction::{
     AoMethod, ExtinctionLight, ExtinctionLightKind, ExtinctionParams, ExtinctionSettings,
-    ShadowMethod,
+    ShadowMethod, Stage,
 };
 use shaders::volume_texture::VolumeTexture;
 use shaders::{Camera, Compositing, FrameRequest, GpuContext, Shading};
@@ -83,15 +83,63 @@ fn check_terms(case: &str, stage: &str, gpu: &[[f32; 4]], cpu: &[[f32; 4]]) {
     );
 }
 
+/// SAT channels agree to a relative `SAT_TOLERANCE` (their cells come from
+/// `log` of filtered samples, a few ulps apart); cells likewise absolutely.
+const SAT_TOLERANCE: f64 = 1e-4;
+
+/// Compares what `stage` wrote on the GPU with what its twin wrote.
+fn check_stage_output(
+    case: &str,
+    name: &str,
+    stage: Stage,
+    gpu: &ExtinctionState,
+    cpu: &ExtinctionState,
+) {
+    match stage {
+        Stage::ExtinctionSat => {
+            for ch in 0..gpu.sat.channels as usize {
+                let (g, c) = (&gpu.sat.data[ch], &cpu.sat.data[ch]);
+                assert_eq!(g.len(), c.len(), "{case}: SAT size");
+                let worst = g
+                    .iter()
+                    .zip(c)
+                    .map(|(g, c)| (*g as f64 - *c as f64).abs() / (*c as f64).max(16_777_216.0))
+                    .fold(0.0f64, f64::max);
+                println!("{case}: {name} channel {ch}: largest relative difference {worst:.2e}");
+                assert!(
+                    worst <= SAT_TOLERANCE,
+                    "{case}: SAT channel {ch} differs by {worst:.2e}"
+                );
+                assert!(*c.last().expect("cells") > 0, "{case}: empty SAT");
+            }
+            let worst = gpu
+                .extinction
+                .iter()
+                .zip(&cpu.extinction)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(
+                f64::from(worst) <= SAT_TOLERANCE,
+                "{case}: extinction cells differ by {worst}"
+            );
+        }
+        Stage::AmbientOcclusion => check_terms(case, name, &gpu.ambient, &cpu.ambient),
+        Stage::SoftShadow => check_terms(case, name, &gpu.light_cache, &cpu.light_cache),
+    }
+}
+
 /// Renders `request` on the GPU, reads the SAT and every texture back and
-/// compares each stage with its CPU twin fed the GPU's own inputs.
+/// compares each stage of [`Stage::ALL`] with its CPU twin fed the GPU's own
+/// inputs (so differences do not compound).
 fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &FrameRequest) {
     let mut renderer = gpu_renderer(gpu, dataset);
     let gpu_frame = renderer
         .render(request)
         .unwrap_or_else(|e| panic!("{case}: {e}"));
     let lighting = renderer.extinction().expect("extinction lighting");
-    let volumes = lighting.volumes().expect("extinction volumes");
+    let gpu_state = lighting
+        .read_state(gpu)
+        .unwrap_or_else(|e| panic!("{case}: readback: {e}"));
     let params: ExtinctionParams = *lighting.params().expect("params");
     let packing = renderer.packing().expect("packed").clone();
     let desc: VolumeTexture = *renderer.volume_texture();
@@ -100,74 +148,25 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
         .store_transfer_function(dataset.store.meta())
         .table(desc.tf_domain, 1024)
         .expect("table");
-    let settings = &request.extinction;
     let near = shaders::extinction::near_cells_mask(&packing, &params);
     let read = near.iter().filter(|&&b| b != 0).count();
     println!("{case}: {read} of {} blocks near stored ones", near.len());
-
-    let (cpu_sat, cpu_extinction) = twin::extinction_sat(&params, &packed, &table);
-    let channels = params.channels as usize;
-    let mut gpu_sat = cpu_sat.clone();
-    for ch in 0..channels {
-        let gpu_values = volumes
-            .read_sat(gpu, ch)
-            .unwrap_or_else(|e| panic!("{case}: SAT readback: {e}"));
-        let cpu_values = &cpu_sat.data[ch];
-        assert_eq!(gpu_values.len(), cpu_values.len(), "{case}: SAT size");
-        let mut worst = 0.0f64;
-        for (g, c) in gpu_values.iter().zip(cpu_values) {
-            let rel = (*g as f64 - *c as f64).abs() / (*c as f64).max(1.0 * 16_777_216.0);
-            worst = worst.max(rel);
-        }
-        println!("{case}: extinction_sat channel {ch}: largest relative difference {worst:.2e}");
-        assert!(
-            worst <= 1e-4,
-            "{case}: SAT channel {ch} differs by {worst:.2e}"
-        );
-        assert!(*cpu_values.last().expect("cells") > 0, "{case}: empty SAT");
-        gpu_sat.data[ch] = gpu_values;
+    let inputs = ExtinctionInputs {
+        params: &params,
+        settings: &request.extinction,
+        packed: &packed,
+        tf: &table,
+        near_blocks: &near,
+    };
+    for stage in Stage::ALL {
+        let mut cpu_state = gpu_state.clone();
+        twin::run(stage, &inputs, &mut cpu_state);
+        let name = stage.shader(&request.extinction);
+        check_stage_output(case, name, stage, &gpu_state, &cpu_state);
     }
-    let gpu_extinction: Vec<f32> = volumes
-        .extinction
-        .read(gpu)
-        .expect("extinction readback")
-        .iter()
-        .map(|t| t[0])
-        .collect();
-    let worst = gpu_extinction
-        .iter()
-        .zip(&cpu_extinction)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
-    assert!(worst <= 1e-4, "{case}: extinction cells differ by {worst}");
-
-    let gpu_ambient = volumes.ambient.read(gpu).expect("ambient readback");
-    let cpu_ambient = match settings.ao_method {
-        AoMethod::Sat => twin::ambient_occlusion(&params, &gpu_sat, &near),
-        AoMethod::Sampled => twin::ambient_occlusion_reference(&params, &gpu_extinction, &near),
-    };
-    let ao_stage = match settings.ao_method {
-        AoMethod::Sat => "ambient_occlusion",
-        AoMethod::Sampled => "ambient_occlusion_reference",
-    };
-    check_terms(case, ao_stage, &gpu_ambient, &cpu_ambient);
-
-    let gpu_cache = volumes.light_cache.read(gpu).expect("cache readback");
-    let (shadow_stage, cpu_cache) = match settings.shadow_method {
-        ShadowMethod::Cone => (
-            "soft_shadow",
-            twin::soft_shadow(&params, &gpu_sat, &gpu_ambient, &near),
-        ),
-        ShadowMethod::Ray => (
-            "shadow_ray",
-            twin::shadow_ray(&params, &gpu_extinction, &gpu_ambient, &near),
-        ),
-    };
-    check_terms(case, shadow_stage, &gpu_cache, &cpu_cache);
-
     // The lit frame: the CPU ray caster reading the GPU's light cache.
     let mut cpu_packed = packed;
-    cpu_packed.light_cache = Some(light_cache_textures(params.grid, &gpu_cache));
+    cpu_packed.light_cache = Some(light_cache_textures(params.grid, &gpu_state.light_cache));
     let cpu_frame = cpu_raycast(dataset, &desc, &packing, &cpu_packed, request, &table);
     let tolerance = voxserve_tests::Tolerance {
         max_mean: 0.5,
@@ -259,9 +258,9 @@ fn light_cache_follows_algorithm_1() {
     request.height = 32;
     let mut frame = |r: &FrameRequest| {
         renderer.render(r).expect("render");
-        renderer
+        *renderer
             .last_stats()
-            .extinction
+            .extinction()
             .expect("extinction timings")
     };
     let first = frame(&request);
@@ -378,7 +377,7 @@ fn the_gpu_sat_at_256_cubed_equals_brute_force_sums_of_its_cells() {
         .read(gpu)
         .expect("extinction readback")
         .iter()
-        .map(|t| twin::fixed_of(t[0]))
+        .map(|&t| twin::fixed_of(t))
         .collect();
     let mut data: [Vec<u64>; 4] = Default::default();
     data[0] = volumes.read_sat(gpu, 0).expect("SAT readback");

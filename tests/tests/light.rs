@@ -1,6 +1,6 @@
-//! Global light propagation: every light stage on the GPU against its CPU twin
-//! (`local_opacity`, `global_opacity`, `direct_light`, `in_scatter`,
-//! `direct_light_reference`), the lit frame against the lit CPU twin, and what
+//! Global light propagation: every stage of the mode's declared list on the
+//! GPU against its CPU twin (`local_opacity`, `global_opacity`, `direct_light`
+//! or `direct_light_reference`, `in_scatter`), the lit frame against the lit CPU twin, and what
 //! is recomputed when.
 //!
 //! Tolerance per stage: the two sides differ only in arithmetic — hardware
@@ -14,7 +14,9 @@
 use blocks::Preset;
 use server::Dataset;
 use shaders::cpu::Texture3d;
-use shaders::light::{DirectLightMethod, LightParams, LightSource, near_blocks, slot_blocks};
+use shaders::cpu::global_light::{self as twin, LightInputs};
+use shaders::global_light::{DirectLightMethod, LightParams, LightSource, Stage};
+use shaders::illumination::{near_blocks, slot_blocks};
 use shaders::volume_texture::VolumeTexture;
 use shaders::{Camera, FrameRequest, GpuContext, LightSettings, Shading};
 use voxserve_tests::gpu_or_skip;
@@ -75,32 +77,18 @@ fn check_stage(case: &str, stage: &str, gpu: &[f32], cpu: &[f32]) {
 }
 
 /// Renders `request` on the GPU with the light converged, reads every light
-/// texture back and compares each with its CPU twin on the same packing.
-fn compare_stages(
-    gpu: &GpuContext,
-    dataset: &Dataset,
-    case: &str,
-    request: &FrameRequest,
-    method: DirectLightMethod,
-) {
+/// texture back and compares each stage of [`Stage::ALL`] with its CPU twin
+/// fed the GPU's own inputs (so differences do not compound).
+fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &FrameRequest) {
     let mut renderer = gpu_renderer(gpu, dataset);
-    renderer.set_light_method(method);
     let gpu_frame = renderer
         .render_converged(request)
         .unwrap_or_else(|e| panic!("{case}: {e}"));
-    let illumination = renderer.illumination().expect("lit");
-    let volumes = illumination.volumes().expect("light volumes");
-    let params: LightParams = *illumination.params().expect("params");
-    let read = |t: &shaders::light::LightTexture| {
-        t.read(gpu)
-            .unwrap_or_else(|e| panic!("{case}: readback: {e}"))
-    };
-    let (gpu_local, gpu_shadow, gpu_direct, gpu_light) = (
-        read(&volumes.local_opacity),
-        read(&volumes.shadow_volume),
-        read(&volumes.direct_light),
-        read(&volumes.light_volume),
-    );
+    let light = renderer.global_light().expect("lit");
+    let gpu_state = light
+        .read_state(gpu)
+        .unwrap_or_else(|e| panic!("{case}: readback: {e}"));
+    let params: LightParams = *light.params().expect("params");
     let packing = renderer.packing().expect("packed").clone();
     let desc: VolumeTexture = *renderer.volume_texture();
     let packed = shaders::packed::assemble_cpu(&dataset.cache, &packing, &desc).expect("atlas");
@@ -109,54 +97,34 @@ fn compare_stages(
         .table(desc.tf_domain, 1024)
         .expect("table");
     let slots = slot_blocks(&packing);
-    let atlas = params.atlas_dims();
-    // Each stage's twin reads the GPU's own inputs, so differences do not compound.
-    let cpu_local = shaders::cpu::light::local_opacity(&params, &packed, &table, &slots);
-    check_stage(case, "local_opacity", &gpu_local, &cpu_local);
-    let local_texture = Texture3d::new(atlas, gpu_local.clone());
-    if method == DirectLightMethod::Piecewise {
-        let svr = near_blocks(
-            &packing,
-            params.volume.block_grid,
-            params.svr_margin_blocks(),
-        );
-        let cpu_shadow =
-            shaders::cpu::light::global_opacity(&params, &local_texture, &packed, &svr);
-        check_stage(case, "global_opacity", &gpu_shadow, &cpu_shadow);
-    }
-    let shadow_texture = Texture3d::new(params.svr_dims, gpu_shadow.clone());
-    let cpu_direct = match method {
-        DirectLightMethod::Piecewise => {
-            shaders::cpu::light::direct_light(&params, &local_texture, &shadow_texture, &slots)
-        }
-        DirectLightMethod::Reference => {
-            shaders::cpu::light::direct_light_reference(&params, &packed, &table, &slots)
-        }
+    let svr = near_blocks(
+        &packing,
+        params.volume.block_grid,
+        params.svr_margin_blocks(),
+    );
+    let inputs = LightInputs {
+        params: &params,
+        packed: &packed,
+        tf: &table,
+        slot_blocks: &slots,
+        svr_blocks: &svr,
+        directions: light.directions(),
+        method: request.light.method,
     };
-    let stage = if method == DirectLightMethod::Piecewise {
-        "direct_light"
-    } else {
-        "direct_light_reference"
-    };
-    check_stage(case, stage, &gpu_direct, &cpu_direct);
-    let direct_texture = Texture3d::new(atlas, gpu_direct.clone());
-    let mut cpu_light = vec![0.0f32; gpu_light.len()];
-    for d in params.scatter_directions(&request.light) {
-        shaders::cpu::light::in_scatter(
-            &params.scattering(&d),
-            &packed,
-            &table,
-            &slots,
-            &direct_texture,
-            &shadow_texture,
-            &mut cpu_light,
+    for stage in Stage::ALL {
+        let mut cpu_state = gpu_state.clone();
+        twin::run(stage, &inputs, &mut cpu_state);
+        check_stage(
+            case,
+            stage.shader(request.light.method),
+            gpu_state.output(stage),
+            cpu_state.output(stage),
         );
     }
-    check_stage(case, "in_scatter", &gpu_light, &cpu_light);
     // The lit frame: the CPU ray caster lit by the GPU's light volume, so only
     // the ray caster's arithmetic differs.
     let mut cpu_packed = packed;
-    cpu_packed.light = Some(Texture3d::new(atlas, gpu_light));
+    cpu_packed.light = Some(Texture3d::new(params.atlas_dims(), gpu_state.light_volume));
     let cpu_frame = cpu_raycast(dataset, &desc, &packing, &cpu_packed, request, &table);
     let tolerance = voxserve_tests::Tolerance {
         max_mean: 0.5,
@@ -186,7 +154,6 @@ fn every_light_stage_agrees_with_its_cpu_twin() {
                 },
                 1.0,
             ),
-            DirectLightMethod::Piecewise,
         ),
         (
             "point-inside-svr2-reduced",
@@ -202,7 +169,6 @@ fn every_light_stage_agrees_with_its_cpu_twin() {
                 },
                 9.0,
             ),
-            DirectLightMethod::Piecewise,
         ),
         (
             "point-outside-reference",
@@ -211,15 +177,15 @@ fn every_light_stage_agrees_with_its_cpu_twin() {
                     source: LightSource::Point([1.6, -0.4, 0.9]),
                     scatter_radius_voxels: 0.0,
                     directions: 1,
+                    method: DirectLightMethod::Reference,
                     ..LightSettings::default()
                 },
                 1.0,
             ),
-            DirectLightMethod::Reference,
         ),
     ];
-    for (case, request, method) in cases {
-        compare_stages(gpu, dataset, case, &request, method);
+    for (case, request) in cases {
+        compare_stages(gpu, dataset, case, &request);
     }
 }
 
@@ -243,7 +209,7 @@ fn light_is_recomputed_on_light_and_tf_changes_refined_per_frame_and_kept_on_cam
     request.height = 32;
     let mut frame = |r: &FrameRequest| {
         renderer.render(r).expect("render");
-        renderer.last_stats().light.expect("lit")
+        *renderer.last_stats().light().expect("lit")
     };
     let first = frame(&request);
     assert!(

@@ -39,7 +39,8 @@ const SMALL_EDGE: u32 = 32;
 fn timings_of(renderer: &Renderer) -> anyhow::Result<ExtinctionTimings> {
     renderer
         .last_stats()
-        .extinction
+        .extinction()
+        .copied()
         .ok_or_else(|| anyhow::anyhow!("the last frame computed no extinction terms"))
 }
 

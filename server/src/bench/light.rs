@@ -24,7 +24,7 @@
 use std::time::Instant;
 
 use shaders::colour_difference::{colour_difference, object_colour_difference};
-use shaders::light::{DirectLightMethod, LightTimings, svr_dims};
+use shaders::global_light::{DirectLightMethod, LightTimings, svr_dims};
 use shaders::{Camera, FrameRequest, GpuContext, LightSettings, Renderer, Shading};
 
 use super::args::BenchLightArgs;
@@ -45,7 +45,8 @@ fn update_ms(t: &LightTimings) -> f64 {
 fn light_of(renderer: &Renderer) -> anyhow::Result<LightTimings> {
     renderer
         .last_stats()
-        .light
+        .light()
+        .copied()
         .ok_or_else(|| anyhow::anyhow!("the last frame computed no light"))
 }
 
@@ -118,16 +119,17 @@ pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
             });
 
             // The brute-force reference, then the piecewise light per SVR scale.
-            renderer.set_light_method(DirectLightMethod::Reference);
             let lit = request(
                 args.size,
                 reduction,
                 Shading::GlobalLight,
-                unscattered(1, args.segment),
+                LightSettings {
+                    method: DirectLightMethod::Reference,
+                    ..unscattered(1, args.segment)
+                },
             );
             let reference_frame = renderer.render_converged(&lit)?;
             let reference = light_of(&renderer)?;
-            renderer.set_light_method(DirectLightMethod::Piecewise);
             let background = lit
                 .background
                 .map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8);

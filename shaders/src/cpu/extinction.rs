@@ -12,7 +12,7 @@ use super::march::{MAX_SAMPLE_OPACITY, classify_table};
 use super::packed::{PackedTexture, atlas_coord};
 use crate::extinction::{
     AoMethod, ExtinctionParams, ExtinctionSettings, FIXED_ONE, LightUniform, MAX_CELL_DEPTH,
-    MAX_CONE_CUBOIDS, ShadowMethod,
+    MAX_CONE_CUBOIDS, ShadowMethod, Stage,
 };
 
 /// The most samples of one shadow ray (WGSL `MAX_RAY_STEPS`).
@@ -465,9 +465,10 @@ pub fn shadow_ray(
     })
 }
 
-/// Everything [`crate::extinction::ExtinctionLighting`] computes, on the CPU.
+/// Everything the extinction stages compute, on the CPU, as the stages leave
+/// it: what each stage writes and the later ones read.
 #[derive(Debug, Clone)]
-pub struct CpuExtinction {
+pub struct ExtinctionState {
     /// The SAT.
     pub sat: Sat,
     /// Δt·τ per cell.
@@ -478,31 +479,69 @@ pub struct CpuExtinction {
     pub light_cache: Vec<[f32; 4]>,
 }
 
-/// The whole computation as [`crate::extinction::ExtinctionLighting`] runs it
-/// with `settings`' methods, filling the cells `near_blocks`
-/// ([`crate::extinction::near_cells_mask`]) marks.
-pub fn compute_extinction(
-    p: &ExtinctionParams,
-    settings: &ExtinctionSettings,
-    packed: &PackedTexture,
-    transfer_function: &[[f32; 4]],
-    near_blocks: &[u32],
-) -> CpuExtinction {
-    let (sat, extinction) = extinction_sat(p, packed, transfer_function);
-    let ambient = match settings.ao_method {
-        AoMethod::Sat => ambient_occlusion(p, &sat, near_blocks),
-        AoMethod::Sampled => ambient_occlusion_reference(p, &extinction, near_blocks),
-    };
-    let light_cache = match settings.shadow_method {
-        ShadowMethod::Cone => soft_shadow(p, &sat, &ambient, near_blocks),
-        ShadowMethod::Ray => shadow_ray(p, &extinction, &ambient, near_blocks),
-    };
-    CpuExtinction {
-        sat,
-        extinction,
-        ambient,
-        light_cache,
+impl ExtinctionState {
+    /// Nothing computed yet, for `p`'s grid.
+    pub fn empty(p: &ExtinctionParams) -> ExtinctionState {
+        ExtinctionState {
+            sat: Sat {
+                grid: p.grid,
+                channels: p.channels,
+                data: Default::default(),
+            },
+            extinction: Vec::new(),
+            ambient: Vec::new(),
+            light_cache: Vec::new(),
+        }
     }
+}
+
+/// What the extinction stages read besides each other's results.
+#[derive(Debug, Clone, Copy)]
+pub struct ExtinctionInputs<'a> {
+    /// The uniforms.
+    pub params: &'a ExtinctionParams,
+    /// The settings (for the stages' methods).
+    pub settings: &'a ExtinctionSettings,
+    /// The packed data.
+    pub packed: &'a PackedTexture,
+    /// The transfer-function table.
+    pub tf: &'a [[f32; 4]],
+    /// [`crate::extinction::near_cells_mask`]: the cells worth filling.
+    pub near_blocks: &'a [u32],
+}
+
+/// Runs `stage`'s twin by the settings' methods, reading the earlier stages'
+/// results from `state` and writing its own there.
+pub fn run(stage: Stage, inputs: &ExtinctionInputs<'_>, state: &mut ExtinctionState) {
+    let p = inputs.params;
+    let near = inputs.near_blocks;
+    match stage {
+        Stage::ExtinctionSat => {
+            (state.sat, state.extinction) = extinction_sat(p, inputs.packed, inputs.tf);
+        }
+        Stage::AmbientOcclusion => {
+            state.ambient = match inputs.settings.ao_method {
+                AoMethod::Sat => ambient_occlusion(p, &state.sat, near),
+                AoMethod::Sampled => ambient_occlusion_reference(p, &state.extinction, near),
+            };
+        }
+        Stage::SoftShadow => {
+            state.light_cache = match inputs.settings.shadow_method {
+                ShadowMethod::Cone => soft_shadow(p, &state.sat, &state.ambient, near),
+                ShadowMethod::Ray => shadow_ray(p, &state.extinction, &state.ambient, near),
+            };
+        }
+    }
+}
+
+/// The whole computation as [`crate::extinction::Extinction`] runs it: every
+/// stage of [`Stage::ALL`] in order, filling the cells the mask marks.
+pub fn compute_extinction(inputs: &ExtinctionInputs<'_>) -> ExtinctionState {
+    let mut state = ExtinctionState::empty(inputs.params);
+    for stage in Stage::ALL {
+        run(stage, inputs, &mut state);
+    }
+    state
 }
 
 #[cfg(test)]

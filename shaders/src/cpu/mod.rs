@@ -8,10 +8,13 @@
 //!   plain texture).
 //! - [`march`]: twin of `shaders/wgsl/shared/march.wgsl`, the ray march both share.
 //! - [`packed`]: twin of `shaders/wgsl/shared/packed.wgsl`, block addressing.
-//! - [`light`]: twins of the light stages (`local_opacity`, `global_opacity`,
-//!   `direct_light`, `in_scatter`, `direct_light_reference`).
+//! - [`global_light`]: twins of the global light stages (`local_opacity`,
+//!   `global_opacity`, `direct_light`, `in_scatter`, `direct_light_reference`)
+//!   and [`global_light::run`], which runs one stage of
+//!   [`crate::global_light::Stage`] as the GPU does.
 //! - [`extinction`]: twins of the extinction stages (`extinction_sat`,
-//!   `ambient_occlusion`, `soft_shadow` and their references).
+//!   `ambient_occlusion`, `soft_shadow` and their references) and
+//!   [`extinction::run`], likewise.
 //! - [`texture`]: [`Texture3d`], a 3D texture sampled like the GPU samples one.
 //! - [`hash`]: twin of `shaders/wgsl/shared/hash.wgsl`.
 //!
@@ -19,8 +22,8 @@
 //! [`crate::Renderer`] and [`crate::ReferenceRenderer`] do on the GPU.
 
 pub mod extinction;
+pub mod global_light;
 pub mod hash;
-pub mod light;
 pub mod march;
 pub mod packed;
 pub mod raycast;
@@ -38,13 +41,14 @@ use blocks::lod::LodSelection;
 use blocks::transfer_function::TABLE_LEN;
 
 use crate::extinction::ExtinctionParams;
-use crate::light::{DirectLightMethod, LightParams, near_blocks, slot_blocks};
+use crate::global_light::LightParams;
+use crate::illumination::{Mode, near_blocks, slot_blocks};
 use crate::packed::assemble_cpu;
 use crate::packed_volume::PackedLayout;
 use crate::raycast::RaycastParams;
 use crate::renderer::{DeviceBudget, budget_voxels, select_levels};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
-use crate::{Frame, FrameRequest, GpuError, Shading};
+use crate::{Frame, FrameRequest, GpuError};
 
 /// Renders `request` of the store behind `cache` on the CPU through the twin of
 /// `raycast`: levels selected for the request's data reduction, blocks packed
@@ -73,24 +77,8 @@ pub fn render_packed(
         atlas_dims: packing.atlas_dims,
         block_grid: store.meta().blocks,
     };
-    if request.shading == Shading::GlobalLight {
-        let computed = light_for(
-            &desc,
-            request,
-            &packing,
-            layout,
-            &packed,
-            &table,
-            DirectLightMethod::Piecewise,
-        );
-        packed.light = Some(Texture3d::new(packing.atlas_dims, computed.light_volume));
-    }
-    if request.shading == Shading::Extinction {
-        let params = ExtinctionParams::new(&desc, &request.extinction, layout, table.len() as u32);
-        let near = crate::extinction::near_cells_mask(&packing, &params);
-        let computed =
-            extinction::compute_extinction(&params, &request.extinction, &packed, &table, &near);
-        packed.light_cache = Some(light_cache_textures(params.grid, &computed.light_cache));
+    if let Some(mode) = Mode::of(request.shading) {
+        illuminate(mode, &desc, request, &packing, layout, &mut packed, &table);
     }
     let params = RaycastParams::new(&desc, request, table.len() as u32, layout);
     let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
@@ -108,32 +96,50 @@ pub fn light_cache_textures(grid: [u32; 3], cache: &[[f32; 4]]) -> [Texture3d; 3
     [0, 1, 2].map(|ch| Texture3d::new(grid, cache.iter().map(|t| t[ch]).collect()))
 }
 
-/// The converged light of `request` for blocks packed as `packing`, by `method`.
-pub fn light_for(
+/// Computes illumination mode `mode`'s light for `request` on the CPU
+/// (converged: every stage, every refinement) and puts it where the `raycast`
+/// twin reads it.
+pub fn illuminate(
+    mode: Mode,
     desc: &VolumeTexture,
     request: &FrameRequest,
     packing: &blocks::packing::Packing,
     layout: PackedLayout,
-    packed: &PackedTexture,
+    packed: &mut PackedTexture,
     table: &[[f32; 4]],
-    method: DirectLightMethod,
-) -> light::CpuLight {
-    let params = LightParams::new(desc, &request.light, packing, layout, table.len() as u32);
-    let directions = params.scatter_directions(&request.light);
-    let svr = near_blocks(
-        packing,
-        params.volume.block_grid,
-        params.svr_margin_blocks(),
-    );
-    light::compute_light(
-        &params,
-        packed,
-        table,
-        &slot_blocks(packing),
-        &svr,
-        &directions,
-        method,
-    )
+) {
+    let tf_len = table.len() as u32;
+    match mode {
+        Mode::GlobalLight => {
+            let params = LightParams::new(desc, &request.light, packing, layout, tf_len);
+            let directions = params.scatter_directions(&request.light);
+            let slots = slot_blocks(packing);
+            let margin = params.svr_margin_blocks();
+            let svr = near_blocks(packing, params.volume.block_grid, margin);
+            let state = global_light::compute_light(&global_light::LightInputs {
+                params: &params,
+                packed,
+                tf: table,
+                slot_blocks: &slots,
+                svr_blocks: &svr,
+                directions: &directions,
+                method: request.light.method,
+            });
+            packed.light = Some(Texture3d::new(packing.atlas_dims, state.light_volume));
+        }
+        Mode::Extinction => {
+            let params = ExtinctionParams::new(desc, &request.extinction, layout, tf_len);
+            let near = crate::extinction::near_cells_mask(packing, &params);
+            let state = extinction::compute_extinction(&extinction::ExtinctionInputs {
+                params: &params,
+                settings: &request.extinction,
+                packed,
+                tf: table,
+                near_blocks: &near,
+            });
+            packed.light_cache = Some(light_cache_textures(params.grid, &state.light_cache));
+        }
+    }
 }
 
 /// Renders `request` of `volume` on the CPU through the twin of `reference`:

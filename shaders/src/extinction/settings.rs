@@ -4,7 +4,7 @@
 
 use std::fmt;
 
-use crate::light::{MAX_INTENSITY, check_direction, check_position, parse_vec3};
+use crate::global_light::{MAX_INTENSITY, check_direction, check_position, parse_vec3};
 use crate::settings::{Choice, SettingError, TextSetting};
 
 /// The most lights at once.
@@ -240,7 +240,7 @@ crate::text_setting!(Vec<ExtinctionLight>);
 
 crate::settings! {
     /// The settings of extinction-based illumination (`shading=extinction`).
-    /// Each names the first stage of [`super::STAGES`] its change recomputes.
+    /// Each names the first [`super::Stage`] its change recomputes.
     #[derive(Debug, Clone, PartialEq)]
     pub struct ExtinctionSettings in Extinction {
         /// The lights, separated by ';' (at most 4): point:X,Y,Z (fractions of

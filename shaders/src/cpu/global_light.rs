@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::Texture3d;
 use super::march::{classify_table, corrected_opacity, intersect_box};
 use super::packed::{BLOCK, BlockLocation, PackedTexture, atlas_coord, empty_exit};
-use crate::light::{DirectLightMethod, LightParams, ScatterDirection};
+use crate::global_light::{DirectLightMethod, LightParams, ScatterDirection, Stage};
 
 /// A slot that holds no block.
 const NO_BLOCK: u32 = u32::MAX;
@@ -166,7 +166,7 @@ pub fn local_opacity(
 
 /// Twin of `global_opacity` (α_g, eq. 7): the SVR, `p.svr_dims` points.
 /// `index` supplies the block index (its atlas is not read); points in blocks
-/// that `svr_blocks` ([`crate::light::near_blocks`] for the SVR's margin) marks 0 are left 0.
+/// that `svr_blocks` ([`crate::illumination::near_blocks`] for the SVR's margin) marks 0 are left 0.
 pub fn global_opacity(
     p: &LightParams,
     local_opacity: &Texture3d,
@@ -330,9 +330,10 @@ pub fn direct_light_reference(
     })
 }
 
-/// Every intermediate of one light computation on the CPU.
-#[derive(Debug, Clone)]
-pub struct CpuLight {
+/// Every texture of one light computation on the CPU, as the stages leave
+/// them: what each stage writes and the later ones read.
+#[derive(Debug, Clone, Default)]
+pub struct LightState {
     /// α_lp, atlas-shaped.
     pub local_opacity: Vec<f32>,
     /// α_g, the SVR.
@@ -343,45 +344,84 @@ pub struct CpuLight {
     pub light_volume: Vec<f32>,
 }
 
-/// The whole light computation as [`crate::light::Illumination`] runs it,
-/// converged over `directions`: I_d by `method`, then every in-scattering step.
-pub fn compute_light(
-    p: &LightParams,
-    packed: &PackedTexture,
-    tf: &[[f32; 4]],
-    slot_blocks: &[u32],
-    svr_blocks: &[u32],
-    directions: &[ScatterDirection],
-    method: DirectLightMethod,
-) -> CpuLight {
-    let atlas = p.atlas_dims();
-    let local = local_opacity(p, packed, tf, slot_blocks);
-    let local_texture = Texture3d::new(atlas, local.clone());
-    let shadow = global_opacity(p, &local_texture, packed, svr_blocks);
-    let shadow_texture = Texture3d::new(p.svr_dims, shadow.clone());
-    let direct = match method {
-        DirectLightMethod::Piecewise => {
-            direct_light(p, &local_texture, &shadow_texture, slot_blocks)
+impl LightState {
+    /// What `stage` writes.
+    pub fn output(&self, stage: Stage) -> &[f32] {
+        match stage {
+            Stage::LocalOpacity => &self.local_opacity,
+            Stage::GlobalOpacity => &self.shadow_volume,
+            Stage::DirectLight => &self.direct_light,
+            Stage::InScatter => &self.light_volume,
         }
-        DirectLightMethod::Reference => direct_light_reference(p, packed, tf, slot_blocks),
-    };
-    let direct_texture = Texture3d::new(atlas, direct.clone());
-    let mut light = vec![0.0f32; direct.len()];
-    for d in directions {
-        in_scatter(
-            &p.scattering(d),
-            packed,
-            tf,
-            slot_blocks,
-            &direct_texture,
-            &shadow_texture,
-            &mut light,
-        );
     }
-    CpuLight {
-        local_opacity: local,
-        shadow_volume: shadow,
-        direct_light: direct,
-        light_volume: light,
+}
+
+/// What the light stages read besides each other's results.
+#[derive(Debug, Clone, Copy)]
+pub struct LightInputs<'a> {
+    /// The uniforms.
+    pub params: &'a LightParams,
+    /// The packed data.
+    pub packed: &'a PackedTexture,
+    /// The transfer-function table.
+    pub tf: &'a [[f32; 4]],
+    /// [`crate::illumination::slot_blocks`] of the packing.
+    pub slot_blocks: &'a [u32],
+    /// [`crate::illumination::near_blocks`] for the SVR's margin.
+    pub svr_blocks: &'a [u32],
+    /// The in-scattering directions, in order.
+    pub directions: &'a [ScatterDirection],
+    /// How I_d is computed.
+    pub method: DirectLightMethod,
+}
+
+/// Runs `stage`'s twin, reading the earlier stages' results from `state` and
+/// writing its own there (in-scattering: every direction, converged).
+pub fn run(stage: Stage, inputs: &LightInputs<'_>, state: &mut LightState) {
+    let p = inputs.params;
+    let atlas = p.atlas_dims();
+    let local = || Texture3d::new(atlas, state.local_opacity.clone());
+    let shadow = || Texture3d::new(p.svr_dims, state.shadow_volume.clone());
+    match (stage, inputs.method) {
+        (Stage::LocalOpacity, _) => {
+            state.local_opacity = local_opacity(p, inputs.packed, inputs.tf, inputs.slot_blocks);
+        }
+        (Stage::GlobalOpacity, _) => {
+            state.shadow_volume = global_opacity(p, &local(), inputs.packed, inputs.svr_blocks);
+        }
+        (Stage::DirectLight, DirectLightMethod::Piecewise) => {
+            state.direct_light = direct_light(p, &local(), &shadow(), inputs.slot_blocks);
+        }
+        (Stage::DirectLight, DirectLightMethod::Reference) => {
+            state.direct_light =
+                direct_light_reference(p, inputs.packed, inputs.tf, inputs.slot_blocks);
+        }
+        (Stage::InScatter, _) => {
+            let direct = Texture3d::new(atlas, state.direct_light.clone());
+            let shadow = shadow();
+            let mut light = vec![0.0f32; state.direct_light.len()];
+            for d in inputs.directions {
+                in_scatter(
+                    &p.scattering(d),
+                    inputs.packed,
+                    inputs.tf,
+                    inputs.slot_blocks,
+                    &direct,
+                    &shadow,
+                    &mut light,
+                );
+            }
+            state.light_volume = light;
+        }
     }
+}
+
+/// The whole light computation as [`crate::global_light::GlobalLight`] runs
+/// it, converged: every stage of [`Stage::ALL`] in order.
+pub fn compute_light(inputs: &LightInputs<'_>) -> LightState {
+    let mut state = LightState::default();
+    for stage in Stage::ALL {
+        run(stage, inputs, &mut state);
+    }
+    state
 }

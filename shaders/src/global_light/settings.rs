@@ -6,7 +6,7 @@ use std::fmt;
 
 use glam::Vec3;
 
-use crate::settings::TextSetting;
+use crate::settings::{Choice, TextSetting};
 
 /// The largest light intensity I0 (and ambient light).
 pub const MAX_INTENSITY: f64 = 16.0;
@@ -114,9 +114,43 @@ impl TextSetting for LightSource {
 
 crate::text_setting!(LightSource);
 
+/// How the direct light I_d is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DirectLightMethod {
+    /// The paper's: local segments, the shadow volume, eq. 8.
+    #[default]
+    Piecewise,
+    /// Brute force, every stored voxel marched to the light at full step:
+    /// the reference the piecewise method is measured against.
+    Reference,
+}
+
+impl Choice for DirectLightMethod {
+    const ALL: &'static [DirectLightMethod] =
+        &[DirectLightMethod::Piecewise, DirectLightMethod::Reference];
+
+    fn name(self) -> &'static str {
+        match self {
+            DirectLightMethod::Piecewise => "piecewise",
+            DirectLightMethod::Reference => "reference",
+        }
+    }
+
+    fn doc(self) -> &'static str {
+        match self {
+            DirectLightMethod::Piecewise => "local piecewise integration (the paper's)",
+            DirectLightMethod::Reference => {
+                "every stored voxel marched to the light at full step (the reference)"
+            }
+        }
+    }
+}
+
+crate::choice_setting!(DirectLightMethod);
+
 crate::settings! {
     /// How the volume is lit by global light propagation (`shading=global`).
-    /// Each setting names the first stage of [`super::STAGES`] its change
+    /// Each setting names the first [`super::Stage`] its change
     /// recomputes; colour and I_bias apply when a frame is drawn.
     #[derive(Debug, Clone, Copy, PartialEq)]
     pub struct LightSettings in GlobalLight {
@@ -150,5 +184,9 @@ crate::settings! {
         /// the paper's; above 0 favours directions near the light's).
         pub phase_g: f32 = 0.0, "phase_g", number(-0.9, 0.9, "an asymmetry", ""),
             affects "in_scatter", ui Advanced;
+        /// The direct light by local piecewise integration, or by marching
+        /// every stored voxel to the light (the reference).
+        pub method: DirectLightMethod = DirectLightMethod::Piecewise, "light_method", by_type(),
+            affects "direct_light", ui Advanced;
     }
 }
