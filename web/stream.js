@@ -5,7 +5,11 @@
 // the server sends nothing more until it is, so a slow link drops frames
 // instead of building lag. The server decides the quality: small JPEG frames
 // while views keep coming, then the lossless full frame, then light
-// refinements until converged.
+// refinements until converged. A `status` message ({type:'status', id}) is
+// answered in order by {type:'status', id, view_id, sent, acked, rendering,
+// waiting, converged} (tests use it); this client sends none and ignores
+// the replies. A server shutting down closes the socket with code 1001; the
+// client reconnects as after any close.
 
 export const HEADER_LEN = 40;
 const ENCODINGS = { 1: 'image/jpeg', 2: 'image/png', 3: 'image/webp' };

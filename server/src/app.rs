@@ -23,10 +23,11 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use tokio::net::TcpListener;
+use tokio_util::sync::CancellationToken;
 
 use crate::dataset::DatasetInfo;
 use crate::metrics::{Format, FrameTimes, Metrics, Quality, Source};
-use crate::stream::{SessionCounter, StreamSettings};
+use crate::stream::{Sessions, StreamSettings};
 use crate::{AppError, Dataset, RenderService, View, encode, web};
 
 /// What every handler shares.
@@ -38,8 +39,11 @@ pub struct AppState {
     pub renderer: RenderService,
     /// How view sessions trade quality for speed.
     pub stream: StreamSettings,
-    /// The view sessions open.
-    pub sessions: SessionCounter,
+    /// The view sessions' places (at most `stream.max_sessions`).
+    pub sessions: Sessions,
+    /// Cancelled when the server shuts down ([`run`] does it): every view
+    /// session then closes (1001, going away).
+    pub shutdown: CancellationToken,
     /// What the server has done, for `GET /metrics`.
     pub metrics: Arc<Metrics>,
 }
@@ -60,7 +64,8 @@ impl AppState {
             datasets: datasets.into(),
             renderer,
             stream,
-            sessions: SessionCounter::default(),
+            sessions: Sessions::new(stream.max_sessions),
+            shutdown: CancellationToken::new(),
             metrics: Arc::new(Metrics::default()),
         }
     }
@@ -81,16 +86,27 @@ pub fn router(state: AppState) -> Router {
         .with_state(state)
 }
 
-/// Serves the application on `listener` until `shutdown` resolves, then finishes
-/// the requests in flight.
+/// Serves the application on `listener` until `shutdown` resolves, then
+/// finishes the requests in flight, closes the view sessions (cancelling
+/// `state.shutdown`) and returns once every session has ended.
 pub async fn run(
     listener: TcpListener,
     state: AppState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
+    let sessions = state.sessions.clone();
+    let token = state.shutdown.clone();
+    let signal = async move {
+        shutdown.await;
+        token.cancel();
+    };
     axum::serve(listener, router(state))
-        .with_graceful_shutdown(shutdown)
-        .await
+        .with_graceful_shutdown(signal)
+        .await?;
+    // Upgraded connections are no longer the server's: it does not wait for
+    // them, so wait for the sessions here.
+    sessions.all_closed().await;
+    Ok(())
 }
 
 async fn static_file(uri: Uri) -> Result<Response, AppError> {

@@ -3,7 +3,8 @@
 //!
 //! # Layout
 //! - [`app`]: the axum router, [`AppState`], and [`run`](app::run), which serves on
-//!   a listener until a shutdown future resolves (tests use port 0).
+//!   a listener until a shutdown future resolves, then closes the view sessions
+//!   and returns when they have ended (tests use port 0).
 //! - [`error`]: [`AppError`]: client errors become 4xx with a message naming the
 //!   field; internal errors become a generic 500 and are logged once.
 //! - [`view`]: [`View`], what a client asks to see (a dataset and a frame
@@ -13,7 +14,9 @@
 //! - [`render_service`]: [`RenderService`], one worker thread that owns the GPU
 //!   renderer and serves render jobs from all requests in arrival order.
 //! - [`stream`]: view sessions over WebSocket (`GET /api/stream`): latest state
-//!   wins, adaptive quality, one render worker shared in turn;
+//!   wins, adaptive quality, one render worker shared in turn; a state machine
+//!   without I/O or clock, and a thin loop on the socket that closes it on
+//!   shutdown;
 //!   [`protocol`]: their messages and the binary frame header, in one place.
 //! - [`dataset`]: [`Dataset`], a brick store the server offers (on disk, or bricked
 //!   in memory at start), and its public description.

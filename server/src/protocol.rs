@@ -7,6 +7,7 @@
 //! |---|---|
 //! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds view settings (those of `GET /api/render`, as `GET /api/settings` lists them: [`crate::view`]), typed: numbers as JSON numbers, switches as `true`/`false`, choices and text forms (`clip`, `light`, `tf`, …) as strings; they are merged into the session's view, so a camera move sends only `az` and `el`. A setting given as `null` goes back to its default (e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
 //! | `{"type":"ack","frame":F}` | the client has drawn frame `F`; the server sends at most [`crate::stream::StreamSettings::frames_in_flight`] frames ahead of the last acknowledged one. |
+//! | `{"type":"status","id":N}` | asks where the session stands (`id` optional, echoed); answered by a `status` message, in order with everything else the server sends. |
 //!
 //! A message that is not JSON, has an unknown type or field, or sets a value
 //! out of range is answered with an `error` message and changes nothing; the
@@ -14,10 +15,26 @@
 //!
 //! # Server → client
 //!
-//! JSON text: `{"type":"hello","protocol":1,"dataset":{…},"settings":{…}}` once
-//! at the start (the dataset's description as `GET /api/datasets` gives it, and
-//! the stream settings), and `{"type":"error","id":N,"message":"…"}` for a
-//! refused message (`id`: the message's, when it had one).
+//! JSON text: `{"type":"hello","protocol":1,"datasets":[…],"settings":{…}}` once
+//! at the start (the datasets' descriptions as `GET /api/datasets` gives them,
+//! and the stream settings), `{"type":"error","id":N,"message":"…"}` for a
+//! refused message (`id`: the message's, when it had one) or a view that
+//! cannot be rendered, and a [`Status`] for each `status` message:
+//!
+//! | field | meaning |
+//! |---|---|
+//! | `type` | `"status"` |
+//! | `id` | the `status` message's id, when it had one |
+//! | `view_id` | the id of the last `view` message applied (0: none yet) |
+//! | `sent` | the id of the last frame sent (0: none yet) |
+//! | `acked` | the id of the last frame acknowledged |
+//! | `rendering` | a frame is being rendered |
+//! | `waiting` | what the session waits for before it renders again: `"message"` (nothing more to send until the view changes), `"still"` (the view to be still for `idle_ms`: the full frame follows), `"ack"` (a frame is due but `frames_in_flight` frames are unacknowledged), `"render"` (the frame being rendered) |
+//! | `converged` | the current view's last frame was converged: nothing more will be sent for it |
+//!
+//! Replies come in order with frames, so a status after a frame describes the
+//! session after that frame: `"waiting":"message"`, not `rendering` and `sent`
+//! the last frame received mean nothing more will come until the view changes.
 //!
 //! Binary: one frame, a [`FrameHeader`] of [`HEADER_LEN`] bytes (little
 //! endian) followed by the encoded image:
@@ -38,6 +55,9 @@
 //! | 28 | f32 | encode milliseconds |
 //! | 32 | f32 | data reduction rendered at |
 //! | 36 | f32 | milliseconds the render waited for the GPU behind other sessions |
+//!
+//! When the server shuts down it closes every session with code 1001 (going
+//! away).
 
 use serde_json::{Map, Value};
 
@@ -179,6 +199,77 @@ pub enum ClientMessage {
         /// The frame's id.
         frame: u32,
     },
+    /// Where does the session stand? Answered by a [`Status`].
+    Status {
+        /// The message's id, echoed in the reply.
+        id: Option<u32>,
+    },
+}
+
+/// A JSON message from the server other than the hello.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+pub enum Reply {
+    /// A refused message, or a view that cannot be rendered.
+    Error {
+        /// The refused message's id, when it had one.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        id: Option<u32>,
+        /// What was wrong and what was expected.
+        message: String,
+    },
+    /// Where the session stands; see the module docs.
+    Status(Status),
+}
+
+/// Where a session stands, the answer to a `status` message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Status {
+    /// The `status` message's id, when it had one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<u32>,
+    /// The id of the last view message applied.
+    pub view_id: u32,
+    /// The id of the last frame sent.
+    pub sent: u32,
+    /// The id of the last frame acknowledged.
+    pub acked: u32,
+    /// A frame is being rendered.
+    pub rendering: bool,
+    /// What the session waits for before it renders again.
+    pub waiting: Waiting,
+    /// Nothing more will be sent for the current view.
+    pub converged: bool,
+}
+
+/// What a session waits for before it renders again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Waiting {
+    /// A view message: nothing is left to send for this view.
+    Message,
+    /// The view to be still for `idle_ms`: then the full frame.
+    Still,
+    /// An acknowledgement: a frame is due, the window is full.
+    Ack,
+    /// The frame being rendered.
+    Render,
+}
+
+impl Reply {
+    /// An error reply.
+    pub fn error(id: Option<u32>, message: impl Into<String>) -> Reply {
+        Reply::Error {
+            id,
+            message: message.into(),
+        }
+    }
+
+    /// The reply as JSON text.
+    pub fn to_json(&self) -> String {
+        // Plain structs of numbers, flags and strings: serialising cannot fail.
+        serde_json::to_string(self).unwrap_or_default()
+    }
 }
 
 /// A refused message: why, and its id when it had one.
@@ -195,90 +286,129 @@ pub struct Refusal {
 /// # Errors
 /// A [`Refusal`] naming the field and what was expected.
 pub fn parse_client_message(text: &str) -> Result<ClientMessage, Refusal> {
-    let refuse = |id, message: String| Refusal { id, message };
-    let value: Value = serde_json::from_str(text)
-        .map_err(|e| refuse(None, format!("message is not JSON: {e}")))?;
-    let Value::Object(fields) = value else {
-        return Err(refuse(None, "message: expected a JSON object".into()));
-    };
-    let id = fields
-        .get("id")
-        .and_then(Value::as_u64)
-        .and_then(|i| u32::try_from(i).ok());
-    let kind = fields.get("type").and_then(Value::as_str).ok_or_else(|| {
-        refuse(
-            id,
-            "message field 'type': expected \"view\" or \"ack\"".into(),
-        )
+    let value: Value = serde_json::from_str(text).map_err(|e| Refusal {
+        id: None,
+        message: format!("message is not JSON: {e}"),
     })?;
-    let allowed: &[&str] = match kind {
-        "view" => &["type", "id", "set", "dpr"],
-        "ack" => &["type", "frame"],
-        other => {
-            return Err(refuse(
-                id,
-                format!("message type '{other}': expected \"view\" or \"ack\""),
-            ));
-        }
+    let Value::Object(fields) = value else {
+        return Err(Refusal {
+            id: None,
+            message: "message: expected a JSON object".into(),
+        });
     };
-    if let Some(unknown) = fields.keys().find(|k| !allowed.contains(&k.as_str())) {
-        return Err(refuse(
-            id,
-            format!(
+    let fields = Fields::check(&fields)?;
+    match fields.kind {
+        "view" => fields.view(),
+        "ack" => Ok(ClientMessage::Ack {
+            frame: fields.whole("frame")?,
+        }),
+        _ => Ok(ClientMessage::Status {
+            id: fields.optional_whole("id")?,
+        }),
+    }
+}
+
+/// The message types, and the fields each may have.
+const FIELDS: [(&str, &[&str]); 3] = [
+    ("view", &["type", "id", "set", "dpr"]),
+    ("ack", &["type", "frame"]),
+    ("status", &["type", "id"]),
+];
+
+/// A message's fields, its type known and every field one it may have.
+struct Fields<'a> {
+    fields: &'a Map<String, Value>,
+    kind: &'a str,
+    /// The message's id, when it has a readable one (for refusals).
+    id: Option<u32>,
+}
+
+impl<'a> Fields<'a> {
+    /// The fields of a message of a known type with no unknown field.
+    fn check(fields: &'a Map<String, Value>) -> Result<Fields<'a>, Refusal> {
+        let id = fields
+            .get("id")
+            .and_then(Value::as_u64)
+            .and_then(|i| u32::try_from(i).ok());
+        let refuse = |message: String| Refusal { id, message };
+        let types = "expected \"view\", \"ack\" or \"status\"";
+        let kind = fields
+            .get("type")
+            .and_then(Value::as_str)
+            .ok_or_else(|| refuse(format!("message field 'type': {types}")))?;
+        let (kind, allowed) = FIELDS
+            .into_iter()
+            .find(|(k, _)| *k == kind)
+            .ok_or_else(|| refuse(format!("message type '{kind}': {types}")))?;
+        if let Some(unknown) = fields.keys().find(|k| !allowed.contains(&k.as_str())) {
+            return Err(refuse(format!(
                 "{kind} message field '{unknown}': unknown; expected {}",
                 allowed.join(", ")
-            ),
-        ));
-    }
-    let whole = |name: &str| -> Result<u32, Refusal> {
-        fields
-            .get(name)
-            .and_then(Value::as_u64)
-            .and_then(|v| u32::try_from(v).ok())
-            .ok_or_else(|| {
-                refuse(
-                    id,
-                    format!(
-                        "{kind} message field '{name}': expected a whole number from 0 to {}",
-                        u32::MAX
-                    ),
-                )
-            })
-    };
-    match kind {
-        "ack" => Ok(ClientMessage::Ack {
-            frame: whole("frame")?,
-        }),
-        _ => {
-            let id = whole("id")?;
-            let set = match fields.get("set") {
-                None => Map::new(),
-                Some(Value::Object(map)) => map.clone(),
-                Some(_) => {
-                    return Err(refuse(
-                        Some(id),
-                        "view message field 'set': expected an object of settings".into(),
-                    ));
-                }
-            };
-            let dpr = match fields.get("dpr") {
-                None => None,
-                Some(v) => Some(
-                    v.as_f64()
-                        .filter(|d| (DPR_RANGE.0..=DPR_RANGE.1).contains(d))
-                        .ok_or_else(|| {
-                            refuse(
-                                Some(id),
-                                format!(
-                                    "view message field 'dpr' = {v}: expected a device pixel ratio from {} to {}",
-                                    DPR_RANGE.0, DPR_RANGE.1
-                                ),
-                            )
-                        })?,
-                ),
-            };
-            Ok(ClientMessage::View { id, set, dpr })
+            )));
         }
+        Ok(Fields { fields, kind, id })
+    }
+
+    fn refuse(&self, message: String) -> Refusal {
+        Refusal {
+            id: self.id,
+            message,
+        }
+    }
+
+    /// The whole number `name`.
+    fn whole(&self, name: &str) -> Result<u32, Refusal> {
+        self.optional_whole(name)?
+            .ok_or_else(|| self.not_whole(name))
+    }
+
+    /// The whole number `name`, if given.
+    fn optional_whole(&self, name: &str) -> Result<Option<u32>, Refusal> {
+        self.fields
+            .get(name)
+            .map(|v| {
+                v.as_u64()
+                    .and_then(|v| u32::try_from(v).ok())
+                    .ok_or_else(|| self.not_whole(name))
+            })
+            .transpose()
+    }
+
+    fn not_whole(&self, name: &str) -> Refusal {
+        self.refuse(format!(
+            "{} message field '{name}': expected a whole number from 0 to {}",
+            self.kind,
+            u32::MAX
+        ))
+    }
+
+    /// A `view` message.
+    fn view(&self) -> Result<ClientMessage, Refusal> {
+        let id = self.whole("id")?;
+        let set = match self.fields.get("set") {
+            None => Map::new(),
+            Some(Value::Object(map)) => map.clone(),
+            Some(_) => {
+                return Err(
+                    self.refuse("view message field 'set': expected an object of settings".into())
+                );
+            }
+        };
+        let dpr = match self.fields.get("dpr") {
+            None => None,
+            Some(v) => Some(
+                v.as_f64()
+                    .filter(|d| (DPR_RANGE.0..=DPR_RANGE.1).contains(d))
+                    .ok_or_else(|| {
+                        self.refuse(format!(
+                            "view message field 'dpr' = {v}: expected a device pixel ratio \
+                             from {} to {}",
+                            DPR_RANGE.0, DPR_RANGE.1
+                        ))
+                    })?,
+            ),
+        };
+        Ok(ClientMessage::View { id, set, dpr })
     }
 }
 
@@ -334,6 +464,14 @@ mod tests {
             parse_client_message(r#"{"type":"ack","frame":9}"#),
             Ok(ClientMessage::Ack { frame: 9 })
         );
+        assert_eq!(
+            parse_client_message(r#"{"type":"status","id":4}"#),
+            Ok(ClientMessage::Status { id: Some(4) })
+        );
+        assert_eq!(
+            parse_client_message(r#"{"type":"status"}"#),
+            Ok(ClientMessage::Status { id: None })
+        );
         for (text, expected) in [
             ("{nope", "not JSON"),
             ("[1,2]", "expected a JSON object"),
@@ -348,6 +486,9 @@ mod tests {
             (r#"{"type":"view","id":1,"set":[1]}"#, "field 'set'"),
             (r#"{"type":"view","id":1,"dpr":100}"#, "field 'dpr' = 100"),
             (r#"{"type":"ack","frame":"x"}"#, "field 'frame'"),
+            (r#"{"type":"ack"}"#, "ack message field 'frame'"),
+            (r#"{"type":"status","id":1.5}"#, "status message field 'id'"),
+            (r#"{"type":"status","frame":1}"#, "field 'frame': unknown"),
         ] {
             let refusal = parse_client_message(text).expect_err(text);
             assert!(
@@ -361,6 +502,34 @@ mod tests {
                 .expect_err("unknown field")
                 .id,
             Some(5)
+        );
+    }
+
+    #[test]
+    fn replies_are_json_of_the_documented_shape() {
+        let status = Reply::Status(Status {
+            id: Some(3),
+            view_id: 7,
+            sent: 2,
+            acked: 1,
+            rendering: false,
+            waiting: Waiting::Ack,
+            converged: false,
+        });
+        assert_eq!(
+            serde_json::from_str::<Value>(&status.to_json()).ok(),
+            Some(
+                serde_json::json!({"type": "status", "id": 3, "view_id": 7, "sent": 2,
+                "acked": 1, "rendering": false, "waiting": "ack", "converged": false})
+            )
+        );
+        assert_eq!(
+            Reply::error(None, "no").to_json(),
+            r#"{"type":"error","message":"no"}"#
+        );
+        assert_eq!(
+            Reply::error(Some(2), "no").to_json(),
+            r#"{"type":"error","id":2,"message":"no"}"#
         );
     }
 }

@@ -5,6 +5,7 @@ use server::{AppState, Dataset, RenderService};
 use shaders::GpuContext;
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
 
 /// A running server.
 #[derive(Debug)]
@@ -12,6 +13,8 @@ pub struct TestServer {
     /// `http://127.0.0.1:PORT`.
     pub base_url: String,
     stop: Option<oneshot::Sender<()>>,
+    /// The task running [`server::run`].
+    running: Option<JoinHandle<std::io::Result<()>>>,
 }
 
 impl TestServer {
@@ -52,19 +55,34 @@ impl TestServer {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind port 0");
         let addr = listener.local_addr().expect("local address");
         let (stop, stopped) = oneshot::channel::<()>();
-        tokio::spawn(async move {
-            let shutdown = async {
-                // A dropped sender stops the server as well.
-                let _ = stopped.await;
-            };
-            let state = AppState::new(datasets, renderer, stream);
-            if let Err(e) = server::run(listener, state, shutdown).await {
-                panic!("test server failed: {e}");
-            }
-        });
+        let shutdown = async {
+            // A dropped sender stops the server as well.
+            let _ = stopped.await;
+        };
+        let state = AppState::new(datasets, renderer, stream);
+        let running = tokio::spawn(server::run(listener, state, shutdown));
         TestServer {
             base_url: format!("http://{addr}"),
             stop: Some(stop),
+            running: Some(running),
+        }
+    }
+
+    /// Shuts the server down as Ctrl-C does `voxserve serve`, and waits for
+    /// [`server::run`] to return (which it does once every view session has
+    /// ended); what it returned.
+    ///
+    /// # Panics
+    /// When the server's task panicked.
+    pub async fn shut_down(mut self) -> std::io::Result<()> {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        match self.running.take() {
+            Some(running) => running
+                .await
+                .expect("the server's task ends without panicking"),
+            None => Ok(()),
         }
     }
 

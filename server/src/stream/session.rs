@@ -1,0 +1,635 @@
+//! [`Session`]: a view session's state and its rules, as plain data: what
+//! to render next, and when, from the messages, acknowledgements and frames
+//! that have come (see [`super`]'s docs for the rules). No I/O and no clock:
+//! every event brings its `now`, so the rules are tested with explicit
+//! instants; [`super::socket`] feeds it a socket and runs its actions.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde_json::{Map, Value};
+use shaders::FrameRequest;
+use shaders::frame::MAX_IMAGE_EDGE;
+use shaders::illumination::Mode;
+use tokio::time::Instant;
+
+use super::StreamSettings;
+use crate::Dataset;
+use crate::protocol::{self, ClientMessage, Reply, Status, Waiting};
+
+/// How a frame is rendered and sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quality {
+    /// Smaller, coarser, JPEG.
+    Interactive,
+    /// Full size and detail, lossless.
+    Full,
+}
+
+/// A frame to render: of `message_id`'s view, to be sent as `frame_id`.
+#[derive(Debug, Clone)]
+pub struct Render {
+    /// How to render and encode it.
+    pub quality: Quality,
+    /// The dataset.
+    pub dataset: Dataset,
+    /// The frame, in device pixels, scaled and reduced for `quality`.
+    pub request: FrameRequest,
+    /// The id the frame is sent with.
+    pub frame_id: u32,
+    /// The last view message the frame reflects.
+    pub message_id: u32,
+}
+
+/// What the session's loop should do next.
+#[derive(Debug, Clone)]
+pub enum Action {
+    /// Render (and then send) this frame; report how it went with
+    /// [`Session::on_frame_sent`] or [`Session::on_render_failed`].
+    Render(Box<Render>),
+    /// Send this reply, then ask again.
+    Send(Reply),
+    /// Nothing until this instant (when the view turns still) or an event
+    /// before it.
+    WaitUntil(Instant),
+    /// Nothing until a message, an acknowledgement or the frame being rendered.
+    WaitForInput,
+    /// Close the session: the server is shutting down.
+    Close,
+}
+
+/// Where the frames of the current view stand.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Progress {
+    /// No view yet.
+    Empty,
+    /// The view changed at `at` and no render of it has begun.
+    Changed { at: Instant },
+    /// Frames of the view (changed at `changed_at`) have been or are being
+    /// rendered, none full yet: the full one follows once the view is still.
+    Interactive { changed_at: Instant },
+    /// The full frame was sent; global light's refinements follow.
+    Refining,
+    /// The last frame sent was converged: nothing more for this view.
+    Converged,
+    /// An error was sent for this view: nothing more for it.
+    Failed,
+}
+
+/// What the view asks for next, before the window and the render in flight
+/// are considered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Want {
+    Nothing,
+    StillAt(Instant),
+    Frame(Quality),
+}
+
+/// One view session's state; see the module docs.
+#[derive(Debug)]
+pub struct Session {
+    datasets: Arc<[Dataset]>,
+    settings: StreamSettings,
+    /// The settings merged so far (`w` and `h` in CSS pixels).
+    view: crate::View,
+    dpr: f64,
+    /// The last view message applied.
+    message_id: u32,
+    progress: Progress,
+    /// The quality of the render in flight, if one is.
+    rendering: Option<Quality>,
+    /// The last frame id handed out (frame ids start at 1).
+    last_id: u32,
+    /// The last frame sent.
+    sent: u32,
+    /// The last frame the client acknowledged (at most `sent`).
+    acked: u32,
+    /// The server is shutting down.
+    closing: bool,
+}
+
+impl Session {
+    /// A session without a view yet, offering `datasets`.
+    pub fn new(datasets: Arc<[Dataset]>, settings: StreamSettings) -> Session {
+        Session {
+            datasets,
+            settings,
+            view: crate::View::default(),
+            dpr: 1.0,
+            message_id: 0,
+            progress: Progress::Empty,
+            rendering: None,
+            last_id: 0,
+            sent: 0,
+            acked: 0,
+            closing: false,
+        }
+    }
+
+    /// A text message arrived at `now`; the reply to send, if any.
+    pub fn on_text(&mut self, now: Instant, text: &str) -> Option<Reply> {
+        match protocol::parse_client_message(text) {
+            Ok(ClientMessage::View { id, set, dpr }) => self.on_view(now, id, &set, dpr),
+            Ok(ClientMessage::Ack { frame }) => {
+                self.on_ack(frame);
+                None
+            }
+            Ok(ClientMessage::Status { id }) => Some(Reply::Status(self.status(now, id))),
+            Err(refusal) => Some(Reply::error(refusal.id, refusal.message)),
+        }
+    }
+
+    /// View message `id` arrived at `now`: `set` and `dpr` are merged into
+    /// the view, or, when any is refused, the view stays and the error is
+    /// the reply.
+    pub fn on_view(
+        &mut self,
+        now: Instant,
+        id: u32,
+        set: &Map<String, Value>,
+        dpr: Option<f64>,
+    ) -> Option<Reply> {
+        let mut view = self.view.clone();
+        let dpr = dpr.unwrap_or(self.dpr);
+        let checked = view
+            .patch(set, &self.datasets)
+            .and_then(|()| device_size(&view.frame, dpr));
+        if let Err(message) = checked {
+            return Some(Reply::error(Some(id), message));
+        }
+        self.view = view;
+        self.dpr = dpr;
+        self.message_id = id;
+        self.progress = Progress::Changed { at: now };
+        None
+    }
+
+    /// The client has drawn `frame` (and so every frame before it).
+    pub fn on_ack(&mut self, frame: u32) {
+        self.acked = self.acked.max(frame.min(self.sent));
+    }
+
+    /// The frame being rendered was sent; `converged` as its header says.
+    pub fn on_frame_sent(&mut self, converged: bool) {
+        let Some(quality) = self.rendering.take() else {
+            return;
+        };
+        self.sent = self.last_id;
+        // A view that changed meanwhile starts over; this frame was of the old one.
+        if quality == Quality::Full
+            && matches!(
+                self.progress,
+                Progress::Interactive { .. } | Progress::Refining
+            )
+        {
+            self.progress = if converged {
+                Progress::Converged
+            } else {
+                Progress::Refining
+            };
+        }
+    }
+
+    /// The frame being rendered failed; the error to send. Nothing more is
+    /// rendered for this view.
+    pub fn on_render_failed(&mut self, message: String) -> Reply {
+        self.rendering = None;
+        if !matches!(self.progress, Progress::Changed { .. }) {
+            self.progress = Progress::Failed;
+        }
+        Reply::error(None, message)
+    }
+
+    /// The server is shutting down: the next action is [`Action::Close`].
+    pub fn shut_down(&mut self) {
+        self.closing = true;
+    }
+
+    /// What to do at `now`. A [`Action::Render`] counts as begun.
+    pub fn next_action(&mut self, now: Instant) -> Action {
+        if self.closing {
+            return Action::Close;
+        }
+        if self.rendering.is_some() {
+            return Action::WaitForInput;
+        }
+        match self.want(now) {
+            Want::Nothing => Action::WaitForInput,
+            // The ack wakes the loop; waking at the still instant would only spin.
+            _ if self.window_full() => Action::WaitForInput,
+            Want::StillAt(at) => Action::WaitUntil(at),
+            Want::Frame(quality) => self.begin(quality),
+        }
+    }
+
+    /// Where the session stands at `now`, the answer to status message `id`.
+    pub fn status(&self, now: Instant, id: Option<u32>) -> Status {
+        let waiting = match self.want(now) {
+            _ if self.rendering.is_some() => Waiting::Render,
+            Want::Nothing => Waiting::Message,
+            _ if self.window_full() => Waiting::Ack,
+            Want::StillAt(_) => Waiting::Still,
+            // Only seen between an event and the loop's next action, which begins it.
+            Want::Frame(_) => Waiting::Render,
+        };
+        Status {
+            id,
+            view_id: self.message_id,
+            sent: self.sent,
+            acked: self.acked,
+            rendering: self.rendering.is_some(),
+            waiting,
+            converged: self.progress == Progress::Converged,
+        }
+    }
+
+    /// At most `frames_in_flight` frames are sent and unacknowledged.
+    fn window_full(&self) -> bool {
+        self.sent - self.acked >= self.settings.frames_in_flight
+    }
+
+    fn want(&self, now: Instant) -> Want {
+        let idle = Duration::from_millis(self.settings.idle_ms);
+        match self.progress {
+            Progress::Empty | Progress::Converged | Progress::Failed => Want::Nothing,
+            Progress::Changed { at } if now >= at + idle => Want::Frame(Quality::Full),
+            Progress::Changed { .. } => Want::Frame(Quality::Interactive),
+            Progress::Interactive { changed_at } if now >= changed_at + idle => {
+                Want::Frame(Quality::Full)
+            }
+            Progress::Interactive { changed_at } => Want::StillAt(changed_at + idle),
+            // The next light refinement.
+            Progress::Refining => Want::Frame(Quality::Full),
+        }
+    }
+
+    /// Begins a render at `quality`, or gives up on a view that can no longer be rendered.
+    fn begin(&mut self, quality: Quality) -> Action {
+        if let Progress::Changed { at } = self.progress {
+            self.progress = Progress::Interactive { changed_at: at };
+        }
+        match self.request(quality) {
+            Ok((dataset, request)) => {
+                self.last_id += 1;
+                self.rendering = Some(quality);
+                Action::Render(Box::new(Render {
+                    quality,
+                    dataset,
+                    request,
+                    frame_id: self.last_id,
+                    message_id: self.message_id,
+                }))
+            }
+            Err(message) => {
+                // Checked when the message came; only the datasets can change this.
+                self.progress = Progress::Failed;
+                Action::Send(Reply::error(None, message))
+            }
+        }
+    }
+
+    /// The dataset and frame request of the view at `quality`, checked.
+    fn request(&self, quality: Quality) -> Result<(Dataset, FrameRequest), String> {
+        let dataset = self
+            .view
+            .dataset(&self.datasets)
+            .map_err(|e| format!("view setting {e}"))?;
+        let mut request = self.view.frame.clone();
+        (request.width, request.height) = device_size(&request, self.dpr)?;
+        if quality == Quality::Interactive {
+            let s = self.settings.interactive_scale;
+            request.width = ((request.width as f32 * s).round() as u32).max(1);
+            request.height = ((request.height as f32 * s).round() as u32).max(1);
+            // Illumination modes keep their data: other blocks would recompute
+            // their stages (the light, the summed-area table) twice a gesture.
+            if Mode::of(request.shading).is_none() {
+                request.reduction = (request.reduction * self.settings.interactive_reduction)
+                    .min(shaders::frame::MAX_REDUCTION as f32);
+            }
+        }
+        Ok((dataset.clone(), request))
+    }
+}
+
+/// The frame size in device pixels of a viewport of `request.width` ×
+/// `request.height` CSS pixels at device pixel ratio `dpr`.
+fn device_size(request: &FrameRequest, dpr: f64) -> Result<(u32, u32), String> {
+    let (w, h) = (f64::from(request.width), f64::from(request.height));
+    let (pw, ph) = ((w * dpr).round(), (h * dpr).round());
+    let max = f64::from(MAX_IMAGE_EDGE);
+    if pw > max || ph > max {
+        return Err(format!(
+            "viewport {w}×{h} at device pixel ratio {dpr} is {pw}×{ph} pixels: expected at most \
+             {MAX_IMAGE_EDGE} per side"
+        ));
+    }
+    Ok((pw.max(1.0) as u32, ph.max(1.0) as u32))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn session_with(settings: StreamSettings) -> Session {
+        let phantom = Dataset::phantom(16, 1 << 20).expect("phantom");
+        Session::new(Arc::from(vec![phantom]), settings)
+    }
+
+    fn session() -> Session {
+        session_with(StreamSettings::default())
+    }
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    /// View message `id` setting `set`, at `now`; the reply.
+    fn view(session: &mut Session, now: Instant, id: u32, set: Value) -> Option<Reply> {
+        let mut message = serde_json::json!({"type": "view", "id": id});
+        message["set"] = set;
+        session.on_text(now, &message.to_string())
+    }
+
+    fn render(action: Action) -> Render {
+        match action {
+            Action::Render(render) => *render,
+            other => panic!("expected a render, got {other:?}"),
+        }
+    }
+
+    fn waits_for_input(action: &Action) -> bool {
+        matches!(action, Action::WaitForInput)
+    }
+
+    /// Sends the frame being rendered (`converged` as its header would say)
+    /// and acknowledges it.
+    fn sent_and_acked(session: &mut Session, converged: bool) {
+        session.on_frame_sent(converged);
+        session.on_ack(session.sent);
+    }
+
+    #[test]
+    fn a_burst_during_a_render_gives_one_next_render_of_the_last_view() {
+        let mut s = session();
+        let t0 = Instant::now();
+        assert_eq!(
+            view(&mut s, t0, 1, serde_json::json!({"w": 96, "h": 96})),
+            None
+        );
+        let first = render(s.next_action(t0));
+        assert_eq!((first.frame_id, first.message_id), (1, 1));
+        for id in 2..=100u32 {
+            let now = t0 + ms(u64::from(id));
+            let reply = view(&mut s, now, id, serde_json::json!({"az": id}));
+            assert_eq!(reply, None, "message {id}");
+            assert!(waits_for_input(&s.next_action(now)), "one render at a time");
+        }
+        let now = t0 + ms(120);
+        sent_and_acked(&mut s, false);
+        let next = render(s.next_action(now));
+        assert_eq!((next.frame_id, next.message_id), (2, 100));
+        assert_eq!(next.request.camera.azimuth_deg, 100.0);
+        assert_eq!(next.quality, Quality::Interactive);
+        assert!(waits_for_input(&s.next_action(now)));
+    }
+
+    #[test]
+    fn no_render_beyond_the_acknowledgement_window() {
+        for frames_in_flight in [1, 2] {
+            let mut s = session_with(StreamSettings {
+                frames_in_flight,
+                ..StreamSettings::default()
+            });
+            let t0 = Instant::now();
+            for id in 1..=frames_in_flight {
+                view(&mut s, t0, id, serde_json::json!({"az": id}));
+                render(s.next_action(t0));
+                s.on_frame_sent(false);
+            }
+            view(&mut s, t0, 9, serde_json::json!({"az": 90}));
+            // Not when the view changes, nor when it turns still.
+            for now in [t0, t0 + ms(150), t0 + ms(10_000)] {
+                assert!(waits_for_input(&s.next_action(now)), "{frames_in_flight}");
+                let status = s.status(now, None);
+                assert_eq!(status.waiting, Waiting::Ack, "{status:?}");
+                assert_eq!((status.sent, status.acked), (frames_in_flight, 0));
+                assert!(!status.rendering);
+            }
+            // An acknowledgement of a frame never sent counts as the last sent.
+            s.on_ack(1000);
+            assert_eq!(s.status(t0, None).acked, frames_in_flight);
+            let next = render(s.next_action(t0 + ms(10_000)));
+            assert_eq!((next.message_id, next.quality), (9, Quality::Full));
+        }
+    }
+
+    #[test]
+    fn frames_are_interactive_while_messages_come_and_full_exactly_idle_ms_after_the_last() {
+        let mut s = session();
+        let t0 = Instant::now();
+        view(&mut s, t0, 1, serde_json::json!({"w": 64, "h": 48}));
+        let first = render(s.next_action(t0));
+        assert_eq!(first.quality, Quality::Interactive);
+        assert_eq!((first.request.width, first.request.height), (32, 24));
+        assert_eq!(first.request.reduction, 4.0, "interactive_reduction × 1");
+        sent_and_acked(&mut s, false);
+        let t1 = t0 + ms(100);
+        view(&mut s, t1, 2, serde_json::json!({"az": 10}));
+        assert_eq!(render(s.next_action(t1)).quality, Quality::Interactive);
+        sent_and_acked(&mut s, false);
+        let still = t1 + ms(150);
+        for now in [t1 + ms(20), still - ms(1)] {
+            match s.next_action(now) {
+                Action::WaitUntil(at) => assert_eq!(at, still),
+                other => panic!("expected to wait until still, got {other:?}"),
+            }
+            assert_eq!(s.status(now, None).waiting, Waiting::Still);
+        }
+        let full = render(s.next_action(still));
+        assert_eq!((full.quality, full.message_id), (Quality::Full, 2));
+        assert_eq!((full.request.width, full.request.height), (64, 48));
+        assert_eq!(full.request.reduction, 1.0);
+        sent_and_acked(&mut s, true);
+        assert!(waits_for_input(&s.next_action(still + ms(10_000))));
+        let status = s.status(still, Some(5));
+        assert_eq!(
+            status,
+            Status {
+                id: Some(5),
+                view_id: 2,
+                sent: 3,
+                acked: 3,
+                rendering: false,
+                waiting: Waiting::Message,
+                converged: true,
+            }
+        );
+    }
+
+    #[test]
+    fn a_view_changed_after_idling_renders_full_at_once_and_the_device_pixel_ratio_scales_it() {
+        let mut s = session();
+        let t0 = Instant::now();
+        let message =
+            serde_json::json!({"type": "view", "id": 1, "set": {"w": 40, "h": 30}, "dpr": 2});
+        assert_eq!(s.on_text(t0, &message.to_string()), None);
+        let first = render(s.next_action(t0));
+        assert_eq!((first.request.width, first.request.height), (40, 30));
+        // The acknowledgement comes after the view turned still: straight to full.
+        s.on_frame_sent(false);
+        s.on_ack(1);
+        let full = render(s.next_action(t0 + ms(400)));
+        assert_eq!(full.quality, Quality::Full);
+        assert_eq!((full.request.width, full.request.height), (80, 60));
+        // Too many device pixels: refused, the view stays.
+        let message = serde_json::json!({"type": "view", "id": 2, "set": {"w": 3000}, "dpr": 2});
+        match s.on_text(t0, &message.to_string()) {
+            Some(Reply::Error { id, message }) => {
+                assert_eq!(id, Some(2));
+                assert!(
+                    message.contains("expected at most 4096 per side"),
+                    "{message}"
+                );
+            }
+            other => panic!("expected an error, got {other:?}"),
+        }
+        assert_eq!(s.status(t0, None).view_id, 1);
+    }
+
+    #[test]
+    fn global_light_refines_until_converged_then_waits_for_a_message() {
+        let mut s = session();
+        let t0 = Instant::now();
+        view(
+            &mut s,
+            t0,
+            1,
+            serde_json::json!({"shading": "global", "reduction": 2}),
+        );
+        let first = render(s.next_action(t0));
+        assert_eq!(first.quality, Quality::Interactive);
+        assert_eq!(first.request.reduction, 2.0, "lit modes keep their data");
+        sent_and_acked(&mut s, false);
+        let still = t0 + ms(150);
+        for _ in 0..3 {
+            assert_eq!(render(s.next_action(still)).quality, Quality::Full);
+            sent_and_acked(&mut s, false);
+            assert!(!s.status(still, None).converged);
+        }
+        assert_eq!(render(s.next_action(still)).quality, Quality::Full);
+        sent_and_acked(&mut s, true);
+        assert!(waits_for_input(&s.next_action(still + ms(10_000))));
+        assert!(s.status(still, None).converged);
+        // A new view starts over.
+        view(&mut s, still, 2, serde_json::json!({"az": 5}));
+        assert_eq!(render(s.next_action(still)).quality, Quality::Interactive);
+    }
+
+    #[test]
+    fn a_refused_message_changes_nothing_and_is_answered_with_an_error() {
+        let mut s = session();
+        let t0 = Instant::now();
+        view(&mut s, t0, 1, serde_json::json!({"w": 40, "h": 40}));
+        render(s.next_action(t0));
+        sent_and_acked(&mut s, false);
+        let before = s.status(t0, None);
+        let bad = [
+            (
+                serde_json::json!({"type": "view", "id": 2, "set": {"zoom": 2}}).to_string(),
+                Some(2),
+                "unknown view setting 'zoom'",
+            ),
+            (
+                serde_json::json!({"type": "view", "id": 3, "set": {"az": "NaN"}}).to_string(),
+                Some(3),
+                "view setting az=\"NaN\"",
+            ),
+            (
+                serde_json::json!({"type": "view", "id": 4, "set": {"dataset": "lung"}})
+                    .to_string(),
+                Some(4),
+                "view setting dataset=\"lung\"",
+            ),
+            ("{nope".to_owned(), None, "not JSON"),
+            (
+                serde_json::json!({"type": "flush"}).to_string(),
+                None,
+                "message type 'flush'",
+            ),
+        ];
+        for (text, want_id, want) in bad {
+            match s.on_text(t0 + ms(10), &text) {
+                Some(Reply::Error { id, message }) => {
+                    assert_eq!(id, want_id, "{text}");
+                    assert!(message.contains(want), "{text}: {message}");
+                }
+                other => panic!("{text}: expected an error, got {other:?}"),
+            }
+            assert_eq!(s.status(t0, None), before, "{text}");
+            assert_eq!(s.view.frame.width, 40);
+        }
+        // The refusals did not move the still instant.
+        match s.next_action(t0 + ms(20)) {
+            Action::WaitUntil(at) => assert_eq!(at, t0 + ms(150)),
+            other => panic!("expected to wait until still, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_render_error_stops_that_view_until_it_changes() {
+        let mut s = session();
+        let t0 = Instant::now();
+        view(&mut s, t0, 1, serde_json::json!({"w": 40, "h": 40}));
+        render(s.next_action(t0));
+        let reply = s.on_render_failed("the GPU is out of memory".into());
+        assert_eq!(reply, Reply::error(None, "the GPU is out of memory"));
+        for now in [t0, t0 + ms(150), t0 + ms(10_000)] {
+            assert!(waits_for_input(&s.next_action(now)));
+        }
+        let status = s.status(t0 + ms(150), None);
+        assert_eq!(
+            (status.waiting, status.converged, status.sent),
+            (Waiting::Message, false, 0)
+        );
+        // A view changed during the failed render is rendered still.
+        view(&mut s, t0, 2, serde_json::json!({"az": 30}));
+        let next = render(s.next_action(t0));
+        view(&mut s, t0 + ms(1), 3, serde_json::json!({"az": 40}));
+        s.on_render_failed("again".into());
+        assert_eq!(render(s.next_action(t0 + ms(2))).message_id, 3, "{next:?}");
+    }
+
+    #[test]
+    fn a_view_that_stopped_being_valid_sends_an_error_and_stops() {
+        let mut s = session();
+        let t0 = Instant::now();
+        view(&mut s, t0, 1, serde_json::json!({"dataset": "phantom"}));
+        // The datasets change under the session (no server does this today).
+        s.datasets = Arc::from(Vec::new());
+        match s.next_action(t0) {
+            Action::Send(Reply::Error { id: None, message }) => {
+                assert!(
+                    message.starts_with("view setting dataset=\"phantom\""),
+                    "{message}"
+                );
+            }
+            other => panic!("expected an error, got {other:?}"),
+        }
+        assert!(waits_for_input(&s.next_action(t0 + ms(10_000))));
+    }
+
+    #[test]
+    fn shutdown_closes_the_session_even_during_a_render() {
+        let mut s = session();
+        let t0 = Instant::now();
+        assert!(
+            waits_for_input(&s.next_action(t0)),
+            "no view, nothing to do"
+        );
+        view(&mut s, t0, 1, serde_json::json!({}));
+        render(s.next_action(t0));
+        s.shut_down();
+        assert!(matches!(s.next_action(t0), Action::Close));
+        assert!(matches!(s.next_action(t0 + ms(1)), Action::Close));
+    }
+}

@@ -1,0 +1,410 @@
+//! A view session's I/O: [`run`] feeds a [`Session`] what arrives on its
+//! socket, the frames it renders and the server's shutdown, and carries out
+//! the session's actions: renders on the shared worker (encoded on the
+//! blocking pool), replies and frames sent, and the close.
+//!
+//! Generic over the socket's halves (`Sink` and `Stream` of axum's
+//! [`Message`]) so the loop can be driven by channels as well as by a
+//! WebSocket.
+
+use std::future::Future;
+use std::pin::Pin;
+use std::time::Duration;
+
+use axum::extract::ws::{CloseFrame, Message, close_code};
+use futures_util::{Sink, SinkExt, Stream, StreamExt};
+use tokio::sync::OwnedSemaphorePermit;
+use tokio::time::Instant;
+
+use super::session::{Action, Quality, Render, Session};
+use crate::protocol::{self, Encoding, FrameHeader, Reply};
+use crate::{AppState, Dataset, encode, metrics};
+
+/// How long a session closed by the server waits for the client's close
+/// before it drops the connection anyway.
+const CLOSE_PATIENCE: Duration = Duration::from_secs(5);
+
+/// A frame ready to send (its header and bytes), or why there is none.
+type Job = Pin<Box<dyn Future<Output = Result<(FrameHeader, Vec<u8>), String>> + Send>>;
+
+/// How a session ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum End {
+    /// The client sent a close: the reply completes the handshake.
+    Client,
+    /// The socket broke or ended without a close.
+    Gone,
+    /// The server is shutting down: a close (1001) goes out.
+    Shutdown,
+}
+
+/// What woke the loop.
+#[derive(Debug)]
+enum Event {
+    Shutdown,
+    Rendered(Result<(FrameHeader, Vec<u8>), String>),
+    Received(Message),
+    Gone,
+    Still,
+}
+
+/// Runs one session on a socket's halves until the client closes it, it
+/// breaks, or the server shuts down; `place` (the session's place under the
+/// cap) is freed as it ends.
+pub(super) async fn run<S, R, E>(
+    mut sink: S,
+    mut stream: R,
+    state: &AppState,
+    place: OwnedSemaphorePermit,
+) where
+    S: Sink<Message> + Unpin,
+    R: Stream<Item = Result<Message, E>> + Unpin,
+{
+    if sink.send(Message::Text(hello(state).into())).await.is_err() {
+        return;
+    }
+    state.metrics.session_opened();
+    let mut session = Session::new(state.datasets.clone(), state.stream);
+    let end = drive(&mut sink, &mut stream, &mut session, state).await;
+    // Freed before the close handshake completes, so a client that has seen
+    // it can open another session at once.
+    drop(place);
+    match end {
+        // Sends the close reply tungstenite has queued.
+        End::Client => {
+            let _ = sink.close().await;
+        }
+        End::Shutdown => going_away(&mut sink, &mut stream).await,
+        End::Gone => {}
+    }
+}
+
+/// The first message: protocol version, datasets and stream settings.
+fn hello(state: &AppState) -> String {
+    serde_json::json!({
+        "type": "hello",
+        "protocol": protocol::PROTOCOL,
+        "datasets": state.datasets.iter().map(Dataset::info).collect::<Vec<_>>(),
+        "settings": state.stream,
+    })
+    .to_string()
+}
+
+/// The session's loop: asks it what to do, does it, waits for the next event.
+async fn drive<S, R, E>(
+    sink: &mut S,
+    stream: &mut R,
+    session: &mut Session,
+    state: &AppState,
+) -> End
+where
+    S: Sink<Message> + Unpin,
+    R: Stream<Item = Result<Message, E>> + Unpin,
+{
+    let mut job: Option<Job> = None;
+    loop {
+        let still_at = match session.next_action(Instant::now()) {
+            Action::Render(render) => {
+                job = Some(render_job(state, *render));
+                continue;
+            }
+            Action::Send(reply) => {
+                if send_reply(sink, &reply).await.is_err() {
+                    return End::Gone;
+                }
+                continue;
+            }
+            Action::Close => return End::Shutdown,
+            Action::WaitUntil(at) => Some(at),
+            Action::WaitForInput => None,
+        };
+        let event = tokio::select! {
+            biased;
+            () = state.shutdown.cancelled() => Event::Shutdown,
+            done = rendered(&mut job), if job.is_some() => Event::Rendered(done),
+            incoming = stream.next() => match incoming {
+                Some(Ok(message)) => Event::Received(message),
+                Some(Err(_)) | None => Event::Gone,
+            },
+            () = sleep_until(still_at), if still_at.is_some() => Event::Still,
+        };
+        if let Some(end) = handle(event, sink, session, state).await {
+            return end;
+        }
+    }
+}
+
+/// Feeds `event` to the session and sends what it gives; how the session
+/// ended, if it did.
+async fn handle<S>(
+    event: Event,
+    sink: &mut S,
+    session: &mut Session,
+    state: &AppState,
+) -> Option<End>
+where
+    S: Sink<Message> + Unpin,
+{
+    let reply = match event {
+        Event::Shutdown => {
+            session.shut_down();
+            None
+        }
+        Event::Still | Event::Received(Message::Ping(_) | Message::Pong(_)) => None,
+        Event::Gone => return Some(End::Gone),
+        Event::Received(Message::Close(_)) => return Some(End::Client),
+        Event::Received(Message::Text(text)) => session.on_text(Instant::now(), text.as_str()),
+        Event::Received(Message::Binary(_)) => {
+            Some(Reply::error(None, "binary message: expected JSON text"))
+        }
+        Event::Rendered(Ok((header, bytes))) => {
+            if sink.send(Message::Binary(bytes.into())).await.is_err() {
+                return Some(End::Gone);
+            }
+            session.on_frame_sent(header.converged);
+            record_frame(state, &header);
+            None
+        }
+        Event::Rendered(Err(message)) => Some(session.on_render_failed(message)),
+    };
+    match reply {
+        Some(reply) if send_reply(sink, &reply).await.is_err() => Some(End::Gone),
+        _ => None,
+    }
+}
+
+async fn send_reply<S: Sink<Message> + Unpin>(sink: &mut S, reply: &Reply) -> Result<(), S::Error> {
+    sink.send(Message::Text(reply.to_json().into())).await
+}
+
+/// The frame of `job` when it is done; pending while there is none. The
+/// job stays in place when the wait is cancelled, and goes when it is done.
+async fn rendered(job: &mut Option<Job>) -> Result<(FrameHeader, Vec<u8>), String> {
+    let Some(running) = job.as_mut() else {
+        return std::future::pending().await;
+    };
+    let done = running.await;
+    *job = None;
+    done
+}
+
+/// Sleeps until `at`; forever for `None`.
+async fn sleep_until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Closes the session with 1001 (going away) and waits, a while, for the
+/// client's close: dropping a connection with its messages unread would
+/// reset it, and the client might never read the close.
+async fn going_away<S, R, E>(sink: &mut S, stream: &mut R)
+where
+    S: Sink<Message> + Unpin,
+    R: Stream<Item = Result<Message, E>> + Unpin,
+{
+    let close = CloseFrame {
+        code: close_code::AWAY,
+        reason: "the server is shutting down".into(),
+    };
+    if sink.send(Message::Close(Some(close))).await.is_err() {
+        return;
+    }
+    let closed = async {
+        while let Some(Ok(message)) = stream.next().await {
+            if matches!(message, Message::Close(_)) {
+                break;
+            }
+        }
+    };
+    if tokio::time::timeout(CLOSE_PATIENCE, closed).await.is_err() {
+        tracing::debug!("a client did not answer the close in {CLOSE_PATIENCE:?}");
+    }
+}
+
+/// Counts a sent frame in the metrics.
+fn record_frame(state: &AppState, header: &FrameHeader) {
+    let (quality, format) = match header.encoding {
+        Encoding::Jpeg => (metrics::Quality::Interactive, metrics::Format::Jpeg),
+        Encoding::Png => (metrics::Quality::Full, metrics::Format::Png),
+        Encoding::Webp => (metrics::Quality::Full, metrics::Format::Webp),
+    };
+    state.metrics.frame(
+        metrics::Source::Stream,
+        quality,
+        format,
+        metrics::FrameTimes {
+            render_ms: f64::from(header.render_ms),
+            queue_ms: f64::from(header.queue_ms),
+            encode_ms: f64::from(header.encode_ms),
+        },
+    );
+}
+
+/// Renders and encodes one frame.
+fn render_job(state: &AppState, render: Render) -> Job {
+    let renderer = state.renderer.clone();
+    let jpeg_quality = state.stream.jpeg_quality;
+    let lossless = state.stream.lossless;
+    let Render {
+        quality,
+        dataset,
+        request,
+        frame_id,
+        message_id,
+    } = render;
+    Box::pin(async move {
+        let rendered = renderer
+            .render_waiting(&dataset, request)
+            .await
+            .map_err(|e| e.to_string())?;
+        let converged = rendered.stats.converged();
+        let light = rendered.stats.light().copied();
+        let frame = rendered.frame;
+        let (width, height) = (frame.width, frame.height);
+        let start = std::time::Instant::now();
+        let (encoding, image) = tokio::task::spawn_blocking(move || match quality {
+            Quality::Interactive => encode::jpeg(&frame, jpeg_quality).map(|b| (Encoding::Jpeg, b)),
+            Quality::Full => match lossless {
+                encode::Lossless::Png => encode::png(&frame).map(|b| (Encoding::Png, b)),
+                encode::Lossless::Webp => encode::webp(&frame).map(|b| (Encoding::Webp, b)),
+            },
+        })
+        .await
+        .map_err(|e| format!("the encoder task failed: {e}"))?
+        .map_err(|e| format!("encoding the frame failed: {e}"))?;
+        let header = FrameHeader {
+            encoding,
+            lossless: quality == Quality::Full,
+            converged: quality == Quality::Full && converged,
+            width: width as u16,
+            height: height as u16,
+            refined: light.map_or(0, |l| l.refined as u16),
+            directions: light.map_or(0, |l| l.directions as u16),
+            frame_id,
+            message_id,
+            render_ms: rendered.render_ms as f32,
+            encode_ms: (start.elapsed().as_secs_f64() * 1e3) as f32,
+            reduction: rendered.stats.reduction as f32,
+            queue_ms: rendered.queue_ms as f32,
+        };
+        let mut bytes = Vec::with_capacity(protocol::HEADER_LEN + image.len());
+        bytes.extend_from_slice(&header.to_bytes());
+        bytes.extend_from_slice(&image);
+        Ok((header, bytes))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::convert::Infallible;
+
+    use tokio::sync::mpsc;
+
+    use super::*;
+    use crate::RenderService;
+    use crate::stream::StreamSettings;
+
+    /// A session on channels: what the test sends, and what the loop sends.
+    struct Channels {
+        to_session: mpsc::Sender<Message>,
+        from_session: mpsc::Receiver<Message>,
+    }
+
+    impl Channels {
+        async fn send(&self, text: serde_json::Value) {
+            let text = Message::Text(text.to_string().into());
+            self.to_session.send(text).await.expect("the loop reads");
+        }
+
+        async fn next(&mut self) -> Message {
+            let patience = Duration::from_secs(60);
+            tokio::time::timeout(patience, self.from_session.recv())
+                .await
+                .expect("a message within the patience")
+                .expect("the loop is running")
+        }
+
+        async fn next_json(&mut self) -> serde_json::Value {
+            match self.next().await {
+                Message::Text(text) => serde_json::from_str(text.as_str()).expect("JSON"),
+                other => panic!("expected JSON text, got {other:?}"),
+            }
+        }
+    }
+
+    /// Runs the loop of a new session of `state` on channels.
+    fn start(state: &AppState) -> (Channels, tokio::task::JoinHandle<()>) {
+        let (to_session, from_test) = mpsc::channel::<Message>(16);
+        let (to_test, from_session) = mpsc::channel::<Message>(16);
+        let sink = Box::pin(futures_util::sink::unfold(
+            to_test,
+            |tx, message| async move { tx.send(message).await.map(|()| tx) },
+        ));
+        let stream = Box::pin(futures_util::stream::unfold(
+            from_test,
+            |mut rx| async move { rx.recv().await.map(|m| (Ok::<_, Infallible>(m), rx)) },
+        ));
+        let place = state.sessions.try_open().expect("a place");
+        let state = state.clone();
+        let running = tokio::spawn(async move { run(sink, stream, &state, place).await });
+        let channels = Channels {
+            to_session,
+            from_session,
+        };
+        (channels, running)
+    }
+
+    #[tokio::test]
+    async fn the_loop_runs_on_channels_answers_in_order_and_closes_on_shutdown() {
+        let test = "the_loop_runs_on_channels_answers_in_order_and_closes_on_shutdown";
+        let Some(gpu) = voxserve_tests::gpu_or_skip(test) else {
+            return;
+        };
+        let renderer = RenderService::start(gpu.clone(), 64 << 20, 1).expect("render worker");
+        let phantom = Dataset::phantom(16, 16 << 20).expect("phantom");
+        let state = AppState::new(vec![phantom], renderer, StreamSettings::default());
+        let (mut client, running) = start(&state);
+        assert_eq!(client.next_json().await["type"], "hello");
+        client
+            .send(serde_json::json!({"type": "view", "id": 1, "set": {"w": 20, "h": 10}}))
+            .await;
+        let last = loop {
+            let Message::Binary(bytes) = client.next().await else {
+                panic!("expected a frame");
+            };
+            let header = FrameHeader::parse(&bytes).expect("a header");
+            client
+                .send(serde_json::json!({"type": "ack", "frame": header.frame_id}))
+                .await;
+            if header.converged {
+                break header;
+            }
+        };
+        assert_eq!((last.width, last.height, last.message_id), (20, 10, 1));
+        client
+            .send(serde_json::json!({"type": "status", "id": 7}))
+            .await;
+        let status = client.next_json().await;
+        assert_eq!(
+            status,
+            serde_json::json!({"type": "status", "id": 7, "view_id": 1, "sent": last.frame_id,
+                "acked": last.frame_id, "rendering": false, "waiting": "message", "converged": true})
+        );
+        assert_eq!(state.sessions.open(), 1);
+        state.shutdown.cancel();
+        match client.next().await {
+            Message::Close(Some(close)) => assert_eq!(close.code, close_code::AWAY),
+            other => panic!("expected a close, got {other:?}"),
+        }
+        // The place is free before the client's close reply.
+        assert_eq!(state.sessions.open(), 0);
+        client
+            .to_session
+            .send(Message::Close(None))
+            .await
+            .expect("the loop reads");
+        running.await.expect("the loop ends");
+    }
+}
