@@ -71,9 +71,11 @@ function drawFrame(bitmap, info) {
   bitmap.close();
   const quality = info.lossless ? 'lossless' : 'JPEG';
   const light = info.directions ? ` · light ${info.refined}/${info.directions}` : '';
+  // Blocks still being read are shown coarser; more detail follows.
+  const loading = info.pendingBlocks ? ` · loading ${info.pendingBlocks} blocks` : '';
   const latency = Number.isNaN(info.latencyMs) ? '' : ` · latency ${info.latencyMs.toFixed(0)} ms`;
   fidelity.textContent =
-    `${info.width}×${info.height} ${quality} · reduction ${info.reduction.toFixed(1)}:1${light} · ` +
+    `${info.width}×${info.height} ${quality} · reduction ${info.reduction.toFixed(1)}:1${light}${loading} · ` +
     `render ${info.renderMs.toFixed(0)} ms · encode ${info.encodeMs.toFixed(0)} ms${latency}`;
   canvas.dataset.frames = String(Number(canvas.dataset.frames || 0) + 1);
 }

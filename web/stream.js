@@ -27,6 +27,7 @@ export function parseHeader(buffer) {
     height: v.getUint16(8, true),
     refined: v.getUint16(10, true),
     directions: v.getUint16(12, true),
+    pendingBlocks: v.getUint16(14, true),
     frameId: v.getUint32(16, true),
     messageId: v.getUint32(20, true),
     renderMs: v.getFloat32(24, true),

@@ -7,9 +7,20 @@
 //! `quick_cache` policy (CLOCK-Pro style, close to LRU under scans) weighted by
 //! bytes. Levels 3 and 4, at most 1/512 of the data, can be made resident: read
 //! once and never evicted.
+//!
+//! # Reading off the render thread
+//! A renderer must never wait for storage: [`BlockCache::pin_with_apron`]
+//! hands it a block's chunks only when they are in memory, and otherwise
+//! asks [`reader_pool`] threads to read and decode them in the background
+//! ([`BlockCache::request`]). Each chunk that arrives bumps
+//! [`BlockCache::arrivals`] and wakes whoever waits
+//! ([`BlockCache::wait_for_arrivals`], [`BlockCache::subscribe`]); a chunk whose
+//! read failed keeps its error, which the next pin returns.
 
-use std::collections::HashMap;
-use std::sync::Arc;
+use std::collections::{HashMap, HashSet};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, OnceLock, PoisonError};
+use std::time::Duration;
 
 use quick_cache::Weighter;
 use quick_cache::sync::Cache;
@@ -30,11 +41,57 @@ impl Weighter<ChunkKey, Arc<VoxelData>> for Bytes {
     }
 }
 
+/// The chunks a block needs, pinned in memory: chunk position → voxels.
+pub type Pinned = HashMap<[u32; 3], Arc<VoxelData>>;
+
+/// A callback run after each chunk arrives.
+type Listener = Box<dyn Fn() + Send + Sync>;
+
+/// The threads that read and decode chunks in the background, shared by
+/// every cache: their own pool, so a renderer's parallel work never queues
+/// behind storage reads.
+pub fn reader_pool() -> &'static rayon::ThreadPool {
+    static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
+    POOL.get_or_init(|| {
+        let threads = std::thread::available_parallelism().map_or(2, |n| n.get().max(2));
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .thread_name(|i| format!("block-reader-{i}"))
+            .build()
+            .unwrap_or_else(|_| {
+                // Without threads of its own the pool would not read at all:
+                // one thread is the least that keeps renders refining.
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(1)
+                    .build()
+                    .unwrap_or_else(|e| panic!("cannot start a block reader thread: {e}"))
+            })
+    })
+}
+
+/// What the background reads are doing.
+#[derive(Default)]
+struct Loads {
+    /// Chunks being read now.
+    in_flight: HashSet<ChunkKey>,
+    /// Chunks whose read failed, with the error.
+    failed: HashMap<ChunkKey, Arc<Error>>,
+    /// Called after each arrival.
+    listeners: Vec<Listener>,
+}
+
 /// Decoded chunks of one store; see the module docs.
 pub struct BlockCache {
     store: Arc<Store>,
     chunks: Cache<ChunkKey, Arc<VoxelData>, Bytes>,
     resident: HashMap<ChunkKey, Arc<VoxelData>>,
+    loads: Mutex<Loads>,
+    /// Chunks arrived from background reads (or failed) so far.
+    arrivals: AtomicU64,
+    /// Notified with `loads` after each arrival.
+    arrived: Condvar,
+    /// Chunks read on the caller's thread (not in the background) so far.
+    inline_reads: AtomicU64,
 }
 
 impl std::fmt::Debug for BlockCache {
@@ -57,6 +114,10 @@ impl BlockCache {
             store,
             chunks: Cache::with_weighter(estimated_items, budget_bytes.max(chunk_bytes), Bytes),
             resident: HashMap::new(),
+            loads: Mutex::new(Loads::default()),
+            arrivals: AtomicU64::new(0),
+            arrived: Condvar::new(),
+            inline_reads: AtomicU64::new(0),
         }
     }
 
@@ -102,16 +163,138 @@ impl BlockCache {
         self.chunks.misses()
     }
 
-    /// The decoded chunk `key`, from memory or read and decoded now.
+    /// The decoded chunk `key`, from memory or read and decoded now, on the
+    /// caller's thread.
     pub fn chunk(&self, key: ChunkKey) -> Result<Arc<VoxelData>, Error> {
         if let Some(c) = self.resident.get(&key) {
             return Ok(c.clone());
         }
         self.chunks.get_or_insert_with(&key, || {
+            self.inline_reads.fetch_add(1, Ordering::Relaxed);
             self.store
                 .read_chunk(usize::from(key.0), key.1)
                 .map(Arc::new)
         })
+    }
+
+    /// The decoded chunk `key` if it is in memory, without reading.
+    pub fn cached_chunk(&self, key: ChunkKey) -> Option<Arc<VoxelData>> {
+        self.resident
+            .get(&key)
+            .cloned()
+            .or_else(|| self.chunks.get(&key))
+    }
+
+    /// Chunks read on a caller's thread so far ([`BlockCache::chunk`] misses):
+    /// a renderer that pins instead never adds to it.
+    pub fn inline_reads(&self) -> u64 {
+        self.inline_reads.load(Ordering::Relaxed)
+    }
+
+    /// Chunks that arrived from background reads (or failed) so far.
+    pub fn arrivals(&self) -> u64 {
+        self.arrivals.load(Ordering::Acquire)
+    }
+
+    /// Chunks being read in the background now.
+    pub fn loading(&self) -> usize {
+        self.lock_loads().in_flight.len()
+    }
+
+    /// Runs `listener` after every arrival (the server turns it into an
+    /// async notification).
+    pub fn subscribe(&self, listener: impl Fn() + Send + Sync + 'static) {
+        self.lock_loads().listeners.push(Box::new(listener));
+    }
+
+    /// Waits (blocking this thread) until more than `seen` chunks have
+    /// arrived, or `timeout` passes; the arrivals then.
+    pub fn wait_for_arrivals(&self, seen: u64, timeout: Duration) -> u64 {
+        let loads = self.lock_loads();
+        let (_loads, _) = self
+            .arrived
+            .wait_timeout_while(loads, timeout, |_| self.arrivals() <= seen)
+            .unwrap_or_else(PoisonError::into_inner);
+        self.arrivals()
+    }
+
+    fn lock_loads(&self) -> std::sync::MutexGuard<'_, Loads> {
+        // A panicking listener cannot leave the sets half-updated.
+        self.loads.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Reads `keys` in the background (those not in memory, not already being
+    /// read, and not failed before).
+    pub fn request(self: &Arc<Self>, keys: &[ChunkKey]) {
+        let mut loads = self.lock_loads();
+        for &key in keys {
+            if loads.in_flight.contains(&key)
+                || loads.failed.contains_key(&key)
+                || self.resident.contains_key(&key)
+                || self.chunks.peek(&key).is_some()
+            {
+                continue;
+            }
+            loads.in_flight.insert(key);
+            let cache = Arc::clone(self);
+            reader_pool().spawn(move || cache.read_in_background(key));
+        }
+    }
+
+    /// A background read of `key`: into the cache, or its error kept.
+    fn read_in_background(&self, key: ChunkKey) {
+        let read = self.store.read_chunk(usize::from(key.0), key.1);
+        let mut loads = self.lock_loads();
+        match read {
+            Ok(voxels) => self.chunks.insert(key, Arc::new(voxels)),
+            Err(e) => {
+                loads.failed.insert(key, Arc::new(e));
+            }
+        }
+        loads.in_flight.remove(&key);
+        self.arrivals.fetch_add(1, Ordering::AcqRel);
+        self.arrived.notify_all();
+        for listener in &loads.listeners {
+            listener();
+        }
+    }
+
+    /// The chunks block `block` at `level` with a border of `apron` voxels
+    /// needs, if every one is in memory: pinned, so eviction cannot take them
+    /// before [`BlockCache::assemble_with_apron`]. When some are missing,
+    /// `Ok(None)`, and with `request` they are read in the background. A chunk
+    /// whose background read failed gives its error.
+    pub fn pin_with_apron(
+        self: &Arc<Self>,
+        level: usize,
+        block: [u32; 3],
+        apron: u32,
+        request: bool,
+    ) -> Result<Option<Pinned>, Error> {
+        let keys = self.apron_chunks(level, block, apron);
+        let mut pinned = Pinned::with_capacity(keys.len());
+        let mut missing = Vec::new();
+        for &key in &keys {
+            match self.cached_chunk(key) {
+                Some(chunk) => {
+                    pinned.insert(key.1, chunk);
+                }
+                None => missing.push(key),
+            }
+        }
+        if missing.is_empty() {
+            return Ok(Some(pinned));
+        }
+        if let Some(e) = missing
+            .iter()
+            .find_map(|k| self.lock_loads().failed.get(k).cloned())
+        {
+            return Err(Error::Shared(e));
+        }
+        if request {
+            self.request(&missing);
+        }
+        Ok(None)
     }
 
     /// Many chunks at once: the missing ones are read and decoded in parallel.
@@ -132,19 +315,27 @@ impl BlockCache {
 
     /// Block `block` at `level` with a border of `apron` voxels on every side,
     /// copied from its spatial neighbours at the same level (edge voxels repeated
-    /// at the volume's boundary): (16 / 2^l + 2·apron)³ voxels.
+    /// at the volume's boundary): (16 / 2^l + 2·apron)³ voxels. Missing chunks
+    /// are read on the caller's thread.
     pub fn block_with_apron(
         &self,
         level: usize,
         block: [u32; 3],
         apron: u32,
     ) -> Result<VoxelData, Error> {
-        let edge = BLOCK >> level;
-        let side = edge + 2 * apron;
-        let dims = crate::store::level_dims(self.store.meta().dims, level);
-        let start = block.map(|b| i64::from(b * edge) - i64::from(apron));
+        let keys = self.apron_chunks(level, block, apron);
+        let chunks: Pinned = keys
+            .iter()
+            .zip(self.chunks(&keys))
+            .map(|(k, c)| c.map(|c| (k.1, c)))
+            .collect::<Result<_, _>>()?;
+        Ok(self.assemble_with_apron(level, block, apron, &chunks))
+    }
+
+    /// The chunks of `level` that block `block` with an `apron` touches.
+    fn apron_chunks(&self, level: usize, block: [u32; 3], apron: u32) -> Vec<ChunkKey> {
+        let (start, side, dims) = self.apron_box(level, block, apron);
         let clamp = |v: i64, n: u32| v.clamp(0, i64::from(n) - 1) as u32;
-        // The chunks the slot touches, fetched once each.
         let lo = [0, 1, 2].map(|a| clamp(start[a], dims[a]) / BLOCK);
         let hi = [0, 1, 2].map(|a| clamp(start[a] + i64::from(side) - 1, dims[a]) / BLOCK);
         let mut keys = Vec::new();
@@ -155,11 +346,29 @@ impl BlockCache {
                 }
             }
         }
-        let chunks: HashMap<[u32; 3], Arc<VoxelData>> = keys
-            .iter()
-            .zip(self.chunks(&keys))
-            .map(|(k, c)| c.map(|c| (k.1, c)))
-            .collect::<Result<_, _>>()?;
+        keys
+    }
+
+    /// The first voxel (possibly outside the volume), the side and the
+    /// level's dims of block `block` with an `apron`.
+    fn apron_box(&self, level: usize, block: [u32; 3], apron: u32) -> ([i64; 3], u32, [u32; 3]) {
+        let edge = BLOCK >> level;
+        let dims = crate::store::level_dims(self.store.meta().dims, level);
+        let start = block.map(|b| i64::from(b * edge) - i64::from(apron));
+        (start, edge + 2 * apron, dims)
+    }
+
+    /// Block `block` at `level` with an `apron`, from its pinned `chunks`
+    /// ([`BlockCache::pin_with_apron`]): no reads.
+    pub fn assemble_with_apron(
+        &self,
+        level: usize,
+        block: [u32; 3],
+        apron: u32,
+        chunks: &Pinned,
+    ) -> VoxelData {
+        let (start, side, dims) = self.apron_box(level, block, apron);
+        let clamp = |v: i64, n: u32| v.clamp(0, i64::from(n) - 1) as u32;
         let n = BLOCK as usize;
         let mut index = Vec::with_capacity((side as usize).pow(3));
         for z in 0..i64::from(side) {
@@ -177,11 +386,9 @@ impl BlockCache {
             }
         }
         let Some(any) = chunks.values().next().cloned() else {
-            return Ok(VoxelData::zeros(self.store.voxel_type(), 0));
+            return VoxelData::zeros(self.store.voxel_type(), 0);
         };
-        Ok(
-            crate::volume::with_voxels!(any.as_ref(), v => VoxelData::from(gather(v, &chunks, &index))),
-        )
+        crate::volume::with_voxels!(any.as_ref(), v => VoxelData::from(gather(v, chunks, &index)))
     }
 }
 

@@ -104,4 +104,8 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
+    /// A chunk read in the background failed; the error it gave, shared by
+    /// everyone who waits for that chunk.
+    #[error(transparent)]
+    Shared(#[from] std::sync::Arc<Error>),
 }

@@ -62,6 +62,23 @@ impl LodSelection {
         self.full_voxels as f64 / self.kept_voxels.max(1) as f64
     }
 
+    /// This selection with the levels `lod` instead (a renderer showing some
+    /// blocks coarser while their finer data loads): voxels and blocks kept
+    /// counted anew; the budget and error stay the selection's.
+    pub fn with_levels(&self, lod: Vec<u8>) -> LodSelection {
+        let kept: Vec<usize> = lod
+            .iter()
+            .filter(|&&l| usize::from(l) < LEVELS)
+            .map(|&l| usize::from(l))
+            .collect();
+        LodSelection {
+            kept_voxels: kept.iter().map(|&l| block_voxels(l)).sum(),
+            non_empty: kept.len(),
+            lod,
+            ..self.clone()
+        }
+    }
+
     /// Blocks whose level differs from `old`'s: (block, old level, new level).
     pub fn changes_from(&self, old: &LodSelection) -> Vec<(usize, u8, u8)> {
         self.lod

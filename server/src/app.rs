@@ -3,7 +3,7 @@
 //! | route | answer |
 //! |---|---|
 //! | `GET /` and other paths | the web client (`web/`) |
-//! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
+//! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), `X-Pending-Blocks` (blocks still shown coarser: 0 unless reading them took too long), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
 //! | `GET /api/stream` | a WebSocket view session: [`crate::protocol`], [`crate::stream`] |
 //! | `GET /api/settings` | every view setting (name, flag, group, kind, range or choices, unit, default, doc, what it takes), as JSON: the web client builds its controls from it |
 //! | `GET /api/datasets` | the datasets offered, as JSON |
@@ -14,7 +14,7 @@
 
 use std::future::Future;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
@@ -180,13 +180,41 @@ async fn render(
     render_pairs(&state, &pairs).await
 }
 
+/// How many renders `GET /api/render` makes while blocks arrive before it
+/// answers with what it has (`X-Pending-Blocks` then says how many were shown
+/// coarser).
+const MAX_RENDERS: usize = 16;
+/// How long one wait for blocks gathers arrivals, and may last in all.
+const GATHER: Duration = Duration::from_secs(2);
+const PATIENCE: Duration = Duration::from_secs(30);
+
+/// Renders `request` of `dataset` at the detail it selects: the render
+/// worker never waits for storage, so while blocks are being read the frame
+/// shows them coarser; this waits (here, not on the worker) for them to
+/// arrive and renders again.
+async fn render_complete(
+    state: &AppState,
+    dataset: &Dataset,
+    request: &shaders::FrameRequest,
+) -> Result<crate::render_service::RenderedFrame, AppError> {
+    let mut rendered = state.renderer.render(dataset, request.clone()).await?;
+    for _ in 1..MAX_RENDERS {
+        if rendered.stats.pending_blocks == 0 {
+            break;
+        }
+        dataset.settle(rendered.arrivals, GATHER, PATIENCE).await;
+        rendered = state.renderer.render(dataset, request.clone()).await?;
+    }
+    Ok(rendered)
+}
+
 /// Renders the frame `pairs` (query parameters) ask for, as a PNG response.
 async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Response, AppError> {
     let view = View::from_query(pairs, &state.datasets).map_err(AppError::BadRequest)?;
     let dataset = view
         .dataset(&state.datasets)
         .map_err(|e| AppError::BadRequest(e.to_string()))?;
-    let rendered = state.renderer.render(dataset, view.frame).await?;
+    let rendered = render_complete(state, dataset, &view.frame).await?;
     let encode_start = Instant::now();
     let frame = rendered.frame;
     let png = tokio::task::spawn_blocking(move || encode::png(&frame))
@@ -217,6 +245,7 @@ async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Re
     set("x-encode-ms", format!("{encode_ms:.1}"));
     set("x-reduction", format!("{:.2}", stats.reduction));
     set("x-levels", format!("{:?}", stats.level_counts));
+    set("x-pending-blocks", stats.pending_blocks.to_string());
     if let Some(light) = stats.light() {
         set(
             "x-refinement",

@@ -8,6 +8,7 @@
 
 use std::path::Path;
 use std::sync::Arc;
+use std::time::Duration;
 
 use blocks::cache::BlockCache;
 use blocks::ingest::{self, MemorySource, OpenOptions};
@@ -21,6 +22,9 @@ pub const PHANTOM_ID: &str = "phantom";
 /// A brick store offered under an id, with the cache its blocks are read through.
 #[derive(Debug, Clone)]
 pub struct Dataset {
+    /// Bumped after each chunk read in the background arrives: what frames
+    /// waiting for blocks await ([`Dataset::settle`]).
+    arrived: tokio::sync::watch::Receiver<u64>,
     /// The id in URLs (`dataset=ID`).
     pub id: String,
     /// The store.
@@ -84,8 +88,11 @@ impl Dataset {
         let store = Arc::new(store);
         let mut cache = BlockCache::new(store.clone(), cache_bytes);
         cache.make_resident(&[3, 4])?;
+        let (arrival, arrived) = tokio::sync::watch::channel(0u64);
+        cache.subscribe(move || arrival.send_modify(|n| *n += 1));
         let histogram = Arc::new(level0_histogram(&store));
         Ok(Dataset {
+            arrived,
             id,
             store,
             cache: Arc::new(cache),
@@ -126,6 +133,29 @@ impl Dataset {
         .unwrap_or(&name)
         .to_owned();
         Dataset::new(id, store, cache_bytes)
+    }
+
+    /// Waits until a chunk read in the background has arrived since
+    /// `seen` ([`BlockCache::arrivals`]), then until the reads in flight are
+    /// done or `gather` has passed (so one new frame shows many arrivals),
+    /// or `patience` has passed in all: a frame that waits for blocks never
+    /// hangs.
+    pub async fn settle(&self, seen: u64, gather: Duration, patience: Duration) {
+        let mut arrived = self.arrived.clone();
+        let cache = &self.cache;
+        let settled = async {
+            while cache.arrivals() <= seen {
+                if arrived.changed().await.is_err() {
+                    return;
+                }
+            }
+            let first = tokio::time::Instant::now();
+            while cache.loading() > 0 && first.elapsed() < gather {
+                let left = gather.saturating_sub(first.elapsed());
+                let _ = tokio::time::timeout(left, arrived.changed()).await;
+            }
+        };
+        let _ = tokio::time::timeout(patience, settled).await;
     }
 
     /// The display name.

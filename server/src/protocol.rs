@@ -29,7 +29,7 @@
 //! | `sent` | the id of the last frame sent (0: none yet) |
 //! | `acked` | the id of the last frame acknowledged |
 //! | `rendering` | a frame is being rendered |
-//! | `waiting` | what the session waits for before it renders again: `"message"` (nothing more to send until the view changes), `"still"` (the view to be still for `idle_ms`: the full frame follows), `"ack"` (a frame is due but `frames_in_flight` frames are unacknowledged), `"render"` (the frame being rendered) |
+//! | `waiting` | what the session waits for before it renders again: `"message"` (nothing more to send until the view changes), `"still"` (the view to be still for `idle_ms`: the full frame follows), `"ack"` (a frame is due but `frames_in_flight` frames are unacknowledged), `"render"` (the frame being rendered), `"blocks"` (blocks being read in the background: the last full frame showed some coarser, and the next follows when they have arrived) |
 //! | `converged` | the current view's last frame was converged: nothing more will be sent for it |
 //!
 //! Replies come in order with frames, so a status after a frame describes the
@@ -43,12 +43,12 @@
 //! |---|---|---|
 //! | 0 | 4 bytes | magic `VXF1` |
 //! | 4 | u8 | encoding: 1 JPEG, 2 PNG, 3 WebP (lossless) |
-//! | 5 | u8 | flags: 1 lossless full resolution, 2 converged (nothing more will come for this view) |
+//! | 5 | u8 | flags: 1 lossless full resolution, 2 converged (nothing more will come for this view: every block at its level, the light complete) |
 //! | 6 | u16 | width, pixels |
 //! | 8 | u16 | height, pixels |
 //! | 10 | u16 | refinement step j (in-scattering directions in; 0 without global light) |
 //! | 12 | u16 | refinement steps J |
-//! | 14 | u16 | reserved, 0 |
+//! | 14 | u16 | blocks shown coarser than selected while their data is read (at most 65535; 0: every block at its level) |
 //! | 16 | u32 | frame id (1, 2, … per session) |
 //! | 20 | u32 | id of the last view message this frame reflects |
 //! | 24 | f32 | render milliseconds |
@@ -90,6 +90,8 @@ pub struct FrameHeader {
     pub lossless: bool,
     /// Nothing more will be sent for this view.
     pub converged: bool,
+    /// Blocks shown coarser than selected while their data is read.
+    pub pending_blocks: u16,
     /// Image width.
     pub width: u16,
     /// Image height.
@@ -123,6 +125,7 @@ impl FrameHeader {
         b[8..10].copy_from_slice(&self.height.to_le_bytes());
         b[10..12].copy_from_slice(&self.refined.to_le_bytes());
         b[12..14].copy_from_slice(&self.directions.to_le_bytes());
+        b[14..16].copy_from_slice(&self.pending_blocks.to_le_bytes());
         b[16..20].copy_from_slice(&self.frame_id.to_le_bytes());
         b[20..24].copy_from_slice(&self.message_id.to_le_bytes());
         b[24..28].copy_from_slice(&self.render_ms.to_le_bytes());
@@ -167,6 +170,7 @@ impl FrameHeader {
             encoding,
             lossless: bytes[5] & 1 != 0,
             converged: bytes[5] & 2 != 0,
+            pending_blocks: u16_at(14),
             width: u16_at(6),
             height: u16_at(8),
             refined: u16_at(10),
@@ -254,6 +258,9 @@ pub enum Waiting {
     Ack,
     /// The frame being rendered.
     Render,
+    /// Blocks being read: the last full frame showed some coarser, and the
+    /// next follows when they have arrived.
+    Blocks,
 }
 
 impl Reply {
@@ -422,6 +429,7 @@ mod tests {
             encoding: Encoding::Jpeg,
             lossless: false,
             converged: true,
+            pending_blocks: 12,
             width: 640,
             height: 480,
             refined: 3,

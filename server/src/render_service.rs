@@ -33,6 +33,10 @@ pub struct RenderedFrame {
     pub stats: RenderStats,
     /// Milliseconds the job waited in the queue before the worker took it.
     pub queue_ms: f64,
+    /// The dataset's chunk arrivals when the frame was planned: a frame with
+    /// pending blocks can wait for arrivals after these
+    /// ([`Dataset::settle`]).
+    pub arrivals: u64,
 }
 
 struct Job {
@@ -148,13 +152,19 @@ impl RenderService {
                 while let Some(job) = queue.blocking_recv() {
                     let start = Instant::now();
                     let queue_ms = (start - job.queued).as_secs_f64() * 1e3;
+                    // Never waits for storage: blocks still being read are
+                    // shown coarser and later frames refine them.
+                    let arrivals = job.dataset.cache.arrivals();
                     let result = renderers.get(&job.dataset).and_then(|renderer| {
-                        renderer.render(&job.request).map(|frame| RenderedFrame {
-                            frame,
-                            render_ms: start.elapsed().as_secs_f64() * 1e3,
-                            stats: renderer.last_stats().clone(),
-                            queue_ms,
-                        })
+                        renderer
+                            .render_now(&job.request)
+                            .map(|frame| RenderedFrame {
+                                frame,
+                                render_ms: start.elapsed().as_secs_f64() * 1e3,
+                                stats: renderer.last_stats().clone(),
+                                queue_ms,
+                                arrivals,
+                            })
                     });
                     if let Err(e) = &result {
                         tracing::warn!("render failed: {e}");

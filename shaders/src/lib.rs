@@ -37,6 +37,10 @@
 //!   extinction coefficients; ambient occlusion, colour bleeding and cone soft
 //!   shadows from several lights in a light cache), laid out alike.
 //! - [`pipeline`]: builders for compute stages and their bind group layouts.
+//! - [`residency`]: [`residency::Residency`], the blocks a renderer keeps on
+//!   the GPU at the levels the selection asks for as far as memory allows
+//!   now: blocks not yet read are requested in the background and shown
+//!   coarser meanwhile, so rendering never waits for storage.
 //! - [`renderer`]: [`Renderer`] (a brick store rendered from its packed blocks,
 //!   frame by frame) and [`ReferenceRenderer`] (tests and benchmarks).
 //! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`,
@@ -66,6 +70,7 @@ pub mod packed_volume;
 pub mod pipeline;
 pub mod raycast;
 pub mod renderer;
+pub mod residency;
 pub mod settings;
 pub mod volume_texture;
 pub mod wgsl;

@@ -8,6 +8,7 @@
 //! the blocks [`blocks::packing::Packing::update`] lists are written, each into
 //! its slot, and the index is rewritten whole (8 bytes per block).
 
+use blocks::VoxelData;
 use blocks::cache::BlockCache;
 use blocks::packing::{Packing, slot_edge};
 use blocks::store::LEVELS;
@@ -35,86 +36,47 @@ pub struct GpuAtlas {
     pub layout: PackedLayout,
 }
 
-/// The slot's voxels of block `b`: its level-`l` data with the apron, as texel bytes.
-fn slot_bytes(
+/// Where an upload gets a block's voxels: block `b` (in block-statistics
+/// order) at `level`, with its one-voxel apron. The renderer passes voxels it
+/// pinned in memory, so an upload never waits for storage.
+pub type BlockSource<'a> = &'a (dyn Fn(usize, usize) -> Result<VoxelData, GpuError> + Sync);
+
+/// A source reading blocks through `cache`, missing chunks on the caller's
+/// thread (the CPU twin, tests).
+pub fn cache_source(
     cache: &BlockCache,
+) -> impl Fn(usize, usize) -> Result<VoxelData, GpuError> + Sync + '_ {
+    move |b, level| {
+        let block = cache.store().stats().block_position(b);
+        Ok(cache.block_with_apron(level, block, blocks::packing::APRON)?)
+    }
+}
+
+/// The slot's voxels of block `b`: its level's data with the apron, as texel bytes.
+fn slot_bytes(
+    source: BlockSource<'_>,
     packing: &Packing,
     desc: &VolumeTexture,
     b: usize,
 ) -> Result<Vec<u8>, GpuError> {
-    let level = usize::from(packing.lod[b]);
-    let block = cache.store().stats().block_position(b);
-    let voxels = cache.block_with_apron(level, block, blocks::packing::APRON)?;
+    let voxels = source(b, usize::from(packing.lod[b]))?;
     Ok(desc.texel_bytes(&voxels).into_owned())
 }
 
 impl GpuAtlas {
-    /// Creates the textures for `packing` and uploads every selected block.
+    /// Creates the textures for `packing` of a volume of `grid` blocks and
+    /// uploads every selected block from `source`.
     pub fn upload(
         gpu: &GpuContext,
-        cache: &BlockCache,
+        grid: [u32; 3],
         packing: Packing,
         desc: &VolumeTexture,
+        source: BlockSource<'_>,
     ) -> Result<GpuAtlas, GpuError> {
-        let grid = cache.store().meta().blocks;
         let atlas = create_texture_3d(gpu, "atlas", packing.atlas_dims, desc.format.wgpu())?;
-        let index = gpu.scoped("creating the block index", || {
-            gpu.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("block index"),
-                size: wgpu::Extent3d {
-                    width: grid[0],
-                    height: grid[1],
-                    depth_or_array_layers: grid[2],
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D3,
-                format: wgpu::TextureFormat::Rgba16Uint,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            })
-        })?;
-        let texel = desc.format.size();
-        // Blocks by level and slot row, written a row of slots at a time.
+        let index = create_index(gpu, grid)?;
         for level in 0..LEVELS {
-            let region = packing.regions[level];
-            let edge = slot_edge(level);
-            let per_row = region.slots[0];
-            let mut rows: Vec<Vec<usize>> =
-                vec![Vec::new(); (region.slots[1] * region.slots[2]) as usize];
-            for b in (0..packing.lod.len()).filter(|&b| usize::from(packing.lod[b]) == level) {
-                rows[(packing.slot[b] / per_row) as usize].push(b);
-            }
-            for (row, members) in rows.iter().enumerate().filter(|(_, m)| !m.is_empty()) {
-                let width = per_row * edge;
-                let mut bytes = vec![0u8; width as usize * (edge as usize).pow(2) * texel];
-                let slots: Vec<(usize, Vec<u8>)> = members
-                    .par_iter()
-                    .map(|&b| slot_bytes(cache, &packing, desc, b).map(|s| (b, s)))
-                    .collect::<Result<_, _>>()?;
-                for (b, data) in slots {
-                    let x0 = (packing.slot[b] % per_row * edge) as usize;
-                    let e = edge as usize;
-                    for z in 0..e {
-                        for y in 0..e {
-                            let src = ((z * e + y) * e) * texel;
-                            let dst = ((z * e + y) * width as usize + x0) * texel;
-                            bytes[dst..dst + e * texel]
-                                .copy_from_slice(&data[src..src + e * texel]);
-                        }
-                    }
-                }
-                let row = row as u32;
-                let origin = [
-                    0,
-                    (row % region.slots[1]) * edge,
-                    region.z0 + (row / region.slots[1]) * edge,
-                ];
-                gpu.scoped("uploading atlas slots", || {
-                    write_box(gpu, &atlas, origin, [width, edge, edge], texel, &bytes);
-                    gpu.queue.submit([]);
-                })?;
-            }
+            upload_region(gpu, &atlas, &packing, level, desc, source)?;
         }
         let mut gpu_atlas = GpuAtlas {
             atlas_view: atlas.create_view(&wgpu::TextureViewDescriptor::default()),
@@ -137,16 +99,16 @@ impl GpuAtlas {
     pub fn update(
         &mut self,
         gpu: &GpuContext,
-        cache: &BlockCache,
         packing: Packing,
         uploads: &[usize],
         desc: &VolumeTexture,
+        source: BlockSource<'_>,
     ) -> Result<(), GpuError> {
         let texel = desc.format.size();
         for chunk in uploads.chunks(256) {
             let slots: Vec<(usize, Vec<u8>)> = chunk
                 .par_iter()
-                .map(|&b| slot_bytes(cache, &packing, desc, b).map(|s| (b, s)))
+                .map(|&b| slot_bytes(source, &packing, desc, b).map(|s| (b, s)))
                 .collect::<Result<_, _>>()?;
             gpu.scoped("uploading changed blocks", || {
                 for (b, data) in &slots {
@@ -178,6 +140,74 @@ impl GpuAtlas {
             gpu.queue.submit([]);
         })
     }
+}
+
+/// The block index texture of a volume of `grid` blocks.
+fn create_index(gpu: &GpuContext, grid: [u32; 3]) -> Result<wgpu::Texture, GpuError> {
+    gpu.scoped("creating the block index", || {
+        gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("block index"),
+            size: wgpu::Extent3d {
+                width: grid[0],
+                height: grid[1],
+                depth_or_array_layers: grid[2],
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D3,
+            format: wgpu::TextureFormat::Rgba16Uint,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        })
+    })
+}
+
+/// Uploads the blocks of `level` into their region of `atlas`, a row of
+/// slots per write (a few MiB, whatever the atlas's size).
+fn upload_region(
+    gpu: &GpuContext,
+    atlas: &wgpu::Texture,
+    packing: &Packing,
+    level: usize,
+    desc: &VolumeTexture,
+    source: BlockSource<'_>,
+) -> Result<(), GpuError> {
+    let texel = desc.format.size();
+    let region = packing.regions[level];
+    let edge = slot_edge(level);
+    let per_row = region.slots[0];
+    let mut rows: Vec<Vec<usize>> = vec![Vec::new(); (region.slots[1] * region.slots[2]) as usize];
+    for b in (0..packing.lod.len()).filter(|&b| usize::from(packing.lod[b]) == level) {
+        rows[(packing.slot[b] / per_row) as usize].push(b);
+    }
+    let width = per_row * edge;
+    let e = edge as usize;
+    for (row, members) in rows.iter().enumerate().filter(|(_, m)| !m.is_empty()) {
+        let mut bytes = vec![0u8; width as usize * e * e * texel];
+        let slots: Vec<(usize, Vec<u8>)> = members
+            .par_iter()
+            .map(|&b| slot_bytes(source, packing, desc, b).map(|s| (b, s)))
+            .collect::<Result<_, _>>()?;
+        for (b, data) in slots {
+            let x0 = (packing.slot[b] % per_row * edge) as usize;
+            for zy in 0..e * e {
+                let src = zy * e * texel;
+                let dst = (zy * width as usize + x0) * texel;
+                bytes[dst..dst + e * texel].copy_from_slice(&data[src..src + e * texel]);
+            }
+        }
+        let row = row as u32;
+        let origin = [
+            0,
+            (row % region.slots[1]) * edge,
+            region.z0 + (row / region.slots[1]) * edge,
+        ];
+        gpu.scoped("uploading atlas slots", || {
+            write_box(gpu, atlas, origin, [width, edge, edge], texel, &bytes);
+            gpu.queue.submit([]);
+        })?;
+    }
+    Ok(())
 }
 
 /// The atlas of `packing` assembled in memory as the GPU samples it, with its

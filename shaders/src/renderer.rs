@@ -13,9 +13,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use blocks::cache::BlockCache;
-use blocks::lod::{self, LodSelection};
+use blocks::lod::LodSelection;
 use blocks::packing::Packing;
-use blocks::store::{LEVELS, Store};
+use blocks::store::LEVELS;
 use blocks::transfer_function::TABLE_LEN;
 use blocks::{TransferFunction, Volume};
 
@@ -25,13 +25,15 @@ use crate::illumination::{Illumination, Inputs, Mode, Timings};
 use crate::packed::GpuAtlas;
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
+use crate::residency::{Residency, budget_voxels};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
+/// How long a renderer that waits for blocks ([`Renderer::render`]) sleeps
+/// between checks when no arrival wakes it.
+const ARRIVAL_PATIENCE: std::time::Duration = std::time::Duration::from_millis(200);
 /// Rows of a texture-to-buffer copy are padded to this many bytes.
 const ROW_ALIGN: u32 = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-/// Selections tried before a device budget is declared too small.
-const MAX_SELECTIONS: usize = 12;
 
 /// The output texture of one image size and the buffer it is read back through.
 #[derive(Debug)]
@@ -211,6 +213,9 @@ pub struct RenderStats {
     pub upload_ms: f64,
     /// Milliseconds from dispatch to pixels read back.
     pub draw_ms: f64,
+    /// Blocks shown coarser than selected because their data is still being
+    /// read in the background: later frames refine them.
+    pub pending_blocks: usize,
     /// The illumination mode's stages of this frame (lit shading only).
     pub illumination: Option<Timings>,
 }
@@ -232,10 +237,10 @@ impl RenderStats {
         }
     }
 
-    /// Whether the frame is final for its view: nothing more will refine its
-    /// light (always, for modes that do not refine and for unlit shading).
+    /// Whether the frame is final for its view: every block at its selected
+    /// level and nothing more to refine the light.
     pub fn converged(&self) -> bool {
-        self.illumination.as_ref().is_none_or(Timings::converged)
+        self.pending_blocks == 0 && self.illumination.as_ref().is_none_or(Timings::converged)
     }
 }
 
@@ -248,15 +253,6 @@ struct LitMode {
     pipeline: MarchPipeline,
 }
 
-/// The blocks on the GPU and what they were selected for.
-#[derive(Debug)]
-struct Resident {
-    atlas: GpuAtlas,
-    selection: LodSelection,
-    tf: TransferFunction,
-    budget_voxels: u64,
-}
-
 /// Renders a brick store from the blocks its level-of-detail selection keeps on
 /// the GPU; see the module docs.
 pub struct Renderer {
@@ -265,10 +261,7 @@ pub struct Renderer {
     cache: Arc<BlockCache>,
     desc: VolumeTexture,
     full_voxels: u64,
-    device_budget_bytes: u64,
-    resident: Option<Resident>,
-    /// Bumped whenever the resident blocks change: the light depends on them.
-    data_version: u64,
+    residency: Residency,
     /// The illumination modes used so far: each one's GPU state and the
     /// ray-caster variant that reads its light.
     lit: Vec<LitMode>,
@@ -305,12 +298,10 @@ impl Renderer {
         Ok(Renderer {
             gpu,
             pipeline,
+            residency: Residency::new(Arc::clone(&cache), budget_bytes),
             cache,
             desc,
             full_voxels,
-            device_budget_bytes: budget_bytes,
-            resident: None,
-            data_version: 0,
             lit: Vec::new(),
             frame,
             last: RenderStats::default(),
@@ -334,12 +325,12 @@ impl Renderer {
 
     /// The level-of-detail selection in use, once a frame was rendered.
     pub fn selection(&self) -> Option<&LodSelection> {
-        self.resident.as_ref().map(|r| &r.selection)
+        self.residency.selection()
     }
 
     /// The packing in use, once a frame was rendered.
     pub fn packing(&self) -> Option<&Packing> {
-        self.resident.as_ref().map(|r| &r.atlas.packing)
+        self.residency.atlas().map(|a| &a.packing)
     }
 
     /// The GPU state of illumination mode `mode`, once it was used.
@@ -361,27 +352,58 @@ impl Renderer {
 
     /// The resident atlas, once a frame was rendered.
     pub fn atlas(&self) -> Option<&GpuAtlas> {
-        self.resident.as_ref().map(|r| &r.atlas)
+        self.residency.atlas()
     }
 
-    /// Renders one frame and reads it back. For [`Shading::GlobalLight`] the
-    /// light is brought up to date first: recomputed when the data, transfer
-    /// function or light changed, else refined by one more direction.
+    /// Renders one frame at the detail the request selects and reads it
+    /// back, waiting on this thread for blocks still being read (the
+    /// command line, tests and benchmarks; a server renders with
+    /// [`Renderer::render_now`]). A lit mode is brought up to date first:
+    /// global light recomputed from the first stale stage, else refined by
+    /// one more direction.
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, false)
+        self.render_lit(request, false, true)
     }
 
-    /// Renders one frame with the light converged: every in-scattering
-    /// direction in (for still images and tests).
+    /// Renders one frame from the blocks in memory now, never waiting for
+    /// storage: blocks still being read are shown coarser
+    /// ([`RenderStats::pending_blocks`]) and later frames refine them.
+    pub fn render_now(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.render_lit(request, false, false)
+    }
+
+    /// Renders one frame with the light converged (every in-scattering
+    /// direction in) at the detail the request selects (for still images
+    /// and tests).
     pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, true)
+        self.render_lit(request, true, true)
     }
 
-    /// Prepares the blocks, brings the request's light up to date (all of
-    /// its refinements when `converge`) and draws.
-    fn render_lit(&mut self, request: &FrameRequest, converge: bool) -> Result<Frame, GpuError> {
+    /// Prepares the blocks (all of them, waiting, when `complete`), brings the
+    /// request's light up to date (all of its refinements when `converge`)
+    /// and draws.
+    fn render_lit(
+        &mut self,
+        request: &FrameRequest,
+        converge: bool,
+        complete: bool,
+    ) -> Result<Frame, GpuError> {
         let tf = request.store_transfer_function(self.cache.store().meta());
         let mut stats = self.prepare(request, &tf)?;
+        while complete && stats.pending_blocks > 0 {
+            let seen = self.cache.arrivals();
+            if self.cache.loading() > 0 {
+                self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
+            }
+            let more = self.prepare(request, &tf)?;
+            stats = RenderStats {
+                uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
+                relayout: stats.relayout || more.relayout,
+                select_ms: stats.select_ms + more.select_ms,
+                upload_ms: stats.upload_ms + more.upload_ms,
+                ..more
+            };
+        }
         if let Some(mode) = Mode::of(request.shading) {
             stats.illumination = Some(self.update_illumination(mode, request, &tf, converge)?);
         }
@@ -396,9 +418,15 @@ impl Renderer {
     ) -> Result<RenderStats, GpuError> {
         self.frame.prepare(&self.gpu, request, tf, &self.desc)?;
         let budget = budget_voxels(self.full_voxels, request.reduction);
-        let mut stats = RenderStats::default();
-        self.make_resident(tf, budget, &mut stats)?;
-        Ok(stats)
+        let r = self.residency.update(&self.gpu, &self.desc, tf, budget)?;
+        Ok(RenderStats {
+            uploaded_blocks: r.uploaded_blocks,
+            relayout: r.relayout,
+            select_ms: r.select_ms,
+            upload_ms: r.upload_ms,
+            pending_blocks: r.pending_blocks,
+            ..RenderStats::default()
+        })
     }
 
     /// Brings illumination mode `mode` up to date for `request` (every
@@ -417,29 +445,30 @@ impl Renderer {
                 pipeline: MarchPipeline::new(&self.gpu, mode.raycast_stage())?,
             });
         }
-        let (Some(resident), Some(lit)) =
-            (&self.resident, self.lit.iter_mut().find(|l| l.mode == mode))
-        else {
+        let (Some(atlas), Some(lit)) = (
+            self.residency.atlas(),
+            self.lit.iter_mut().find(|l| l.mode == mode),
+        ) else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
         let inputs = Inputs {
-            atlas: &resident.atlas,
+            atlas,
             transfer_function: &self.frame.transfer_function,
             texture: &self.desc,
             tf_len: TABLE_LEN as u32,
             tf,
-            data_version: self.data_version,
+            data_version: self.residency.data_version(),
         };
         lit.state.update(&self.gpu, inputs, request, converge)
     }
 
     /// Renders the frame of `request` from what is resident.
     fn draw(&mut self, request: &FrameRequest, mut stats: RenderStats) -> Result<Frame, GpuError> {
-        let Some(resident) = &self.resident else {
+        let (Some(atlas), Some(selection)) = (self.residency.atlas(), self.residency.selection())
+        else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
-        let params =
-            RaycastParams::new(&self.desc, request, TABLE_LEN as u32, resident.atlas.layout);
+        let params = RaycastParams::new(&self.desc, request, TABLE_LEN as u32, atlas.layout);
         // The lit mode's pipeline and light, once computed; else unlit.
         let lit = Mode::of(request.shading)
             .and_then(|mode| self.lit.iter().find(|l| l.mode == mode))
@@ -453,85 +482,15 @@ impl Renderer {
             &self.gpu,
             pipeline,
             &params,
-            &resident.atlas.atlas_view,
-            Some(&resident.atlas.index_view),
+            &atlas.atlas_view,
+            Some(&atlas.index_view),
             light,
         )?;
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
-        stats.reduction = resident.selection.reduction();
-        stats.level_counts = resident.selection.level_counts();
+        stats.reduction = selection.reduction();
+        stats.level_counts = selection.level_counts();
         self.last = stats;
         Ok(frame)
-    }
-
-    /// Selects levels for `tf` under `budget` voxels and brings the GPU up to date.
-    fn make_resident(
-        &mut self,
-        tf: &TransferFunction,
-        budget: u64,
-        stats: &mut RenderStats,
-    ) -> Result<(), GpuError> {
-        if self
-            .resident
-            .as_ref()
-            .is_some_and(|r| r.tf == *tf && r.budget_voxels == budget)
-        {
-            return Ok(());
-        }
-        self.data_version += 1;
-        let max_edge = self.gpu.device.limits().max_texture_dimension_3d;
-        let start = Instant::now();
-        let device = DeviceBudget {
-            bytes: self.device_budget_bytes,
-            texel_bytes: self.desc.format.size() as u64,
-            max_edge,
-        };
-        let (selection, fresh) = select_levels(self.cache.store(), tf, budget, device)?;
-        stats.select_ms = start.elapsed().as_secs_f64() * 1e3;
-        let start = Instant::now();
-        match self.resident.take() {
-            Some(mut r) => {
-                let update = r.atlas.packing.update(&selection, max_edge)?;
-                stats.uploaded_blocks = update.uploads.len();
-                stats.relayout = update.relayout;
-                if update.relayout {
-                    drop(r);
-                    let atlas =
-                        GpuAtlas::upload(&self.gpu, &self.cache, update.packing, &self.desc)?;
-                    r = Resident {
-                        atlas,
-                        selection: selection.clone(),
-                        tf: tf.clone(),
-                        budget_voxels: budget,
-                    };
-                } else {
-                    r.atlas.update(
-                        &self.gpu,
-                        &self.cache,
-                        update.packing,
-                        &update.uploads,
-                        &self.desc,
-                    )?;
-                }
-                r.selection = selection;
-                r.tf = tf.clone();
-                r.budget_voxels = budget;
-                self.resident = Some(r);
-            }
-            None => {
-                stats.uploaded_blocks = selection.non_empty;
-                stats.relayout = true;
-                let atlas = GpuAtlas::upload(&self.gpu, &self.cache, fresh, &self.desc)?;
-                self.resident = Some(Resident {
-                    atlas,
-                    selection,
-                    tf: tf.clone(),
-                    budget_voxels: budget,
-                });
-            }
-        }
-        stats.upload_ms = start.elapsed().as_secs_f64() * 1e3;
-        Ok(())
     }
 }
 
@@ -589,121 +548,6 @@ impl ReferenceRenderer {
             None,
         )
     }
-}
-
-/// What the GPU can hold: a byte budget for the atlas, the texel size, and the
-/// largest 3D texture edge.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct DeviceBudget {
-    /// Atlas bytes allowed.
-    pub bytes: u64,
-    /// Bytes per texel.
-    pub texel_bytes: u64,
-    /// The adapter's largest 3D texture edge.
-    pub max_edge: u32,
-}
-
-impl DeviceBudget {
-    /// No limit but the texture edge: the CPU twin's.
-    pub fn unlimited(max_edge: u32) -> DeviceBudget {
-        DeviceBudget {
-            bytes: u64::MAX,
-            texel_bytes: 1,
-            max_edge,
-        }
-    }
-}
-
-/// Selects every block's level of detail for `tf` keeping at most
-/// `budget_voxels` voxels (the data reduction asked for). When a fresh packing
-/// of that selection (slots with aprons, whole layers per level) would not fit
-/// `device`, the voxel budget shrinks until it fits, then grows back by
-/// bisection to use as much of the device as it can. Returns the selection and
-/// its fresh packing.
-pub fn select_levels(
-    store: &Store,
-    tf: &TransferFunction,
-    budget_voxels: u64,
-    device: DeviceBudget,
-) -> Result<(LodSelection, Packing), GpuError> {
-    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
-    // The selection under `budget` and its packing, if that fits the device.
-    let attempt = |budget: u64| {
-        let selection = lod::select(
-            store.stats(),
-            store.meta().value_map,
-            tf,
-            full_voxels,
-            budget,
-        );
-        // A packing that does not fit the texture edge counts as too big.
-        let packing = Packing::new(&selection, device.max_edge).ok();
-        let bytes = packing.as_ref().map_or(u64::MAX, |p| {
-            p.atlas_dims.iter().map(|&d| u64::from(d)).product::<u64>() * device.texel_bytes
-        });
-        let fits = packing.filter(|_| bytes <= device.bytes);
-        (selection, fits, bytes)
-    };
-    let (selection, fits, mut bytes) = attempt(budget_voxels);
-    if let Some(packing) = fits {
-        return Ok((selection, packing));
-    }
-    // Shrink until a selection fits; `too_big` is the smallest budget known not to.
-    let mut too_big = budget_voxels.min(selection.kept_voxels);
-    let mut best = None;
-    let mut over_budget = selection.over_budget;
-    for _ in 0..MAX_SELECTIONS {
-        if over_budget || too_big <= 1 {
-            break;
-        }
-        let shrink = if bytes == u64::MAX {
-            0.5
-        } else {
-            (device.bytes as f64 / bytes as f64).min(0.9)
-        };
-        let budget = ((too_big as f64 * shrink) as u64).max(1);
-        let (selection, fits, b) = attempt(budget);
-        bytes = b;
-        over_budget = selection.over_budget;
-        match fits {
-            Some(packing) => {
-                best = Some((budget, selection, packing));
-                break;
-            }
-            None => too_big = budget,
-        }
-    }
-    let Some((mut fitting, mut selection, mut packing)) = best else {
-        let coarsest = lod::select(store.stats(), store.meta().value_map, tf, full_voxels, 0);
-        return Err(GpuError::Unsupported {
-            what: format!(
-                "the {} blocks the transfer function shows, even all at level 4 ({} voxels)",
-                coarsest.non_empty, coarsest.kept_voxels
-            ),
-            limit: format!(
-                "they do not fit the GPU budget of {} bytes in 3D textures of at most {} texels per side",
-                device.bytes, device.max_edge
-            ),
-        });
-    };
-    // Grow back towards the smallest budget known too big.
-    for _ in 0..MAX_SELECTIONS / 2 {
-        if too_big - fitting <= too_big / 64 {
-            break;
-        }
-        let budget = fitting + (too_big - fitting) / 2;
-        match attempt(budget) {
-            (s, Some(p), _) => (fitting, selection, packing) = (budget, s, p),
-            _ => too_big = budget,
-        }
-    }
-    Ok((selection, packing))
-}
-
-/// The voxels a frame may keep for `reduction` (full-volume voxels per kept
-/// voxel) of a volume of `full_voxels`.
-pub fn budget_voxels(full_voxels: u64, reduction: f32) -> u64 {
-    (full_voxels as f64 / f64::from(reduction.max(1.0))).ceil() as u64
 }
 
 /// The output texture and readback buffer for `width` × `height`: the one in `slot`

@@ -27,3 +27,20 @@ pub fn phantom_64_dataset() -> &'static Dataset {
             .unwrap_or_else(|e| panic!("phantom dataset: {e}"))
     })
 }
+
+/// The head phantom at [`TEST_SIZE`]³ ingested into a store in `dir` and
+/// opened as a server opens one at start: a cold cache, only the two coarsest
+/// levels in memory.
+///
+/// # Panics
+/// When ingesting or opening fails.
+pub fn phantom_64_on_disk(dir: &std::path::Path) -> Dataset {
+    let volume = std::sync::Arc::new(phantom_64().clone());
+    let mut source = blocks::ingest::MemorySource::new(volume, "cold phantom");
+    let path = dir.join("cold.zarr");
+    let options = blocks::store::IngestOptions::default();
+    blocks::store::ingest(&mut source, &path, &options, &mut |_| {})
+        .unwrap_or_else(|e| panic!("ingest: {e}"));
+    Dataset::load(&path, &Default::default(), TEST_CACHE_BYTES)
+        .unwrap_or_else(|e| panic!("opening the store: {e}"))
+}

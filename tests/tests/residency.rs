@@ -9,7 +9,7 @@ use blocks::Preset;
 use shaders::{Camera, FrameRequest, Renderer};
 use voxserve_tests::checks::coverage;
 use voxserve_tests::image_compare::{assert_similar, to_image};
-use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
+use voxserve_tests::phantom::{phantom_64, phantom_64_dataset, phantom_64_on_disk};
 use voxserve_tests::render::gpu_renderer;
 use voxserve_tests::{Tolerance, gpu_or_skip};
 
@@ -147,4 +147,61 @@ fn a_device_budget_too_small_for_every_block_at_level_4_is_refused_with_the_numb
         err.contains("GPU budget of 256 bytes") && err.contains("level 4"),
         "{err}"
     );
+}
+
+#[test]
+fn a_cold_transfer_function_change_renders_at_once_from_memory_and_refines_as_blocks_arrive() {
+    let test =
+        "a_cold_transfer_function_change_renders_at_once_from_memory_and_refines_as_blocks_arrive";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let dataset = phantom_64_on_disk(dir.path());
+    let cache = &dataset.cache;
+    let range = phantom_64().value_range;
+    let soft = FrameRequest::new(64, 64, Preset::CtSoftTissue.transfer_function(range));
+    let mut renderer = gpu_renderer(gpu, &dataset);
+    let inline = cache.inline_reads();
+    let mut seen = cache.arrivals();
+    let first = renderer.render_now(&soft).expect("first frame");
+    let stats = renderer.last_stats().clone();
+    println!("cold first frame: {stats:?}");
+    assert!(
+        stats.pending_blocks > 0,
+        "level-0 blocks are read in the background, shown coarser meanwhile: {stats:?}"
+    );
+    assert!(!stats.converged(), "{stats:?}");
+    assert_eq!(
+        cache.inline_reads(),
+        inline,
+        "the render thread read nothing"
+    );
+    assert!(
+        coverage(&to_image(&first)) > 0.05,
+        "the head shows from coarse data at once"
+    );
+    // Each later frame shows what has arrived, until nothing is pending.
+    let mut frames = 1;
+    let mut frame = first;
+    while renderer.last_stats().pending_blocks > 0 {
+        cache.wait_for_arrivals(seen, std::time::Duration::from_secs(5));
+        seen = cache.arrivals();
+        frame = renderer.render_now(&soft).expect("refining frame");
+        frames += 1;
+        assert!(frames < 1000, "the blocks never all arrived");
+    }
+    println!("{frames} frames until every block was in");
+    assert_eq!(
+        cache.inline_reads(),
+        inline,
+        "the render thread read nothing"
+    );
+    assert!(renderer.last_stats().converged());
+    // The refined frame is the full-detail frame a waiting renderer draws.
+    let full = gpu_renderer(gpu, &dataset)
+        .render(&soft)
+        .expect("full detail");
+    let diff = assert_similar("residency-cold-refined", &frame, &full, &SAME_BLOCKS);
+    println!("refined vs full detail: {diff:?}");
 }

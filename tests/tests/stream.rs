@@ -93,16 +93,18 @@ async fn ack(socket: &mut Socket, frame: u32) {
     send(socket, serde_json::json!({"type": "ack", "frame": frame})).await;
 }
 
-/// Reads (and acknowledges) frames until a lossless one reflecting message
+/// Reads (and acknowledges) frames until a lossless, converged one reflecting message
 /// `id`; returns every frame seen.
-async fn until_lossless(socket: &mut Socket, id: u32) -> Vec<(FrameHeader, image::RgbaImage)> {
+async fn until_converged(socket: &mut Socket, id: u32) -> Vec<(FrameHeader, image::RgbaImage)> {
     let mut frames = Vec::new();
     loop {
         match next(socket).await {
             Received::Json(m) => panic!("unexpected message while waiting for frames: {m}"),
             Received::Frame(header, img) => {
                 ack(socket, header.frame_id).await;
-                let done = header.lossless && header.message_id == id;
+                // A lossless frame may show blocks still being read coarser
+                // (`pending_blocks`); the converged one shows them all.
+                let done = header.lossless && header.converged && header.message_id == id;
                 frames.push((header, img));
                 if done {
                     return frames;
@@ -186,7 +188,7 @@ async fn lossless_frames_can_be_webp_with_the_same_pixels_as_png() {
             serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 40, "az": 20}}),
         )
         .await;
-        let frames = until_lossless(&mut socket, 1).await;
+        let frames = until_converged(&mut socket, 1).await;
         let (header, image) = frames.last().expect("frames");
         let expected = match lossless {
             Lossless::Png => Encoding::Png,
@@ -212,7 +214,7 @@ async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_fol
         serde_json::json!({"type": "view", "id": 1, "set": {"w": 64, "h": 48, "az": 0}}),
     )
     .await;
-    let first = until_lossless(&mut socket, 1).await;
+    let first = until_converged(&mut socket, 1).await;
     // The first render comes while the view is fresh: half size, JPEG.
     let (h, _) = &first[0];
     assert_eq!(
@@ -238,7 +240,7 @@ async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_fol
         serde_json::json!({"type": "view", "id": 2, "set": {"az": 90, "w": 40, "h": 30}, "dpr": 2}),
     )
     .await;
-    let second = until_lossless(&mut socket, 2).await;
+    let second = until_converged(&mut socket, 2).await;
     let (full, side) = second.last().expect("frames");
     assert_eq!((full.width, full.height), (80, 60), "{full:?}");
     let front_small = image::imageops::resize(front, 80, 60, image::imageops::FilterType::Triangle);
@@ -307,7 +309,7 @@ async fn a_burst_of_100_camera_messages_renders_a_handful_of_frames_ending_on_th
     assert_eq!(held["sent"], first.frame_id, "{held}");
     assert_eq!(held["waiting"], "ack", "{held}");
     ack(&mut socket, first.frame_id).await;
-    let frames = until_lossless(&mut socket, 100).await;
+    let frames = until_converged(&mut socket, 100).await;
     let ids: Vec<u32> = frames.iter().map(|(h, _)| h.message_id).collect();
     println!(
         "100 messages: {} frames after the first, reflecting messages {ids:?}",
@@ -317,8 +319,9 @@ async fn a_burst_of_100_camera_messages_renders_a_handful_of_frames_ending_on_th
         ids.iter().all(|&id| id == 100),
         "every frame after the acknowledgement shows the last view: {ids:?}"
     );
-    // An interactive frame (unless the view was still by then) and the full one.
-    assert!(frames.len() <= 2, "a handful of frames: {ids:?}");
+    // An interactive frame (unless the view was still by then), the full one,
+    // and, if that showed blocks still being read coarser, the refined one.
+    assert!(frames.len() <= 3, "a handful of frames: {ids:?}");
     let (last, _) = frames.last().expect("frames");
     assert!(last.lossless && last.converged, "{last:?}");
     assert_quiet(&mut socket, 2, last.frame_id).await;
@@ -380,7 +383,7 @@ async fn without_acknowledgements_no_more_frames_come_and_the_next_shows_the_lat
         "{held}"
     );
     ack(&mut socket, first.frame_id).await;
-    let frames = until_lossless(&mut socket, 5).await;
+    let frames = until_converged(&mut socket, 5).await;
     assert_eq!(
         frames[0].0.message_id, 5,
         "the next frame shows the latest view"
@@ -402,7 +405,7 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
         serde_json::json!({"type": "view", "id": 1, "set": {"w": 40, "h": 40}}),
     )
     .await;
-    until_lossless(&mut a, 1).await;
+    until_converged(&mut a, 1).await;
     let cases = [
         (
             "{\"type\": \"view\", \"id\": 2, \"set\": {\"az\": NaN}}".to_owned(),
@@ -461,7 +464,7 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
         serde_json::json!({"type": "view", "id": 9, "set": {"az": 45}}),
     )
     .await;
-    let frames = until_lossless(&mut a, 9).await;
+    let frames = until_converged(&mut a, 9).await;
     assert_eq!(
         (
             frames.last().expect("frame").0.width,
@@ -475,7 +478,7 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
         serde_json::json!({"type": "view", "id": 10, "set": {"preset": "mr"}}),
     )
     .await;
-    until_lossless(&mut a, 10).await;
+    until_converged(&mut a, 10).await;
     let tf = "-1000:000000:0,200:ffcc99:0.2,1500:ffffff:0.9";
     send(
         &mut a,
@@ -497,14 +500,14 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
         serde_json::json!({"type": "view", "id": 12, "set": {"tf": tf, "preset": null}}),
     )
     .await;
-    until_lossless(&mut a, 12).await;
+    until_converged(&mut a, 12).await;
     // The other session never noticed.
     send(
         &mut b,
         serde_json::json!({"type": "view", "id": 1, "set": {"w": 24, "h": 24}}),
     )
     .await;
-    let frames = until_lossless(&mut b, 1).await;
+    let frames = until_converged(&mut b, 1).await;
     assert!(frames.iter().all(|(h, _)| h.message_id == 1));
 }
 
@@ -566,7 +569,7 @@ async fn shutdown_closes_every_session_with_going_away_and_run_returns() {
         serde_json::json!({"type": "view", "id": 1, "set": {"w": 32, "h": 32}}),
     )
     .await;
-    until_lossless(&mut idle, 1).await;
+    until_converged(&mut idle, 1).await;
     send(
         &mut busy,
         serde_json::json!({"type": "view", "id": 1, "set": {"w": 64, "h": 64, "shading": "global"}}),
@@ -608,7 +611,7 @@ async fn a_session_switches_datasets_and_one_resident_renderer_serves_both_in_tu
             serde_json::json!({"type": "view", "id": id, "set": {"w": 36, "h": 36, "dataset": dataset}}),
         )
         .await;
-        let frames = until_lossless(&mut socket, id).await;
+        let frames = until_converged(&mut socket, id).await;
         let (last, img) = frames.last().expect("frames");
         assert_eq!((last.width, last.height), (36, 36), "{dataset}");
         let lit = img
@@ -620,4 +623,62 @@ async fn a_session_switches_datasets_and_one_resident_renderer_serves_both_in_tu
             "{dataset}: the head shows ({lit} pixels)"
         );
     }
+}
+
+#[tokio::test]
+async fn a_cold_transfer_function_change_renders_from_memory_while_another_session_is_served() {
+    let test =
+        "a_cold_transfer_function_change_renders_from_memory_while_another_session_is_served";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cold = voxserve_tests::phantom::phantom_64_on_disk(dir.path());
+    let cold_cache = cold.cache.clone();
+    let warm = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let server =
+        TestServer::with_datasets(gpu, vec![warm, cold], 2, StreamSettings::default()).await;
+    let mut a = connect(&server).await;
+    let mut b = connect(&server).await;
+    // A changes to a transfer function whose blocks are not in memory; B asks
+    // for a frame of the other dataset at once.
+    send(
+        &mut a,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 48, "dataset": "cold", "preset": "ct-soft-tissue"}}),
+    )
+    .await;
+    send(
+        &mut b,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 48}}),
+    )
+    .await;
+    let a_frames = until_converged(&mut a, 1).await;
+    let b_frames = until_converged(&mut b, 1).await;
+    let summary = |frames: &[(FrameHeader, image::RgbaImage)]| -> Vec<(u16, f32, f32)> {
+        frames
+            .iter()
+            .map(|(h, _)| (h.pending_blocks, h.render_ms, h.queue_ms))
+            .collect()
+    };
+    println!(
+        "cold session (pending blocks, render ms, queue ms): {:?}; other session: {:?}",
+        summary(&a_frames),
+        summary(&b_frames)
+    );
+    // The cold change was drawn from what was in memory, blocks coarser, and
+    // refined as they arrived: the render worker read nothing itself, so its
+    // frames took one frame's time and the other session waited at most one.
+    assert!(
+        a_frames.iter().any(|(h, _)| h.pending_blocks > 0),
+        "a frame showed blocks still being read: {:?}",
+        summary(&a_frames)
+    );
+    let (last, _) = a_frames.last().expect("frames");
+    assert_eq!(last.pending_blocks, 0, "{last:?}");
+    assert_eq!(
+        cold_cache.inline_reads(),
+        0,
+        "the render worker read no chunk itself"
+    );
+    assert!(b_frames.iter().all(|(h, _)| h.message_id == 1));
 }

@@ -54,6 +54,15 @@ pub enum Action {
     WaitUntil(Instant),
     /// Nothing until a message, an acknowledgement or the frame being rendered.
     WaitForInput,
+    /// Nothing until `dataset`'s blocks read in the background have arrived
+    /// since `seen` (or a message comes); then report
+    /// [`Session::on_blocks_arrived`].
+    WaitForBlocks {
+        /// The dataset being read.
+        dataset: Dataset,
+        /// Its arrivals when the last frame was planned.
+        seen: u64,
+    },
     /// Close the session: the server is shutting down.
     Close,
 }
@@ -70,6 +79,9 @@ enum Progress {
     Interactive { changed_at: Instant },
     /// The full frame was sent; global light's refinements follow.
     Refining,
+    /// The full frame was sent showing some blocks coarser while their data
+    /// is read; a frame follows when blocks have arrived since `seen`.
+    Loading { seen: u64 },
     /// The last frame sent was converged: nothing more for this view.
     Converged,
     /// An error was sent for this view: nothing more for it.
@@ -82,6 +94,7 @@ enum Progress {
 enum Want {
     Nothing,
     StillAt(Instant),
+    Blocks(u64),
     Frame(Quality),
 }
 
@@ -169,8 +182,10 @@ impl Session {
         self.acked = self.acked.max(frame.min(self.sent));
     }
 
-    /// The frame being rendered was sent; `converged` as its header says.
-    pub fn on_frame_sent(&mut self, converged: bool) {
+    /// The frame being rendered was sent; `converged` as its header says,
+    /// `loading`: some blocks were shown coarser, their data read since the
+    /// dataset's arrivals were `seen`.
+    pub fn on_frame_sent(&mut self, converged: bool, loading: Option<u64>) {
         let Some(quality) = self.rendering.take() else {
             return;
         };
@@ -182,10 +197,10 @@ impl Session {
                 Progress::Interactive { .. } | Progress::Refining
             )
         {
-            self.progress = if converged {
-                Progress::Converged
-            } else {
-                Progress::Refining
+            self.progress = match (converged, loading) {
+                (true, _) => Progress::Converged,
+                (false, Some(seen)) => Progress::Loading { seen },
+                (false, None) => Progress::Refining,
             };
         }
     }
@@ -198,6 +213,14 @@ impl Session {
             self.progress = Progress::Failed;
         }
         Reply::error(None, message)
+    }
+
+    /// Blocks the last frame waited for have arrived: the next full frame
+    /// shows them.
+    pub fn on_blocks_arrived(&mut self) {
+        if matches!(self.progress, Progress::Loading { .. }) {
+            self.progress = Progress::Refining;
+        }
     }
 
     /// The server is shutting down: the next action is [`Action::Close`].
@@ -218,6 +241,13 @@ impl Session {
             // The ack wakes the loop; waking at the still instant would only spin.
             _ if self.window_full() => Action::WaitForInput,
             Want::StillAt(at) => Action::WaitUntil(at),
+            Want::Blocks(seen) => match self.view.dataset(&self.datasets) {
+                Ok(dataset) => Action::WaitForBlocks {
+                    dataset: dataset.clone(),
+                    seen,
+                },
+                Err(_) => Action::WaitForInput,
+            },
             Want::Frame(quality) => self.begin(quality),
         }
     }
@@ -229,6 +259,7 @@ impl Session {
             Want::Nothing => Waiting::Message,
             _ if self.window_full() => Waiting::Ack,
             Want::StillAt(_) => Waiting::Still,
+            Want::Blocks(_) => Waiting::Blocks,
             // Only seen between an event and the loop's next action, which begins it.
             Want::Frame(_) => Waiting::Render,
         };
@@ -258,8 +289,9 @@ impl Session {
                 Want::Frame(Quality::Full)
             }
             Progress::Interactive { changed_at } => Want::StillAt(changed_at + idle),
-            // The next light refinement.
+            // The next light refinement, or the blocks that arrived.
             Progress::Refining => Want::Frame(Quality::Full),
+            Progress::Loading { seen } => Want::Blocks(seen),
         }
     }
 
@@ -364,7 +396,7 @@ mod tests {
     /// Sends the frame being rendered (`converged` as its header would say)
     /// and acknowledges it.
     fn sent_and_acked(session: &mut Session, converged: bool) {
-        session.on_frame_sent(converged);
+        session.on_frame_sent(converged, None);
         session.on_ack(session.sent);
     }
 
@@ -404,7 +436,7 @@ mod tests {
             for id in 1..=frames_in_flight {
                 view(&mut s, t0, id, serde_json::json!({"az": id}));
                 render(s.next_action(t0));
-                s.on_frame_sent(false);
+                s.on_frame_sent(false, None);
             }
             view(&mut s, t0, 9, serde_json::json!({"az": 90}));
             // Not when the view changes, nor when it turns still.
@@ -476,7 +508,7 @@ mod tests {
         let first = render(s.next_action(t0));
         assert_eq!((first.request.width, first.request.height), (40, 30));
         // The acknowledgement comes after the view turned still: straight to full.
-        s.on_frame_sent(false);
+        s.on_frame_sent(false, None);
         s.on_ack(1);
         let full = render(s.next_action(t0 + ms(400)));
         assert_eq!(full.quality, Quality::Full);

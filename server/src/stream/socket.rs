@@ -24,8 +24,22 @@ use crate::{AppState, Dataset, encode, metrics};
 /// before it drops the connection anyway.
 const CLOSE_PATIENCE: Duration = Duration::from_secs(5);
 
-/// A frame ready to send (its header and bytes), or why there is none.
-type Job = Pin<Box<dyn Future<Output = Result<(FrameHeader, Vec<u8>), String>> + Send>>;
+/// A rendered and encoded frame: its header, its bytes, and the dataset's
+/// chunk arrivals when it was planned.
+#[derive(Debug)]
+struct Encoded {
+    header: FrameHeader,
+    bytes: Vec<u8>,
+    arrivals: u64,
+}
+
+/// A frame ready to send, or why there is none.
+type Job = Pin<Box<dyn Future<Output = Result<Encoded, String>> + Send>>;
+
+/// How long a session gathers blocks arriving before it shows them, and how
+/// long it waits for any at all before it renders again anyway.
+const BLOCKS_GATHER: Duration = Duration::from_millis(250);
+const BLOCKS_PATIENCE: Duration = Duration::from_secs(5);
 
 /// How a session ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,7 +56,8 @@ enum End {
 #[derive(Debug)]
 enum Event {
     Shutdown,
-    Rendered(Result<(FrameHeader, Vec<u8>), String>),
+    Rendered(Result<Encoded, String>),
+    BlocksArrived,
     Received(Message),
     Gone,
     Still,
@@ -103,10 +118,15 @@ where
 {
     let mut job: Option<Job> = None;
     loop {
+        let mut blocks = None;
         let still_at = match session.next_action(Instant::now()) {
             Action::Render(render) => {
                 job = Some(render_job(state, *render));
                 continue;
+            }
+            Action::WaitForBlocks { dataset, seen } => {
+                blocks = Some((dataset, seen));
+                None
             }
             Action::Send(reply) => {
                 if send_reply(sink, &reply).await.is_err() {
@@ -127,6 +147,7 @@ where
                 Some(Err(_)) | None => Event::Gone,
             },
             () = sleep_until(still_at), if still_at.is_some() => Event::Still,
+            () = settle(blocks.as_ref()), if blocks.is_some() => Event::BlocksArrived,
         };
         if let Some(end) = handle(event, sink, session, state).await {
             return end;
@@ -157,12 +178,21 @@ where
         Event::Received(Message::Binary(_)) => {
             Some(Reply::error(None, "binary message: expected JSON text"))
         }
-        Event::Rendered(Ok((header, bytes))) => {
-            if sink.send(Message::Binary(bytes.into())).await.is_err() {
+        Event::Rendered(Ok(frame)) => {
+            if sink
+                .send(Message::Binary(frame.bytes.into()))
+                .await
+                .is_err()
+            {
                 return Some(End::Gone);
             }
-            session.on_frame_sent(header.converged);
-            record_frame(state, &header);
+            let loading = (frame.header.pending_blocks > 0).then_some(frame.arrivals);
+            session.on_frame_sent(frame.header.converged, loading);
+            record_frame(state, &frame.header);
+            None
+        }
+        Event::BlocksArrived => {
+            session.on_blocks_arrived();
             None
         }
         Event::Rendered(Err(message)) => Some(session.on_render_failed(message)),
@@ -177,9 +207,20 @@ async fn send_reply<S: Sink<Message> + Unpin>(sink: &mut S, reply: &Reply) -> Re
     sink.send(Message::Text(reply.to_json().into())).await
 }
 
+/// Until blocks of `dataset` have arrived since `seen` (see
+/// [`Dataset::settle`]); forever for `None`.
+async fn settle(blocks: Option<&(Dataset, u64)>) {
+    match blocks {
+        Some((dataset, seen)) => {
+            dataset.settle(*seen, BLOCKS_GATHER, BLOCKS_PATIENCE).await;
+        }
+        None => std::future::pending().await,
+    }
+}
+
 /// The frame of `job` when it is done; pending while there is none. The
 /// job stays in place when the wait is cancelled, and goes when it is done.
-async fn rendered(job: &mut Option<Job>) -> Result<(FrameHeader, Vec<u8>), String> {
+async fn rendered(job: &mut Option<Job>) -> Result<Encoded, String> {
     let Some(running) = job.as_mut() else {
         return std::future::pending().await;
     };
@@ -278,6 +319,7 @@ fn render_job(state: &AppState, render: Render) -> Job {
             encoding,
             lossless: quality == Quality::Full,
             converged: quality == Quality::Full && converged,
+            pending_blocks: u16::try_from(rendered.stats.pending_blocks).unwrap_or(u16::MAX),
             width: width as u16,
             height: height as u16,
             refined: light.map_or(0, |l| l.refined as u16),
@@ -292,7 +334,11 @@ fn render_job(state: &AppState, render: Render) -> Job {
         let mut bytes = Vec::with_capacity(protocol::HEADER_LEN + image.len());
         bytes.extend_from_slice(&header.to_bytes());
         bytes.extend_from_slice(&image);
-        Ok((header, bytes))
+        Ok(Encoded {
+            header,
+            bytes,
+            arrivals: rendered.arrivals,
+        })
     })
 }
 

@@ -46,7 +46,7 @@ use crate::illumination::{Mode, near_blocks, slot_blocks};
 use crate::packed::assemble_cpu;
 use crate::packed_volume::PackedLayout;
 use crate::raycast::RaycastParams;
-use crate::renderer::{DeviceBudget, budget_voxels, select_levels};
+use crate::residency::{DeviceBudget, budget_voxels, select_levels};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuError};
 

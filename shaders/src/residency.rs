@@ -1,0 +1,435 @@
+//! [`Residency`]: which blocks a renderer keeps on the GPU, at which level,
+//! and how it gets there without the render thread ever waiting for storage.
+//!
+//! A frame's transfer function and data reduction give a *target* selection
+//! ([`select_levels`]: a few milliseconds from the block statistics). What is
+//! *shown* follows it as far as memory allows now: a block whose data at its
+//! target level is decoded in memory is shown at that level (its chunks
+//! pinned, then uploaded); one whose data is not yet there is requested from
+//! the background readers ([`blocks::cache::BlockCache::request`]) and shown
+//! meanwhile as it was, or, if it was not shown, at the finest level already
+//! in memory (levels 3 and 4 always are). Each later frame shows what has
+//! arrived, until nothing is pending. So a cold transfer-function change
+//! renders at once from coarse data and refines as blocks arrive, and other
+//! datasets' frames never wait for its reads.
+
+use std::sync::Arc;
+
+use blocks::TransferFunction;
+use blocks::cache::{BlockCache, Pinned};
+use blocks::lod::{self, EMPTY, LodSelection};
+use blocks::packing::{APRON, Packing};
+use blocks::store::{LEVELS, Store};
+use rayon::prelude::*;
+
+use crate::packed::GpuAtlas;
+use crate::volume_texture::VolumeTexture;
+use crate::{GpuContext, GpuError};
+
+/// Selections tried before a device budget is declared too small.
+const MAX_SELECTIONS: usize = 12;
+
+/// What one update of the resident blocks did.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ResidencyStats {
+    /// Blocks uploaded.
+    pub uploaded_blocks: usize,
+    /// Whether the atlas was laid out anew.
+    pub relayout: bool,
+    /// Milliseconds spent selecting levels (0 when nothing was re-selected).
+    pub select_ms: f64,
+    /// Milliseconds spent uploading blocks and index.
+    pub upload_ms: f64,
+    /// Blocks shown coarser than selected because their data is still being
+    /// read: later frames refine them.
+    pub pending_blocks: usize,
+}
+
+/// The selection a frame asks for.
+#[derive(Debug)]
+struct Target {
+    tf: TransferFunction,
+    budget_voxels: u64,
+    selection: LodSelection,
+}
+
+/// What is on the GPU.
+#[derive(Debug)]
+struct Shown {
+    atlas: GpuAtlas,
+    selection: LodSelection,
+}
+
+/// The levels to show per block now, the chunks pinned for the blocks to
+/// upload, and how many blocks wait for data.
+struct Plan {
+    lod: Vec<u8>,
+    pins: Vec<Option<Pinned>>,
+    pending: usize,
+}
+
+/// The blocks of one store on the GPU; see the module docs.
+#[derive(Debug)]
+pub struct Residency {
+    cache: Arc<BlockCache>,
+    device_budget_bytes: u64,
+    target: Option<Target>,
+    shown: Option<Shown>,
+    pending: usize,
+    /// Bumped whenever the shown blocks change: light computed from them is stale.
+    data_version: u64,
+}
+
+impl Residency {
+    /// Nothing resident yet, of the store behind `cache`, in at most
+    /// `device_budget_bytes` of atlas.
+    pub fn new(cache: Arc<BlockCache>, device_budget_bytes: u64) -> Residency {
+        Residency {
+            cache,
+            device_budget_bytes,
+            target: None,
+            shown: None,
+            pending: 0,
+            data_version: 0,
+        }
+    }
+
+    /// The atlas on the GPU, once a frame was rendered.
+    pub fn atlas(&self) -> Option<&GpuAtlas> {
+        self.shown.as_ref().map(|s| &s.atlas)
+    }
+
+    /// The selection shown, once a frame was rendered.
+    pub fn selection(&self) -> Option<&LodSelection> {
+        self.shown.as_ref().map(|s| &s.selection)
+    }
+
+    /// Changes whenever the shown blocks change.
+    pub fn data_version(&self) -> u64 {
+        self.data_version
+    }
+
+    /// Blocks shown coarser than selected, waiting for their data.
+    pub fn pending(&self) -> usize {
+        self.pending
+    }
+
+    /// Brings the GPU towards the selection for `tf` under `budget` voxels,
+    /// never reading storage on this thread: see the module docs.
+    pub fn update(
+        &mut self,
+        gpu: &GpuContext,
+        desc: &VolumeTexture,
+        tf: &TransferFunction,
+        budget: u64,
+    ) -> Result<ResidencyStats, GpuError> {
+        let mut stats = ResidencyStats::default();
+        let retarget = !self
+            .target
+            .as_ref()
+            .is_some_and(|t| t.tf == *tf && t.budget_voxels == budget);
+        if retarget {
+            let start = std::time::Instant::now();
+            let device = self.device_budget(gpu, desc);
+            let (selection, _) = select_levels(self.cache.store(), tf, budget, device)?;
+            stats.select_ms = start.elapsed().as_secs_f64() * 1e3;
+            self.target = Some(Target {
+                tf: tf.clone(),
+                budget_voxels: budget,
+                selection,
+            });
+        } else if self.pending == 0 {
+            return Ok(stats);
+        }
+        let start = std::time::Instant::now();
+        self.show(gpu, desc, &mut stats)?;
+        stats.upload_ms = start.elapsed().as_secs_f64() * 1e3;
+        stats.pending_blocks = self.pending;
+        Ok(stats)
+    }
+
+    /// What the device can hold.
+    fn device_budget(&self, gpu: &GpuContext, desc: &VolumeTexture) -> DeviceBudget {
+        DeviceBudget {
+            bytes: self.device_budget_bytes,
+            texel_bytes: desc.format.size() as u64,
+            max_edge: gpu.device.limits().max_texture_dimension_3d,
+        }
+    }
+
+    /// Shows what memory allows of the target now: uploads the blocks whose
+    /// level changes (or every block, when the atlas is laid out anew).
+    fn show(
+        &mut self,
+        gpu: &GpuContext,
+        desc: &VolumeTexture,
+        stats: &mut ResidencyStats,
+    ) -> Result<(), GpuError> {
+        let Some(target) = &self.target else {
+            return Ok(());
+        };
+        let shown_lod = self.shown.as_ref().map(|s| s.selection.lod.as_slice());
+        let plan = plan(&self.cache, &target.selection, shown_lod)?;
+        self.pending = plan.pending;
+        if shown_lod == Some(plan.lod.as_slice()) {
+            return Ok(());
+        }
+        let max_edge = gpu.device.limits().max_texture_dimension_3d;
+        let selection = target.selection.with_levels(plan.lod.clone());
+        self.data_version += 1;
+        let grid = self.cache.store().meta().blocks;
+        let kept = self.shown.take().map(|s| s.atlas);
+        let update = match &kept {
+            Some(atlas) => Some(atlas.packing.update(&selection, max_edge)?),
+            None => None,
+        };
+        match (kept, update) {
+            (Some(mut atlas), Some(update)) if !update.relayout => {
+                stats.uploaded_blocks = update.uploads.len();
+                let source = pinned_source(&self.cache, &plan.pins);
+                atlas.update(gpu, update.packing, &update.uploads, desc, &source)?;
+                self.shown = Some(Shown { atlas, selection });
+            }
+            (kept, _) => {
+                // The old atlas goes before the new one is made.
+                drop(kept);
+                let (selection, plan) = self.fresh_plan(plan)?;
+                self.pending = plan.pending;
+                let packing = Packing::new(&selection, max_edge)?;
+                stats.uploaded_blocks = selection.non_empty;
+                stats.relayout = true;
+                let source = pinned_source(&self.cache, &plan.pins);
+                let atlas = GpuAtlas::upload(gpu, grid, packing, desc, &source)?;
+                self.shown = Some(Shown { atlas, selection });
+            }
+        }
+        Ok(())
+    }
+
+    /// For a fresh atlas every block is uploaded: each at its planned level
+    /// if its chunks are in memory (pinned now), else at the finest level
+    /// that is; never finer than the target, so the atlas fits.
+    fn fresh_plan(&self, plan: Plan) -> Result<(LodSelection, Plan), GpuError> {
+        let Some(target) = &self.target else {
+            return Err(GpuError::InvalidRequest("no selection to show".into()));
+        };
+        let stats = self.cache.store().stats();
+        let fresh: Vec<(u8, Option<Pinned>, bool)> = plan
+            .pins
+            .into_par_iter()
+            .enumerate()
+            .map(|(b, pins)| {
+                let (want, planned) = (target.selection.lod[b], plan.lod[b]);
+                if planned == EMPTY {
+                    return Ok((EMPTY, None, false));
+                }
+                if let Some(pins) = pins {
+                    return Ok((planned, Some(pins), planned != want));
+                }
+                // Lower levels are finer: never keep one finer than the target.
+                let level = planned.max(want);
+                let block = stats.block_position(b);
+                let asked = level == want;
+                if let Some(pins) =
+                    self.cache
+                        .pin_with_apron(usize::from(level), block, APRON, asked)?
+                {
+                    return Ok((level, Some(pins), level != want));
+                }
+                let (level, pins) = finest_in_memory(&self.cache, block, want)?;
+                Ok((level, Some(pins), true))
+            })
+            .collect::<Result<_, GpuError>>()?;
+        let plan = Plan {
+            pending: fresh.iter().filter(|f| f.2).count(),
+            lod: fresh.iter().map(|f| f.0).collect(),
+            pins: fresh.into_iter().map(|f| f.1).collect(),
+        };
+        Ok((target.selection.with_levels(plan.lod.clone()), plan))
+    }
+}
+
+/// Per block, the level to show now (see the module docs) and, for blocks
+/// whose level changes, their pinned chunks.
+fn plan(
+    cache: &Arc<BlockCache>,
+    target: &LodSelection,
+    shown: Option<&[u8]>,
+) -> Result<Plan, GpuError> {
+    let stats = cache.store().stats();
+    let planned: Vec<(u8, Option<Pinned>, bool)> = (0..target.lod.len())
+        .into_par_iter()
+        .map(|b| {
+            let want = target.lod[b];
+            let now = shown.map_or(EMPTY, |s| s[b]);
+            if want == EMPTY || want == now {
+                return Ok((want, None, false));
+            }
+            let block = stats.block_position(b);
+            if let Some(pins) = cache.pin_with_apron(usize::from(want), block, APRON, true)? {
+                return Ok((want, Some(pins), false));
+            }
+            if now != EMPTY {
+                return Ok((now, None, true));
+            }
+            let (level, pins) = finest_in_memory(cache, block, want)?;
+            Ok((level, Some(pins), true))
+        })
+        .collect::<Result<_, GpuError>>()?;
+    Ok(Plan {
+        pending: planned.iter().filter(|p| p.2).count(),
+        lod: planned.iter().map(|p| p.0).collect(),
+        pins: planned.into_iter().map(|p| p.1).collect(),
+    })
+}
+
+/// The finest level coarser than `want` at which `block`'s chunks are in
+/// memory, pinned; without one (a cache whose coarse levels are not
+/// resident), level 4 read now.
+fn finest_in_memory(
+    cache: &Arc<BlockCache>,
+    block: [u32; 3],
+    want: u8,
+) -> Result<(u8, Pinned), GpuError> {
+    for level in usize::from(want) + 1..LEVELS {
+        if let Some(pins) = cache.pin_with_apron(level, block, APRON, false)? {
+            return Ok((level as u8, pins));
+        }
+    }
+    let coarsest = LEVELS - 1;
+    cache.block_with_apron(coarsest, block, APRON)?;
+    let pins = cache
+        .pin_with_apron(coarsest, block, APRON, false)?
+        .unwrap_or_default();
+    Ok((coarsest as u8, pins))
+}
+
+/// A block source assembling each block from its pinned chunks.
+fn pinned_source<'a>(
+    cache: &'a BlockCache,
+    pins: &'a [Option<Pinned>],
+) -> impl Fn(usize, usize) -> Result<blocks::VoxelData, GpuError> + Sync + 'a {
+    move |b, level| {
+        let block = cache.store().stats().block_position(b);
+        match pins.get(b).and_then(Option::as_ref) {
+            Some(pinned) => Ok(cache.assemble_with_apron(level, block, APRON, pinned)),
+            // Not planned to change: only a relayout uploads it, and relayouts pin every block.
+            None => Ok(cache.block_with_apron(level, block, APRON)?),
+        }
+    }
+}
+
+/// What the GPU can hold: a byte budget for the atlas, the texel size, and the
+/// largest 3D texture edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DeviceBudget {
+    /// Atlas bytes allowed.
+    pub bytes: u64,
+    /// Bytes per texel.
+    pub texel_bytes: u64,
+    /// The adapter's largest 3D texture edge.
+    pub max_edge: u32,
+}
+
+impl DeviceBudget {
+    /// No limit but the texture edge: the CPU twin's.
+    pub fn unlimited(max_edge: u32) -> DeviceBudget {
+        DeviceBudget {
+            bytes: u64::MAX,
+            texel_bytes: 1,
+            max_edge,
+        }
+    }
+}
+
+/// Selects every block's level of detail for `tf` keeping at most
+/// `budget_voxels` voxels (the data reduction asked for). When a fresh packing
+/// of that selection (slots with aprons, whole layers per level) would not fit
+/// `device`, the voxel budget shrinks until it fits, then grows back by
+/// bisection to use as much of the device as it can. Returns the selection and
+/// its fresh packing.
+pub fn select_levels(
+    store: &Store,
+    tf: &TransferFunction,
+    budget_voxels: u64,
+    device: DeviceBudget,
+) -> Result<(LodSelection, Packing), GpuError> {
+    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    // The selection under `budget` and its packing, if that fits the device.
+    let attempt = |budget: u64| {
+        let selection = lod::select(
+            store.stats(),
+            store.meta().value_map,
+            tf,
+            full_voxels,
+            budget,
+        );
+        // A packing that does not fit the texture edge counts as too big.
+        let packing = Packing::new(&selection, device.max_edge).ok();
+        let bytes = packing.as_ref().map_or(u64::MAX, |p| {
+            p.atlas_dims.iter().map(|&d| u64::from(d)).product::<u64>() * device.texel_bytes
+        });
+        let fits = packing.filter(|_| bytes <= device.bytes);
+        (selection, fits, bytes)
+    };
+    let (selection, fits, mut bytes) = attempt(budget_voxels);
+    if let Some(packing) = fits {
+        return Ok((selection, packing));
+    }
+    // Shrink until a selection fits; `too_big` is the smallest budget known not to.
+    let mut too_big = budget_voxels.min(selection.kept_voxels);
+    let mut best = None;
+    let mut over_budget = selection.over_budget;
+    for _ in 0..MAX_SELECTIONS {
+        if over_budget || too_big <= 1 {
+            break;
+        }
+        let shrink = if bytes == u64::MAX {
+            0.5
+        } else {
+            (device.bytes as f64 / bytes as f64).min(0.9)
+        };
+        let budget = ((too_big as f64 * shrink) as u64).max(1);
+        let (selection, fits, b) = attempt(budget);
+        bytes = b;
+        over_budget = selection.over_budget;
+        match fits {
+            Some(packing) => {
+                best = Some((budget, selection, packing));
+                break;
+            }
+            None => too_big = budget,
+        }
+    }
+    let Some((mut fitting, mut selection, mut packing)) = best else {
+        let coarsest = lod::select(store.stats(), store.meta().value_map, tf, full_voxels, 0);
+        return Err(GpuError::Unsupported {
+            what: format!(
+                "the {} blocks the transfer function shows, even all at level 4 ({} voxels)",
+                coarsest.non_empty, coarsest.kept_voxels
+            ),
+            limit: format!(
+                "they do not fit the GPU budget of {} bytes in 3D textures of at most {} texels per side",
+                device.bytes, device.max_edge
+            ),
+        });
+    };
+    // Grow back towards the smallest budget known too big.
+    for _ in 0..MAX_SELECTIONS / 2 {
+        if too_big - fitting <= too_big / 64 {
+            break;
+        }
+        let budget = fitting + (too_big - fitting) / 2;
+        match attempt(budget) {
+            (s, Some(p), _) => (fitting, selection, packing) = (budget, s, p),
+            _ => too_big = budget,
+        }
+    }
+    Ok((selection, packing))
+}
+
+/// The voxels a frame may keep for `reduction` (full-volume voxels per kept
+/// voxel) of a volume of `full_voxels`.
+pub fn budget_voxels(full_voxels: u64, reduction: f32) -> u64 {
+    (full_voxels as f64 / f64::from(reduction.max(1.0))).ceil() as u64
+}
