@@ -16,19 +16,17 @@ pub const TABLE_LEN: usize = 1024;
 /// The most control points [`TransferFunction::parse`] accepts.
 pub const MAX_POINTS: usize = 64;
 
-/// Six hex digits `rrggbb` (a leading `#` allowed) → channels in 0..=1.
-///
-/// # Errors
-/// A message naming the text and what was expected.
-pub fn parse_rgb_hex(text: &str) -> Result<[f32; 3], String> {
+/// Six hex digits `rrggbb` (a leading `#` allowed) → channels in 0..=1;
+/// `None` for anything else.
+pub fn parse_rgb_hex(text: &str) -> Option<[f32; 3]> {
     let hex = text.strip_prefix('#').unwrap_or(text);
     let channel = |i: usize| {
         hex.get(i..i + 2)
             .and_then(|h| u8::from_str_radix(h, 16).ok())
     };
     match (hex.len(), channel(0), channel(2), channel(4)) {
-        (6, Some(r), Some(g), Some(b)) => Ok([r, g, b].map(|c| f32::from(c) / 255.0)),
-        _ => Err(format!("colour '{text}': expected six hex digits rrggbb")),
+        (6, Some(r), Some(g), Some(b)) => Some([r, g, b].map(|c| f32::from(c) / 255.0)),
+        _ => None,
     }
 }
 
@@ -107,14 +105,15 @@ impl TransferFunction {
     /// at most [`MAX_POINTS`] points. [`fmt::Display`] writes the same form.
     ///
     /// # Errors
-    /// A message naming the point and what was expected.
-    pub fn parse(text: &str) -> Result<TransferFunction, String> {
+    /// [`Error::InvalidTransferFunction`], naming the point and what was expected.
+    pub fn parse(text: &str) -> Result<TransferFunction, Error> {
+        let invalid = |reason: String| Error::InvalidTransferFunction { reason };
         let parts: Vec<&str> = text.split(',').map(str::trim).collect();
         if parts.len() > MAX_POINTS {
-            return Err(format!(
-                "transfer function with {} points: expected at most {MAX_POINTS}",
+            return Err(invalid(format!(
+                "{} points: expected at most {MAX_POINTS}",
                 parts.len()
-            ));
+            )));
         }
         let points = parts
             .iter()
@@ -133,11 +132,14 @@ impl TransferFunction {
                 };
                 let value: f32 = value.parse().map_err(|_| expected())?;
                 let opacity: f32 = opacity.parse().map_err(|_| expected())?;
-                let rgb = parse_rgb_hex(colour).map_err(|e| format!("point {i}: {e}"))?;
+                let rgb = parse_rgb_hex(colour).ok_or_else(|| {
+                    format!("point {i}: colour '{colour}': expected six hex digits rrggbb")
+                })?;
                 Ok(TfPoint::new(value, rgb, opacity))
             })
-            .collect::<Result<Vec<_>, String>>()?;
-        TransferFunction::new(points).map_err(|e| e.to_string())
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(invalid)?;
+        TransferFunction::new(points)
     }
 
     /// Colour and opacity `[r, g, b, opacity]` at a physical value.
@@ -336,7 +338,7 @@ mod tests {
             tf.to_string(),
             "-200:000000:0,300:ffddcc:0.3,1200:ffffff:0.9"
         );
-        assert_eq!(TransferFunction::parse(&tf.to_string()), Ok(tf));
+        assert_eq!(TransferFunction::parse(&tf.to_string()).ok(), Some(tf));
         for (text, expected) in [
             ("", "point 0 ''"),
             ("100:ffffff", "point 0 '100:ffffff'"),
@@ -347,13 +349,14 @@ mod tests {
             ("10:ffffff:0,5:ffffff:0", "non-decreasing"),
             ("NaN:ffffff:0", "finite"),
         ] {
-            let e = TransferFunction::parse(text).expect_err(text);
+            let e = TransferFunction::parse(text).expect_err(text).to_string();
             assert!(e.contains(expected), "{text}: {e}");
         }
         let many = vec!["0:000000:0"; MAX_POINTS + 1].join(",");
         assert!(
             TransferFunction::parse(&many)
                 .expect_err("too many")
+                .to_string()
                 .contains("at most 64")
         );
     }

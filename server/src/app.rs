@@ -210,7 +210,8 @@ async fn render_complete(
 
 /// Renders the frame `pairs` (query parameters) ask for, as a PNG response.
 async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Response, AppError> {
-    let view = View::from_query(pairs, &state.datasets).map_err(AppError::BadRequest)?;
+    let view = View::from_query(pairs, &state.datasets)
+        .map_err(|e| AppError::BadRequest(e.to_string()))?;
     let dataset = view
         .dataset(&state.datasets)
         .map_err(|e| AppError::BadRequest(e.to_string()))?;

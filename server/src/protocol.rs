@@ -114,6 +114,20 @@ pub struct FrameHeader {
     pub queue_ms: f32,
 }
 
+/// A frame header [`FrameHeader::parse`] refuses.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum HeaderError {
+    /// Fewer bytes than a header.
+    #[error("a frame of {0} bytes: expected at least the {HEADER_LEN}-byte header")]
+    Short(usize),
+    /// Not a voxserve frame.
+    #[error("frame magic {0:?}: expected {MAGIC:?}")]
+    Magic([u8; 4]),
+    /// An encoding this version does not know.
+    #[error("frame encoding {0}: expected 1 (JPEG), 2 (PNG) or 3 (WebP)")]
+    Encoding(u8),
+}
+
 impl FrameHeader {
     /// The header's bytes.
     pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
@@ -139,18 +153,12 @@ impl FrameHeader {
     ///
     /// # Errors
     /// When `bytes` is too short, the magic is wrong or the encoding unknown.
-    pub fn parse(bytes: &[u8]) -> Result<FrameHeader, String> {
+    pub fn parse(bytes: &[u8]) -> Result<FrameHeader, HeaderError> {
         if bytes.len() < HEADER_LEN {
-            return Err(format!(
-                "a frame of {} bytes: expected at least the {HEADER_LEN}-byte header",
-                bytes.len()
-            ));
+            return Err(HeaderError::Short(bytes.len()));
         }
         if bytes[0..4] != MAGIC {
-            return Err(format!(
-                "frame magic {:?}: expected {MAGIC:?}",
-                &bytes[0..4]
-            ));
+            return Err(HeaderError::Magic([bytes[0], bytes[1], bytes[2], bytes[3]]));
         }
         let u16_at = |i: usize| u16::from_le_bytes([bytes[i], bytes[i + 1]]);
         let u32_at =
@@ -160,11 +168,7 @@ impl FrameHeader {
             1 => Encoding::Jpeg,
             2 => Encoding::Png,
             3 => Encoding::Webp,
-            other => {
-                return Err(format!(
-                    "frame encoding {other}: expected 1 (JPEG), 2 (PNG) or 3 (WebP)"
-                ));
-            }
+            other => return Err(HeaderError::Encoding(other)),
         };
         Ok(FrameHeader {
             encoding,
@@ -444,13 +448,15 @@ mod tests {
         let mut bytes = header.to_bytes().to_vec();
         bytes.extend_from_slice(b"image");
         assert_eq!(FrameHeader::parse(&bytes), Ok(header));
-        assert!(FrameHeader::parse(&bytes[..10]).is_err());
-        bytes[0] = b'X';
-        assert!(
-            FrameHeader::parse(&bytes)
-                .expect_err("bad magic")
-                .contains("magic")
+        assert_eq!(
+            FrameHeader::parse(&bytes[..10]),
+            Err(HeaderError::Short(10))
         );
+        bytes[4] = 9;
+        assert_eq!(FrameHeader::parse(&bytes), Err(HeaderError::Encoding(9)));
+        bytes[0] = b'X';
+        let refused = FrameHeader::parse(&bytes).expect_err("bad magic");
+        assert!(refused.to_string().contains("magic"), "{refused}");
     }
 
     #[test]

@@ -4,12 +4,16 @@
 //! schema declares it (`shaders::settings`). `GET /api/settings` describes
 //! these settings ([`describe`]).
 //!
-//! Every refusal is a [`SettingError`] (setting, value, what was expected);
-//! the query prefixes it with "query parameter", view sessions with "view
-//! setting", so both paths say the same about the same value.
+//! Every refusal is a [`ViewError`]; a value a setting does not take is a
+//! [`SettingError`] (setting, value, what was expected) that the query
+//! prefixes with "query parameter", view sessions with "view setting", so
+//! both paths say the same about the same value.
+
+use std::fmt;
 
 use serde_json::{Map, Value as Json};
 use shaders::FrameRequest;
+use shaders::frame::MAX_IMAGE_EDGE;
 use shaders::settings::{Raw, SettingError, Settings};
 
 use crate::Dataset;
@@ -45,22 +49,79 @@ impl Origin {
             Origin::Session => "view setting",
         }
     }
+}
 
-    /// `error` as this path says it.
-    pub fn say(self, error: &SettingError) -> String {
-        format!("{} {error}", self.noun())
+impl fmt::Display for Origin {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.noun())
+    }
+}
+
+/// A refused view: the same words for the same value on every path, named
+/// as that path names settings ([`Origin`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ViewError {
+    /// A name no setting has.
+    #[error("unknown {origin} '{name}': expected one of {}", known_names())]
+    Unknown {
+        /// The path it came by.
+        origin: Origin,
+        /// The name given (at most 64 characters of it).
+        name: String,
+    },
+    /// A query parameter given more than once.
+    #[error("{origin} '{name}' is given twice: expected it once")]
+    Twice {
+        /// The path it came by.
+        origin: Origin,
+        /// The setting.
+        name: String,
+    },
+    /// A value the setting does not take.
+    #[error("{origin} {error}")]
+    Setting {
+        /// The path it came by.
+        origin: Origin,
+        /// Which setting, the value and what was expected.
+        error: SettingError,
+    },
+    /// A viewport too large at its device pixel ratio.
+    #[error(
+        "viewport {width}×{height} at device pixel ratio {dpr} is {pixels_wide}×{pixels_high} \
+         pixels: expected at most {MAX_IMAGE_EDGE} per side"
+    )]
+    Viewport {
+        /// CSS pixels.
+        width: u32,
+        /// CSS pixels.
+        height: u32,
+        /// Device pixels per CSS pixel.
+        dpr: f64,
+        /// Device pixels.
+        pixels_wide: f64,
+        /// Device pixels.
+        pixels_high: f64,
+    },
+}
+
+impl ViewError {
+    fn unknown(origin: Origin, name: &str) -> ViewError {
+        ViewError::Unknown {
+            origin,
+            name: name.chars().take(64).collect(),
+        }
     }
 
-    /// The refusal of a setting nobody declared.
-    fn unknown(self, name: &str) -> String {
-        let known: Vec<&str> = View::settings().iter().map(|s| s.spec().name).collect();
-        let shown: String = name.chars().take(64).collect();
-        format!(
-            "unknown {} '{shown}': expected one of {}",
-            self.noun(),
-            known.join(", ")
-        )
+    /// `error` said on `origin`'s path.
+    pub fn setting(origin: Origin, error: SettingError) -> ViewError {
+        ViewError::Setting { origin, error }
     }
+}
+
+/// Every setting's name, for the refusal of one nobody declared.
+fn known_names() -> String {
+    let known: Vec<&str> = View::settings().iter().map(|s| s.spec().name).collect();
+    known.join(", ")
 }
 
 impl View {
@@ -69,22 +130,22 @@ impl View {
     ///
     /// # Errors
     /// A message naming the parameter, its value and what was expected.
-    pub fn from_query(pairs: &[(String, String)], datasets: &[Dataset]) -> Result<View, String> {
+    pub fn from_query(pairs: &[(String, String)], datasets: &[Dataset]) -> Result<View, ViewError> {
         let origin = Origin::Query;
         let mut view = View::default();
         for (i, (name, value)) in pairs.iter().enumerate() {
             if View::setting(name).is_none() {
-                return Err(origin.unknown(name));
+                return Err(ViewError::unknown(origin, name));
             }
             if pairs[..i].iter().any(|(earlier, _)| earlier == name) {
-                return Err(format!(
-                    "query parameter '{name}' is given twice: expected it once"
-                ));
+                let name = name.clone();
+                return Err(ViewError::Twice { origin, name });
             }
             view.set_named(name, &Raw::Text(value))
-                .map_err(|e| origin.say(&e))?;
+                .map_err(|e| ViewError::setting(origin, e))?;
         }
-        view.check(datasets).map_err(|e| origin.say(&e))?;
+        view.check(datasets)
+            .map_err(|e| ViewError::setting(origin, e))?;
         Ok(view)
     }
 
@@ -93,20 +154,25 @@ impl View {
     ///
     /// # Errors
     /// A message naming the setting, its value and what was expected.
-    pub fn patch(&mut self, set: &Map<String, Json>, datasets: &[Dataset]) -> Result<(), String> {
+    pub fn patch(
+        &mut self,
+        set: &Map<String, Json>,
+        datasets: &[Dataset],
+    ) -> Result<(), ViewError> {
         let origin = Origin::Session;
         let mut next = self.clone();
         for (name, value) in set {
             if View::setting(name).is_none() {
-                return Err(origin.unknown(name));
+                return Err(ViewError::unknown(origin, name));
             }
             let applied = match value {
                 Json::Null => next.reset_named(name),
                 value => next.set_named(name, &Raw::Json(value)),
             };
-            applied.map_err(|e| origin.say(&e))?;
+            applied.map_err(|e| ViewError::setting(origin, e))?;
         }
-        next.check(datasets).map_err(|e| origin.say(&e))?;
+        next.check(datasets)
+            .map_err(|e| ViewError::setting(origin, e))?;
         *self = next;
         Ok(())
     }
@@ -182,7 +248,7 @@ mod tests {
 
     fn parse(q: &str) -> Result<(String, FrameRequest), String> {
         let ds = datasets();
-        let view = View::from_query(&query(q), &ds)?;
+        let view = View::from_query(&query(q), &ds).map_err(|e| e.to_string())?;
         let id = view.dataset(&ds).map_err(|e| e.to_string())?.id.clone();
         Ok((id, view.frame))
     }
@@ -422,8 +488,22 @@ mod tests {
         ] {
             let e = view.patch(&patch(bad.clone()), &ds).expect_err("refused");
             assert!(
-                e.starts_with("view setting") || e.starts_with("unknown view setting"),
+                matches!(
+                    e,
+                    ViewError::Setting {
+                        origin: Origin::Session,
+                        ..
+                    } | ViewError::Unknown {
+                        origin: Origin::Session,
+                        ..
+                    }
+                ),
                 "{bad}: {e}"
+            );
+            let text = e.to_string();
+            assert!(
+                text.starts_with("view setting") || text.starts_with("unknown view setting"),
+                "{bad}: {text}"
             );
             assert_eq!(view, before, "{bad}");
         }

@@ -125,7 +125,7 @@ fn datasets() -> Vec<Dataset> {
 
 /// What the query path makes of `name=text`.
 fn by_query(name: &str, text: &str, datasets: &[Dataset]) -> Result<View, String> {
-    View::from_query(&[(name.to_owned(), text.to_owned())], datasets)
+    View::from_query(&[(name.to_owned(), text.to_owned())], datasets).map_err(|e| e.to_string())
 }
 
 /// What a view session makes of `{"set": {name: json}}`, the message parsed
@@ -136,7 +136,9 @@ fn by_session(name: &str, value: &Json, datasets: &[Dataset]) -> Result<View, St
         panic!("{message}: not a view message");
     };
     let mut view = View::default();
-    view.patch(&set, datasets).map(|()| view)
+    view.patch(&set, datasets)
+        .map(|()| view)
+        .map_err(|e| e.to_string())
 }
 
 /// What `render --flag text` makes of it (`None`: the setting is no flag).

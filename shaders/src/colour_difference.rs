@@ -4,7 +4,7 @@
 //! (ΔE₆: clearly visible side by side). Used to report what a data reduction or
 //! an illumination approximation costs against its full-resolution reference.
 
-use crate::Frame;
+use crate::{Frame, GpuError};
 
 /// ΔE*uv statistics of one image against another.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -60,12 +60,12 @@ pub fn delta_e(a: [u8; 3], b: [u8; 3]) -> f64 {
 ///
 /// # Errors
 /// When the frames differ in size.
-pub fn per_pixel(actual: &Frame, reference: &Frame) -> Result<Vec<f64>, String> {
+pub fn per_pixel(actual: &Frame, reference: &Frame) -> Result<Vec<f64>, GpuError> {
     if (actual.width, actual.height) != (reference.width, reference.height) {
-        return Err(format!(
+        return Err(GpuError::InvalidRequest(format!(
             "cannot compare a {}x{} image with a {}x{} one",
             actual.width, actual.height, reference.width, reference.height
-        ));
+        )));
     }
     Ok(actual
         .rgba
@@ -79,7 +79,7 @@ pub fn per_pixel(actual: &Frame, reference: &Frame) -> Result<Vec<f64>, String> 
 ///
 /// # Errors
 /// When the frames differ in size.
-pub fn colour_difference(actual: &Frame, reference: &Frame) -> Result<ColourDifference, String> {
+pub fn colour_difference(actual: &Frame, reference: &Frame) -> Result<ColourDifference, GpuError> {
     Ok(statistics(per_pixel(actual, reference)?))
 }
 
@@ -93,7 +93,7 @@ pub fn object_colour_difference(
     actual: &Frame,
     reference: &Frame,
     background: [u8; 3],
-) -> Result<ColourDifference, String> {
+) -> Result<ColourDifference, GpuError> {
     let d = per_pixel(actual, reference)?;
     let is_object = |p: &[u8]| p[..3] != background;
     let object = d

@@ -7,7 +7,7 @@ use blocks::{Preset, TransferFunction};
 use crate::Camera;
 use crate::extinction::ExtinctionSettings;
 use crate::global_light::LightSettings;
-use crate::settings::{Choice, SettingError, Settings, TextSetting};
+use crate::settings::{Choice, Expected, SettingError, Settings, TextSetting};
 
 /// The largest image edge in pixels.
 pub const MAX_IMAGE_EDGE: u32 = 4096;
@@ -160,14 +160,14 @@ impl TextSetting for ClipBox {
         "six fractions x0,y0,z0,x1,y1,z1 from 0 to 1 with each min below its max".into()
     }
 
-    fn parse_text(text: &str) -> Result<ClipBox, String> {
+    fn parse_text(text: &str) -> Result<ClipBox, Expected> {
         let values: Vec<f32> = text
             .split(',')
             .map(|v| v.trim().parse::<f32>())
             .collect::<Result<_, _>>()
-            .map_err(|_| Self::expected())?;
+            .map_err(|_| Expected(Self::expected()))?;
         let [x0, y0, z0, x1, y1, z1] = values[..] else {
-            return Err(Self::expected());
+            return Err(Expected(Self::expected()));
         };
         let clip = ClipBox {
             min: [x0, y0, z0],
@@ -177,7 +177,7 @@ impl TextSetting for ClipBox {
     }
 
     /// Finite, within 0..1, min below max on every axis.
-    fn check_value(&self) -> Result<(), String> {
+    fn check_value(&self) -> Result<(), Expected> {
         let ok = (0..3).all(|a| {
             let (lo, hi) = (self.min[a], self.max[a]);
             lo.is_finite()
@@ -186,7 +186,11 @@ impl TextSetting for ClipBox {
                 && (0.0..=1.0).contains(&hi)
                 && lo < hi
         });
-        if ok { Ok(()) } else { Err(Self::expected()) }
+        if ok {
+            Ok(())
+        } else {
+            Err(Expected(Self::expected()))
+        }
     }
 
     fn text(&self) -> String {
@@ -204,14 +208,14 @@ impl TextSetting for TransferFunction {
         )
     }
 
-    fn parse_text(text: &str) -> Result<TransferFunction, String> {
-        TransferFunction::parse(text).map_err(|e| format!("{} ({e})", Self::expected()))
+    fn parse_text(text: &str) -> Result<TransferFunction, Expected> {
+        TransferFunction::parse(text).map_err(|e| Expected(Self::expected()).because(e))
     }
 
-    fn check_value(&self) -> Result<(), String> {
+    fn check_value(&self) -> Result<(), Expected> {
         TransferFunction::new(self.points().to_vec())
             .map(|_| ())
-            .map_err(|e| format!("{} ({e})", Self::expected()))
+            .map_err(|e| Expected(Self::expected()).because(e))
     }
 
     fn text(&self) -> String {
@@ -405,7 +409,7 @@ mod tests {
             "x,0,0,1,1,1",
         ] {
             let e = ClipBox::parse_text(bad).expect_err(bad);
-            assert!(e.contains("six fractions"), "{bad}: {e}");
+            assert!(e.0.contains("six fractions"), "{bad}: {e}");
         }
         let mut r = FrameRequest::default();
         r.set_named("bg", &Raw::Text("#ff8000")).expect("colour");

@@ -90,7 +90,7 @@ async fn next_frame_sized(
             .context("the server closed the session")??;
         match message {
             Message::Binary(bytes) => {
-                let header = FrameHeader::parse(&bytes).map_err(anyhow::Error::msg)?;
+                let header = FrameHeader::parse(&bytes)?;
                 let ack = serde_json::json!({"type": "ack", "frame": header.frame_id});
                 socket.send(Message::Text(ack.to_string().into())).await?;
                 if id.is_none_or(|id| header.message_id == id) {

@@ -16,6 +16,7 @@ use tokio::time::Instant;
 use super::StreamSettings;
 use crate::Dataset;
 use crate::protocol::{self, ClientMessage, Reply, Status, Waiting};
+use crate::view::{Origin, ViewError};
 
 /// How a frame is rendered and sent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -167,8 +168,8 @@ impl Session {
         let checked = view
             .patch(set, &self.datasets)
             .and_then(|()| device_size(&view.frame, dpr));
-        if let Err(message) = checked {
-            return Some(Reply::error(Some(id), message));
+        if let Err(error) = checked {
+            return Some(Reply::error(Some(id), error.to_string()));
         }
         self.view = view;
         self.dpr = dpr;
@@ -312,20 +313,20 @@ impl Session {
                     message_id: self.message_id,
                 }))
             }
-            Err(message) => {
+            Err(error) => {
                 // Checked when the message came; only the datasets can change this.
                 self.progress = Progress::Failed;
-                Action::Send(Reply::error(None, message))
+                Action::Send(Reply::error(None, error.to_string()))
             }
         }
     }
 
     /// The dataset and frame request of the view at `quality`, checked.
-    fn request(&self, quality: Quality) -> Result<(Dataset, FrameRequest), String> {
+    fn request(&self, quality: Quality) -> Result<(Dataset, FrameRequest), ViewError> {
         let dataset = self
             .view
             .dataset(&self.datasets)
-            .map_err(|e| format!("view setting {e}"))?;
+            .map_err(|e| ViewError::setting(Origin::Session, e))?;
         let mut request = self.view.frame.clone();
         (request.width, request.height) = device_size(&request, self.dpr)?;
         if quality == Quality::Interactive {
@@ -345,15 +346,18 @@ impl Session {
 
 /// The frame size in device pixels of a viewport of `request.width` ×
 /// `request.height` CSS pixels at device pixel ratio `dpr`.
-fn device_size(request: &FrameRequest, dpr: f64) -> Result<(u32, u32), String> {
+fn device_size(request: &FrameRequest, dpr: f64) -> Result<(u32, u32), ViewError> {
     let (w, h) = (f64::from(request.width), f64::from(request.height));
     let (pw, ph) = ((w * dpr).round(), (h * dpr).round());
     let max = f64::from(MAX_IMAGE_EDGE);
     if pw > max || ph > max {
-        return Err(format!(
-            "viewport {w}×{h} at device pixel ratio {dpr} is {pw}×{ph} pixels: expected at most \
-             {MAX_IMAGE_EDGE} per side"
-        ));
+        return Err(ViewError::Viewport {
+            width: request.width,
+            height: request.height,
+            dpr,
+            pixels_wide: pw,
+            pixels_high: ph,
+        });
     }
     Ok((pw.max(1.0) as u32, ph.max(1.0) as u32))
 }

@@ -161,12 +161,13 @@ mod tests {
             ("directional:nan,0,1", "three numbers"),
         ] {
             let e = Lights::parse_text(text).expect_err(text);
-            assert!(e.contains(field), "{text}: {e}");
+            assert!(e.0.contains(field), "{text}: {e}");
         }
         let five = ["point:0,0,0"; 5].join(";");
         assert!(
             Lights::parse_text(&five)
                 .expect_err("five")
+                .0
                 .contains("at most 4")
         );
     }

@@ -5,7 +5,7 @@
 use std::fmt;
 
 use crate::global_light::{MAX_INTENSITY, check_direction, check_position, parse_vec3};
-use crate::settings::{Choice, SettingError, TextSetting};
+use crate::settings::{Choice, Expected, SettingError, TextSetting};
 
 /// The most lights at once.
 pub const MAX_LIGHTS: usize = 4;
@@ -103,7 +103,7 @@ crate::choice_setting!(AoMethod, ShadowMethod);
 impl ExtinctionLight {
     /// Checks position, direction, angle, colour and intensity; on failure,
     /// what was wrong.
-    pub fn check(&self) -> Result<(), String> {
+    pub(crate) fn check(&self) -> Result<(), String> {
         match self.kind {
             ExtinctionLightKind::Point(p) => check_position(p)?,
             ExtinctionLightKind::Directional(d) => check_direction(d)?,
@@ -139,7 +139,7 @@ impl ExtinctionLight {
     /// Reads one light: `point:x,y,z`, `directional:x,y,z` or
     /// `spot:x,y,z:dx,dy,dz:angle`, each optionally followed by `:rrggbb`
     /// and `:intensity`; on failure, what was wrong.
-    pub fn parse(text: &str) -> Result<ExtinctionLight, String> {
+    pub(crate) fn parse(text: &str) -> Result<ExtinctionLight, String> {
         let parts: Vec<&str> = text.split(':').map(str::trim).collect();
         let (kind, rest) = match parts.as_slice() {
             ["point", p, rest @ ..] => (ExtinctionLightKind::Point(parse_vec3(p)?), rest),
@@ -161,7 +161,7 @@ impl ExtinctionLight {
         };
         let colour = |c: &str| {
             blocks::transfer_function::parse_rgb_hex(c)
-                .map_err(|_| format!("the colour '{c}' is not six hex digits rrggbb"))
+                .ok_or_else(|| format!("the colour '{c}' is not six hex digits rrggbb"))
         };
         let mut light = ExtinctionLight {
             kind,
@@ -209,23 +209,23 @@ impl TextSetting for Vec<ExtinctionLight> {
         )
     }
 
-    fn parse_text(text: &str) -> Result<Vec<ExtinctionLight>, String> {
+    fn parse_text(text: &str) -> Result<Vec<ExtinctionLight>, Expected> {
         let lights: Vec<ExtinctionLight> = text
             .split(';')
             .filter(|t| !t.trim().is_empty())
             .map(|t| ExtinctionLight::parse(t).map_err(|why| format!("light '{t}': {why}")))
             .collect::<Result<_, _>>()
-            .map_err(|why| format!("{} ({why})", Self::expected()))?;
+            .map_err(|why| Expected(Self::expected()).because(why))?;
         lights.check_value().map(|()| lights)
     }
 
-    fn check_value(&self) -> Result<(), String> {
+    fn check_value(&self) -> Result<(), Expected> {
         if self.len() > MAX_LIGHTS {
-            return Err(format!("{} ({} lights)", Self::expected(), self.len()));
+            return Err(Expected(Self::expected()).because(format!("{} lights", self.len())));
         }
         self.iter()
             .try_for_each(ExtinctionLight::check)
-            .map_err(|why| format!("{} ({why})", Self::expected()))
+            .map_err(|why| Expected(Self::expected()).because(why))
     }
 
     fn text(&self) -> String {

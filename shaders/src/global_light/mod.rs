@@ -40,8 +40,9 @@ pub use pipelines::LightPipelines;
 pub use resources::LightVolumes;
 pub use settings::{
     DirectLightMethod, LightSettings, LightSource, MAX_DIRECTIONS, MAX_INTENSITY,
-    MAX_LIGHT_DISTANCE, check_direction, check_position, parse_vec3,
+    MAX_LIGHT_DISTANCE,
 };
+pub(crate) use settings::{check_direction, check_position, parse_vec3};
 pub use update::{GlobalLight, LightTimings};
 
 /// The light volumes' texel format: one f32 per texel.
@@ -250,6 +251,7 @@ mod tests {
             assert!(
                 LightSource::parse_text(bad)
                     .expect_err(bad)
+                    .0
                     .contains("point:x,y,z"),
                 "{bad}"
             );

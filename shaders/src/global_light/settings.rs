@@ -6,7 +6,7 @@ use std::fmt;
 
 use glam::Vec3;
 
-use crate::settings::{Choice, TextSetting};
+use crate::settings::{Choice, Expected, TextSetting};
 
 /// The largest light intensity I0 (and ambient light).
 pub const MAX_INTENSITY: f64 = 16.0;
@@ -40,7 +40,7 @@ impl fmt::Display for LightSource {
 }
 
 /// Three comma-separated finite numbers, for light positions and directions.
-pub fn parse_vec3(text: &str) -> Result<[f32; 3], String> {
+pub(crate) fn parse_vec3(text: &str) -> Result<[f32; 3], String> {
     let values: Option<Vec<f32>> = text
         .split(',')
         .map(|v| v.trim().parse::<f32>().ok().filter(|x| x.is_finite()))
@@ -52,7 +52,7 @@ pub fn parse_vec3(text: &str) -> Result<[f32; 3], String> {
 }
 
 /// A point light's position: fractions of the volume's box within ±100.
-pub fn check_position(p: [f32; 3]) -> Result<(), String> {
+pub(crate) fn check_position(p: [f32; 3]) -> Result<(), String> {
     if p.iter()
         .all(|c| c.is_finite() && c.abs() <= MAX_LIGHT_DISTANCE)
     {
@@ -65,7 +65,7 @@ pub fn check_position(p: [f32; 3]) -> Result<(), String> {
 }
 
 /// A direction: finite and not zero.
-pub fn check_direction(d: [f32; 3]) -> Result<(), String> {
+pub(crate) fn check_direction(d: [f32; 3]) -> Result<(), String> {
     if Vec3::from(d).is_finite() && Vec3::from(d).length() > 1e-6 {
         Ok(())
     } else {
@@ -81,8 +81,8 @@ impl TextSetting for LightSource {
 
     /// `point:x,y,z` (fractions of the volume's box) or `directional:x,y,z`
     /// (towards the light, patient space).
-    fn parse_text(text: &str) -> Result<LightSource, String> {
-        let refuse = |why: String| format!("{} ({why})", Self::expected());
+    fn parse_text(text: &str) -> Result<LightSource, Expected> {
+        let refuse = |why: String| Expected(Self::expected()).because(why);
         let (kind, rest) = text
             .split_once(':')
             .ok_or_else(|| refuse("no kind".into()))?;
@@ -95,12 +95,12 @@ impl TextSetting for LightSource {
         source.check_value().map(|()| source)
     }
 
-    fn check_value(&self) -> Result<(), String> {
+    fn check_value(&self) -> Result<(), Expected> {
         match *self {
             LightSource::Point(p) => check_position(p),
             LightSource::Directional(d) => check_direction(d),
         }
-        .map_err(|why| format!("{} ({why})", Self::expected()))
+        .map_err(|why| Expected(Self::expected()).because(why))
     }
 
     fn text(&self) -> String {

@@ -71,7 +71,7 @@ impl<S, T: SettingValue> Setting<S> for Field<S, T> {
     }
 
     fn expected(&self) -> String {
-        expected_of::<T>(&self.spec.check)
+        expected_of::<T>(&self.spec.check).0
     }
 
     fn choices(&self) -> Vec<(&'static str, &'static str)> {

@@ -178,6 +178,36 @@ impl Raw<'_> {
     }
 }
 
+/// What a setting takes, and what was wrong with a value when that helps: the
+/// words after "expected" in a refusal.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Expected(pub String);
+
+impl fmt::Display for Expected {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl From<String> for Expected {
+    fn from(text: String) -> Expected {
+        Expected(text)
+    }
+}
+
+impl From<&str> for Expected {
+    fn from(text: &str) -> Expected {
+        Expected(text.to_owned())
+    }
+}
+
+impl Expected {
+    /// What a value of this form takes, then what was wrong in parentheses.
+    pub fn because(self, why: impl fmt::Display) -> Expected {
+        Expected(format!("{} ({why})", self.0))
+    }
+}
+
 /// A refused setting: which, the value given and what was expected. Every
 /// path (`render` flags, `/api/render`, view sessions) says the same.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -193,20 +223,20 @@ pub struct SettingError {
 
 impl SettingError {
     /// A refusal of `value` for `setting`.
-    pub fn new(setting: &str, value: &Raw<'_>, expected: impl Into<String>) -> SettingError {
+    pub fn new(setting: &str, value: &Raw<'_>, expected: impl fmt::Display) -> SettingError {
         SettingError {
             setting: setting.to_owned(),
             value: value.shown(),
-            expected: expected.into(),
+            expected: expected.to_string(),
         }
     }
 
     /// A refusal of a current value (one the settings struct holds).
-    pub fn of_value(setting: &str, value: impl fmt::Display, expected: impl Into<String>) -> Self {
+    pub fn of_value(setting: &str, value: impl fmt::Display, expected: impl fmt::Display) -> Self {
         SettingError {
             setting: setting.to_owned(),
             value: shortened(value.to_string()),
-            expected: expected.into(),
+            expected: expected.to_string(),
         }
     }
 }

@@ -2,7 +2,7 @@
 //! text (queries, the command line) and JSON (view sessions), checked and
 //! shown; [`Choice`] enums and [`TextSetting`] text forms.
 
-use super::{Check, Json, MAX_NAME_CHARS, Raw, or_list};
+use super::{Check, Expected, Json, MAX_NAME_CHARS, Raw, or_list};
 
 /// A type a setting's field can have: how it is read from text and JSON,
 /// checked, and shown.
@@ -20,11 +20,11 @@ pub trait SettingValue: Clone + PartialEq + Send + Sync + 'static {
     }
 
     /// Reads a value; on failure, what was expected (and what was wrong).
-    fn read(raw: &Raw<'_>, check: &Check) -> Result<Self, String>;
+    fn read(raw: &Raw<'_>, check: &Check) -> Result<Self, Expected>;
 
     /// Checks a value held (set without [`SettingValue::read`]); on failure,
     /// what was expected.
-    fn check(&self, check: &Check) -> Result<(), String>;
+    fn check(&self, check: &Check) -> Result<(), Expected>;
 
     /// The value as JSON (`GET /api/settings` defaults, view-session state).
     fn to_json(&self) -> Json;
@@ -34,8 +34,8 @@ pub trait SettingValue: Clone + PartialEq + Send + Sync + 'static {
 }
 
 /// What `check` expects of a number, else what `T` expects.
-pub(super) fn expected_of<T: SettingValue>(check: &Check) -> String {
-    check.expected().unwrap_or_else(T::expected)
+pub(super) fn expected_of<T: SettingValue>(check: &Check) -> Expected {
+    Expected(check.expected().unwrap_or_else(T::expected))
 }
 
 /// An `f32` as the shortest decimal that reads back as it (0.15, not
@@ -58,14 +58,14 @@ impl SettingValue for f32 {
         "a finite number".into()
     }
 
-    fn read(raw: &Raw<'_>, check: &Check) -> Result<f32, String> {
+    fn read(raw: &Raw<'_>, check: &Check) -> Result<f32, Expected> {
         match raw.number() {
             Some(v) if check.admits(v) && (v as f32).is_finite() => Ok(v as f32),
             _ => Err(expected_of::<f32>(check)),
         }
     }
 
-    fn check(&self, check: &Check) -> Result<(), String> {
+    fn check(&self, check: &Check) -> Result<(), Expected> {
         let v = f64::from(*self);
         // Bounds written as f64 (0.9) hold values read as f32 (0.9f32 > 0.9).
         let within = |min: f64, max: f64| {
@@ -103,7 +103,7 @@ impl SettingValue for u32 {
         format!("a whole number from 0 to {}", u32::MAX)
     }
 
-    fn read(raw: &Raw<'_>, check: &Check) -> Result<u32, String> {
+    fn read(raw: &Raw<'_>, check: &Check) -> Result<u32, Expected> {
         // Read as a number, so 12 and 12.0 are the same (JSON has one kind of number).
         match raw.number() {
             Some(v)
@@ -117,7 +117,7 @@ impl SettingValue for u32 {
         }
     }
 
-    fn check(&self, check: &Check) -> Result<(), String> {
+    fn check(&self, check: &Check) -> Result<(), Expected> {
         if check.admits(f64::from(*self)) {
             Ok(())
         } else {
@@ -143,15 +143,15 @@ impl SettingValue for bool {
         "true or false".into()
     }
 
-    fn read(raw: &Raw<'_>, _: &Check) -> Result<bool, String> {
+    fn read(raw: &Raw<'_>, _: &Check) -> Result<bool, Expected> {
         match raw {
             Raw::Text("true") | Raw::Json(Json::Bool(true)) => Ok(true),
             Raw::Text("false") | Raw::Json(Json::Bool(false)) => Ok(false),
-            _ => Err(bool::expected()),
+            _ => Err(Expected(bool::expected())),
         }
     }
 
-    fn check(&self, _: &Check) -> Result<(), String> {
+    fn check(&self, _: &Check) -> Result<(), Expected> {
         Ok(())
     }
 
@@ -174,13 +174,13 @@ impl SettingValue for [f32; 3] {
         "six hex digits rrggbb".into()
     }
 
-    fn read(raw: &Raw<'_>, _: &Check) -> Result<[f32; 3], String> {
+    fn read(raw: &Raw<'_>, _: &Check) -> Result<[f32; 3], Expected> {
         raw.text()
-            .and_then(|t| blocks::transfer_function::parse_rgb_hex(t).ok())
-            .ok_or_else(Self::expected)
+            .and_then(blocks::transfer_function::parse_rgb_hex)
+            .ok_or_else(|| Expected(Self::expected()))
     }
 
-    fn check(&self, _: &Check) -> Result<(), String> {
+    fn check(&self, _: &Check) -> Result<(), Expected> {
         if self.iter().all(|c| (0.0..=1.0).contains(c)) {
             Ok(())
         } else {
@@ -249,11 +249,11 @@ macro_rules! choice_setting {
             fn read(
                 raw: &$crate::settings::Raw<'_>,
                 _: &$crate::settings::Check,
-            ) -> Result<$t, String> {
+            ) -> Result<$t, $crate::settings::Expected> {
                 $crate::settings::read_choice(raw)
             }
 
-            fn check(&self, _: &$crate::settings::Check) -> Result<(), String> {
+            fn check(&self, _: &$crate::settings::Check) -> Result<(), $crate::settings::Expected> {
                 Ok(())
             }
 
@@ -271,10 +271,10 @@ macro_rules! choice_setting {
 }
 
 /// Reads a choice by name (text, or a JSON string).
-pub fn read_choice<C: Choice>(raw: &Raw<'_>) -> Result<C, String> {
+pub fn read_choice<C: Choice>(raw: &Raw<'_>) -> Result<C, Expected> {
     raw.text()
         .and_then(|t| C::named(t.trim()))
-        .ok_or_else(C::expected)
+        .ok_or_else(|| Expected(C::expected()))
 }
 
 /// A value with a text form of its own (a clip box, a light, a transfer
@@ -284,10 +284,10 @@ pub trait TextSetting: Clone + PartialEq + Send + Sync + 'static {
     fn expected() -> String;
 
     /// Parses the text form; on failure, what was expected and what was wrong.
-    fn parse_text(text: &str) -> Result<Self, String>;
+    fn parse_text(text: &str) -> Result<Self, Expected>;
 
     /// Checks a value held; on failure, what was expected.
-    fn check_value(&self) -> Result<(), String>;
+    fn check_value(&self) -> Result<(), Expected>;
 
     /// The text form.
     fn text(&self) -> String;
@@ -309,11 +309,11 @@ macro_rules! text_setting {
             fn read(
                 raw: &$crate::settings::Raw<'_>,
                 _: &$crate::settings::Check,
-            ) -> Result<$t, String> {
+            ) -> Result<$t, $crate::settings::Expected> {
                 $crate::settings::read_text(raw)
             }
 
-            fn check(&self, _: &$crate::settings::Check) -> Result<(), String> {
+            fn check(&self, _: &$crate::settings::Check) -> Result<(), $crate::settings::Expected> {
                 $crate::settings::TextSetting::check_value(self)
             }
 
@@ -329,10 +329,10 @@ macro_rules! text_setting {
 }
 
 /// Reads a text form (text, or a JSON string).
-pub fn read_text<T: TextSetting>(raw: &Raw<'_>) -> Result<T, String> {
+pub fn read_text<T: TextSetting>(raw: &Raw<'_>) -> Result<T, Expected> {
     match raw.text() {
         Some(text) => T::parse_text(text),
-        None => Err(format!("text: {}", T::expected())),
+        None => Err(Expected(format!("text: {}", T::expected()))),
     }
 }
 
@@ -352,11 +352,11 @@ impl<T: SettingValue> SettingValue for Option<T> {
         T::choices()
     }
 
-    fn read(raw: &Raw<'_>, check: &Check) -> Result<Option<T>, String> {
+    fn read(raw: &Raw<'_>, check: &Check) -> Result<Option<T>, Expected> {
         T::read(raw, check).map(Some)
     }
 
-    fn check(&self, check: &Check) -> Result<(), String> {
+    fn check(&self, check: &Check) -> Result<(), Expected> {
         self.as_ref().map_or(Ok(()), |v| v.check(check))
     }
 
@@ -376,16 +376,16 @@ impl TextSetting for String {
         format!("a name of at most {MAX_NAME_CHARS} characters")
     }
 
-    fn parse_text(text: &str) -> Result<String, String> {
+    fn parse_text(text: &str) -> Result<String, Expected> {
         let value = text.to_owned();
         value.check_value().map(|()| value)
     }
 
-    fn check_value(&self) -> Result<(), String> {
+    fn check_value(&self) -> Result<(), Expected> {
         if self.chars().count() <= MAX_NAME_CHARS {
             Ok(())
         } else {
-            Err(<String as TextSetting>::expected())
+            Err(Expected(<String as TextSetting>::expected()))
         }
     }
 
