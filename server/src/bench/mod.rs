@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::Context;
-use shaders::Frame;
+use shaders::{Camera, Frame, FrameRequest, Shading};
 
 use args::{BenchArgs, BenchCommand};
 use reference_data::reference_dataset;
@@ -72,6 +72,24 @@ pub(crate) fn bench_dataset(
     }
     let dataset = Dataset::load(&reference.path, &reference.options, data.cache_bytes())?;
     Ok(Some((dataset, reference.transfer_function)))
+}
+
+/// A square frame of `edge` pixels of the view every rendering benchmark
+/// measures: 30° around the volume and 15° above it.
+pub(crate) fn view_request(
+    edge: u32,
+    shading: Shading,
+    tf: &::blocks::TransferFunction,
+) -> FrameRequest {
+    FrameRequest {
+        camera: Camera {
+            azimuth_deg: 30.0,
+            elevation_deg: 15.0,
+            ..Camera::default()
+        },
+        shading,
+        ..FrameRequest::new(edge, edge, tf.clone())
+    }
 }
 
 /// Renders `frames` times and returns the last frame and the mean milliseconds.
