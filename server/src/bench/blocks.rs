@@ -3,14 +3,173 @@
 //! on the engine and CT head when the datasets are there.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
-use blocks::ingest;
+use blocks::store::{IngestOptions, Store};
+use blocks::{Preset, TfPoint, TransferFunction, ingest};
 
 use super::args::BenchBlocksArgs;
 use super::{peak_rss_mib, write_uint16_raw};
 use server::commands::say;
+
+/// `voxserve bench blocks`: ingest, random block reads and LOD selection.
+pub fn blocks(args: &BenchBlocksArgs) -> anyhow::Result<()> {
+    let scratch = Scratch::new("blocks")?;
+    let store_path = ingest_generated(&scratch.0, args.gib)?;
+    let store = block_reads(&store_path, args)?;
+    // LOD selection: on the generated volume, on the 512³ phantom (32 768
+    // blocks), and on the engine and CT head when the datasets are there.
+    let bone_raw = TransferFunction::new(vec![
+        TfPoint::new(1100.0, [0.9, 0.8, 0.7], 0.0),
+        TfPoint::new(1500.0, [0.9, 0.8, 0.7], 0.3),
+        TfPoint::new(2000.0, [1.0, 1.0, 1.0], 0.9),
+    ])?;
+    report_selections("generated CT-like", &store, &bone_raw)?;
+    phantom_selections(&scratch.0)?;
+    dataset_selections(&scratch.0, &args.data)
+}
+
+/// An `ingest` line: a generated CT-like volume of `gib` GiB written as a raw
+/// file in `dir` and ingested into a brick store there; returns the store's path.
+fn ingest_generated(dir: &Path, gib: f32) -> anyhow::Result<PathBuf> {
+    let raw = write_ct_like(dir, gib)?;
+    let mut source = ingest::open(&raw, &ingest::OpenOptions::default())?;
+    let store_path = dir.join("generated");
+    let summary = blocks::store::ingest(
+        source.as_mut(),
+        &store_path,
+        &IngestOptions::default(),
+        &mut |_| {},
+    )?;
+    drop(source);
+    std::fs::remove_file(&raw)?;
+    say(&serde_json::json!({
+        "bench": "ingest",
+        "source": "generated CT-like raw",
+        "dims": summary.dims,
+        "voxel_type": summary.voxel_type.name(),
+        "source_bytes": summary.source_bytes,
+        "store_bytes": summary.store_bytes,
+        "compression": summary.compression_ratio(),
+        "scan_seconds": summary.scan_seconds,
+        "seconds": summary.seconds,
+        "mb_per_s": summary.mb_per_s(),
+        "peak_rss_mib": peak_rss_mib(),
+        "threads": rayon::current_num_threads(),
+        "zstd_level": IngestOptions::default().zstd_level,
+    })
+    .to_string())?;
+    Ok(store_path)
+}
+
+/// `block_reads` lines: random level-0 block reads from a fresh store (shard
+/// indexes read as met), the same blocks again (indexes cached, chunks
+/// decoded), and from a cache; returns the store.
+fn block_reads(store_path: &Path, args: &BenchBlocksArgs) -> anyhow::Result<Arc<Store>> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads as usize)
+        .build()?;
+    let fresh = Store::open(store_path)?;
+    let keys = random_blocks(fresh.meta().blocks, args.reads);
+    let cold = reads_per_second(&pool, &keys, |b| fresh.read_block(0, b))?;
+    let warm = reads_per_second(&pool, &keys, |b| fresh.read_block(0, b))?;
+    let store = Arc::new(fresh);
+    let chunk_bytes = 16 * 16 * 16 * store.voxel_type().size() as u64;
+    let cache =
+        blocks::cache::BlockCache::new(store.clone(), u64::from(args.reads) * chunk_bytes * 2);
+    reads_per_second(&pool, &keys, |b| cache.block(0, b))?;
+    let cached = reads_per_second(&pool, &keys, |b| cache.block(0, b))?;
+    for (mode, per_s, what) in [
+        (
+            "cold",
+            cold,
+            "new store handle: shard index and chunk read and decoded (OS page cache not dropped)",
+        ),
+        (
+            "warm",
+            warm,
+            "shard indexes cached, chunk read and zstd-decoded",
+        ),
+        ("cached", cached, "BlockCache hit"),
+    ] {
+        say(&serde_json::json!({
+            "bench": "block_reads",
+            "mode": mode,
+            "what": what,
+            "level": 0,
+            "reads": args.reads,
+            "threads": args.threads,
+            "dims": store.meta().dims,
+            "per_s": per_s,
+        })
+        .to_string())?;
+    }
+    Ok(store)
+}
+
+/// `lod_selection` lines of the 512³ phantom (32 768 blocks), ingested in `dir`.
+fn phantom_selections(dir: &Path) -> anyhow::Result<()> {
+    let phantom = Arc::new(blocks::phantom::head(512)?);
+    let mut source = ingest::MemorySource::new(phantom.clone(), "phantom-512");
+    let phantom_path = dir.join("phantom");
+    blocks::store::ingest(
+        &mut source,
+        &phantom_path,
+        &IngestOptions::default(),
+        &mut |_| {},
+    )?;
+    let tf = Preset::CtBone.transfer_function(phantom.value_range);
+    report_selections("phantom 512³", &Store::open(&phantom_path)?, &tf)
+}
+
+/// `lod_selection` lines of the engine and the CT head from the data folder
+/// `data`, ingested in `dir`; a dataset that is missing is skipped with a warning.
+fn dataset_selections(dir: &Path, data: &Path) -> anyhow::Result<()> {
+    let engine = data.join("raw/engine_256x256x128_uint8.raw");
+    let cthead = data.join("raw/cthead_256x256x113_uint16be.raw");
+    let metal = TransferFunction::new(vec![
+        TfPoint::new(40.0, [0.6, 0.6, 0.7], 0.0),
+        TfPoint::new(80.0, [0.8, 0.8, 0.9], 0.3),
+        TfPoint::new(255.0, [1.0, 1.0, 1.0], 0.9),
+    ])?;
+    let skin_bone = TransferFunction::new(vec![
+        TfPoint::new(500.0, [0.9, 0.6, 0.5], 0.0),
+        TfPoint::new(700.0, [0.9, 0.6, 0.5], 0.15),
+        TfPoint::new(1100.0, [0.9, 0.6, 0.5], 0.05),
+        TfPoint::new(1300.0, [1.0, 1.0, 0.9], 0.9),
+    ])?;
+    for (name, path, spacing, tf) in [
+        ("engine", engine, [1.0; 3], metal),
+        ("cthead", cthead, [1.0, 1.0, 2.0], skin_bone),
+    ] {
+        if !path.exists() {
+            tracing::warn!(
+                "{} not found: skipping the {name} selection",
+                path.display()
+            );
+            continue;
+        }
+        let options = ingest::OpenOptions {
+            raw: ingest::raw::RawOptions {
+                spacing: Some(spacing),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let mut source = ingest::open(&path, &options)?;
+        let out = dir.join(name);
+        blocks::store::ingest(
+            source.as_mut(),
+            &out,
+            &IngestOptions::default(),
+            &mut |_| {},
+        )?;
+        report_selections(name, &Store::open(&out)?, &tf)?;
+    }
+    Ok(())
+}
 
 /// A temporary folder for a benchmark's files, removed when dropped.
 struct Scratch(PathBuf);
@@ -94,8 +253,8 @@ fn reads_per_second(
 
 /// Median and minimum milliseconds of 21 LOD selections.
 fn time_selection(
-    store: &blocks::store::Store,
-    tf: &blocks::TransferFunction,
+    store: &Store,
+    tf: &TransferFunction,
     budget: u64,
 ) -> (blocks::lod::LodSelection, f64, f64) {
     let full: u64 = store.meta().dims.iter().map(|&d| u64::from(d)).product();
@@ -120,11 +279,7 @@ fn time_selection(
 }
 
 /// Selections at 9:1 and 35:1 budgets on `store`, as JSON lines.
-fn report_selections(
-    dataset: &str,
-    store: &blocks::store::Store,
-    tf: &blocks::TransferFunction,
-) -> anyhow::Result<()> {
+fn report_selections(dataset: &str, store: &Store, tf: &TransferFunction) -> anyhow::Result<()> {
     let full: u64 = store.meta().dims.iter().map(|&d| u64::from(d)).product();
     for ratio in [9.0, 35.0] {
         let budget = (full as f64 / ratio) as u64;
@@ -146,150 +301,6 @@ fn report_selections(
             "threads": rayon::current_num_threads(),
         })
         .to_string())?;
-    }
-    Ok(())
-}
-
-/// `voxserve bench blocks`: ingest, random block reads and LOD selection.
-pub fn blocks(args: &BenchBlocksArgs) -> anyhow::Result<()> {
-    use std::sync::Arc;
-
-    use blocks::store::{IngestOptions, Store};
-    use blocks::{Preset, TfPoint, TransferFunction};
-
-    let scratch = Scratch::new("blocks")?;
-    // 1. Ingest a generated CT-like volume.
-    let raw = write_ct_like(&scratch.0, args.gib)?;
-    let mut source = ingest::open(&raw, &ingest::OpenOptions::default())?;
-    let store_path = scratch.0.join("generated");
-    let summary = blocks::store::ingest(
-        source.as_mut(),
-        &store_path,
-        &IngestOptions::default(),
-        &mut |_| {},
-    )?;
-    drop(source);
-    std::fs::remove_file(&raw)?;
-    say(&serde_json::json!({
-        "bench": "ingest",
-        "source": "generated CT-like raw",
-        "dims": summary.dims,
-        "voxel_type": summary.voxel_type.name(),
-        "source_bytes": summary.source_bytes,
-        "store_bytes": summary.store_bytes,
-        "compression": summary.compression_ratio(),
-        "scan_seconds": summary.scan_seconds,
-        "seconds": summary.seconds,
-        "mb_per_s": summary.mb_per_s(),
-        "peak_rss_mib": peak_rss_mib(),
-        "threads": rayon::current_num_threads(),
-        "zstd_level": IngestOptions::default().zstd_level,
-    })
-    .to_string())?;
-
-    // 2. Random level-0 block reads: a fresh store (shard indexes read as met),
-    // the same blocks again (indexes cached, chunks decoded), and from a cache.
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads as usize)
-        .build()?;
-    let fresh = Store::open(&store_path)?;
-    let keys = random_blocks(fresh.meta().blocks, args.reads);
-    let cold = reads_per_second(&pool, &keys, |b| fresh.read_block(0, b))?;
-    let warm = reads_per_second(&pool, &keys, |b| fresh.read_block(0, b))?;
-    let store = Arc::new(fresh);
-    let chunk_bytes = 16 * 16 * 16 * store.voxel_type().size() as u64;
-    let cache =
-        blocks::cache::BlockCache::new(store.clone(), u64::from(args.reads) * chunk_bytes * 2);
-    reads_per_second(&pool, &keys, |b| cache.block(0, b))?;
-    let cached = reads_per_second(&pool, &keys, |b| cache.block(0, b))?;
-    for (mode, per_s, what) in [
-        (
-            "cold",
-            cold,
-            "new store handle: shard index and chunk read and decoded (OS page cache not dropped)",
-        ),
-        (
-            "warm",
-            warm,
-            "shard indexes cached, chunk read and zstd-decoded",
-        ),
-        ("cached", cached, "BlockCache hit"),
-    ] {
-        say(&serde_json::json!({
-            "bench": "block_reads",
-            "mode": mode,
-            "what": what,
-            "level": 0,
-            "reads": args.reads,
-            "threads": args.threads,
-            "dims": store.meta().dims,
-            "per_s": per_s,
-        })
-        .to_string())?;
-    }
-
-    // 3. LOD selection: on the generated volume, on the 512³ phantom (32 768
-    // blocks), and on the engine and CT head when the datasets are there.
-    let bone_raw = TransferFunction::new(vec![
-        TfPoint::new(1100.0, [0.9, 0.8, 0.7], 0.0),
-        TfPoint::new(1500.0, [0.9, 0.8, 0.7], 0.3),
-        TfPoint::new(2000.0, [1.0, 1.0, 1.0], 0.9),
-    ])?;
-    report_selections("generated CT-like", &store, &bone_raw)?;
-    let phantom = Arc::new(blocks::phantom::head(512)?);
-    let mut source = ingest::MemorySource::new(phantom.clone(), "phantom-512");
-    let phantom_path = scratch.0.join("phantom");
-    blocks::store::ingest(
-        &mut source,
-        &phantom_path,
-        &IngestOptions::default(),
-        &mut |_| {},
-    )?;
-    let phantom_store = Store::open(&phantom_path)?;
-    let tf = Preset::CtBone.transfer_function(phantom.value_range);
-    report_selections("phantom 512³", &phantom_store, &tf)?;
-    drop(phantom_store);
-
-    let engine = args.data.join("raw/engine_256x256x128_uint8.raw");
-    let cthead = args.data.join("raw/cthead_256x256x113_uint16be.raw");
-    let metal = TransferFunction::new(vec![
-        TfPoint::new(40.0, [0.6, 0.6, 0.7], 0.0),
-        TfPoint::new(80.0, [0.8, 0.8, 0.9], 0.3),
-        TfPoint::new(255.0, [1.0, 1.0, 1.0], 0.9),
-    ])?;
-    let skin_bone = TransferFunction::new(vec![
-        TfPoint::new(500.0, [0.9, 0.6, 0.5], 0.0),
-        TfPoint::new(700.0, [0.9, 0.6, 0.5], 0.15),
-        TfPoint::new(1100.0, [0.9, 0.6, 0.5], 0.05),
-        TfPoint::new(1300.0, [1.0, 1.0, 0.9], 0.9),
-    ])?;
-    for (name, path, spacing, tf) in [
-        ("engine", engine, [1.0; 3], metal),
-        ("cthead", cthead, [1.0, 1.0, 2.0], skin_bone),
-    ] {
-        if !path.exists() {
-            tracing::warn!(
-                "{} not found: skipping the {name} selection",
-                path.display()
-            );
-            continue;
-        }
-        let options = ingest::OpenOptions {
-            raw: ingest::raw::RawOptions {
-                spacing: Some(spacing),
-                ..Default::default()
-            },
-            ..Default::default()
-        };
-        let mut source = ingest::open(&path, &options)?;
-        let out = scratch.0.join(name);
-        blocks::store::ingest(
-            source.as_mut(),
-            &out,
-            &IngestOptions::default(),
-            &mut |_| {},
-        )?;
-        report_selections(name, &Store::open(&out)?, &tf)?;
     }
     Ok(())
 }
