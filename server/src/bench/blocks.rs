@@ -11,6 +11,7 @@ use blocks::store::{IngestOptions, Store};
 use blocks::{Preset, TfPoint, TransferFunction, ingest};
 
 use super::args::BenchBlocksArgs;
+use super::reference_data::reference_dataset;
 use super::{peak_rss_mib, write_uint16_raw};
 use server::commands::say;
 
@@ -125,40 +126,21 @@ fn phantom_selections(dir: &Path) -> anyhow::Result<()> {
 }
 
 /// `lod_selection` lines of the engine and the CT head from the data folder
-/// `data`, ingested in `dir`; a dataset that is missing is skipped with a warning.
+/// `data` (read and classified as [`reference_dataset`] says), ingested in
+/// `dir`; a dataset that is missing is skipped with a warning.
 fn dataset_selections(dir: &Path, data: &Path) -> anyhow::Result<()> {
-    let engine = data.join("raw/engine_256x256x128_uint8.raw");
-    let cthead = data.join("raw/cthead_256x256x113_uint16be.raw");
-    let metal = TransferFunction::new(vec![
-        TfPoint::new(40.0, [0.6, 0.6, 0.7], 0.0),
-        TfPoint::new(80.0, [0.8, 0.8, 0.9], 0.3),
-        TfPoint::new(255.0, [1.0, 1.0, 1.0], 0.9),
-    ])?;
-    let skin_bone = TransferFunction::new(vec![
-        TfPoint::new(500.0, [0.9, 0.6, 0.5], 0.0),
-        TfPoint::new(700.0, [0.9, 0.6, 0.5], 0.15),
-        TfPoint::new(1100.0, [0.9, 0.6, 0.5], 0.05),
-        TfPoint::new(1300.0, [1.0, 1.0, 0.9], 0.9),
-    ])?;
-    for (name, path, spacing, tf) in [
-        ("engine", engine, [1.0; 3], metal),
-        ("cthead", cthead, [1.0, 1.0, 2.0], skin_bone),
-    ] {
-        if !path.exists() {
+    for name in ["engine", "cthead"] {
+        let Some(dataset) = reference_dataset(data, name) else {
+            anyhow::bail!("no reference dataset is named {name}");
+        };
+        if !dataset.path.exists() {
             tracing::warn!(
                 "{} not found: skipping the {name} selection",
-                path.display()
+                dataset.path.display()
             );
             continue;
         }
-        let options = ingest::OpenOptions {
-            raw: ingest::raw::RawOptions {
-                spacing: Some(spacing),
-                ..Default::default()
-            },
-            ..Default::default()
-        };
-        let mut source = ingest::open(&path, &options)?;
+        let mut source = ingest::open(&dataset.path, &dataset.options)?;
         let out = dir.join(name);
         blocks::store::ingest(
             source.as_mut(),
@@ -166,7 +148,7 @@ fn dataset_selections(dir: &Path, data: &Path) -> anyhow::Result<()> {
             &IngestOptions::default(),
             &mut |_| {},
         )?;
-        report_selections(name, &Store::open(&out)?, &tf)?;
+        report_selections(name, &Store::open(&out)?, &dataset.transfer_function)?;
     }
     Ok(())
 }
