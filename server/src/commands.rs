@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use blocks::ingest::dicom::FolderScan;
-use blocks::ingest::{self, VolumeSource};
+use blocks::ingest::dicom::{FolderScan, SeriesSummary};
+use blocks::ingest::{self, VolumeInfo, VolumeSource, VolumeStats};
 use shaders::{GpuContext, Renderer};
 use tokio::net::TcpListener;
 
@@ -218,57 +218,96 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
     if blocks::store::Store::is_store(&args.path) {
         return store_info(args);
     }
-    let options = args.input.open_options();
-    let mut series = None;
-    let mut source: Box<dyn VolumeSource> = if args.path.is_dir() {
-        let scan = FolderScan::new(&args.path)?;
-        let summaries = scan.summaries();
-        if summaries.len() > 1 && options.series.is_none() && !args.json {
-            say(&format!(
-                "{}: {} DICOM series",
-                args.path.display(),
-                summaries.len()
-            ))?;
-            for s in &summaries {
-                say(&format!("  {s}"))?;
-            }
-        }
-        series = Some(summaries);
-        Box::new(scan.open(options.series.as_deref())?)
-    } else {
-        ingest::open(&args.path, &options)?
-    };
+    let Opened { mut source, series } = open_for_info(args)?;
     let info = source.info().clone();
     let bar = progress_bar(u64::from(info.dims[2]), "reading slices");
     let stats = ingest::scan(source.as_mut(), |z| bar.set_position(u64::from(z)))?;
     bar.finish_and_clear();
-    let physical = stats.stored_range.map(|v| info.value_map.physical(v));
-    let (lo, hi) = (physical[0].min(physical[1]), physical[0].max(physical[1]));
     if args.json {
-        let json = serde_json::json!({
-            "path": info.path,
-            "format": info.format.to_string(),
-            "dims": info.dims,
-            "voxel_type": info.voxel_type.name(),
-            "spacing": info.spacing,
-            "origin": info.origin,
-            "direction": info.direction,
-            "value_map": { "slope": info.value_map.slope, "intercept": info.value_map.intercept },
-            "stored_range": stats.stored_range,
-            "value_range": [lo, hi],
-            "mean_stored": stats.mean,
-            "nan_voxels": stats.nans,
-            "unit": info.unit,
-            "modality": info.modality,
-            "description": info.description,
-            "notes": info.notes,
-            "series": series.map(|list| list.iter().map(|s| serde_json::json!({
-                "id": s.id, "modality": s.modality, "description": s.description,
-                "slices": s.slices, "columns": s.size[0], "rows": s.size[1],
-            })).collect::<Vec<_>>()),
-        });
+        let json = info_json(&info, &stats, series.as_deref());
         return say(&serde_json::to_string_pretty(&json)?);
     }
+    say(&info_text(&info, &stats, series.as_deref()).join("\n"))
+}
+
+/// The volume `info` reads, and the series of its DICOM folder (none for a file).
+struct Opened {
+    source: Box<dyn VolumeSource>,
+    series: Option<Vec<SeriesSummary>>,
+}
+
+/// Opens the file, or the series of the DICOM folder that `--series` names.
+/// A folder of several series lists them first when none is named and the
+/// output is text.
+fn open_for_info(args: &InfoArgs) -> anyhow::Result<Opened> {
+    let options = args.input.open_options();
+    if !args.path.is_dir() {
+        return Ok(Opened {
+            source: ingest::open(&args.path, &options)?,
+            series: None,
+        });
+    }
+    let scan = FolderScan::new(&args.path)?;
+    let summaries = scan.summaries();
+    if summaries.len() > 1 && options.series.is_none() && !args.json {
+        say(&format!(
+            "{}: {} DICOM series",
+            args.path.display(),
+            summaries.len()
+        ))?;
+        for s in &summaries {
+            say(&format!("  {s}"))?;
+        }
+    }
+    Ok(Opened {
+        source: Box::new(scan.open(options.series.as_deref())?),
+        series: Some(summaries),
+    })
+}
+
+/// The physical values of `stats`' stored range, lowest first.
+fn physical_range(info: &VolumeInfo, stats: &VolumeStats) -> [f64; 2] {
+    let physical = stats.stored_range.map(|v| info.value_map.physical(v));
+    [physical[0].min(physical[1]), physical[0].max(physical[1])]
+}
+
+/// `info`'s JSON output.
+fn info_json(
+    info: &VolumeInfo,
+    stats: &VolumeStats,
+    series: Option<&[SeriesSummary]>,
+) -> serde_json::Value {
+    serde_json::json!({
+        "path": info.path,
+        "format": info.format.to_string(),
+        "dims": info.dims,
+        "voxel_type": info.voxel_type.name(),
+        "spacing": info.spacing,
+        "origin": info.origin,
+        "direction": info.direction,
+        "value_map": { "slope": info.value_map.slope, "intercept": info.value_map.intercept },
+        "stored_range": stats.stored_range,
+        "value_range": physical_range(info, stats),
+        "mean_stored": stats.mean,
+        "nan_voxels": stats.nans,
+        "unit": info.unit,
+        "modality": info.modality,
+        "description": info.description,
+        "notes": info.notes,
+        "series": series.map(|list| list.iter().map(|s| serde_json::json!({
+            "id": s.id, "modality": s.modality, "description": s.description,
+            "slices": s.slices, "columns": s.size[0], "rows": s.size[1],
+        })).collect::<Vec<_>>()),
+    })
+}
+
+/// `info`'s text output, line by line.
+fn info_text(
+    info: &VolumeInfo,
+    stats: &VolumeStats,
+    series: Option<&[SeriesSummary]>,
+) -> Vec<String> {
+    let [lo, hi] = physical_range(info, stats);
     let unit = info
         .unit
         .as_deref()
@@ -310,12 +349,12 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
     if let Some(d) = &info.description {
         lines.push(format!("description: {d}"));
     }
-    if let Some(list) = &series {
+    if let Some(list) = series {
         lines.push(format!("series:      {} in the folder", list.len()));
         lines.extend(list.iter().map(|s| format!("  {s}")));
     }
     lines.extend(info.notes.iter().map(|n| format!("note:        {n}")));
-    say(&lines.join("\n"))
+    lines
 }
 
 /// `voxserve ingest`: a brick store from a volume file or DICOM folder.

@@ -132,6 +132,8 @@ fn rss_mib() -> Option<f64> {
     Some(kib / 1024.0)
 }
 
+/// Per format, a server in this process: latency lines per image size, and
+/// on the JPEG server the frame rate per number of sessions.
 async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
     let dataset = load_dataset(&args.dataset, &args.data)?;
     let gpu = GpuContext::new()?;
@@ -157,55 +159,7 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
         };
         let (url, stop) = start_server(dataset.clone(), renderer.clone(), settings).await?;
         for &edge in &args.sizes {
-            let mut socket = connect(&url).await?;
-            // The first frame selects and uploads blocks: not timed.
-            send_view(&mut socket, 1, serde_json::json!({"w": edge, "h": edge})).await?;
-            next_frame(&mut socket, Some(1)).await?;
-            let (mut latency, mut overhead, mut render, mut encode, mut queue) =
-                (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-            let mut pixels = 0usize;
-            let mut sizes = Vec::new();
-            for event in 0..args.events {
-                let id = event + 2;
-                let start = Instant::now();
-                send_view(
-                    &mut socket,
-                    id,
-                    serde_json::json!({"az": f64::from(event) * 7.0}),
-                )
-                .await?;
-                let Some((header, size)) = next_frame_sized(&mut socket, Some(id)).await? else {
-                    anyhow::bail!("no frame for message {id}");
-                };
-                sizes.push(size as f64);
-                let ms = start.elapsed().as_secs_f64() * 1e3;
-                latency.push(ms);
-                overhead.push(ms - f64::from(header.render_ms));
-                render.push(f64::from(header.render_ms));
-                encode.push(f64::from(header.encode_ms));
-                queue.push(f64::from(header.queue_ms));
-                pixels += usize::from(header.width) * usize::from(header.height);
-            }
-            say(&serde_json::json!({
-                "bench": "stream-latency",
-                "adapter": adapter,
-                "dataset": dataset.name(),
-                "format": format,
-                "width": edge,
-                "height": edge,
-                "events": args.events,
-                "latency_ms_p50": quantile(&mut latency, 0.5),
-                "latency_ms_p95": quantile(&mut latency, 0.95),
-                "latency_minus_render_ms_p50": quantile(&mut overhead, 0.5),
-                "latency_minus_render_ms_p95": quantile(&mut overhead, 0.95),
-                "render_ms_p50": quantile(&mut render, 0.5),
-                "encode_ms_p50": quantile(&mut encode, 0.5),
-                "encode_ms_p95": quantile(&mut encode, 0.95),
-                "queue_ms_p50": quantile(&mut queue, 0.5),
-                "pixels_per_frame": pixels / args.events.max(1) as usize,
-                "frame_bytes_p50": quantile(&mut sizes, 0.5),
-            })
-            .to_string())?;
+            latency(&url, edge, format, args, &adapter, &dataset).await?;
         }
         if format == "jpeg" {
             for &n in &args.sessions {
@@ -215,6 +169,67 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
         drop(stop);
     }
     Ok(())
+}
+
+/// A `stream-latency` line: `--events` camera moves on one session with
+/// frames of `edge`² in `format`, each timed until its frame arrives.
+async fn latency(
+    url: &str,
+    edge: u32,
+    format: &str,
+    args: &BenchStreamArgs,
+    adapter: &str,
+    dataset: &Dataset,
+) -> anyhow::Result<()> {
+    let mut socket = connect(url).await?;
+    // The first frame selects and uploads blocks: not timed.
+    send_view(&mut socket, 1, serde_json::json!({"w": edge, "h": edge})).await?;
+    next_frame(&mut socket, Some(1)).await?;
+    let (mut latency, mut overhead, mut render, mut encode, mut queue) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut pixels = 0usize;
+    let mut sizes = Vec::new();
+    for event in 0..args.events {
+        let id = event + 2;
+        let start = Instant::now();
+        send_view(
+            &mut socket,
+            id,
+            serde_json::json!({"az": f64::from(event) * 7.0}),
+        )
+        .await?;
+        let Some((header, size)) = next_frame_sized(&mut socket, Some(id)).await? else {
+            anyhow::bail!("no frame for message {id}");
+        };
+        sizes.push(size as f64);
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        latency.push(ms);
+        overhead.push(ms - f64::from(header.render_ms));
+        render.push(f64::from(header.render_ms));
+        encode.push(f64::from(header.encode_ms));
+        queue.push(f64::from(header.queue_ms));
+        pixels += usize::from(header.width) * usize::from(header.height);
+    }
+    say(&serde_json::json!({
+        "bench": "stream-latency",
+        "adapter": adapter,
+        "dataset": dataset.name(),
+        "format": format,
+        "width": edge,
+        "height": edge,
+        "events": args.events,
+        "latency_ms_p50": quantile(&mut latency, 0.5),
+        "latency_ms_p95": quantile(&mut latency, 0.95),
+        "latency_minus_render_ms_p50": quantile(&mut overhead, 0.5),
+        "latency_minus_render_ms_p95": quantile(&mut overhead, 0.95),
+        "render_ms_p50": quantile(&mut render, 0.5),
+        "encode_ms_p50": quantile(&mut encode, 0.5),
+        "encode_ms_p95": quantile(&mut encode, 0.95),
+        "queue_ms_p50": quantile(&mut queue, 0.5),
+        "pixels_per_frame": pixels / args.events.max(1) as usize,
+        "frame_bytes_p50": quantile(&mut sizes, 0.5),
+    })
+    .to_string())
 }
 
 /// `n` sessions moving their cameras as fast as frames come, for `--seconds`.
