@@ -141,7 +141,7 @@ impl BlockCache {
     ) -> Result<VoxelData, Error> {
         let edge = BLOCK >> level;
         let side = edge + 2 * apron;
-        let dims = crate::store::level_dims(self.store.meta().dims, level);
+        let dims = crate::store::level_dims(self.store.meta().geometry.dims, level);
         let start = block.map(|b| i64::from(b * edge) - i64::from(apron));
         let clamp = |v: i64, n: u32| v.clamp(0, i64::from(n) - 1) as u32;
         // The chunks the slot touches, fetched once each.

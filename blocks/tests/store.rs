@@ -8,7 +8,7 @@ use std::sync::Arc;
 use blocks::cache::BlockCache;
 use blocks::ingest::{self, VolumeInfo, VolumeSource};
 use blocks::store::{self, BLOCK, IngestOptions, LEVELS, Store, level_dims};
-use blocks::{Error, Preset, ValueMap, VoxelData, VoxelType};
+use blocks::{Error, Geometry, Preset, ValueMap, VoxelData, VoxelType};
 
 /// An in-memory volume as a source, optionally failing at a slab.
 #[derive(Debug)]
@@ -24,11 +24,13 @@ impl Memory {
             info: VolumeInfo {
                 path: "memory.raw".into(),
                 format: ingest::Format::Raw,
-                dims,
+                geometry: Geometry {
+                    dims,
+                    spacing: [0.5, 0.75, 2.0],
+                    origin: [10.0, -20.0, 30.0],
+                    direction: blocks::geometry::IDENTITY_DIRECTION,
+                },
                 voxel_type: voxels.voxel_type(),
-                spacing: [0.5, 0.75, 2.0],
-                origin: [10.0, -20.0, 30.0],
-                direction: ingest::IDENTITY,
                 value_map: ValueMap {
                     slope: 1.0,
                     intercept: -1024.0,
@@ -44,7 +46,7 @@ impl Memory {
     }
 
     fn at(&self, x: u32, y: u32, z: u32) -> f64 {
-        let [nx, ny, _] = self.info.dims;
+        let [nx, ny, _] = self.info.geometry.dims;
         self.voxels.get(((z * ny + y) * nx + x) as usize)
     }
 }
@@ -61,7 +63,7 @@ impl VolumeSource for Memory {
                 reason: "injected failure".into(),
             });
         }
-        let slice = (self.info.dims[0] * self.info.dims[1]) as usize;
+        let slice = (self.info.geometry.dims[0] * self.info.geometry.dims[1]) as usize;
         let range = z0 as usize * slice..(z0 + depth) as usize * slice;
         Ok(self.voxels.slice(range))
     }
@@ -90,7 +92,7 @@ fn ingest_to(dir: &Path, source: &mut Memory) -> Result<Store, Error> {
 /// from zero like the store.
 fn box_average(source: &Memory, level: usize, x: u32, y: u32, z: u32) -> f64 {
     let f = 1u32 << level;
-    let [nx, ny, nz] = source.info.dims;
+    let [nx, ny, nz] = source.info.geometry.dims;
     let (mut sum, mut n) = (0.0, 0.0);
     for zz in z * f..((z + 1) * f).min(nz) {
         for yy in y * f..((y + 1) * f).min(ny) {
@@ -109,7 +111,7 @@ fn every_block_at_every_level_round_trips_for_odd_sizes() {
     let dims = [37, 50, 21];
     let mut source = Memory::new(dims, noise_u16(dims));
     let store = ingest_to(dir.path(), &mut source).expect("ingest");
-    assert_eq!(store.meta().dims, dims);
+    assert_eq!(store.meta().geometry.dims, dims);
     assert_eq!(store.meta().blocks, [3, 4, 2]);
     assert_eq!(store.meta().value_map.intercept, -1024.0);
     for level in 0..LEVELS {

@@ -135,7 +135,7 @@ impl Dataset {
 
     /// Level-0 voxels along x, y, z.
     pub fn dims(&self) -> [u32; 3] {
-        self.store.meta().dims
+        self.store.meta().geometry.dims
     }
 
     /// The physical value range (what transfer-function presets are laid over).
@@ -166,10 +166,10 @@ impl Dataset {
         DatasetInfo {
             id: self.id.clone(),
             name: m.name.clone(),
-            dims: m.dims,
+            dims: m.geometry.dims,
             blocks: m.blocks,
-            spacing: m.spacing,
-            origin: m.origin,
+            spacing: m.geometry.spacing,
+            origin: m.geometry.origin,
             voxel_type: m.voxel_type.clone(),
             value_range: m.value_range(),
             unit: m.unit.clone(),

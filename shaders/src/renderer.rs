@@ -299,7 +299,7 @@ impl Renderer {
             VolumeDescription::of_store(store.meta(), store.voxel_type()),
             gpu.device.features(),
         );
-        let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+        let full_voxels = store.meta().geometry.voxel_count();
         let pipeline = MarchPipeline::new(&gpu, Stage::Raycast)?;
         let frame = FrameResources::new(&gpu)?;
         Ok(Renderer {
@@ -626,7 +626,7 @@ pub fn select_levels(
     budget_voxels: u64,
     device: DeviceBudget,
 ) -> Result<(LodSelection, Packing), GpuError> {
-    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full_voxels = store.meta().geometry.voxel_count();
     // The selection under `budget` and its packing, if that fits the device.
     let attempt = |budget: u64| {
         let selection = lod::select(

@@ -81,9 +81,9 @@ impl VolumeDescription {
     /// An in-memory volume's description.
     pub fn of_volume(v: &Volume) -> VolumeDescription {
         VolumeDescription {
-            dims: v.dims,
-            spacing: v.spacing,
-            direction: v.direction,
+            dims: v.geometry.dims,
+            spacing: v.geometry.spacing_f32(),
+            direction: v.geometry.direction_f32(),
             voxel_type: v.voxel_type(),
             value_map: v.value_map,
             value_range: v.value_range,
@@ -93,9 +93,9 @@ impl VolumeDescription {
     /// A store's description (level 0).
     pub fn of_store(m: &StoreMeta, voxel_type: VoxelType) -> VolumeDescription {
         VolumeDescription {
-            dims: m.dims,
-            spacing: m.spacing.map(|s| s as f32),
-            direction: m.direction.map(|c| c.map(|x| x as f32)),
+            dims: m.geometry.dims,
+            spacing: m.geometry.spacing_f32(),
+            direction: m.geometry.direction_f32(),
             voxel_type,
             value_map: m.value_map,
             value_range: m.value_range().map(|v| v as f32),
@@ -343,8 +343,8 @@ impl GpuVolume {
     /// Creates the texture and writes the volume into it slab by slab.
     pub fn upload(gpu: &GpuContext, volume: &Volume) -> Result<GpuVolume, GpuError> {
         let desc = VolumeTexture::for_volume(volume, gpu.device.features());
-        let texture = create_texture_3d(gpu, "volume", volume.dims, desc.format.wgpu())?;
-        let [nx, ny, nz] = volume.dims;
+        let texture = create_texture_3d(gpu, "volume", volume.geometry.dims, desc.format.wgpu())?;
+        let [nx, ny, nz] = volume.geometry.dims;
         let bytes = desc.texel_bytes(&volume.voxels);
         let slice_bytes = nx as usize * ny as usize * desc.format.size();
         let slab_slices = (UPLOAD_SLAB_BYTES / slice_bytes).max(1) as u32;
@@ -385,8 +385,7 @@ mod tests {
     fn ct(voxels: Vec<u16>) -> Volume {
         Volume::new(
             "ct",
-            [voxels.len() as u32, 1, 1],
-            [1.0; 3],
+            blocks::Geometry::new([voxels.len() as u32, 1, 1], [1.0; 3]),
             VoxelData::U16(voxels),
             ValueMap {
                 slope: 1.0,

@@ -402,7 +402,7 @@ fn time_selection(
     tf: &blocks::TransferFunction,
     budget: u64,
 ) -> (blocks::lod::LodSelection, f64, f64) {
-    let full: u64 = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full = store.meta().geometry.voxel_count();
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..21 {
@@ -429,14 +429,14 @@ fn report_selections(
     store: &blocks::store::Store,
     tf: &blocks::TransferFunction,
 ) -> anyhow::Result<()> {
-    let full: u64 = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full = store.meta().geometry.voxel_count();
     for ratio in [9.0, 35.0] {
         let budget = (full as f64 / ratio) as u64;
         let (sel, median, min) = time_selection(store, tf, budget);
         say(&serde_json::json!({
             "bench": "lod_selection",
             "dataset": dataset,
-            "dims": store.meta().dims,
+            "dims": store.meta().geometry.dims,
             "blocks": sel.lod.len(),
             "non_empty": sel.non_empty,
             "budget_ratio": ratio,
@@ -526,7 +526,7 @@ pub fn blocks(args: &BenchBlocksArgs) -> anyhow::Result<()> {
             "level": 0,
             "reads": args.reads,
             "threads": args.threads,
-            "dims": store.meta().dims,
+            "dims": store.meta().geometry.dims,
             "per_s": per_s,
         })
         .to_string())?;

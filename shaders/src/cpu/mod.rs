@@ -67,7 +67,7 @@ pub fn render_packed(
         VolumeDescription::of_store(store.meta(), store.voxel_type()),
         features,
     );
-    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full_voxels = store.meta().geometry.voxel_count();
     let budget = budget_voxels(full_voxels, request.reduction);
     let (selection, packing) =
         select_levels(store, &tf, budget, DeviceBudget::unlimited(max_edge))?;
