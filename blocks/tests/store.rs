@@ -1,6 +1,7 @@
 //! The brick store on generated volumes: exact round trips at every level for
 //! sizes that are not multiples of 16, crash safety, corruption detection, the
-//! block cache and its aprons, and LOD selection on real statistics.
+//! block cache and its aprons, LOD selection on real statistics, and root
+//! metadata that stores written by earlier code still read.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -279,6 +280,72 @@ fn folders_that_are_not_complete_stores_are_refused() {
         .expect_err("incomplete")
         .to_string();
     assert!(msg.contains("complete: false"), "{msg}");
+}
+
+/// The `voxserve` record of `zarr.json` as stores wrote it before the
+/// geometry became one type: the 100³ phantom ingested by that code, verbatim.
+const PHANTOM_100_META_BEFORE_GEOMETRY: &str = r#"{"format_version":1,"complete":true,"name":"phantom","dims":[100,100,100],"voxel_type":"uint16","spacing":[2.4000000953674316,2.4000000953674316,2.4000000953674316],"origin":[-118.80000305175781,-118.80000305175781,-118.80000305175781],"direction":[[1.0,0.0,0.0],[0.0,1.0,0.0],[0.0,0.0,1.0]],"value_map":{"slope":1.0,"intercept":-1024.0},"unit":"HU","modality":"CT","description":null,"stored_range":[18.0,2030.0],"block_size":16,"levels":5,"histogram_bins":32,"blocks":[7,7,7],"source":"phantom","source_format":"raw","notes":[]}"#;
+
+/// [`PHANTOM_100_META_BEFORE_GEOMETRY`], parsed.
+fn old_meta() -> serde_json::Value {
+    serde_json::from_str(PHANTOM_100_META_BEFORE_GEOMETRY).expect("valid JSON")
+}
+
+#[test]
+fn metadata_written_before_the_geometry_type_reads_and_writes_back_unchanged() {
+    let old = old_meta();
+    let meta: store::StoreMeta = serde_json::from_value(old.clone()).expect("old metadata reads");
+    let spacing = f64::from(blocks::phantom::EDGE_MM / 100.0);
+    assert_eq!(
+        meta.geometry,
+        Geometry {
+            dims: [100; 3],
+            spacing: [spacing; 3],
+            origin: [-118.80000305175781; 3],
+            direction: blocks::geometry::IDENTITY_DIRECTION,
+        }
+    );
+    assert_eq!(
+        (meta.name.as_str(), meta.voxel_type.as_str()),
+        ("phantom", "uint16")
+    );
+    assert_eq!(meta.blocks, [7; 3]);
+    // Written again: the same keys, at the same level, with the same values.
+    let again = serde_json::to_value(&meta).expect("serializes");
+    let keys = |v: &serde_json::Value| {
+        let mut k: Vec<String> = v.as_object().expect("an object").keys().cloned().collect();
+        k.sort();
+        k
+    };
+    assert_eq!(keys(&again), keys(&old));
+    assert_eq!(again, old);
+}
+
+#[test]
+fn a_new_store_writes_the_old_metadata_and_opens_with_it() {
+    let dir = tempfile::tempdir().expect("temp");
+    let path = dir.path().join("phantom.zarr");
+    let volume = Arc::new(blocks::phantom::head(100).expect("phantom"));
+    let mut source = ingest::MemorySource::new(volume, "phantom");
+    store::ingest(&mut source, &path, &IngestOptions::default(), &mut |_| {}).expect("ingest");
+    // What the old code reads: the same record it wrote itself.
+    let root = path.join("zarr.json");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&root).expect("read")).expect("JSON");
+    assert_eq!(json["attributes"]["voxserve"], old_meta());
+    // A store whose record the old code wrote opens.
+    json["attributes"]["voxserve"] = old_meta();
+    std::fs::write(&root, json.to_string()).expect("write");
+    let store = Store::open(&path).expect("a store with the old record opens");
+    assert_eq!(store.meta().geometry.dims, [100; 3]);
+    // Its geometry is checked on open, naming the key at fault.
+    json["attributes"]["voxserve"]["spacing"] = serde_json::json!([2.4, 0.0, 2.4]);
+    std::fs::write(&root, json.to_string()).expect("write");
+    let msg = Store::open(&path).expect_err("zero spacing").to_string();
+    assert!(
+        msg.contains("attributes.voxserve.spacing: [2.4, 0.0, 2.4]: expected finite positive"),
+        "{msg}"
+    );
 }
 
 #[test]
