@@ -12,7 +12,7 @@ use std::sync::Arc;
 use blocks::cache::BlockCache;
 use blocks::ingest::{self, MemorySource, OpenOptions};
 use blocks::store::{IngestOptions, Store, ingest_in_memory};
-use blocks::{Preset, ValueMap};
+use blocks::{Geometry, Preset, ValueMap};
 use serde::Serialize;
 
 /// The id of the built-in phantom.
@@ -50,14 +50,12 @@ pub struct DatasetInfo {
     pub id: String,
     /// A display name.
     pub name: String,
-    /// Voxels along x, y, z.
-    pub dims: [u32; 3],
+    /// Level 0's dimensions, spacing, origin and direction (the keys `dims`,
+    /// `spacing`, `origin`, `direction`).
+    #[serde(flatten)]
+    pub geometry: Geometry,
     /// 16³ blocks along x, y, z.
     pub blocks: [u32; 3],
-    /// Voxel spacing (mm).
-    pub spacing: [f64; 3],
-    /// Position of the first voxel's centre (mm).
-    pub origin: [f64; 3],
     /// `uint8`, `uint16`, …
     pub voxel_type: String,
     /// Smallest and largest physical value.
@@ -166,10 +164,8 @@ impl Dataset {
         DatasetInfo {
             id: self.id.clone(),
             name: m.name.clone(),
-            dims: m.geometry.dims,
+            geometry: m.geometry,
             blocks: m.blocks,
-            spacing: m.geometry.spacing,
-            origin: m.geometry.origin,
             voxel_type: m.voxel_type.clone(),
             value_range: m.value_range(),
             unit: m.unit.clone(),

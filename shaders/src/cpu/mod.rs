@@ -152,7 +152,7 @@ pub fn render_reference(
 ) -> Result<Frame, GpuError> {
     request.validate()?;
     let desc = VolumeTexture::for_volume(volume, features);
-    let texture = Texture3d::new(desc.dims, desc.texel_values(&volume.voxels));
+    let texture = Texture3d::new(desc.geometry.dims, desc.texel_values(&volume.voxels));
     let table = request
         .volume_transfer_function(volume)
         .table(desc.tf_domain, TABLE_LEN)?;
