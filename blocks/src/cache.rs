@@ -353,7 +353,7 @@ impl BlockCache {
     /// level's dims of block `block` with an `apron`.
     fn apron_box(&self, level: usize, block: [u32; 3], apron: u32) -> ([i64; 3], u32, [u32; 3]) {
         let edge = BLOCK >> level;
-        let dims = crate::store::level_dims(self.store.meta().dims, level);
+        let dims = crate::store::level_dims(self.store.meta().geometry.dims, level);
         let start = block.map(|b| i64::from(b * edge) - i64::from(apron));
         (start, edge + 2 * apron, dims)
     }

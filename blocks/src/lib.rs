@@ -4,9 +4,11 @@
 //! # Layout
 //! - [`ingest`]: reading raw, NRRD, NIfTI-1, MetaImage and DICOM series as a
 //!   [`ingest::VolumeSource`] that delivers z-slabs in bounded memory.
-//! - [`volume`]: [`Volume`], a voxel grid in memory with its physical geometry
-//!   (dimensions, spacing, origin) and the map from stored values to physical ones
-//!   (Hounsfield units for CT).
+//! - [`geometry`]: [`Geometry`], where a voxel grid sits in patient space
+//!   (dimensions, spacing, origin, direction), its invariants and what derives
+//!   from it; every other crate's view of a volume's geometry is this type.
+//! - [`volume`]: [`Volume`], a voxel grid in memory with its [`Geometry`] and the
+//!   map from stored values to physical ones (Hounsfield units for CT).
 //! - [`phantom`]: the built-in dataset, a deterministic procedural CT head phantom
 //!   (a 3D Shepp–Logan head with Hounsfield-like values).
 //! - [`store`]: the brick store: OME-Zarr 0.5 written with `zarrs`, 16³ blocks at
@@ -20,6 +22,7 @@
 
 pub mod cache;
 pub mod error;
+pub mod geometry;
 pub mod ingest;
 pub mod lod;
 pub mod packing;
@@ -29,6 +32,7 @@ pub mod transfer_function;
 pub mod volume;
 
 pub use error::Error;
+pub use geometry::Geometry;
 pub use ingest::{VolumeInfo, VolumeSource};
 pub use transfer_function::{Preset, TfPoint, TransferFunction};
 pub use volume::{ValueMap, Volume, Voxel, VoxelData, VoxelType};

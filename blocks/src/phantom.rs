@@ -24,7 +24,8 @@
 
 use rayon::prelude::*;
 
-use crate::{Error, ValueMap, Volume, VoxelData};
+use crate::geometry::IDENTITY_DIRECTION;
+use crate::{Error, Geometry, ValueMap, Volume, VoxelData};
 
 /// The default edge length in voxels.
 pub const DEFAULT_SIZE: u32 = 256;
@@ -191,19 +192,25 @@ pub fn head(size: u32) -> Result<Volume, Error> {
         .par_chunks_mut(n * n)
         .enumerate()
         .for_each(|(k, slice)| fill_slice(grid, k, slice));
+    // Worked out in f32, as the phantom always has, so its stores keep the
+    // same numbers.
     let spacing = EDGE_MM / size as f32;
+    let centre = -(size as f32 - 1.0) * 0.5 * spacing;
+    let geometry = Geometry {
+        dims: [size; 3],
+        spacing: [f64::from(spacing); 3],
+        origin: [f64::from(centre); 3],
+        direction: IDENTITY_DIRECTION,
+    };
     let mut volume = Volume::new(
         "head phantom",
-        [size; 3],
-        [spacing; 3],
+        geometry,
         VoxelData::U16(voxels),
         ValueMap {
             slope: 1.0,
             intercept: -STORED_OFFSET,
         },
     )?;
-    let centre = -(size as f32 - 1.0) * 0.5 * spacing;
-    volume.origin = [centre; 3];
     volume.unit = Some("HU".into());
     volume.modality = Some("CT".into());
     Ok(volume)
@@ -312,8 +319,8 @@ mod tests {
 
     /// The physical value at a normalized position (x left, y anterior, z superior).
     fn hu_at(v: &Volume, p: [f32; 3]) -> f32 {
-        let n = v.dims[0] as f32;
-        let idx = |t: f32| (((t + 1.0) * 0.5 * n) as u32).min(v.dims[0] - 1);
+        let n = v.geometry.dims[0] as f32;
+        let idx = |t: f32| (((t + 1.0) * 0.5 * n) as u32).min(v.geometry.dims[0] - 1);
         v.physical_at(idx(p[0]), idx(-p[1]), idx(p[2])) as f32
     }
 
@@ -357,10 +364,11 @@ mod tests {
     #[test]
     fn geometry_is_centred_with_isotropic_spacing() {
         let v = head(64).expect("phantom");
-        assert_eq!(v.dims, [64; 3]);
-        assert_eq!(v.spacing, [EDGE_MM / 64.0; 3]);
-        let last_centre = v.origin[0] + 63.0 * v.spacing[0];
-        assert!((v.origin[0] + last_centre).abs() < 1e-3);
+        let g = v.geometry;
+        assert_eq!(g.dims, [64; 3]);
+        assert_eq!(g.spacing_f32(), [EDGE_MM / 64.0; 3]);
+        let last_centre = g.origin[0] + 63.0 * g.spacing[0];
+        assert!((g.origin[0] + last_centre).abs() < 1e-3);
         assert_eq!(v.unit.as_deref(), Some("HU"));
         assert!(v.value_range[0] < -990.0 && v.value_range[1] > 990.0);
     }

@@ -5,7 +5,7 @@
 //! every format voxserve reads. Index space follows patient LPS for medical data:
 //! x grows towards the patient's left, y towards posterior, z towards superior.
 
-use crate::Error;
+use crate::{Error, Geometry};
 
 /// The type of one stored voxel value.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -310,24 +310,13 @@ impl ValueMap {
     }
 }
 
-/// The identity direction matrix: index axes along the physical axes.
-pub const IDENTITY_DIRECTION: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-
 /// A volume held in memory: voxels, geometry and value map.
 #[derive(Debug, Clone)]
 pub struct Volume {
     /// A short name for listings and messages.
     pub name: String,
-    /// Voxels along x, y and z.
-    pub dims: [u32; 3],
-    /// Distance between voxel centres along x, y and z, in millimetres.
-    pub spacing: [f32; 3],
-    /// The physical position of the centre of voxel (0, 0, 0), in millimetres
-    /// (patient LPS for medical data).
-    pub origin: [f32; 3],
-    /// Unit vectors of the index axes x, y, z in physical space (the columns of
-    /// the direction matrix; identity when unknown).
-    pub direction: [[f32; 3]; 3],
+    /// Dimensions, spacing, origin and direction.
+    pub geometry: Geometry,
     /// The stored values, x fastest.
     pub voxels: VoxelData,
     /// Stored → physical values.
@@ -341,12 +330,12 @@ pub struct Volume {
 }
 
 impl Volume {
-    /// Builds a volume and checks that its parts agree; the value range is computed
-    /// from the voxels.
+    /// Builds a volume and checks that its parts agree (the geometry's
+    /// invariants, the voxel count against the dimensions, the value map); the
+    /// value range is computed from the voxels.
     pub fn new(
         name: impl Into<String>,
-        dims: [u32; 3],
-        spacing: [f32; 3],
+        geometry: Geometry,
         voxels: VoxelData,
         value_map: ValueMap,
     ) -> Result<Volume, Error> {
@@ -355,21 +344,14 @@ impl Volume {
             name: name.clone(),
             reason,
         };
-        if dims.contains(&0) {
-            return Err(invalid(format!(
-                "dims {dims:?}: expected at least one voxel along every axis"
-            )));
-        }
-        let count = dims.iter().map(|&d| d as usize).product::<usize>();
-        if voxels.len() != count {
+        geometry
+            .check()
+            .map_err(|fault| invalid(fault.to_string()))?;
+        let (dims, count) = (geometry.dims, geometry.voxel_count());
+        if voxels.len() as u64 != count {
             return Err(invalid(format!(
                 "{} voxels for dims {dims:?}: expected {count}",
                 voxels.len()
-            )));
-        }
-        if let Some(s) = spacing.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
-            return Err(invalid(format!(
-                "spacing {spacing:?} holds {s}: expected finite positive millimetres"
             )));
         }
         if !(value_map.slope.is_finite()
@@ -386,10 +368,7 @@ impl Volume {
         let (a, b) = (value_map.physical(stored[0]), value_map.physical(stored[1]));
         Ok(Volume {
             name,
-            dims,
-            spacing,
-            origin: [0.0; 3],
-            direction: IDENTITY_DIRECTION,
+            geometry,
             voxels,
             value_map,
             value_range: [a.min(b) as f32, a.max(b) as f32],
@@ -410,7 +389,7 @@ impl Volume {
 
     /// Linear index of voxel (x, y, z).
     pub fn index(&self, x: u32, y: u32, z: u32) -> usize {
-        let [nx, ny, _] = self.dims;
+        let [nx, ny, _] = self.geometry.dims;
         (z as usize * ny as usize + y as usize) * nx as usize + x as usize
     }
 
@@ -418,16 +397,6 @@ impl Volume {
     pub fn physical_at(&self, x: u32, y: u32, z: u32) -> f64 {
         self.value_map
             .physical(self.voxels.get(self.index(x, y, z)))
-    }
-
-    /// The extent of the volume's box in millimetres: each voxel covers one
-    /// spacing around its centre, so the box is `dims * spacing`.
-    pub fn extent_mm(&self) -> [f32; 3] {
-        [
-            self.dims[0] as f32 * self.spacing[0],
-            self.dims[1] as f32 * self.spacing[1],
-            self.dims[2] as f32 * self.spacing[2],
-        ]
     }
 
     /// The stored voxels as little-endian bytes, ready for a GPU upload.
@@ -443,8 +412,7 @@ mod tests {
     fn tiny(voxels: VoxelData) -> Result<Volume, Error> {
         Volume::new(
             "tiny",
-            [2, 2, 2],
-            [1.0, 1.0, 2.0],
+            Geometry::new([2, 2, 2], [1.0, 1.0, 2.0]),
             voxels,
             ValueMap::IDENTITY,
         )
@@ -454,8 +422,7 @@ mod tests {
     fn value_range_follows_the_value_map() {
         let v = Volume::new(
             "ct",
-            [2, 1, 1],
-            [1.0; 3],
+            Geometry::new([2, 1, 1], [1.0; 3]),
             VoxelData::U16(vec![24, 2048]),
             ValueMap {
                 slope: 1.0,
@@ -471,8 +438,7 @@ mod tests {
     fn a_negative_slope_still_gives_an_ordered_range() {
         let v = Volume::new(
             "inverted",
-            [2, 1, 1],
-            [1.0; 3],
+            Geometry::new([2, 1, 1], [1.0; 3]),
             VoxelData::U8(vec![0, 255]),
             ValueMap {
                 slope: -1.0,
@@ -497,8 +463,7 @@ mod tests {
     fn spacing_must_be_positive() {
         let err = Volume::new(
             "flat",
-            [1, 1, 1],
-            [1.0, 0.0, 1.0],
+            Geometry::new([1, 1, 1], [1.0, 0.0, 1.0]),
             VoxelData::U8(vec![0]),
             ValueMap::IDENTITY,
         )

@@ -94,7 +94,7 @@ fn raw_reads_layout_from_the_name_or_the_options_and_swaps_big_endian() {
         },
     };
     let mut source = ingest::open(&plain, &options).expect("raw with options");
-    assert_eq!(source.info().spacing, [0.5, 0.5, 2.0]);
+    assert_eq!(source.info().geometry.spacing, [0.5, 0.5, 2.0]);
     let v = ingest::load(source.as_mut()).expect("load");
     assert_eq!(v.voxels, VoxelData::U16(ramp_u16()));
 }
@@ -115,7 +115,7 @@ fn raw_takes_a_direction_and_keeps_the_voxels() {
     let mut source = ingest::open(&path, &flipped).expect("raw with a flipped z");
     let info = source.info().clone();
     assert_eq!(
-        info.direction,
+        info.geometry.direction,
         [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]
     );
     assert!(
@@ -125,11 +125,11 @@ fn raw_takes_a_direction_and_keeps_the_voxels() {
     );
     let v = ingest::load(source.as_mut()).expect("load");
     assert_eq!(v.voxels, VoxelData::U16(ramp_u16()));
-    assert_eq!(v.direction[2], [0.0, 0.0, -1.0]);
+    assert_eq!(v.geometry.direction[2], [0.0, 0.0, -1.0]);
     // No direction: the identity, as before.
     assert_eq!(
-        open(&path).expect("plain").info().direction,
-        ingest::IDENTITY
+        open(&path).expect("plain").info().geometry.direction,
+        blocks::geometry::IDENTITY_DIRECTION
     );
 }
 
@@ -176,7 +176,7 @@ fn bad_raw_directions_are_refused_naming_the_field() {
         .expect("normalised")
         .info()
         .clone();
-    assert_eq!(info.direction[0], [0.0, 1.0, 0.0]);
+    assert_eq!(info.geometry.direction[0], [0.0, 1.0, 0.0]);
     assert!(
         info.notes
             .iter()
@@ -242,12 +242,12 @@ fn nrrd_attached_detached_and_gzip_read_the_same_voxels_with_geometry() {
     for path in [&attached, &gz, &detached] {
         let source = open(path).unwrap_or_else(|e| panic!("{e}"));
         let info = source.info();
-        assert_eq!(info.dims, [4, 3, 2]);
-        assert_eq!(info.spacing, [0.5, 0.5, 2.0]);
+        assert_eq!(info.geometry.dims, [4, 3, 2]);
+        assert_eq!(info.geometry.spacing, [0.5, 0.5, 2.0]);
         // RAS → LPS flips x and y.
-        assert_eq!(info.origin, [-10.0, -20.0, 30.0]);
-        assert_eq!(info.direction[0], [-1.0, 0.0, 0.0]);
-        assert_eq!(info.direction[1], [0.0, -1.0, 0.0]);
+        assert_eq!(info.geometry.origin, [-10.0, -20.0, 30.0]);
+        assert_eq!(info.geometry.direction[0], [-1.0, 0.0, 0.0]);
+        assert_eq!(info.geometry.direction[1], [0.0, -1.0, 0.0]);
         assert_eq!(
             load(path).voxels,
             VoxelData::U16(ramp_u16()),
@@ -283,10 +283,10 @@ fn metaimage_attached_compressed_and_detached_read_the_same_voxels() {
 
     for path in [&mha, &zmha, &mhd] {
         let info = open(path).unwrap_or_else(|e| panic!("{e}")).info().clone();
-        assert_eq!(info.spacing, [1.0, 1.0, 2.5]);
-        assert_eq!(info.origin, [1.0, 2.0, 3.0]);
+        assert_eq!(info.geometry.spacing, [1.0, 1.0, 2.5]);
+        assert_eq!(info.geometry.origin, [1.0, 2.0, 3.0]);
         assert_eq!(
-            info.direction,
+            info.geometry.direction,
             [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
         );
         assert_eq!(
@@ -343,9 +343,9 @@ fn nifti_plain_and_gzip_read_voxels_scaling_and_sform() {
         let info = open(path).unwrap_or_else(|e| panic!("{e}")).info().clone();
         assert_eq!(info.value_map.slope, 0.5);
         assert_eq!(info.value_map.intercept, -10.0);
-        assert_eq!(info.spacing, [2.0, 2.0, 3.0]);
-        assert_eq!(info.origin, [-100.0, 0.0, -5.0]); // RAS → LPS
-        assert_eq!(info.direction[0], [-1.0, 0.0, 0.0]);
+        assert_eq!(info.geometry.spacing, [2.0, 2.0, 3.0]);
+        assert_eq!(info.geometry.origin, [-100.0, 0.0, -5.0]); // RAS → LPS
+        assert_eq!(info.geometry.direction[0], [-1.0, 0.0, 0.0]);
         assert_eq!(load(path).voxels, VoxelData::U16(ramp_u16()));
     }
 }
@@ -499,9 +499,9 @@ fn dicom_slices_are_sorted_by_position_with_spacing_from_positions() {
     let dir = dicom_folder(&shuffled);
     let source = open(dir.path()).unwrap_or_else(|e| panic!("{e}"));
     let info = source.info().clone();
-    assert_eq!(info.dims, [4, 3, 4]);
-    assert_eq!(info.spacing, [0.25, 0.5, 2.5]);
-    assert_eq!(info.origin, [0.0, 0.0, 10.0]);
+    assert_eq!(info.geometry.dims, [4, 3, 4]);
+    assert_eq!(info.geometry.spacing, [0.25, 0.5, 2.5]);
+    assert_eq!(info.geometry.origin, [0.0, 0.0, 10.0]);
     assert_eq!(info.unit.as_deref(), Some("HU"));
     let v = load(dir.path());
     // Slice k holds k * 100 + pixel index.
@@ -587,12 +587,12 @@ fn dicom_gantry_tilt_becomes_a_sheared_affine_with_a_note() {
         "{:?}",
         info.notes
     );
-    let d = info.direction[2];
+    let d = info.geometry.direction[2];
     assert!(
         (d[1] - 0.5 / 1.25f64.sqrt()).abs() < 1e-9 && (d[2] - 1.0 / 1.25f64.sqrt()).abs() < 1e-9,
         "{d:?}"
     );
-    assert!((info.spacing[2] - 1.25f64.sqrt()).abs() < 1e-9);
+    assert!((info.geometry.spacing[2] - 1.25f64.sqrt()).abs() < 1e-9);
 }
 
 #[test]
@@ -617,7 +617,7 @@ fn dicom_folder_with_several_series_lists_them_and_series_picks_one() {
         ..OpenOptions::default()
     };
     let source = ingest::open(dir.path(), &options).expect("chosen series");
-    assert_eq!(source.info().dims, [4, 3, 3]);
+    assert_eq!(source.info().geometry.dims, [4, 3, 3]);
     let options = OpenOptions {
         series: Some("9.9".into()),
         ..OpenOptions::default()

@@ -1,6 +1,7 @@
 //! The brick store on generated volumes: exact round trips at every level for
 //! sizes that are not multiples of 16, crash safety, corruption detection, the
-//! block cache and its aprons, and LOD selection on real statistics.
+//! block cache and its aprons, LOD selection on real statistics, and root
+//! metadata that stores written by earlier code still read.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -8,7 +9,7 @@ use std::sync::Arc;
 use blocks::cache::BlockCache;
 use blocks::ingest::{self, VolumeInfo, VolumeSource};
 use blocks::store::{self, BLOCK, IngestOptions, LEVELS, Store, level_dims};
-use blocks::{Error, Preset, ValueMap, VoxelData, VoxelType};
+use blocks::{Error, Geometry, Preset, ValueMap, VoxelData, VoxelType};
 
 /// An in-memory volume as a source, optionally failing at a slab.
 #[derive(Debug)]
@@ -24,11 +25,13 @@ impl Memory {
             info: VolumeInfo {
                 path: "memory.raw".into(),
                 format: ingest::Format::Raw,
-                dims,
+                geometry: Geometry {
+                    dims,
+                    spacing: [0.5, 0.75, 2.0],
+                    origin: [10.0, -20.0, 30.0],
+                    direction: blocks::geometry::IDENTITY_DIRECTION,
+                },
                 voxel_type: voxels.voxel_type(),
-                spacing: [0.5, 0.75, 2.0],
-                origin: [10.0, -20.0, 30.0],
-                direction: ingest::IDENTITY,
                 value_map: ValueMap {
                     slope: 1.0,
                     intercept: -1024.0,
@@ -44,7 +47,7 @@ impl Memory {
     }
 
     fn at(&self, x: u32, y: u32, z: u32) -> f64 {
-        let [nx, ny, _] = self.info.dims;
+        let [nx, ny, _] = self.info.geometry.dims;
         self.voxels.get(((z * ny + y) * nx + x) as usize)
     }
 }
@@ -61,7 +64,7 @@ impl VolumeSource for Memory {
                 reason: "injected failure".into(),
             });
         }
-        let slice = (self.info.dims[0] * self.info.dims[1]) as usize;
+        let slice = (self.info.geometry.dims[0] * self.info.geometry.dims[1]) as usize;
         let range = z0 as usize * slice..(z0 + depth) as usize * slice;
         Ok(self.voxels.slice(range))
     }
@@ -90,7 +93,7 @@ fn ingest_to(dir: &Path, source: &mut Memory) -> Result<Store, Error> {
 /// from zero like the store.
 fn box_average(source: &Memory, level: usize, x: u32, y: u32, z: u32) -> f64 {
     let f = 1u32 << level;
-    let [nx, ny, nz] = source.info.dims;
+    let [nx, ny, nz] = source.info.geometry.dims;
     let (mut sum, mut n) = (0.0, 0.0);
     for zz in z * f..((z + 1) * f).min(nz) {
         for yy in y * f..((y + 1) * f).min(ny) {
@@ -109,7 +112,7 @@ fn every_block_at_every_level_round_trips_for_odd_sizes() {
     let dims = [37, 50, 21];
     let mut source = Memory::new(dims, noise_u16(dims));
     let store = ingest_to(dir.path(), &mut source).expect("ingest");
-    assert_eq!(store.meta().dims, dims);
+    assert_eq!(store.meta().geometry.dims, dims);
     assert_eq!(store.meta().blocks, [3, 4, 2]);
     assert_eq!(store.meta().value_map.intercept, -1024.0);
     for level in 0..LEVELS {
@@ -277,6 +280,72 @@ fn folders_that_are_not_complete_stores_are_refused() {
         .expect_err("incomplete")
         .to_string();
     assert!(msg.contains("complete: false"), "{msg}");
+}
+
+/// The `voxserve` record of `zarr.json` as stores wrote it before the
+/// geometry became one type: the 100³ phantom ingested by that code, verbatim.
+const PHANTOM_100_META_BEFORE_GEOMETRY: &str = r#"{"format_version":1,"complete":true,"name":"phantom","dims":[100,100,100],"voxel_type":"uint16","spacing":[2.4000000953674316,2.4000000953674316,2.4000000953674316],"origin":[-118.80000305175781,-118.80000305175781,-118.80000305175781],"direction":[[1.0,0.0,0.0],[0.0,1.0,0.0],[0.0,0.0,1.0]],"value_map":{"slope":1.0,"intercept":-1024.0},"unit":"HU","modality":"CT","description":null,"stored_range":[18.0,2030.0],"block_size":16,"levels":5,"histogram_bins":32,"blocks":[7,7,7],"source":"phantom","source_format":"raw","notes":[]}"#;
+
+/// [`PHANTOM_100_META_BEFORE_GEOMETRY`], parsed.
+fn old_meta() -> serde_json::Value {
+    serde_json::from_str(PHANTOM_100_META_BEFORE_GEOMETRY).expect("valid JSON")
+}
+
+#[test]
+fn metadata_written_before_the_geometry_type_reads_and_writes_back_unchanged() {
+    let old = old_meta();
+    let meta: store::StoreMeta = serde_json::from_value(old.clone()).expect("old metadata reads");
+    let spacing = f64::from(blocks::phantom::EDGE_MM / 100.0);
+    assert_eq!(
+        meta.geometry,
+        Geometry {
+            dims: [100; 3],
+            spacing: [spacing; 3],
+            origin: [-118.80000305175781; 3],
+            direction: blocks::geometry::IDENTITY_DIRECTION,
+        }
+    );
+    assert_eq!(
+        (meta.name.as_str(), meta.voxel_type.as_str()),
+        ("phantom", "uint16")
+    );
+    assert_eq!(meta.blocks, [7; 3]);
+    // Written again: the same keys, at the same level, with the same values.
+    let again = serde_json::to_value(&meta).expect("serializes");
+    let keys = |v: &serde_json::Value| {
+        let mut k: Vec<String> = v.as_object().expect("an object").keys().cloned().collect();
+        k.sort();
+        k
+    };
+    assert_eq!(keys(&again), keys(&old));
+    assert_eq!(again, old);
+}
+
+#[test]
+fn a_new_store_writes_the_old_metadata_and_opens_with_it() {
+    let dir = tempfile::tempdir().expect("temp");
+    let path = dir.path().join("phantom.zarr");
+    let volume = Arc::new(blocks::phantom::head(100).expect("phantom"));
+    let mut source = ingest::MemorySource::new(volume, "phantom");
+    store::ingest(&mut source, &path, &IngestOptions::default(), &mut |_| {}).expect("ingest");
+    // What the old code reads: the same record it wrote itself.
+    let root = path.join("zarr.json");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&root).expect("read")).expect("JSON");
+    assert_eq!(json["attributes"]["voxserve"], old_meta());
+    // A store whose record the old code wrote opens.
+    json["attributes"]["voxserve"] = old_meta();
+    std::fs::write(&root, json.to_string()).expect("write");
+    let store = Store::open(&path).expect("a store with the old record opens");
+    assert_eq!(store.meta().geometry.dims, [100; 3]);
+    // Its geometry is checked on open, naming the key at fault.
+    json["attributes"]["voxserve"]["spacing"] = serde_json::json!([2.4, 0.0, 2.4]);
+    std::fs::write(&root, json.to_string()).expect("write");
+    let msg = Store::open(&path).expect_err("zero spacing").to_string();
+    assert!(
+        msg.contains("attributes.voxserve.spacing: [2.4, 0.0, 2.4]: expected finite positive"),
+        "{msg}"
+    );
 }
 
 #[test]

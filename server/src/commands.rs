@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
+use blocks::Geometry;
 use blocks::ingest::dicom::{FolderScan, SeriesSummary};
 use blocks::ingest::{self, VolumeInfo, VolumeSource, VolumeStats};
 use shaders::{GpuContext, Renderer};
@@ -220,7 +221,7 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
     }
     let Opened { mut source, series } = open_for_info(args)?;
     let info = source.info().clone();
-    let bar = progress_bar(u64::from(info.dims[2]), "reading slices");
+    let bar = progress_bar(u64::from(info.geometry.dims[2]), "reading slices");
     let stats = ingest::scan(source.as_mut(), |z| bar.set_position(u64::from(z)))?;
     bar.finish_and_clear();
     if args.json {
@@ -280,11 +281,11 @@ fn info_json(
     serde_json::json!({
         "path": info.path,
         "format": info.format.to_string(),
-        "dims": info.dims,
+        "dims": info.geometry.dims,
         "voxel_type": info.voxel_type.name(),
-        "spacing": info.spacing,
-        "origin": info.origin,
-        "direction": info.direction,
+        "spacing": info.geometry.spacing,
+        "origin": info.geometry.origin,
+        "direction": info.geometry.direction,
         "value_map": { "slope": info.value_map.slope, "intercept": info.value_map.intercept },
         "stored_range": stats.stored_range,
         "value_range": physical_range(info, stats),
@@ -317,13 +318,7 @@ fn info_text(
         format!("path:        {}", info.path.display()),
         format!("format:      {}", info.format),
     ];
-    lines.extend(geometry_lines(
-        info.dims,
-        info.voxel_type.name(),
-        info.spacing,
-        info.origin,
-        info.direction,
-    ));
+    lines.extend(geometry_lines(&info.geometry, info.voxel_type.name()));
     lines.extend([
         format!(
             "value map:   physical = stored × {} + {}",
@@ -360,7 +355,7 @@ fn info_text(
 /// `voxserve ingest`: a brick store from a volume file or DICOM folder.
 pub fn ingest(args: &IngestArgs) -> anyhow::Result<()> {
     let mut source = ingest::open(&args.input, &args.input_options.open_options())?;
-    let nz = u64::from(source.info().dims[2]);
+    let nz = u64::from(source.info().geometry.dims[2]);
     let options = blocks::store::IngestOptions {
         overwrite: args.force,
         zstd_level: args.zstd_level,
@@ -407,8 +402,7 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
         })
         .count();
     let bytes = blocks::store::ingest::folder_bytes(&args.path);
-    let source_bytes =
-        m.dims.iter().map(|&d| f64::from(d)).product::<f64>() * store.voxel_type().size() as f64;
+    let source_bytes = m.geometry.voxel_count() as f64 * store.voxel_type().size() as f64;
     if args.json {
         return say(&serde_json::to_string_pretty(&serde_json::json!({
             "path": args.path,
@@ -425,13 +419,7 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
         "format:      voxserve brick store (OME-Zarr 0.5, 16³ blocks, 5 levels)".to_owned(),
         format!("source:      {} ({})", m.source, m.source_format),
     ];
-    lines.extend(geometry_lines(
-        m.dims,
-        &m.voxel_type,
-        m.spacing,
-        m.origin,
-        m.direction,
-    ));
+    lines.extend(geometry_lines(&m.geometry, &m.voxel_type));
     lines.extend([
         format!(
             "values:      {} … {}{}",
@@ -462,13 +450,13 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
 }
 
 /// The geometry lines of `info`'s text output.
-fn geometry_lines(
-    dims: [u32; 3],
-    voxel_type: &str,
-    spacing: [f64; 3],
-    origin: [f64; 3],
-    direction: [[f64; 3]; 3],
-) -> Vec<String> {
+fn geometry_lines(geometry: &Geometry, voxel_type: &str) -> Vec<String> {
+    let Geometry {
+        dims,
+        spacing,
+        origin,
+        direction,
+    } = *geometry;
     let v3 = |v: [f64; 3]| format!("({}, {}, {})", g(v[0]), g(v[1]), g(v[2]));
     vec![
         format!(

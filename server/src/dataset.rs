@@ -13,7 +13,7 @@ use std::time::Duration;
 use blocks::cache::BlockCache;
 use blocks::ingest::{self, MemorySource, OpenOptions};
 use blocks::store::{IngestOptions, Store, ingest_in_memory};
-use blocks::{Preset, ValueMap};
+use blocks::{Geometry, Preset, ValueMap};
 use serde::Serialize;
 
 /// The id of the built-in phantom.
@@ -54,14 +54,12 @@ pub struct DatasetInfo {
     pub id: String,
     /// A display name.
     pub name: String,
-    /// Voxels along x, y, z.
-    pub dims: [u32; 3],
+    /// Level 0's dimensions, spacing, origin and direction (the keys `dims`,
+    /// `spacing`, `origin`, `direction`).
+    #[serde(flatten)]
+    pub geometry: Geometry,
     /// 16³ blocks along x, y, z.
     pub blocks: [u32; 3],
-    /// Voxel spacing (mm).
-    pub spacing: [f64; 3],
-    /// Position of the first voxel's centre (mm).
-    pub origin: [f64; 3],
     /// `uint8`, `uint16`, …
     pub voxel_type: String,
     /// Smallest and largest physical value.
@@ -165,7 +163,7 @@ impl Dataset {
 
     /// Level-0 voxels along x, y, z.
     pub fn dims(&self) -> [u32; 3] {
-        self.store.meta().dims
+        self.store.meta().geometry.dims
     }
 
     /// The physical value range (what transfer-function presets are laid over).
@@ -196,10 +194,8 @@ impl Dataset {
         DatasetInfo {
             id: self.id.clone(),
             name: m.name.clone(),
-            dims: m.dims,
+            geometry: m.geometry,
             blocks: m.blocks,
-            spacing: m.spacing,
-            origin: m.origin,
             voxel_type: m.voxel_type.clone(),
             value_range: m.value_range(),
             unit: m.unit.clone(),

@@ -484,7 +484,7 @@ fn ingest_writes_a_store_and_a_killed_ingest_leaves_none() {
         "{summary}"
     );
     let store_ok = blocks::store::Store::open(&store).expect("opens");
-    assert_eq!(store_ok.meta().dims, [40, 30, 70]);
+    assert_eq!(store_ok.meta().geometry.dims, [40, 30, 70]);
     let left = std::fs::read_dir(dir.path())
         .expect("dir")
         .filter_map(Result::ok)

@@ -43,9 +43,9 @@ impl PackedVolume {
     /// table of `tf_len` entries.
     pub fn new(texture: &VolumeTexture, layout: PackedLayout, tf_len: u32) -> PackedVolume {
         PackedVolume {
-            texel: texture.dims.map(|d| 1.0 / d as f32),
-            reference_step: texture.min_spacing(),
-            volume_dims: texture.dims.map(|d| d as f32),
+            texel: texture.geometry.dims.map(|d| 1.0 / d as f32),
+            reference_step: texture.geometry.min_spacing_f32(),
+            volume_dims: texture.geometry.dims.map(|d| d as f32),
             value_scale: texture.value_scale,
             atlas_size: layout.atlas_dims.map(|d| d.max(1) as f32),
             value_offset: texture.value_offset,

@@ -109,8 +109,9 @@ pub struct VolumePlacement {
 impl VolumePlacement {
     /// The placement of a volume stored as `texture`.
     pub fn of(texture: &VolumeTexture) -> VolumePlacement {
-        let extent = texture.extent_mm();
-        let column = |i: usize| Vec3::from(texture.direction[i]) * extent[i];
+        let extent = texture.geometry.extent_mm_f32();
+        let direction = texture.geometry.direction_f32();
+        let column = |i: usize| Vec3::from(direction[i]) * extent[i];
         VolumePlacement {
             model_from_texture: Mat3::from_cols(column(0), column(1), column(2)),
         }
@@ -154,7 +155,7 @@ impl RaycastParams {
         let basis = request.camera.basis(radius);
         let light = LIGHT_IN_VIEW.x * basis.right + LIGHT_IN_VIEW.y * basis.up
             - LIGHT_IN_VIEW.z * basis.forward;
-        let min_spacing = texture.min_spacing();
+        let min_spacing = texture.geometry.min_spacing_f32();
         let step = request.step_voxels * min_spacing;
         let max_steps = (2.0 * radius / step).ceil() as u32 + 2;
         let mut flags = FLAG_JITTER;
@@ -365,9 +366,10 @@ mod tests {
     #[test]
     fn texture_from_model_undoes_the_placement() {
         let texture = VolumeTexture {
-            dims: [10, 20, 5],
-            spacing: [1.0, 0.5, 2.0],
-            direction: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
+            geometry: blocks::Geometry {
+                direction: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
+                ..blocks::Geometry::new([10, 20, 5], [1.0, 0.5, 2.0])
+            },
             format: crate::volume_texture::TexelFormat::R8Unorm,
             voxel_type: blocks::VoxelType::U8,
             value_map: blocks::ValueMap::IDENTITY,

@@ -292,7 +292,7 @@ impl Renderer {
             VolumeDescription::of_store(store.meta(), store.voxel_type()),
             gpu.device.features(),
         );
-        let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+        let full_voxels = store.meta().geometry.voxel_count();
         let pipeline = MarchPipeline::new(&gpu, Stage::Raycast)?;
         let frame = FrameResources::new(&gpu)?;
         Ok(Renderer {

@@ -354,7 +354,7 @@ pub fn select_levels(
     budget_voxels: u64,
     device: DeviceBudget,
 ) -> Result<(LodSelection, Packing), GpuError> {
-    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full_voxels = store.meta().geometry.voxel_count();
     // The selection under `budget` and its packing, if that fits the device.
     let attempt = |budget: u64| {
         let selection = lod::select(

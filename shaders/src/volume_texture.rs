@@ -16,7 +16,7 @@
 use std::borrow::Cow;
 
 use blocks::store::StoreMeta;
-use blocks::{ValueMap, Volume, VoxelData, VoxelType};
+use blocks::{Geometry, ValueMap, Volume, VoxelData, VoxelType};
 
 use crate::{GpuContext, GpuError};
 
@@ -63,12 +63,8 @@ impl TexelFormat {
 /// describe themselves this way.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VolumeDescription {
-    /// Level-0 voxels along x, y, z.
-    pub dims: [u32; 3],
-    /// Voxel spacing along x, y, z (mm).
-    pub spacing: [f32; 3],
-    /// Unit vectors of the index axes in patient space.
-    pub direction: [[f32; 3]; 3],
+    /// Level 0's dimensions, spacing, origin and direction.
+    pub geometry: Geometry,
     /// Stored voxel type.
     pub voxel_type: VoxelType,
     /// Stored → physical values.
@@ -81,9 +77,7 @@ impl VolumeDescription {
     /// An in-memory volume's description.
     pub fn of_volume(v: &Volume) -> VolumeDescription {
         VolumeDescription {
-            dims: v.dims,
-            spacing: v.spacing,
-            direction: v.direction,
+            geometry: v.geometry,
             voxel_type: v.voxel_type(),
             value_map: v.value_map,
             value_range: v.value_range,
@@ -93,9 +87,7 @@ impl VolumeDescription {
     /// A store's description (level 0).
     pub fn of_store(m: &StoreMeta, voxel_type: VoxelType) -> VolumeDescription {
         VolumeDescription {
-            dims: m.dims,
-            spacing: m.spacing.map(|s| s as f32),
-            direction: m.direction.map(|c| c.map(|x| x as f32)),
+            geometry: m.geometry,
             voxel_type,
             value_map: m.value_map,
             value_range: m.value_range().map(|v| v as f32),
@@ -106,12 +98,9 @@ impl VolumeDescription {
 /// The texel format of a volume and how its texels map to the transfer function.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VolumeTexture {
-    /// Level-0 voxels along x, y, z.
-    pub dims: [u32; 3],
-    /// Voxel spacing along x, y, z (mm).
-    pub spacing: [f32; 3],
-    /// Unit vectors of the index axes in patient space (direction matrix columns).
-    pub direction: [[f32; 3]; 3],
+    /// Level 0's dimensions, spacing, origin and direction; the GPU's `f32`
+    /// values come from its `*_f32` methods.
+    pub geometry: Geometry,
     /// Storage format.
     pub format: TexelFormat,
     /// Stored voxel type.
@@ -152,9 +141,7 @@ impl VolumeTexture {
             }
         };
         VolumeTexture {
-            dims: v.dims,
-            spacing: v.spacing,
-            direction: v.direction,
+            geometry: v.geometry,
             format,
             voxel_type: v.voxel_type,
             value_map: v.value_map,
@@ -204,16 +191,6 @@ impl VolumeTexture {
                 .to_vec()
                 .into(),
         }
-    }
-
-    /// The box the texture fills in model space (mm): `dims * spacing`.
-    pub fn extent_mm(&self) -> [f32; 3] {
-        std::array::from_fn(|i| self.dims[i] as f32 * self.spacing[i])
-    }
-
-    /// The smallest voxel spacing (mm).
-    pub fn min_spacing(&self) -> f32 {
-        self.spacing.iter().copied().fold(f32::INFINITY, f32::min)
     }
 
     /// Texels as half floats holding the transfer-function coordinate.
@@ -343,10 +320,11 @@ impl GpuVolume {
     /// Creates the texture and writes the volume into it slab by slab.
     pub fn upload(gpu: &GpuContext, volume: &Volume) -> Result<GpuVolume, GpuError> {
         let desc = VolumeTexture::for_volume(volume, gpu.device.features());
-        let texture = create_texture_3d(gpu, "volume", volume.dims, desc.format.wgpu())?;
-        let [nx, ny, nz] = volume.dims;
+        let dims = volume.geometry.dims;
+        let texture = create_texture_3d(gpu, "volume", dims, desc.format.wgpu())?;
+        let [nx, ny, nz] = dims;
         let bytes = desc.texel_bytes(&volume.voxels);
-        let slice_bytes = nx as usize * ny as usize * desc.format.size();
+        let slice_bytes = volume.geometry.slice_voxels() as usize * desc.format.size();
         let slab_slices = (UPLOAD_SLAB_BYTES / slice_bytes).max(1) as u32;
         gpu.scoped("uploading the volume", || {
             let mut z = 0;
@@ -385,8 +363,7 @@ mod tests {
     fn ct(voxels: Vec<u16>) -> Volume {
         Volume::new(
             "ct",
-            [voxels.len() as u32, 1, 1],
-            [1.0; 3],
+            Geometry::new([voxels.len() as u32, 1, 1], [1.0; 3]),
             VoxelData::U16(voxels),
             ValueMap {
                 slope: 1.0,

@@ -179,8 +179,7 @@ fn sphere_u8() -> Volume {
         .collect();
     Volume::new(
         "sphere",
-        [n, n, n],
-        [1.0, 1.0, 1.5],
+        blocks::Geometry::new([n, n, n], [1.0, 1.0, 1.5]),
         VoxelData::U8(voxels),
         blocks::ValueMap::IDENTITY,
     )

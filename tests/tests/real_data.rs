@@ -22,7 +22,7 @@ struct Stats {
 }
 
 fn read_stats(source: &mut dyn VolumeSource) -> Stats {
-    let nz = source.info().dims[2];
+    let nz = source.info().geometry.dims[2];
     let mut s = Stats {
         min: f64::INFINITY,
         max: f64::NEG_INFINITY,
@@ -59,13 +59,13 @@ fn check(
 ) -> VolumeInfo {
     let info = source.info().clone();
     let name = info.name();
-    assert_eq!(info.dims, dims, "{name}: dims");
+    assert_eq!(info.geometry.dims, dims, "{name}: dims");
     assert_eq!(info.voxel_type, voxel_type, "{name}: voxel type");
-    for (got, want) in info.spacing.iter().zip(spacing) {
+    for (got, want) in info.geometry.spacing.iter().zip(spacing) {
         assert!(
             (got - want).abs() < 1e-4,
             "{name}: spacing {:?}, expected {spacing:?}",
-            info.spacing
+            info.geometry.spacing
         );
     }
     let stats = read_stats(source);
@@ -218,15 +218,16 @@ fn nrrd_metaimage_and_nifti_files_load_with_geometry() {
         (0.0, 255.0, 61_489_178.0),
     );
     // RPS: y runs anterior and z inferior in LPS; the volume spans y 0..360 and z 0..332.5.
-    let d = info.direction;
+    let d = info.geometry.direction;
     assert!(
         (d[1][1] + 1.0).abs() < 1e-9 && (d[2][2] + 1.0).abs() < 1e-9,
         "{d:?}"
     );
     assert!(
-        (info.origin[1] - 360.0).abs() < 1e-6 && (info.origin[2] - 332.5).abs() < 1e-6,
+        (info.geometry.origin[1] - 360.0).abs() < 1e-6
+            && (info.geometry.origin[2] - 332.5).abs() < 1e-6,
         "{:?}",
-        info.origin
+        info.geometry.origin
     );
 
     let mut seg = open(&data.join("nifti/seg3D_MR.nii.gz"), &none);
@@ -243,8 +244,11 @@ fn nrrd_metaimage_and_nifti_files_load_with_geometry() {
         info.value_map
     );
     // sform in RAS → LPS: x flips, so its direction is −x; origin as nibabel's affine, negated in x and y.
-    assert_eq!(info.direction[0], [-1.0, -0.0, 0.0]);
-    assert!((info.origin[0] - 388.26001).abs() < 1e-4 && (info.origin[1] - 81.119957).abs() < 1e-4);
+    assert_eq!(info.geometry.direction[0], [-1.0, -0.0, 0.0]);
+    assert!(
+        (info.geometry.origin[0] - 388.26001).abs() < 1e-4
+            && (info.geometry.origin[1] - 81.119957).abs() < 1e-4
+    );
 
     let mut stroke = open(&data.join("nifti/stroke_T1.nii.gz"), &none);
     let info = check(
@@ -256,7 +260,7 @@ fn nrrd_metaimage_and_nifti_files_load_with_geometry() {
     );
     // An oblique sform: the directions stay orthonormal.
     let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let d = info.direction;
+    let d = info.geometry.direction;
     for (i, j) in [(0, 1), (0, 2), (1, 2)] {
         assert!(
             dot(d[i], d[j]).abs() < 1e-5,
@@ -265,9 +269,9 @@ fn nrrd_metaimage_and_nifti_files_load_with_geometry() {
     }
     assert!((d[0][0] + 0.993592).abs() < 1e-5, "{d:?}");
     assert!(
-        (info.origin[2] + 27.925539).abs() < 1e-4,
+        (info.geometry.origin[2] + 27.925539).abs() < 1e-4,
         "{:?}",
-        info.origin
+        info.geometry.origin
     );
 }
 
@@ -292,8 +296,11 @@ fn the_vhf_head_ct_series_loads_in_hounsfield_units() {
         (1.0, -1024.0)
     );
     // 234 slices 1 mm apart from z = 1500 mm, axial.
-    assert_eq!(info.origin, [0.0, 0.0, 1500.0]);
-    assert_eq!(info.direction, ingest::IDENTITY);
+    assert_eq!(info.geometry.origin, [0.0, 0.0, 1500.0]);
+    assert_eq!(
+        info.geometry.direction,
+        blocks::geometry::IDENTITY_DIRECTION
+    );
     let volume = ingest::load(source.as_mut()).expect("load");
     let hu = |x: u32, y: u32, z: u32| volume.physical_at(x, y, z);
     // Air in the corners of every slice is near −1000 HU.

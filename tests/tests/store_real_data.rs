@@ -48,8 +48,8 @@ fn volume_and_store(path: &Path, spacing: [f64; 3], dir: &Path) -> (Volume, Stor
 /// Level `level` of `v` by direct box averaging (rounded half away from zero).
 fn box_averages(v: &Volume, level: usize) -> Vec<f64> {
     let f = 1u32 << level;
-    let [nx, ny, nz] = v.dims;
-    let [lx, ly, lz] = level_dims(v.dims, level);
+    let [nx, ny, nz] = v.geometry.dims;
+    let [lx, ly, lz] = level_dims(v.geometry.dims, level);
     let mut out = Vec::with_capacity((lx * ly * lz) as usize);
     for z in 0..lz {
         for y in 0..ly {
@@ -80,7 +80,7 @@ fn assert_round_trip(volume: &Volume, store: &Store) {
         } else {
             box_averages(volume, level)
         };
-        let ld = level_dims(volume.dims, level);
+        let ld = level_dims(volume.geometry.dims, level);
         let edge = BLOCK >> level;
         let grid = store.meta().blocks;
         for bz in 0..grid[2] {
@@ -110,7 +110,7 @@ fn assert_round_trip(volume: &Volume, store: &Store) {
 /// Budgets for 9:1 and 35:1 and a sweep: within budget, monotone, no empty block stored.
 fn check_selection(name: &str, store: &Store, tf: &TransferFunction) {
     let meta = store.meta();
-    let full: u64 = meta.dims.iter().map(|&d| u64::from(d)).product();
+    let full = meta.geometry.voxel_count();
     let mut previous: Option<lod::LodSelection> = None;
     for ratio in [200.0, 35.0, 20.0, 9.0, 4.0, 1.0] {
         let budget = (full as f64 / ratio) as u64;
@@ -193,7 +193,7 @@ fn the_ct_head_round_trips_and_selects_levels() {
         dir.path(),
     );
     assert_round_trip(&volume, &store);
-    assert_eq!(store.meta().spacing, [1.0, 1.0, 2.0]);
+    assert_eq!(store.meta().geometry.spacing, [1.0, 1.0, 2.0]);
     // Skin around 600 raw units, bone above 1200.
     let tf = TransferFunction::new(vec![
         TfPoint::new(500.0, [0.9, 0.6, 0.5], 0.0),

@@ -93,7 +93,7 @@ print(json.dumps(out))
             }
         }
         assert_eq!(l["sum"], sum, "level {level}");
-        let spacing = f64::from(phantom.spacing[0]) * f64::from(1u32 << level);
+        let spacing = phantom.geometry.spacing[0] * f64::from(1u32 << level);
         assert!(
             (l["scale"][0].as_f64().unwrap_or(0.0) - spacing).abs() < 1e-9,
             "level {level} scale"

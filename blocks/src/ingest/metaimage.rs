@@ -15,8 +15,9 @@ use std::path::{Path, PathBuf};
 
 use super::header::{boolean, field, numbers, read_text_header, three};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
-use super::{Format, VolumeInfo, check_dims, check_spacing};
-use crate::{Error, ValueMap, VoxelType};
+use super::{Format, VolumeInfo, check_dims};
+use crate::geometry::GeometryFields;
+use crate::{Error, Geometry, ValueMap, VoxelType};
 
 fn sample_type(name: &str) -> Option<SampleType> {
     let t = match name {
@@ -44,8 +45,8 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let data_file = fields.require("ElementDataFile")?;
     let samples = Samples::read(&fields)?;
     let mut notes = Vec::new();
-    let geometry = Geometry::read(&fields, samples.ndims, &mut notes)?;
     let dims = check_dims(path, "DimSize", samples.sizes, samples.sample.size() as u64)?;
+    let geometry = read_geometry(&fields, samples.ndims, dims, &mut notes)?;
     let encoding = Encoding::read(&fields)?;
     let (data_path, file_offset) = data_location(
         &fields,
@@ -58,11 +59,8 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let info = VolumeInfo {
         path: path.to_owned(),
         format: Format::MetaImage,
-        dims,
+        geometry,
         voxel_type: samples.sample.voxel_type(),
-        spacing: geometry.spacing,
-        origin: geometry.origin,
-        direction: geometry.direction,
         value_map: ValueMap::IDENTITY,
         unit: None,
         modality: fields
@@ -191,69 +189,64 @@ impl Samples {
     }
 }
 
-/// Where the voxels sit in the physical frame (LPS, as ITK writes it).
-struct Geometry {
-    spacing: [f64; 3],
-    origin: [f64; 3],
-    direction: [[f64; 3]; 3],
-}
+/// The header fields each part of the geometry comes from.
+const GEOMETRY_FIELDS: GeometryFields = GeometryFields {
+    dims: "DimSize",
+    spacing: "ElementSpacing",
+    origin: "Offset",
+    direction: "TransformMatrix",
+};
 
-impl Geometry {
-    /// Reads `ElementSpacing`, `Offset` and `TransformMatrix` (or their
-    /// synonyms); a 2D image gets a unit z axis. Assumptions go to `notes`.
-    fn read(fields: &Fields<'_>, ndims: usize, notes: &mut Vec<String>) -> Result<Geometry, Error> {
-        let path = fields.path;
-        let mut spacing: Vec<f64> = match fields.first(&["ElementSpacing", "ElementSize"]) {
-            Some((name, text)) => numbers(path, name, text, ndims)?,
-            None => {
-                notes.push("no ElementSpacing: assumed 1 mm".to_owned());
-                vec![1.0; ndims]
-            }
-        };
-        let mut origin: Vec<f64> = match fields.first(&["Offset", "Origin", "Position"]) {
-            Some((name, text)) => numbers(path, name, text, ndims)?,
-            None => vec![0.0; ndims],
-        };
-        let mut matrix: Vec<f64> =
-            match fields.first(&["TransformMatrix", "Rotation", "Orientation"]) {
-                Some((name, text)) => numbers(path, name, text, ndims * ndims)?,
-                None => (0..ndims * ndims)
-                    .map(|i| if i % (ndims + 1) == 0 { 1.0 } else { 0.0 })
-                    .collect(),
-            };
-        if ndims == 2 {
-            spacing.push(1.0);
-            origin.push(0.0);
-            matrix = vec![
-                matrix[0], matrix[1], 0.0, matrix[2], matrix[3], 0.0, 0.0, 0.0, 1.0,
-            ];
+/// Reads `ElementSpacing`, `Offset` and `TransformMatrix` (or their synonyms)
+/// for a volume of `dims`, in the physical frame (LPS, as ITK writes it); a 2D
+/// image gets a unit z axis. Assumptions go to `notes`.
+fn read_geometry(
+    fields: &Fields<'_>,
+    ndims: usize,
+    dims: [u32; 3],
+    notes: &mut Vec<String>,
+) -> Result<Geometry, Error> {
+    let path = fields.path;
+    let mut spacing: Vec<f64> = match fields.first(&["ElementSpacing", "ElementSize"]) {
+        Some((name, text)) => numbers(path, name, text, ndims)?,
+        None => {
+            notes.push("no ElementSpacing: assumed 1 mm".to_owned());
+            vec![1.0; ndims]
         }
-        let spacing = three(&spacing);
-        check_spacing(path, "ElementSpacing", spacing)?;
-        if !origin.iter().chain(&matrix).all(|v| v.is_finite()) {
-            return Err(field(
-                path,
-                "Offset or TransformMatrix",
-                "expected finite numbers",
-            ));
-        }
-        let direction = [
+    };
+    let mut origin: Vec<f64> = match fields.first(&["Offset", "Origin", "Position"]) {
+        Some((name, text)) => numbers(path, name, text, ndims)?,
+        None => vec![0.0; ndims],
+    };
+    let mut matrix: Vec<f64> = match fields.first(&["TransformMatrix", "Rotation", "Orientation"]) {
+        Some((name, text)) => numbers(path, name, text, ndims * ndims)?,
+        None => (0..ndims * ndims)
+            .map(|i| if i % (ndims + 1) == 0 { 1.0 } else { 0.0 })
+            .collect(),
+    };
+    if ndims == 2 {
+        spacing.push(1.0);
+        origin.push(0.0);
+        matrix = vec![
+            matrix[0], matrix[1], 0.0, matrix[2], matrix[3], 0.0, 0.0, 0.0, 1.0,
+        ];
+    }
+    if let Some(orientation) = fields.get("AnatomicalOrientation") {
+        notes.push(format!(
+            "AnatomicalOrientation {orientation} (geometry from TransformMatrix)"
+        ));
+    }
+    Geometry {
+        dims,
+        spacing: three(&spacing),
+        origin: three(&origin),
+        direction: [
             [matrix[0], matrix[1], matrix[2]],
             [matrix[3], matrix[4], matrix[5]],
             [matrix[6], matrix[7], matrix[8]],
-        ];
-        super::check_direction(path, "TransformMatrix", direction)?;
-        if let Some(orientation) = fields.get("AnatomicalOrientation") {
-            notes.push(format!(
-                "AnatomicalOrientation {orientation} (geometry from TransformMatrix)"
-            ));
-        }
-        Ok(Geometry {
-            spacing,
-            origin: three(&origin),
-            direction,
-        })
+        ],
     }
+    .checked(path, &GEOMETRY_FIELDS)
 }
 
 /// How the voxel bytes are stored: byte order and zlib compression; text data

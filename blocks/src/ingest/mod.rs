@@ -1,14 +1,13 @@
 //! Reading volumes from the files scanners and tools write: raw, NRRD, NIfTI-1,
 //! MetaImage and DICOM series.
 //!
-//! Every reader is a [`VolumeSource`]: a [`VolumeInfo`] (dimensions, voxel type,
-//! physical geometry in patient LPS, value map, modality) and slab reads — a range
-//! of z-slices at a time — so a volume far larger than memory flows through in
+//! Every reader is a [`VolumeSource`]: a [`VolumeInfo`] (a [`Geometry`] in
+//! patient LPS, voxel type, value map, modality) and slab reads — a range of
+//! z-slices at a time — so a volume far larger than memory flows through in
 //! bounded memory. [`open`] picks the reader from the path.
 //!
-//! Geometry: `origin` is the LPS position (mm) of voxel (0, 0, 0)'s centre;
-//! `direction` holds the unit vectors of the index axes x, y, z in LPS; a voxel
-//! (i, j, k) sits at `origin + i·spacing₀·d₀ + j·spacing₁·d₁ + k·spacing₂·d₂`.
+//! Geometry: every reader hands its [`Geometry`] through
+//! [`Geometry::checked`], naming the header fields each part came from.
 //! Formats that work in RAS (NIfTI, NRRD with a RAS space) are converted.
 //!
 //! Headers never decide an allocation on their own: dimensions are checked
@@ -33,7 +32,7 @@ pub mod stream;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use crate::{Error, ValueMap, Volume, VoxelData, VoxelType};
+use crate::{Error, Geometry, ValueMap, Volume, VoxelData, VoxelType};
 
 /// The largest slice accepted, in bytes: a slab holds at least one slice, so this
 /// bounds the memory a read can need.
@@ -77,16 +76,10 @@ pub struct VolumeInfo {
     pub path: PathBuf,
     /// The format.
     pub format: Format,
-    /// Voxels along x, y, z.
-    pub dims: [u32; 3],
+    /// Dimensions, spacing, origin and direction in LPS.
+    pub geometry: Geometry,
     /// The type slabs are delivered in.
     pub voxel_type: VoxelType,
-    /// Voxel spacing along the index axes, mm.
-    pub spacing: [f64; 3],
-    /// LPS position of voxel (0, 0, 0)'s centre, mm.
-    pub origin: [f64; 3],
-    /// Unit vectors of the index axes in LPS (columns of the direction matrix).
-    pub direction: [[f64; 3]; 3],
     /// Stored → physical values.
     pub value_map: ValueMap,
     /// The unit of physical values, when known (e.g. `HU`).
@@ -102,12 +95,12 @@ pub struct VolumeInfo {
 impl VolumeInfo {
     /// Bytes in one z-slice.
     pub fn slice_bytes(&self) -> u64 {
-        u64::from(self.dims[0]) * u64::from(self.dims[1]) * self.voxel_type.size() as u64
+        self.geometry.slice_voxels() * self.voxel_type.size() as u64
     }
 
     /// Bytes in the whole volume.
     pub fn total_bytes(&self) -> u64 {
-        self.slice_bytes() * u64::from(self.dims[2])
+        self.geometry.voxel_count() * self.voxel_type.size() as u64
     }
 
     /// A short name for listings: the file or folder name.
@@ -207,7 +200,7 @@ pub fn open(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>,
 
 /// Checks that slices `z0 .. z0 + depth` are a non-empty range within the volume.
 pub fn check_slab(info: &VolumeInfo, z0: u32, depth: u32) -> Result<(), Error> {
-    let nz = info.dims[2];
+    let nz = info.geometry.dims[2];
     if depth == 0 || z0.checked_add(depth).is_none_or(|end| end > nz) {
         return Err(Error::Field {
             path: info.path.clone(),
@@ -266,7 +259,9 @@ pub fn check_dims(
 /// The number of slices per slab that keeps a slab near [`SLAB_BYTES`] (at least 1).
 pub fn slab_depth(info: &VolumeInfo) -> u32 {
     let depth = (SLAB_BYTES / info.slice_bytes().max(1)).max(1);
-    u32::try_from(depth).unwrap_or(u32::MAX).min(info.dims[2])
+    u32::try_from(depth)
+        .unwrap_or(u32::MAX)
+        .min(info.geometry.dims[2])
 }
 
 /// Statistics of a whole volume, gathered slab by slab.
@@ -292,9 +287,10 @@ pub fn scan(
     let depth = slab_depth(&info);
     let (mut lo, mut hi, mut sum, mut count, mut nans) =
         (f64::INFINITY, f64::NEG_INFINITY, 0.0, 0u64, 0u64);
+    let nz = info.geometry.dims[2];
     let mut z = 0;
-    while z < info.dims[2] {
-        let d = depth.min(info.dims[2] - z);
+    while z < nz {
+        let d = depth.min(nz - z);
         let slab = source.read_slab(z, d)?;
         crate::volume::with_voxels!(&slab, v => {
             for &x in v {
@@ -331,16 +327,12 @@ pub struct MemorySource {
 impl MemorySource {
     /// A source over `volume`, named `name` in listings.
     pub fn new(volume: std::sync::Arc<Volume>, name: &str) -> MemorySource {
-        let f64s = |v: [f32; 3]| v.map(f64::from);
         MemorySource {
             info: VolumeInfo {
                 path: PathBuf::from(name),
                 format: Format::Raw,
-                dims: volume.dims,
+                geometry: volume.geometry,
                 voxel_type: volume.voxel_type(),
-                spacing: f64s(volume.spacing),
-                origin: f64s(volume.origin),
-                direction: volume.direction.map(f64s),
                 value_map: volume.value_map,
                 unit: volume.unit.clone(),
                 modality: volume.modality.clone(),
@@ -359,8 +351,7 @@ impl VolumeSource for MemorySource {
 
     fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
         check_slab(&self.info, z0, depth)?;
-        let [nx, ny, _] = self.info.dims;
-        let slice = nx as usize * ny as usize;
+        let slice = self.info.geometry.slice_voxels() as usize;
         Ok(self
             .volume
             .voxels
@@ -387,72 +378,17 @@ pub fn load(source: &mut dyn VolumeSource) -> Result<Volume, Error> {
     }
     let depth = slab_depth(&info);
     let mut voxels = VoxelData::zeros(info.voxel_type, 0);
+    let nz = info.geometry.dims[2];
     let mut z = 0;
-    while z < info.dims[2] {
-        let d = depth.min(info.dims[2] - z);
+    while z < nz {
+        let d = depth.min(nz - z);
         voxels.append(source.read_slab(z, d)?)?;
         z += d;
     }
-    let spacing = info.spacing.map(|s| s as f32);
-    let mut volume = Volume::new(info.name(), info.dims, spacing, voxels, info.value_map)?;
-    volume.origin = info.origin.map(|o| o as f32);
-    volume.direction = info.direction.map(|c| c.map(|x| x as f32));
+    let mut volume = Volume::new(info.name(), info.geometry, voxels, info.value_map)?;
     volume.unit = info.unit.clone();
     volume.modality = info.modality.clone();
     Ok(volume)
-}
-
-/// The identity direction matrix.
-pub const IDENTITY: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-
-/// Splits the columns of an affine's 3×3 part into spacings (their lengths) and
-/// unit directions. A zero column is refused by the caller's checks.
-pub fn spacing_and_direction(columns: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
-    let norm = |c: [f64; 3]| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
-    let spacing = columns.map(norm);
-    let mut direction = columns;
-    for (d, s) in direction.iter_mut().zip(spacing) {
-        if s > 0.0 {
-            *d = d.map(|x| x / s);
-        }
-    }
-    (spacing, direction)
-}
-
-/// Checks that the index axes' directions are finite and span space (no two
-/// parallel), naming the field: a flat direction matrix cannot place voxels.
-pub fn check_direction(path: &Path, field: &str, d: [[f64; 3]; 3]) -> Result<(), Error> {
-    let det = determinant(d);
-    if det.is_finite() && det.abs() > 1e-6 {
-        Ok(())
-    } else {
-        Err(Error::Field {
-            path: path.to_owned(),
-            field: field.to_owned(),
-            message: format!("axes {d:?}: expected three independent directions"),
-        })
-    }
-}
-
-/// The determinant of the matrix whose columns are `d`: zero when two columns
-/// are parallel.
-pub(crate) fn determinant(d: [[f64; 3]; 3]) -> f64 {
-    d[0][0] * (d[1][1] * d[2][2] - d[1][2] * d[2][1])
-        - d[1][0] * (d[0][1] * d[2][2] - d[0][2] * d[2][1])
-        + d[2][0] * (d[0][1] * d[1][2] - d[0][2] * d[1][1])
-}
-
-/// Checks that spacings are finite and positive, naming the field.
-pub fn check_spacing(path: &Path, field: &str, spacing: [f64; 3]) -> Result<(), Error> {
-    if spacing.iter().all(|s| s.is_finite() && *s > 0.0) {
-        Ok(())
-    } else {
-        Err(Error::Field {
-            path: path.to_owned(),
-            field: field.to_owned(),
-            message: format!("{spacing:?}: expected finite positive spacings (mm)"),
-        })
-    }
 }
 
 #[cfg(test)]
@@ -478,12 +414,5 @@ mod tests {
             check_dims(p, "sizes", [256, 256, 128], 2).expect("fine"),
             [256, 256, 128]
         );
-    }
-
-    #[test]
-    fn spacing_and_direction_split_affine_columns() {
-        let (s, d) = spacing_and_direction([[-2.0, 0.0, 0.0], [0.0, 0.0, 3.0], [0.0, 0.5, 0.0]]);
-        assert_eq!(s, [2.0, 3.0, 0.5]);
-        assert_eq!(d, [[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]);
     }
 }

@@ -15,8 +15,9 @@ use flate2::bufread::MultiGzDecoder;
 
 use super::header::{field, open_file};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource};
-use super::{Format, VolumeInfo, check_dims, check_spacing, spacing_and_direction};
-use crate::{Error, ValueMap, VoxelType};
+use super::{Format, VolumeInfo, check_dims};
+use crate::geometry::{GeometryFields, spacing_and_direction};
+use crate::{Error, Geometry, ValueMap, VoxelType};
 
 /// The size of a NIfTI-1 header plus the 4-byte extension flag: the smallest
 /// valid `vox_offset` of a single-file dataset.
@@ -61,7 +62,7 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let (h, gz) = read_header(path)?;
     let shape = Shape::read(path, &h)?;
     let mut notes = Vec::new();
-    let geometry = Geometry::read(path, &h, shape.rank, &mut notes)?;
+    let geometry = read_geometry(path, &h, &shape, &mut notes)?;
     let data = DataLocation::read(path, &h, gz, &mut notes)?;
     let description = String::from_utf8_lossy(&h.descrip)
         .trim_matches(char::from(0))
@@ -70,11 +71,8 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let info = VolumeInfo {
         path: path.to_owned(),
         format: Format::Nifti,
-        dims: shape.dims,
+        geometry,
         voxel_type: shape.sample.voxel_type(),
-        spacing: geometry.spacing,
-        origin: geometry.origin,
-        direction: geometry.direction,
         value_map: value_map(&h),
         unit: None,
         modality: None,
@@ -174,40 +172,35 @@ impl Shape {
     }
 }
 
-/// Where the voxels sit in LPS, in mm.
-struct Geometry {
-    spacing: [f64; 3],
-    origin: [f64; 3],
-    direction: [[f64; 3]; 3],
-}
-
-impl Geometry {
-    /// The geometry of the header's affine (see [`affine_ras`]), converted from
-    /// RAS in the header's unit to LPS in mm, and checked.
-    fn read(
-        path: &Path,
-        h: &nifti::NiftiHeader,
-        rank: usize,
-        notes: &mut Vec<String>,
-    ) -> Result<Geometry, Error> {
-        let unit_to_mm = unit_to_mm(h, notes);
-        let (columns, origin_ras) = affine_ras(h, rank, notes);
-        // RAS → LPS: negate x and y; then units → mm.
-        let to_lps = |v: [f64; 3]| [-v[0] * unit_to_mm, -v[1] * unit_to_mm, v[2] * unit_to_mm];
-        let (spacing, direction) = spacing_and_direction(columns.map(to_lps));
-        let geometry_field = if h.sform_code > 0 { "srow" } else { "pixdim" };
-        check_spacing(path, geometry_field, spacing)?;
-        super::check_direction(path, geometry_field, direction)?;
-        let origin = to_lps(origin_ras);
-        if !origin.iter().all(|o| o.is_finite()) {
-            return Err(field(path, "qoffset or srow", "expected a finite origin"));
-        }
-        Ok(Geometry {
-            spacing,
-            origin,
-            direction,
-        })
+/// The geometry of the header's affine (see [`affine_ras`]) for a volume of
+/// `shape`, converted from RAS in the header's unit to LPS in mm, and checked.
+fn read_geometry(
+    path: &Path,
+    h: &nifti::NiftiHeader,
+    shape: &Shape,
+    notes: &mut Vec<String>,
+) -> Result<Geometry, Error> {
+    let unit_to_mm = unit_to_mm(h, notes);
+    let (columns, origin_ras) = affine_ras(h, shape.rank, notes);
+    // RAS → LPS: negate x and y; then units → mm.
+    let to_lps = |v: [f64; 3]| [-v[0] * unit_to_mm, -v[1] * unit_to_mm, v[2] * unit_to_mm];
+    let (spacing, direction) = spacing_and_direction(columns.map(to_lps));
+    let affine_field = if h.sform_code > 0 { "srow" } else { "pixdim" };
+    Geometry {
+        dims: shape.dims,
+        spacing,
+        origin: to_lps(origin_ras),
+        direction,
     }
+    .checked(
+        path,
+        &GeometryFields {
+            dims: "dim",
+            spacing: affine_field,
+            origin: "qoffset or srow",
+            direction: affine_field,
+        },
+    )
 }
 
 /// Millimetres per spatial unit of `xyzt_units` (mm, with a note, when unset).
@@ -392,7 +385,10 @@ mod tests {
 
     #[test]
     fn the_identity_quaternion_is_no_rotation_and_a_half_turn_flips_two_axes() {
-        assert_eq!(quaternion_rotation(0.0, 0.0, 0.0), super::super::IDENTITY);
+        assert_eq!(
+            quaternion_rotation(0.0, 0.0, 0.0),
+            crate::geometry::IDENTITY_DIRECTION
+        );
         // b = 1: 180° about x.
         assert_eq!(
             quaternion_rotation(1.0, 0.0, 0.0),

@@ -10,8 +10,9 @@ use std::path::{Path, PathBuf};
 
 use super::header::{self, field, numbers, read_text_header, three, vector};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
-use super::{Format, VolumeInfo, check_dims, check_spacing, spacing_and_direction};
-use crate::{Error, ValueMap, VoxelType};
+use super::{Format, VolumeInfo, check_dims};
+use crate::geometry::{GeometryFields, IDENTITY_DIRECTION, spacing_and_direction};
+use crate::{Error, Geometry, ValueMap, VoxelType};
 
 /// The NRRD type names and synonyms for each sample type.
 fn sample_type(name: &str) -> Option<SampleType> {
@@ -62,18 +63,15 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let fields = Fields::read(path, &head.lines)?;
     let samples = Samples::read(&fields)?;
     let mut notes = Vec::new();
-    let geometry = Geometry::read(&fields, samples.dimension, &mut notes)?;
     let dims = check_dims(path, "sizes", samples.sizes, samples.sample.size() as u64)?;
+    let geometry = read_geometry(&fields, samples.dimension, dims, &mut notes)?;
     let (data_path, file_offset, skip) =
         data_location(&fields, head.len, samples.compression, dims, samples.sample)?;
     let info = VolumeInfo {
         path: path.to_owned(),
         format: Format::Nrrd,
-        dims,
+        geometry,
         voxel_type: samples.sample.voxel_type(),
-        spacing: geometry.spacing,
-        origin: geometry.origin,
-        direction: geometry.direction,
         value_map: ValueMap::IDENTITY,
         unit: None,
         modality: None,
@@ -215,50 +213,51 @@ impl Samples {
     }
 }
 
-/// Where the voxels sit in LPS.
-struct Geometry {
-    spacing: [f64; 3],
-    origin: [f64; 3],
-    direction: [[f64; 3]; 3],
-}
+/// The header fields each part of the geometry comes from.
+const GEOMETRY_FIELDS: GeometryFields = GeometryFields {
+    dims: "sizes",
+    spacing: "space directions or spacings",
+    origin: "space origin",
+    direction: "space directions",
+};
 
-impl Geometry {
-    /// Reads `space`, `space directions` (or `spacings`) and `space origin`,
-    /// converted to LPS; a 2D image gets a unit z axis. Assumptions go to `notes`.
-    fn read(
-        fields: &Fields<'_>,
-        dimension: usize,
-        notes: &mut Vec<String>,
-    ) -> Result<Geometry, Error> {
-        let path = fields.path;
-        let (signs, space_note) = match fields.get("space") {
-            Some(space) => space_to_lps(path, space)?,
-            None => ([1.0; 3], None),
-        };
-        notes.extend(space_note);
-        let (mut spacing, mut direction) = match fields.get("space directions") {
-            Some(dirs) => space_directions(path, dirs, dimension, signs)?,
-            None => (spacings(fields, dimension, notes)?, super::IDENTITY),
-        };
-        if dimension == 2 {
-            spacing[2] = 1.0;
-            direction[2] = [0.0, 0.0, 1.0];
-        }
-        check_spacing(path, "space directions or spacings", spacing)?;
-        super::check_direction(path, "space directions", direction)?;
-        let origin = match fields.get("space origin") {
-            Some(text) => {
-                let v = vector(path, "space origin", text, 3)?;
-                [v[0] * signs[0], v[1] * signs[1], v[2] * signs[2]]
-            }
-            None => [0.0; 3],
-        };
-        Ok(Geometry {
-            spacing,
-            origin,
-            direction,
-        })
+/// Reads `space`, `space directions` (or `spacings`) and `space origin`,
+/// converted to LPS, for a volume of `dims`; a 2D image gets a unit z axis.
+/// Assumptions go to `notes`.
+fn read_geometry(
+    fields: &Fields<'_>,
+    dimension: usize,
+    dims: [u32; 3],
+    notes: &mut Vec<String>,
+) -> Result<Geometry, Error> {
+    let path = fields.path;
+    let (signs, space_note) = match fields.get("space") {
+        Some(space) => space_to_lps(path, space)?,
+        None => ([1.0; 3], None),
+    };
+    notes.extend(space_note);
+    let (mut spacing, mut direction) = match fields.get("space directions") {
+        Some(dirs) => space_directions(path, dirs, dimension, signs)?,
+        None => (spacings(fields, dimension, notes)?, IDENTITY_DIRECTION),
+    };
+    if dimension == 2 {
+        spacing[2] = 1.0;
+        direction[2] = [0.0, 0.0, 1.0];
     }
+    let origin = match fields.get("space origin") {
+        Some(text) => {
+            let v = vector(path, "space origin", text, 3)?;
+            [v[0] * signs[0], v[1] * signs[1], v[2] * signs[2]]
+        }
+        None => [0.0; 3],
+    };
+    Geometry {
+        dims,
+        spacing,
+        origin,
+        direction,
+    }
+    .checked(path, &GEOMETRY_FIELDS)
 }
 
 /// Spacings and unit directions from `space directions`, one vector per axis,

@@ -14,8 +14,9 @@ use std::path::Path;
 
 use super::header::field;
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource};
-use super::{Format, IDENTITY, VolumeInfo, check_dims, check_spacing, determinant};
-use crate::{Error, ValueMap, VoxelType};
+use super::{Format, VolumeInfo, check_dims};
+use crate::geometry::{GeometryFields, IDENTITY_DIRECTION, determinant};
+use crate::{Error, Geometry, ValueMap, VoxelType};
 
 /// The layout of a raw file, as given on the command line.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -31,7 +32,7 @@ pub struct RawOptions {
     /// Voxel spacing, mm.
     pub spacing: Option<[f64; 3]>,
     /// Unit vectors of the index axes x, y, z in patient LPS: the columns of
-    /// the direction matrix, as [`VolumeInfo::direction`] holds them. `None`
+    /// the direction matrix, as [`Geometry::direction`] holds them. `None`
     /// is the identity.
     pub direction: Option<[[f64; 3]; 3]>,
 }
@@ -113,21 +114,30 @@ pub fn open(path: &Path, options: &RawOptions) -> Result<StreamSource, Error> {
         notes.push("spacing not given: assumed 1 mm on every axis".to_owned());
         [1.0; 3]
     });
-    check_spacing(path, "spacing", spacing)?;
     let direction = match options.direction {
         Some(columns) => checked_direction(path, columns, &mut notes)?,
-        None => IDENTITY,
+        None => IDENTITY_DIRECTION,
     };
     let dims = check_dims(path, "dims", layout.dims, layout.sample.size() as u64)?;
+    let geometry = Geometry {
+        direction,
+        ..Geometry::new(dims, spacing)
+    }
+    .checked(
+        path,
+        &GeometryFields {
+            dims: "dims",
+            spacing: "spacing",
+            origin: "origin",
+            direction: "direction",
+        },
+    )?;
     check_size(path, options.offset, dims, layout.sample)?;
     let info = VolumeInfo {
         path: path.to_owned(),
         format: Format::Raw,
-        dims,
+        geometry,
         voxel_type: layout.sample.voxel_type(),
-        spacing,
-        origin: [0.0; 3],
-        direction,
         value_map: ValueMap::IDENTITY,
         unit: None,
         modality: None,
@@ -281,7 +291,7 @@ fn checked_direction(
 /// The identity direction with the axes `flip` chooses (x, y, z) reversed: for
 /// a volume stored, say, top to bottom (`[false, false, true]`).
 pub fn flip_axes(flip: [bool; 3]) -> [[f64; 3]; 3] {
-    let mut direction = IDENTITY;
+    let mut direction = IDENTITY_DIRECTION;
     for (column, flipped) in direction.iter_mut().zip(flip) {
         if flipped {
             *column = column.map(|c| -c);
@@ -370,7 +380,7 @@ mod tests {
 
     #[test]
     fn flip_axes_reverses_the_chosen_columns() {
-        assert_eq!(flip_axes([false; 3]), IDENTITY);
+        assert_eq!(flip_axes([false; 3]), IDENTITY_DIRECTION);
         assert_eq!(
             flip_axes([false, false, true]),
             [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]

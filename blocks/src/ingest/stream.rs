@@ -152,7 +152,7 @@ impl StreamSource {
                     format!(
                         "{:?} voxels of {} bytes need {needed} bytes, more than the {available}-byte \
                          {} stream can expand to: expected dimensions that match the data",
-                        info.dims,
+                        info.geometry.dims,
                         layout.sample.size(),
                         layout.compression.name()
                     ),
@@ -292,7 +292,7 @@ pub fn trailing_data_offset(
 
 /// Bytes of samples in the whole volume.
 fn sample_bytes(info: &VolumeInfo, layout: &StreamLayout) -> u64 {
-    volume_bytes(info.dims, layout.sample)
+    volume_bytes(info.geometry.dims, layout.sample)
 }
 
 /// Reads until `buf` is full or the stream ends; returns the bytes read.
@@ -316,8 +316,7 @@ impl VolumeSource for StreamSource {
 
     fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
         super::check_slab(&self.info, z0, depth)?;
-        let [nx, ny, _] = self.info.dims;
-        let slice = u64::from(nx) * u64::from(ny) * self.layout.sample.size() as u64;
+        let slice = self.info.geometry.slice_voxels() * self.layout.sample.size() as u64;
         let start = self.layout.skip + u64::from(z0) * slice;
         let len = usize::try_from(u64::from(depth) * slice).map_err(|_| {
             field(

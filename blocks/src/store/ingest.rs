@@ -227,19 +227,19 @@ fn write_store(
     let info = source.info().clone();
 
     // First pass: the stored-value range.
-    let nz = info.dims[2];
+    let nz = info.geometry.dims[2];
     let stats = ingest::scan(source, |z| progress(IngestProgress::Scanning(z, nz)))?;
     let range = stats.stored_range;
     let scan_seconds = start.elapsed().as_secs_f64();
     let arrays = level_arrays(storage, path, &info, options.zstd_level)?;
-    let grid = info.dims.map(|n| n.div_ceil(BLOCK));
+    let grid = info.geometry.dims.map(|n| n.div_ceil(BLOCK));
     let (min_max, histogram) = stats_arrays(storage, path, grid)?;
 
     let writer = SlabWriter {
         arrays: &arrays,
         min_max: &min_max,
         histogram: &histogram,
-        dims: info.dims,
+        dims: info.geometry.dims,
         voxel_type: info.voxel_type,
         path,
         last_row: grid[2] - 1,
@@ -251,7 +251,7 @@ fn write_store(
     store_root_metadata(storage, path, &info, range, grid)?;
 
     Ok(IngestSummary {
-        dims: info.dims,
+        dims: info.geometry.dims,
         voxel_type: info.voxel_type,
         source_bytes: info.total_bytes(),
         store_bytes: 0,
@@ -273,7 +273,7 @@ fn level_arrays(
     let (zarr_dtype, fill) = zarr_type(info.voxel_type);
     let mut arrays = Vec::with_capacity(LEVELS);
     for level in 0..LEVELS {
-        let [nx, ny, nz] = level_dims(info.dims, level).map(u64::from);
+        let [nx, ny, nz] = level_dims(info.geometry.dims, level).map(u64::from);
         let array = ArrayBuilder::new(
             vec![nz, ny, nx],
             vec![u64::from(SHARD); 3],
@@ -358,11 +358,8 @@ fn store_root_metadata(
         format_version: FORMAT_VERSION,
         complete: true,
         name: info.name(),
-        dims: info.dims,
+        geometry: info.geometry,
         voxel_type: info.voxel_type.name().to_owned(),
-        spacing: info.spacing,
-        origin: info.origin,
-        direction: info.direction,
         value_map: info.value_map,
         unit: info.unit.clone(),
         modality: info.modality.clone(),
@@ -582,9 +579,9 @@ fn ome_multiscales(meta: &StoreMeta) -> serde_json::Value {
     let datasets: Vec<serde_json::Value> = (0..LEVELS)
         .map(|level| {
             let factor = f64::from(1u32 << level);
-            let scale = [2, 1, 0].map(|a| meta.spacing[a] * factor);
-            let translation =
-                [2, 1, 0].map(|a| meta.origin[a] + (factor - 1.0) / 2.0 * meta.spacing[a]);
+            let g = &meta.geometry;
+            let scale = [2, 1, 0].map(|a| g.spacing[a] * factor);
+            let translation = [2, 1, 0].map(|a| g.origin[a] + (factor - 1.0) / 2.0 * g.spacing[a]);
             serde_json::json!({
                 "path": level.to_string(),
                 "coordinateTransformations": [

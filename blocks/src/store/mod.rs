@@ -49,7 +49,8 @@ pub use ingest::{IngestOptions, IngestProgress, IngestSummary, ingest, ingest_in
 pub use pyramid::{LEVELS, level_dims};
 pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
 
-use crate::{Error, ValueMap, VoxelData, VoxelType};
+use crate::geometry::GeometryFields;
+use crate::{Error, Geometry, ValueMap, VoxelData, VoxelType};
 
 /// The version of the `voxserve` metadata this code writes and reads.
 pub const FORMAT_VERSION: u32 = 1;
@@ -65,16 +66,13 @@ pub struct StoreMeta {
     pub complete: bool,
     /// Display name.
     pub name: String,
-    /// Level-0 voxels along x, y, z.
-    pub dims: [u32; 3],
+    /// Level 0's geometry in LPS, stored as the keys `dims`, `spacing`,
+    /// `origin` and `direction` of this record (the format stores have
+    /// always had).
+    #[serde(flatten)]
+    pub geometry: Geometry,
     /// Voxel type name (`uint16`, …).
     pub voxel_type: String,
-    /// Level-0 spacing, mm.
-    pub spacing: [f64; 3],
-    /// LPS position of voxel (0, 0, 0)'s centre, mm.
-    pub origin: [f64; 3],
-    /// Index axes' unit vectors in LPS.
-    pub direction: [[f64; 3]; 3],
     /// Stored → physical values.
     pub value_map: ValueMap,
     /// Unit of physical values.
@@ -114,6 +112,14 @@ impl StoreMeta {
         [a.min(b), a.max(b)]
     }
 }
+
+/// Where the root metadata keeps each part of the geometry.
+const META_GEOMETRY_FIELDS: GeometryFields = GeometryFields {
+    dims: "attributes.voxserve.dims",
+    spacing: "attributes.voxserve.spacing",
+    origin: "attributes.voxserve.origin",
+    direction: "attributes.voxserve.direction",
+};
 
 /// An open brick store: on disk, or in memory (the phantom, files rendered
 /// without an ingest).
@@ -203,6 +209,7 @@ impl Store {
         let voxel_type = meta
             .voxel_type()
             .map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
+        meta.geometry.checked(&root, &META_GEOMETRY_FIELDS)?;
         let mut levels = Vec::with_capacity(LEVELS);
         let mut shard_indexes = Vec::with_capacity(LEVELS);
         for level in 0..LEVELS {
@@ -245,7 +252,7 @@ impl Store {
 
     /// Inner chunks along x, y, z at `level`.
     pub fn chunk_grid(&self, level: usize) -> [u32; 3] {
-        level_dims(self.meta.dims, level).map(|n| n.div_ceil(BLOCK))
+        level_dims(self.meta.geometry.dims, level).map(|n| n.div_ceil(BLOCK))
     }
 
     /// The shard file that holds inner chunk `chunk` (x, y, z) of `level`.
@@ -298,9 +305,8 @@ impl Store {
     /// A whole level in memory as a [`Volume`](crate::Volume) (for data that fits;
     /// refused over [`crate::ingest::MAX_LOAD_BYTES`]).
     pub fn load_level(&self, level: usize) -> Result<crate::Volume, Error> {
-        let dims = level_dims(self.meta.dims, level.min(LEVELS - 1));
-        let bytes =
-            dims.iter().map(|&d| u64::from(d)).product::<u64>() * self.voxel_type.size() as u64;
+        let geometry = self.meta.geometry.level(level.min(LEVELS - 1));
+        let bytes = geometry.voxel_count() * self.voxel_type.size() as u64;
         if level >= LEVELS || bytes > crate::ingest::MAX_LOAD_BYTES {
             return Err(store_error(
                 &self.path,
@@ -311,6 +317,7 @@ impl Store {
                 ),
             ));
         }
+        let dims = geometry.dims;
         let whole = zarrs::array::ArraySubset::new_with_shape(
             [dims[2], dims[1], dims[0]].map(u64::from).to_vec(),
         );
@@ -321,25 +328,12 @@ impl Store {
             .into_fixed()
             .map_err(|e| store_error(&self.path, "level", format!("{e}")))?;
         let voxels = VoxelData::from_bytes(self.voxel_type, &raw, false);
-        let factor = f64::from(1u32 << level);
-        let spacing = self.meta.spacing.map(|s| (s * factor) as f32);
         let mut volume = crate::Volume::new(
             self.meta.name.clone(),
-            dims,
-            spacing,
+            geometry,
             voxels,
             self.meta.value_map,
         )?;
-        // The first voxel of level l is the centre of a 2^l box.
-        let d = self.meta.direction;
-        let shift = (factor - 1.0) / 2.0;
-        volume.origin = std::array::from_fn(|i| {
-            (self.meta.origin[i]
-                + (0..3)
-                    .map(|a| shift * self.meta.spacing[a] * d[a][i])
-                    .sum::<f64>()) as f32
-        });
-        volume.direction = d.map(|c| c.map(|x| x as f32));
         volume.unit = self.meta.unit.clone();
         volume.modality = self.meta.modality.clone();
         Ok(volume)

@@ -102,7 +102,7 @@ fn block_reads(store_path: &Path, args: &BenchBlocksArgs) -> anyhow::Result<Arc<
             "level": 0,
             "reads": args.reads,
             "threads": args.threads,
-            "dims": store.meta().dims,
+            "dims": store.meta().geometry.dims,
             "per_s": per_s,
         })
         .to_string())?;
@@ -239,7 +239,7 @@ fn time_selection(
     tf: &TransferFunction,
     budget: u64,
 ) -> (blocks::lod::LodSelection, f64, f64) {
-    let full: u64 = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full = store.meta().geometry.voxel_count();
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..21 {
@@ -262,14 +262,14 @@ fn time_selection(
 
 /// Selections at 9:1 and 35:1 budgets on `store`, as JSON lines.
 fn report_selections(dataset: &str, store: &Store, tf: &TransferFunction) -> anyhow::Result<()> {
-    let full: u64 = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full = store.meta().geometry.voxel_count();
     for ratio in [9.0, 35.0] {
         let budget = (full as f64 / ratio) as u64;
         let (sel, median, min) = time_selection(store, tf, budget);
         say(&serde_json::json!({
             "bench": "lod_selection",
             "dataset": dataset,
-            "dims": store.meta().dims,
+            "dims": store.meta().geometry.dims,
             "blocks": sel.lod.len(),
             "non_empty": sel.non_empty,
             "budget_ratio": ratio,

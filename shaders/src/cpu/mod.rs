@@ -67,7 +67,7 @@ pub fn render_packed(
         VolumeDescription::of_store(store.meta(), store.voxel_type()),
         features,
     );
-    let full_voxels = store.meta().dims.iter().map(|&d| u64::from(d)).product();
+    let full_voxels = store.meta().geometry.voxel_count();
     let budget = budget_voxels(full_voxels, request.reduction);
     let (selection, packing) =
         select_levels(store, &tf, budget, DeviceBudget::unlimited(max_edge))?;
@@ -152,7 +152,7 @@ pub fn render_reference(
 ) -> Result<Frame, GpuError> {
     request.validate()?;
     let desc = VolumeTexture::for_volume(volume, features);
-    let texture = Texture3d::new(desc.dims, desc.texel_values(&volume.voxels));
+    let texture = Texture3d::new(desc.geometry.dims, desc.texel_values(&volume.voxels));
     let table = request
         .volume_transfer_function(volume)
         .table(desc.tf_domain, TABLE_LEN)?;

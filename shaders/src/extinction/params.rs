@@ -190,7 +190,7 @@ impl ExtinctionParams {
         let grid = grid_dims(texture, settings.sat_size);
         let cells = Vec3::new(grid[0] as f32, grid[1] as f32, grid[2] as f32);
         let cell_mm = cell_mm(texture, settings.sat_size);
-        let h = texture.min_spacing();
+        let h = texture.geometry.min_spacing_f32();
         let sub = (cell_mm / h).round().clamp(1.0, 4.0) as u32;
         let (_, texture_from_model) = texture_transforms(texture);
         let linear = Mat3::from_mat4(texture_from_model);

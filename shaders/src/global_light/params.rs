@@ -68,7 +68,7 @@ impl LightParams {
     ) -> LightParams {
         let (model_from_texture, texture_from_model) = texture_transforms(texture);
         let radius = VolumePlacement::of(texture).radius();
-        let h = texture.min_spacing();
+        let h = texture.geometry.min_spacing_f32();
         let light = match settings.source {
             LightSource::Point(p) => model_from_texture
                 .transform_point3(Vec3::from(p))
@@ -87,7 +87,7 @@ impl LightParams {
             light: light.into(),
             scatter_direction: [0.0, 0.0, 1.0, 1.0],
             volume: PackedVolume::new(texture, layout, tf_len),
-            svr_dims: svr_dims(texture.dims, settings.svr_scale),
+            svr_dims: svr_dims(texture.geometry.dims, settings.svr_scale),
             intensity: settings.intensity,
             segment: settings.segment_voxels as f32 * h,
             scatter_radius: settings.scatter_radius_voxels * h,

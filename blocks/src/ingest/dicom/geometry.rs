@@ -4,8 +4,17 @@
 //! steps), and a gantry tilt kept as a sheared affine.
 
 use super::slice_header::SliceHeader;
-use crate::Error;
+use crate::geometry::GeometryFields;
 use crate::ingest::header::field;
+use crate::{Error, Geometry};
+
+/// The attributes each part of a series' geometry comes from.
+const GEOMETRY_FIELDS: GeometryFields = GeometryFields {
+    dims: "Rows, Columns and slices",
+    spacing: "PixelSpacing (0028,0030)",
+    origin: "ImagePositionPatient (0020,0032)",
+    direction: "ImageOrientationPatient (0020,0037)",
+};
 
 /// Relative tolerance on slice spacing: differences between neighbouring slice
 /// positions may deviate this much from the median difference.
@@ -14,27 +23,17 @@ pub const SPACING_TOLERANCE: f64 = 0.01;
 /// a gantry tilt.
 const TILT_TOLERANCE: f64 = 1e-3;
 
-/// Where a series' voxels sit in patient LPS.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Placement {
-    /// LPS position of voxel (0, 0, 0)'s centre, mm.
-    pub(super) origin: [f64; 3],
-    /// Column spacing (x), row spacing (y) and slice spacing (z), mm.
-    pub(super) spacing: [f64; 3],
-    /// Unit vectors of the index axes: along a row, down a column, and the
-    /// stacking direction.
-    pub(super) direction: [[f64; 3]; 3],
-}
-
-/// Places `slices`, sorting them along the stacking direction. `first` is the
-/// series' first file as listed (before sorting): its orientation and pixel
-/// spacing stand for the series (grouping made them equal), and it is the file
-/// messages name. Assumptions made go to `notes`.
+/// Places `slices` — a volume of `dims` — in patient LPS, sorting them along
+/// the stacking direction. `first` is the series' first file as listed (before
+/// sorting): its orientation and pixel spacing stand for the series (grouping
+/// made them equal), and it is the file messages name. Assumptions made go to
+/// `notes`.
 pub(super) fn place(
     first: &SliceHeader,
     slices: &mut [SliceHeader],
+    dims: [u32; 3],
     notes: &mut Vec<String>,
-) -> Result<Placement, Error> {
+) -> Result<Geometry, Error> {
     let (row_dir, col_dir) = match first.orientation {
         Some(o) => ([o[0], o[1], o[2]], [o[3], o[4], o[5]]),
         None if slices.len() == 1 => {
@@ -73,14 +72,14 @@ pub(super) fn place(
     } else {
         stack_slices(slices, normal, notes)?
     };
-    let spacing = [column_spacing, row_spacing, slice_spacing];
-    crate::ingest::check_spacing(&first.path, "PixelSpacing (0028,0030)", spacing)?;
-    Ok(Placement {
+    Geometry {
+        dims,
+        spacing: [column_spacing, row_spacing, slice_spacing],
         // After sorting, slice 0 is the lowest along the stacking direction.
         origin: slices[0].position.unwrap_or([0.0; 3]),
-        spacing,
         direction: [row_dir, col_dir, slice_dir],
-    })
+    }
+    .checked(&first.path, &GEOMETRY_FIELDS)
 }
 
 /// Sorts `slices` along `normal`, checks their spacing, and returns the stacking

@@ -36,7 +36,6 @@ impl DicomSeries {
         if format.monochrome1 {
             notes.push("MONOCHROME1: values inverted so that higher is brighter".to_owned());
         }
-        let placement = geometry::place(&first, &mut slices, &mut notes)?;
         let dims = check_dims(
             path,
             "Rows, Columns and slices",
@@ -47,6 +46,7 @@ impl DicomSeries {
             ],
             u64::from(format.sample_bytes()),
         )?;
+        let geometry = geometry::place(&first, &mut slices, dims, &mut notes)?;
         let rescale_each = slices
             .iter()
             .any(|s| s.slope != first.slope || s.intercept != first.intercept);
@@ -65,11 +65,8 @@ impl DicomSeries {
         let info = VolumeInfo {
             path: path.to_owned(),
             format: Format::Dicom,
-            dims,
+            geometry,
             voxel_type,
-            spacing: placement.spacing,
-            origin: placement.origin,
-            direction: placement.direction,
             value_map,
             unit: unit(&first),
             modality: first.modality.clone(),
