@@ -97,7 +97,7 @@ pub struct BlockCache {
 impl std::fmt::Debug for BlockCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("BlockCache")
-            .field("store", &self.store.path())
+            .field("store", &self.store.location())
             .field("cached_bytes", &self.chunks.weight())
             .field("resident_chunks", &self.resident.len())
             .finish()

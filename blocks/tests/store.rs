@@ -269,14 +269,14 @@ fn folders_that_are_not_complete_stores_are_refused() {
     let dims = [16, 16, 16];
     let mut source = Memory::new(dims, noise_u16(dims));
     let store = ingest_to(dir.path(), &mut source).expect("ingest");
-    let root = store.path().join("zarr.json");
+    let root = store.location().file("zarr.json");
     let text = std::fs::read_to_string(&root).expect("read");
     std::fs::write(
         &root,
         text.replace("\"complete\": true", "\"complete\": false"),
     )
     .expect("write");
-    let msg = Store::open(store.path())
+    let msg = Store::open(store.location().clone())
         .expect_err("incomplete")
         .to_string();
     assert!(msg.contains("complete: false"), "{msg}");
@@ -365,7 +365,7 @@ fn a_flipped_byte_in_a_shard_is_a_corruption_error_naming_the_shard() {
         let mut bytes = original.clone();
         bytes[at] ^= 0x5a;
         std::fs::write(&shard, &bytes).expect("write");
-        let fresh = Store::open(store.path()).expect("metadata is intact");
+        let fresh = Store::open(store.location().clone()).expect("metadata is intact");
         // The flipped byte lies in one of the shard's eight level-0 blocks (or its index).
         let errors: Vec<Error> = (0..8u32)
             .filter_map(|i| fresh.read_block(0, [i % 2, (i / 2) % 2, i / 4]).err())

@@ -469,7 +469,7 @@ fn ingest_writes_a_store_and_a_killed_ingest_leaves_none() {
         1,
         "the crash left its temporary folder behind"
     );
-    let err = blocks::store::Store::open(&partial[0].path())
+    let err = blocks::store::Store::open(partial[0].path())
         .expect_err("an unfinished store does not open");
     assert!(err.to_string().contains("did not finish"), "{err}");
 

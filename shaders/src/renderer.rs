@@ -273,7 +273,7 @@ impl std::fmt::Debug for Renderer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Renderer")
             .field("adapter", &self.gpu.info.name)
-            .field("store", &self.cache.store().path())
+            .field("store", &self.cache.store().location())
             .field("last", &self.last)
             .finish_non_exhaustive()
     }

@@ -205,13 +205,13 @@ pub fn ingest_in_memory(
     source: &mut dyn VolumeSource,
     options: &IngestOptions,
 ) -> Result<super::Store, Error> {
-    let name = source.info().name();
-    let path = PathBuf::from(format!("memory:{name}"));
+    let location = super::StoreLocation::Memory(source.info().name());
+    let path = location.file("");
     let storage = Arc::new(MemoryStore::new());
     let writable: Arc<dyn ReadableWritableStorageTraits> = storage.clone();
     write_store(source, &writable, &path, options, &mut |_| {})?;
     let readable: Arc<dyn ReadableStorageTraits> = storage;
-    super::Store::from_storage(&readable, &path)
+    super::Store::from_storage(&readable, location)
 }
 
 /// Writes every level, the statistics and the root metadata of `source` into

@@ -28,8 +28,10 @@
 //! - [`pyramid`]: box averages of a slab for every level.
 //! - [`stats`]: [`BlockStats`], per-block min, max and histogram.
 //! - [`ingest`]: the writer, slab by slab from any [`crate::VolumeSource`].
+//! - [`StoreLocation`]: where a store lives (a folder, memory).
 
 pub mod ingest;
+mod location;
 pub mod pyramid;
 pub mod stats;
 
@@ -46,6 +48,7 @@ use zarrs::group::Group;
 use zarrs::storage::ReadableStorageTraits;
 
 pub use ingest::{IngestOptions, IngestProgress, IngestSummary, ingest, ingest_in_memory};
+pub use location::StoreLocation;
 pub use pyramid::{LEVELS, level_dims};
 pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
 
@@ -124,7 +127,7 @@ const META_GEOMETRY_FIELDS: GeometryFields = GeometryFields {
 /// An open brick store: on disk, or in memory (the phantom, files rendered
 /// without an ingest).
 pub struct Store {
-    path: PathBuf,
+    location: StoreLocation,
     meta: StoreMeta,
     voxel_type: VoxelType,
     levels: Vec<Array<dyn ReadableStorageTraits>>,
@@ -135,7 +138,7 @@ pub struct Store {
 impl std::fmt::Debug for Store {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Store")
-            .field("path", &self.path)
+            .field("location", &self.location)
             .field("meta", &self.meta)
             .finish_non_exhaustive()
     }
@@ -151,8 +154,18 @@ fn store_error(path: &Path, field: &str, message: impl Into<String>) -> Error {
 }
 
 impl Store {
-    /// Opens a complete store on disk, loading its metadata and block statistics.
-    pub fn open(path: &Path) -> Result<Store, Error> {
+    /// Opens the complete store at `location`, loading its metadata and block
+    /// statistics. A store in memory is reached only through the [`Store`]
+    /// that made it.
+    pub fn open(location: impl Into<StoreLocation>) -> Result<Store, Error> {
+        let location = location.into();
+        let Some(path) = location.folder() else {
+            return Err(store_error(
+                &location.file(""),
+                "location",
+                "a store in memory cannot be opened again: expected a folder",
+            ));
+        };
         let root = path.join("zarr.json");
         if !root.is_file() {
             let partial = path
@@ -172,15 +185,15 @@ impl Store {
             FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?,
         );
         let storage: Arc<dyn ReadableStorageTraits> = storage;
-        Store::from_storage(&storage, path)
+        Store::from_storage(&storage, location)
     }
 
-    /// Opens a complete store in any zarrs storage; `path` names it in messages.
+    /// Opens a complete store in any zarrs storage found at `location`.
     pub fn from_storage(
         storage: &Arc<dyn ReadableStorageTraits>,
-        path: &Path,
+        location: StoreLocation,
     ) -> Result<Store, Error> {
-        let root = path.join("zarr.json");
+        let root = location.file("zarr.json");
         let group = Group::open(storage.clone(), "/")
             .map_err(|e| store_error(&root, "zarr.json", format!("{e}")))?;
         let meta_json = group.attributes().get("voxserve").ok_or_else(|| {
@@ -214,14 +227,18 @@ impl Store {
         let mut shard_indexes = Vec::with_capacity(LEVELS);
         for level in 0..LEVELS {
             let array = Array::open(storage.clone(), &format!("/{level}")).map_err(|e| {
-                store_error(&path.join(level.to_string()), "zarr.json", format!("{e}"))
+                store_error(
+                    &location.file(&level.to_string()),
+                    "zarr.json",
+                    format!("{e}"),
+                )
             })?;
             shard_indexes.push(ArrayShardedReadableExtCache::new(&array));
             levels.push(array);
         }
-        let stats = ingest::read_stats(storage, path, &meta)?;
+        let stats = ingest::read_stats(storage, &location.file(""), &meta)?;
         Ok(Store {
-            path: path.to_owned(),
+            location,
             meta,
             voxel_type,
             levels,
@@ -230,9 +247,9 @@ impl Store {
         })
     }
 
-    /// The store's folder.
-    pub fn path(&self) -> &Path {
-        &self.path
+    /// Where the store lives.
+    pub fn location(&self) -> &StoreLocation {
+        &self.location
     }
 
     /// The root metadata.
@@ -255,11 +272,11 @@ impl Store {
         level_dims(self.meta.geometry.dims, level).map(|n| n.div_ceil(BLOCK))
     }
 
-    /// The shard file that holds inner chunk `chunk` (x, y, z) of `level`.
+    /// How messages name the shard file that holds inner chunk `chunk` (x, y, z) of `level`.
     pub fn shard_path(&self, level: usize, chunk: [u32; 3]) -> PathBuf {
         let per_shard = SHARD / BLOCK;
         let [x, y, z] = chunk.map(|c| c / per_shard);
-        self.path.join(format!("{level}/c/{z}/{y}/{x}"))
+        self.location.file(&format!("{level}/c/{z}/{y}/{x}"))
     }
 
     /// The decoded 16³ inner chunk `chunk` (x, y, z) of `level`; voxels beyond the
@@ -268,7 +285,7 @@ impl Store {
         let grid = self.chunk_grid(level.min(LEVELS - 1));
         if level >= LEVELS || chunk.iter().zip(grid).any(|(&c, g)| c >= g) {
             return Err(store_error(
-                &self.path,
+                &self.location.file(""),
                 "chunk",
                 format!(
                     "level {level} chunk {chunk:?}: expected a level below {LEVELS} and a chunk within {grid:?}"
@@ -309,7 +326,7 @@ impl Store {
         let bytes = geometry.voxel_count() * self.voxel_type.size() as u64;
         if level >= LEVELS || bytes > crate::ingest::MAX_LOAD_BYTES {
             return Err(store_error(
-                &self.path,
+                &self.location.file(""),
                 "level",
                 format!(
                     "level {level} ({bytes} bytes): expected a level below {LEVELS} of at most {} bytes",
@@ -326,7 +343,7 @@ impl Store {
             .map_err(|e| self.read_error(level, [0; 3], e))?;
         let raw = raw
             .into_fixed()
-            .map_err(|e| store_error(&self.path, "level", format!("{e}")))?;
+            .map_err(|e| store_error(&self.location.file(""), "level", format!("{e}")))?;
         let voxels = VoxelData::from_bytes(self.voxel_type, &raw, false);
         let mut volume = crate::Volume::new(
             self.meta.name.clone(),
