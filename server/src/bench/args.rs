@@ -120,6 +120,12 @@ pub struct BenchStreamArgs {
     /// Seconds each frame-rate measurement runs.
     #[arg(long, default_value_t = 5.0, value_parser = finite_in(0.1, 3600.0))]
     pub seconds: f32,
+    /// Edge of the phantom ingested to disk for the cold transfer-function
+    /// change (voxels).
+    #[arg(long, default_value_t = 256,
+          value_parser = clap::value_parser!(u32).range(
+              i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
+    pub cold_phantom: u32,
     #[command(flatten)]
     pub data: DataArgs,
 }

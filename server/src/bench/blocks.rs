@@ -6,13 +6,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::Context;
 use blocks::store::{IngestOptions, Store};
 use blocks::{Preset, TfPoint, TransferFunction, ingest};
 
 use super::args::BenchBlocksArgs;
 use super::reference_data::reference_dataset;
-use super::{peak_rss_mib, write_uint16_raw};
+use super::{Scratch, peak_rss_mib, write_uint16_raw};
 use server::commands::say;
 
 /// `voxserve bench blocks`: ingest, random block reads and LOD selection.
@@ -151,25 +150,6 @@ fn dataset_selections(dir: &Path, data: &Path) -> anyhow::Result<()> {
         report_selections(name, &Store::open(&out)?, &dataset.transfer_function)?;
     }
     Ok(())
-}
-
-/// A temporary folder for a benchmark's files, removed when dropped.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(what: &str) -> anyhow::Result<Scratch> {
-        let path =
-            std::env::temp_dir().join(format!("voxserve-bench-{what}-{}", std::process::id()));
-        std::fs::create_dir_all(&path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        Ok(Scratch(path))
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }
 
 /// Writes a CT-like uint16 volume of about `gib` GiB (1024² slices, stored =

@@ -6,7 +6,7 @@
 //! this module dispatches and holds what several benchmarks share.
 
 use std::io::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -105,6 +105,25 @@ pub(crate) fn timed(
     let ms = start.elapsed().as_secs_f64() * 1e3 / f64::from(frames.max(1));
     let frame = last.ok_or_else(|| anyhow::anyhow!("no frame was rendered"))?;
     Ok((frame, ms))
+}
+
+/// A temporary folder for a benchmark's files, removed when dropped.
+pub(crate) struct Scratch(pub(crate) PathBuf);
+
+impl Scratch {
+    pub(crate) fn new(what: &str) -> anyhow::Result<Scratch> {
+        let path =
+            std::env::temp_dir().join(format!("voxserve-bench-{what}-{}", std::process::id()));
+        std::fs::create_dir_all(&path)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        Ok(Scratch(path))
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 /// The process's peak resident memory in MiB (Linux: VmHWM), if known.

@@ -13,6 +13,13 @@
 //!   its camera again as soon as its frame arrives, for `--seconds`; frames per
 //!   second in all and per session (slowest ÷ fastest shows fairness), errors,
 //!   and the process's resident memory before, ten times during, and after.
+//! - `stream-cold-change`: one session (A) changes the transfer function of a
+//!   brick store on disk to one whose blocks are not in memory while another
+//!   session (B) moves its camera on the benchmark's dataset; B's
+//!   event-to-frame latency while A's blocks are read, against B's latency
+//!   alone, in frame times; A's time to its first frame and to the refined
+//!   one, and the chunks the render worker read itself (0: reads are off the
+//!   render thread).
 
 use std::time::{Duration, Instant};
 
@@ -42,14 +49,14 @@ pub fn stream(args: &BenchStreamArgs) -> anyhow::Result<()> {
 
 /// A server on 127.0.0.1 port 0; dropping the sender stops it.
 async fn start_server(
-    dataset: Dataset,
+    datasets: Vec<Dataset>,
     renderer: RenderService,
     settings: StreamSettings,
 ) -> anyhow::Result<(String, tokio::sync::oneshot::Sender<()>)> {
     let listener = TcpListener::bind("127.0.0.1:0").await?;
     let url = format!("ws://{}/api/stream", listener.local_addr()?);
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let state = AppState::new(vec![dataset], renderer, settings);
+    let state = AppState::new(datasets, renderer, settings);
     tokio::spawn(async move {
         let shutdown = async {
             let _ = stopped.await;
@@ -138,7 +145,8 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
     let dataset = load_dataset(&args.dataset, &args.data)?;
     let gpu = GpuContext::new()?;
     let adapter = gpu.info.name.clone();
-    let renderer = RenderService::start(gpu, args.data.gpu_budget_bytes(), 1)?;
+    // Two datasets resident: the cold-change measurement's two sessions.
+    let renderer = RenderService::start(gpu, args.data.gpu_budget_bytes(), 2)?;
     let full_size = StreamSettings {
         interactive_scale: 1.0,
         interactive_reduction: 1.0,
@@ -157,7 +165,7 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
             lossless,
             ..full_size
         };
-        let (url, stop) = start_server(dataset.clone(), renderer.clone(), settings).await?;
+        let (url, stop) = start_server(vec![dataset.clone()], renderer.clone(), settings).await?;
         for &edge in &args.sizes {
             latency(&url, edge, format, args, &adapter, &dataset).await?;
         }
@@ -168,7 +176,7 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
         }
         drop(stop);
     }
-    Ok(())
+    cold_change(args, &adapter, renderer, dataset).await
 }
 
 /// A `stream-latency` line: `--events` camera moves on one session with
@@ -306,4 +314,187 @@ async fn sessions(
     })
     .to_string())?;
     Ok(())
+}
+
+/// The `stream-cold-change` lines; see the module docs.
+async fn cold_change(
+    args: &BenchStreamArgs,
+    adapter: &str,
+    renderer: RenderService,
+    warm: Dataset,
+) -> anyhow::Result<()> {
+    let scratch = super::Scratch::new("stream")?;
+    let volume = std::sync::Arc::new(blocks::phantom::head(args.cold_phantom)?);
+    let path = scratch.0.join("cold.zarr");
+    let mut source = blocks::ingest::MemorySource::new(volume, "cold phantom");
+    blocks::store::ingest(&mut source, &path, &Default::default(), &mut |_| {})?;
+    let cold = Dataset::load(&path, &Default::default(), args.data.cache_bytes())?;
+    let (cold_id, cold_cache) = (cold.id.clone(), cold.cache.clone());
+    let from = cold.default_preset();
+    let to = blocks::Preset::ALL
+        .into_iter()
+        .find(|&p| p != from)
+        .context("a second preset")?;
+    let (url, stop) = start_server(
+        vec![warm.clone(), cold],
+        renderer,
+        StreamSettings::default(),
+    )
+    .await?;
+    let edge = args.session_size;
+    let mut a = connect(&url).await?;
+    let set = serde_json::json!({"w": edge, "h": edge, "dataset": cold_id, "preset": from.name()});
+    send_view(&mut a, 1, set).await?;
+    until_converged(&mut a, 1).await?;
+    let mut b = connect(&url).await?;
+    send_view(&mut b, 1, serde_json::json!({"w": edge, "h": edge})).await?;
+    next_frame(&mut b, Some(1)).await?;
+    let mut b_id = 2;
+    let mut line = ColdChangeLine {
+        args,
+        adapter,
+        warm: &warm,
+        alone: camera_moves(&mut b, &mut b_id, args.events, None).await?,
+    };
+    // The cold change (its blocks not in memory), then back (they are).
+    for (id, preset, kind) in [(2, to, "cold"), (3, from, "warm")] {
+        let reads_before = cold_cache.inline_reads();
+        let (a_frames, during) =
+            change_while_moving((&mut a, id, preset), (&mut b, &mut b_id)).await?;
+        let reads = cold_cache.inline_reads() - reads_before;
+        say(&line
+            .json(kind, preset, &a_frames, during, reads)
+            .to_string())?;
+    }
+    drop(stop);
+    Ok(())
+}
+
+/// Session A switches to `preset` as message `id` while B moves its camera
+/// (from message `b_id` on) until A's converged frame: A's frames (header,
+/// milliseconds since the change) and B's moves meanwhile.
+async fn change_while_moving(
+    (a, id, preset): (&mut Socket, u32, blocks::Preset),
+    (b, b_id): (&mut Socket, &mut u32),
+) -> anyhow::Result<(Vec<(FrameHeader, f64)>, Moves)> {
+    let (done_tx, done_rx) = tokio::sync::watch::channel(false);
+    send_view(a, id, serde_json::json!({"preset": preset.name()})).await?;
+    let a_side = async {
+        let frames = until_converged(a, id).await;
+        let _ = done_tx.send(true);
+        frames
+    };
+    let (a_frames, during) = tokio::join!(a_side, camera_moves(b, b_id, u32::MAX, Some(done_rx)));
+    Ok((a_frames?, during?))
+}
+
+/// B's camera moves: each one's event-to-frame milliseconds, and its frame's
+/// render and queue milliseconds.
+#[derive(Debug, Default)]
+struct Moves {
+    latency: Vec<f64>,
+    render: Vec<f64>,
+    queue: Vec<f64>,
+}
+
+/// What every `stream-cold-change` line shares.
+struct ColdChangeLine<'a> {
+    args: &'a BenchStreamArgs,
+    adapter: &'a str,
+    warm: &'a Dataset,
+    /// B's moves with A idle.
+    alone: Moves,
+}
+
+impl ColdChangeLine<'_> {
+    /// The line for one change of A's (`kind`: cold or warm) to `preset`.
+    fn json(
+        &mut self,
+        kind: &str,
+        preset: blocks::Preset,
+        a_frames: &[(FrameHeader, f64)],
+        mut during: Moves,
+        worker_reads: u64,
+    ) -> serde_json::Value {
+        let max = |v: &[f64]| v.iter().copied().fold(f64::NAN, f64::max);
+        let first = a_frames.first().map(|(h, ms)| (h.pending_blocks, *ms));
+        let a_render: Vec<f64> = a_frames
+            .iter()
+            .map(|(h, _)| f64::from(h.render_ms))
+            .collect();
+        // A frame time: the longest render of either session meanwhile.
+        let frame_ms = max(&a_render).max(max(&during.render));
+        let alone = &mut self.alone;
+        serde_json::json!({
+            "bench": "stream-cold-change",
+            "change": kind,
+            "adapter": self.adapter,
+            "dataset": self.warm.name(),
+            "cold_dataset": format!("phantom {}³, a brick store on disk (OS page cache not dropped)", self.args.cold_phantom),
+            "preset": preset.name(),
+            "width": self.args.session_size,
+            "height": self.args.session_size,
+            "a_first_frame_ms": first.map(|f| f.1),
+            "a_first_frame_pending_blocks": first.map(|f| f.0),
+            "a_converged_ms": a_frames.last().map(|(_, ms)| *ms),
+            "a_frames": a_frames.len(),
+            "a_render_ms_max": max(&a_render),
+            "render_worker_chunk_reads": worker_reads,
+            "b_events_alone": alone.latency.len(),
+            "b_latency_ms_alone_p50": quantile(&mut alone.latency, 0.5),
+            "b_latency_ms_alone_max": max(&alone.latency),
+            "b_queue_ms_alone_max": max(&alone.queue),
+            "b_events_during": during.latency.len(),
+            "b_latency_ms_during_p50": quantile(&mut during.latency, 0.5),
+            "b_latency_ms_during_max": max(&during.latency),
+            "b_queue_ms_during_max": max(&during.queue),
+            "frame_ms": frame_ms,
+            "b_queue_in_frame_times": max(&during.queue) / frame_ms,
+        })
+    }
+}
+
+/// Camera moves on `socket` as messages `*id`, `*id + 1`, …, each timed
+/// until its frame arrives: `events` of them, or until `until` turns true (at
+/// least one).
+async fn camera_moves(
+    socket: &mut Socket,
+    id: &mut u32,
+    events: u32,
+    mut until: Option<tokio::sync::watch::Receiver<bool>>,
+) -> anyhow::Result<Moves> {
+    let mut moves = Moves::default();
+    while moves.latency.len() < events as usize {
+        if !moves.latency.is_empty() && until.as_mut().is_some_and(|u| *u.borrow_and_update()) {
+            break;
+        }
+        let start = Instant::now();
+        let az = f64::from(*id) * 7.0;
+        send_view(socket, *id, serde_json::json!({"az": az})).await?;
+        let Some(header) = next_frame(socket, Some(*id)).await? else {
+            anyhow::bail!("no frame for message {id}");
+        };
+        moves.latency.push(start.elapsed().as_secs_f64() * 1e3);
+        moves.render.push(f64::from(header.render_ms));
+        moves.queue.push(f64::from(header.queue_ms));
+        *id += 1;
+    }
+    Ok(moves)
+}
+
+/// Frames on `socket` until the lossless, converged one for message `id`,
+/// each with the milliseconds since this call.
+async fn until_converged(socket: &mut Socket, id: u32) -> anyhow::Result<Vec<(FrameHeader, f64)>> {
+    let start = Instant::now();
+    let mut frames = Vec::new();
+    loop {
+        let Some(header) = next_frame(socket, Some(id)).await? else {
+            continue;
+        };
+        let done = header.lossless && header.converged;
+        frames.push((header, start.elapsed().as_secs_f64() * 1e3));
+        if done {
+            return Ok(frames);
+        }
+    }
 }
