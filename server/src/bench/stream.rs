@@ -19,7 +19,8 @@
 //!   event-to-frame latency while A's blocks are read, against B's latency
 //!   alone, in frame times; A's time to its first frame and to the refined
 //!   one, and the chunks the render worker read itself (0: reads are off the
-//!   render thread).
+//!   render thread); then the change back and the same change again, both
+//!   warm (their blocks in memory), for comparison.
 
 use std::time::{Duration, Instant};
 
@@ -356,8 +357,9 @@ async fn cold_change(
         warm: &warm,
         alone: camera_moves(&mut b, &mut b_id, args.events, None).await?,
     };
-    // The cold change (its blocks not in memory), then back (they are).
-    for (id, preset, kind) in [(2, to, "cold"), (3, from, "warm")] {
+    // The cold change (its blocks not in memory), then back and again: the
+    // same changes warm (their blocks in memory).
+    for (id, preset, kind) in [(2, to, "cold"), (3, from, "warm"), (4, to, "warm")] {
         let reads_before = cold_cache.inline_reads();
         let (a_frames, during) =
             change_while_moving((&mut a, id, preset), (&mut b, &mut b_id)).await?;
