@@ -41,26 +41,13 @@ pub fn webp(frame: &Frame) -> Result<Vec<u8>, image::ImageError> {
 }
 
 /// A lossless image format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Lossless {
     /// PNG with fast compression.
     Png,
     /// WebP lossless.
-    #[default]
     Webp,
-}
-
-impl std::str::FromStr for Lossless {
-    type Err = String;
-
-    fn from_str(text: &str) -> Result<Lossless, String> {
-        match text {
-            "png" => Ok(Lossless::Png),
-            "webp" => Ok(Lossless::Webp),
-            _ => Err(format!("lossless format '{text}': expected png or webp")),
-        }
-    }
 }
 
 /// Encodes a frame as a baseline JPEG of `quality` (1–100): small and fast,

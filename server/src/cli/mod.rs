@@ -181,34 +181,37 @@ pub struct ServeArgs {
     pub data: DataArgs,
 }
 
+/// The stream settings' defaults, as `serve`'s flags show them.
+const DEFAULT_STREAM: crate::stream::StreamSettings = crate::stream::StreamSettings::DEFAULT;
+
 /// How view sessions (`/api/stream`) trade quality for speed.
 #[derive(Debug, Clone, Args)]
 pub struct StreamArgs {
     /// Milliseconds without a view change after which the full-quality,
     /// lossless frame is rendered.
-    #[arg(long, default_value_t = 150, value_parser = clap::value_parser!(u64).range(0..=60_000))]
+    #[arg(long, default_value_t = DEFAULT_STREAM.idle_ms, value_parser = clap::value_parser!(u64).range(0..=60_000))]
     pub idle_ms: u64,
     /// Image size while the user interacts, as a fraction of the full size.
-    #[arg(long, default_value_t = 0.5, value_parser = finite_in(0.1, 1.0))]
+    #[arg(long, default_value_t = DEFAULT_STREAM.interactive_scale, value_parser = finite_in(0.1, 1.0))]
     pub interactive_scale: f32,
     /// Data reduction while the user interacts, as a multiple of the view's
     /// (not applied with global light or extinction-based illumination, whose
     /// light would be recomputed).
-    #[arg(long, default_value_t = 4.0, value_parser = finite_in(1.0, 1000.0))]
+    #[arg(long, default_value_t = DEFAULT_STREAM.interactive_reduction, value_parser = finite_in(1.0, 1000.0))]
     pub interactive_reduction: f32,
     /// JPEG quality (1 to 100) of frames while the user interacts.
-    #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(u8).range(1..=100))]
+    #[arg(long, default_value_t = DEFAULT_STREAM.jpeg_quality, value_parser = clap::value_parser!(u8).range(1..=100))]
     pub jpeg_quality: u8,
     /// Format of the lossless full frames: webp (lossless WebP, about 28 %
     /// smaller than PNG) or png (a little faster to encode); `bench stream`
     /// measures both.
-    #[arg(long, default_value = "webp", value_parser = |t: &str| t.parse::<crate::encode::Lossless>())]
+    #[arg(long, value_enum, default_value_t = DEFAULT_STREAM.lossless)]
     pub lossless: crate::encode::Lossless,
     /// Frames a session sends ahead of the client's acknowledgements.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    #[arg(long, default_value_t = DEFAULT_STREAM.frames_in_flight, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub frames_in_flight: u32,
     /// View sessions open at most; more are refused (HTTP 503).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    #[arg(long, default_value_t = DEFAULT_STREAM.max_sessions as u64, value_parser = clap::value_parser!(u64).range(1..=4096))]
     pub max_sessions: u64,
 }
 

@@ -72,19 +72,24 @@ pub struct StreamSettings {
     pub max_sessions: usize,
 }
 
+impl StreamSettings {
+    /// The defaults, also `serve`'s flags' defaults.
+    pub const DEFAULT: StreamSettings = StreamSettings {
+        idle_ms: 150,
+        interactive_scale: 0.5,
+        interactive_reduction: 4.0,
+        jpeg_quality: 80,
+        // 27–29 % fewer bytes than PNG for 0.3–1 ms more encoding (bench
+        // stream, 512² and 1024², llvmpipe machine).
+        lossless: encode::Lossless::Webp,
+        frames_in_flight: 1,
+        max_sessions: 16,
+    };
+}
+
 impl Default for StreamSettings {
     fn default() -> StreamSettings {
-        StreamSettings {
-            idle_ms: 150,
-            interactive_scale: 0.5,
-            interactive_reduction: 4.0,
-            jpeg_quality: 80,
-            // 27–29 % fewer bytes than PNG for 0.3–1 ms more encoding (bench
-            // stream, 512² and 1024², llvmpipe machine).
-            lossless: encode::Lossless::Webp,
-            frames_in_flight: 1,
-            max_sessions: 16,
-        }
+        StreamSettings::DEFAULT
     }
 }
 
