@@ -34,8 +34,10 @@ pub enum BenchCommand {
     /// segment length.
     Light(Box<BenchLightArgs>),
     /// View sessions on loopback: event-to-frame latency (p50, p95) per image
-    /// size for JPEG and lossless frames, encode time per format, and frames
-    /// per second with several concurrent sessions.
+    /// size for JPEG and lossless frames, encode time per format, frames per
+    /// second with several concurrent sessions, and how long one session's
+    /// frames wait while another changes to a transfer function whose blocks
+    /// are not in memory.
     Stream(Box<BenchStreamArgs>),
     /// Extinction-based illumination as its paper reports it: summed-area-table
     /// build time per grid size, ambient occlusion per shell count against
