@@ -402,6 +402,108 @@ mod tests {
         (channels, running)
     }
 
+    /// Aborts the test process if it is still running after a minute of real
+    /// time: a guard for tests on the paused clock, which cannot time out on
+    /// tokio's clock (it jumps to any pending timer while a frame renders).
+    struct Watchdog {
+        _done: std::sync::mpsc::Sender<()>,
+    }
+
+    impl Watchdog {
+        #[expect(
+            clippy::print_stderr,
+            reason = "the test's last words before it aborts"
+        )]
+        fn new(test: &'static str) -> Watchdog {
+            let (done, wait) = std::sync::mpsc::channel();
+            std::thread::spawn(move || {
+                let patience = Duration::from_secs(60);
+                if let Err(std::sync::mpsc::RecvTimeoutError::Timeout) = wait.recv_timeout(patience)
+                {
+                    eprintln!("{test}: no progress within {patience:?}");
+                    std::process::abort();
+                }
+            });
+            Watchdog { _done: done }
+        }
+    }
+
+    /// The next message, without a timeout (see [`Watchdog`]).
+    async fn next_untimed(client: &mut Channels) -> Message {
+        client
+            .from_session
+            .recv()
+            .await
+            .expect("the loop is running")
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn the_full_frame_follows_idle_ms_of_tokio_s_clock() {
+        let test = "the_full_frame_follows_idle_ms_of_tokio_s_clock";
+        let Some(gpu) = voxserve_tests::gpu_or_skip(test) else {
+            return;
+        };
+        let _watchdog = Watchdog::new(test);
+        let renderer = RenderService::start(gpu.clone(), 64 << 20, 1).expect("render worker");
+        let phantom = Dataset::phantom(16, 16 << 20).expect("phantom");
+        // An hour of stillness before the full frame: on the paused clock the
+        // loop's timer fires as soon as nothing else is left to do.
+        let idle = Duration::from_secs(3600);
+        let settings = StreamSettings {
+            idle_ms: idle.as_millis() as u64,
+            ..StreamSettings::default()
+        };
+        let state = AppState::new(vec![phantom], renderer, settings);
+        let (mut client, running) = start(&state);
+        let Message::Text(hello) = next_untimed(&mut client).await else {
+            panic!("expected the hello");
+        };
+        assert!(hello.as_str().contains("\"hello\""), "{hello}");
+        let changed = Instant::now();
+        client
+            .send(serde_json::json!({"type": "view", "id": 1, "set": {"w": 20, "h": 10}}))
+            .await;
+        let mut headers = Vec::new();
+        while headers.len() < 2 {
+            let Message::Binary(bytes) = next_untimed(&mut client).await else {
+                panic!("expected a frame");
+            };
+            let header = FrameHeader::parse(&bytes).expect("a header");
+            headers.push((header, changed.elapsed()));
+            if headers.len() == 1 {
+                // Acknowledged, the session waits for the view to be still.
+                client
+                    .send(serde_json::json!({"type": "ack", "frame": header.frame_id}))
+                    .await;
+                client
+                    .send(serde_json::json!({"type": "status", "id": 2}))
+                    .await;
+                let Message::Text(status) = next_untimed(&mut client).await else {
+                    panic!("expected the status");
+                };
+                assert!(
+                    status.as_str().contains("\"waiting\":\"still\""),
+                    "{status}"
+                );
+            }
+        }
+        let [(interactive, at_interactive), (full, at_full)] = [headers[0], headers[1]];
+        assert!(!interactive.lossless, "{interactive:?}");
+        assert!(at_interactive < idle, "the interactive frame came at once");
+        assert!(full.lossless && full.message_id == 1, "{full:?}");
+        assert!(
+            at_full >= idle,
+            "the full frame waited {at_full:?} of tokio's clock"
+        );
+        state.shutdown.cancel();
+        client
+            .to_session
+            .send(Message::Close(None))
+            .await
+            .expect("the loop reads");
+        running.await.expect("the loop ends");
+    }
+
     #[tokio::test]
     async fn the_loop_runs_on_channels_answers_in_order_and_closes_on_shutdown() {
         let test = "the_loop_runs_on_channels_answers_in_order_and_closes_on_shutdown";
