@@ -156,6 +156,10 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
 /// `voxserve render`: one frame to a PNG file.
 pub fn render(args: RenderArgs) -> anyhow::Result<()> {
     let dataset = load_dataset(&args.dataset, &args.data)?;
+    let out = args
+        .out
+        .unwrap_or_else(|| PathBuf::from(format!("{}.png", dataset.id)));
+    let output = OutputFile::prepare(out)?;
     let request = args.view.frame;
     let classification = match (&request.tf, request.preset) {
         (Some(_), _) => "its own transfer function".to_owned(),
@@ -198,11 +202,7 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         (frame, stats.reduction, stats.level_counts, device)
     };
     let ms = start.elapsed().as_secs_f64() * 1e3;
-    let out = args
-        .out
-        .unwrap_or_else(|| PathBuf::from(format!("{}.png", dataset.id)));
-    let png = encode::png(&frame)?;
-    std::fs::write(&out, png).with_context(|| format!("cannot write {}", out.display()))?;
+    let out = output.write(&encode::png(&frame)?)?;
     say(&format!(
         "wrote {} ({}x{}, {classification}, {}; reduction {reduction:.1}:1, blocks per level \
          {levels:?}) in {ms:.0} ms on {device}",
@@ -211,6 +211,70 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         frame.height,
         request.shading
     ))
+}
+
+/// A file a command writes when its work is done, checked before the work: a
+/// folder that does not exist or cannot be written is refused at once. A
+/// regular file is written beside its place and renamed into it when complete,
+/// so a failure leaves no partial file; anything else that exists (a device,
+/// a pipe) is opened at once and written in place.
+enum OutputFile {
+    Replace {
+        path: PathBuf,
+        temp: tempfile::NamedTempFile,
+    },
+    InPlace {
+        path: PathBuf,
+        file: std::fs::File,
+    },
+}
+
+impl OutputFile {
+    fn prepare(path: PathBuf) -> anyhow::Result<OutputFile> {
+        let cannot = || format!("cannot write {}", path.display());
+        match std::fs::metadata(&path) {
+            Ok(meta) if meta.is_dir() => {
+                anyhow::bail!("{}: a folder: expected a file name", cannot())
+            }
+            Ok(meta) if !meta.is_file() => {
+                let file = std::fs::OpenOptions::new()
+                    .write(true)
+                    .open(&path)
+                    .with_context(cannot)?;
+                return Ok(OutputFile::InPlace { path, file });
+            }
+            _ => {}
+        }
+        let folder = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => std::path::Path::new("."),
+        };
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(".voxserve-").suffix(".partial");
+        // A file anyone may read, as the umask allows (not the owner-only
+        // mode of temporary files).
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+        let temp = builder.tempfile_in(folder).with_context(cannot)?;
+        Ok(OutputFile::Replace { path, temp })
+    }
+
+    /// Writes `bytes` and returns the path written.
+    fn write(self, bytes: &[u8]) -> anyhow::Result<PathBuf> {
+        match self {
+            OutputFile::Replace { path, mut temp } => {
+                let cannot = || format!("cannot write {}", path.display());
+                temp.write_all(bytes).with_context(cannot)?;
+                temp.persist(&path).with_context(cannot)?;
+                Ok(path)
+            }
+            OutputFile::InPlace { path, mut file } => {
+                file.write_all(bytes)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+                Ok(path)
+            }
+        }
+    }
 }
 
 /// `voxserve info`: what a file or DICOM folder holds, and its value statistics

@@ -54,15 +54,44 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!("{e:#}");
+            tracing::error!("{}", message(&e));
             ExitCode::FAILURE
         }
     }
 }
 
+/// `error` and its causes, each after a colon, leaving out a cause whose text
+/// the message already ends with (errors that repeat their source's words).
+fn message(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let part = cause.to_string();
+        if text.is_empty() {
+            text = part;
+        } else if !text.ends_with(&part) {
+            text = format!("{text}: {part}");
+        }
+    }
+    text
+}
+
 #[cfg(test)]
 mod tests {
     use clap::CommandFactory;
+
+    #[test]
+    fn an_error_message_names_each_cause_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file");
+        let error = anyhow::Error::new(blocks::Error::Io {
+            path: "/nowhere.raw".into(),
+            source: io,
+        })
+        .context("opening the dataset");
+        assert_eq!(
+            super::message(&error),
+            "opening the dataset: /nowhere.raw: No such file"
+        );
+    }
 
     #[test]
     fn the_command_line_is_well_formed() {

@@ -198,6 +198,14 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
         .unwrap_or_else(|| panic!("no reduction in: {said}"));
     assert!(said.contains("wrote") && reduction >= 9.0, "{said}");
     let cpu = image::open(&cpu_path).expect("CPU PNG").to_rgba8();
+    // Written beside its place and renamed into it: nothing else is left.
+    let folder = cpu_path.parent().expect("folder");
+    let partial: Vec<_> = std::fs::read_dir(folder)
+        .expect("read folder")
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+        .collect();
+    assert!(partial.is_empty(), "{partial:?}");
     assert_eq!(cpu.dimensions(), (96, 80));
     assert!(
         voxserve_tests::checks::coverage(&cpu) > 0.1,
@@ -239,6 +247,41 @@ fn without_an_adapter_render_names_the_package_to_install() {
     let stderr = text(&out.stderr);
     assert!(stderr.contains("no GPU adapter found"), "{stderr}");
     assert!(stderr.contains("mesa-vulkan-drivers"), "{stderr}");
+}
+
+#[test]
+fn render_refuses_an_output_it_cannot_write_before_rendering() {
+    // Without an adapter (no DX12 on Linux) any render fails; a refusal that
+    // names the output proves the output was checked first.
+    let run = |out: &str| {
+        let out = Command::new(VOXSERVE)
+            .args(["render", "--phantom-size", "16", "--out", out])
+            .env("WGPU_BACKEND", "dx12")
+            .output()
+            .expect("run voxserve");
+        assert!(!out.status.success());
+        text(&out.stderr)
+    };
+    let stderr = run("/nonexistent-voxserve-folder/x.png");
+    assert!(
+        stderr.contains("cannot write /nonexistent-voxserve-folder/x.png")
+            && !stderr.contains("GPU adapter"),
+        "{stderr}"
+    );
+    let folder = temp_path("output-folder");
+    std::fs::create_dir_all(&folder).expect("folder");
+    let stderr = run(folder.to_str().expect("UTF-8"));
+    assert!(
+        stderr.contains("a folder: expected a file name") && !stderr.contains("GPU adapter"),
+        "{stderr}"
+    );
+    // An error is named once, not once per layer.
+    let stderr = run("/nonexistent-voxserve-folder/x.png");
+    assert_eq!(
+        stderr.matches("No such file or directory").count(),
+        1,
+        "{stderr}"
+    );
 }
 
 /// Kills the server when the test ends, even on panic.
