@@ -194,31 +194,15 @@ async fn latency(
     // The first frame selects and uploads blocks: not timed.
     send_view(&mut socket, 1, serde_json::json!({"w": edge, "h": edge})).await?;
     next_frame(&mut socket, Some(1)).await?;
-    let (mut latency, mut overhead, mut render, mut encode, mut queue) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut pixels = 0usize;
-    let mut sizes = Vec::new();
-    for event in 0..args.events {
-        let id = event + 2;
-        let start = Instant::now();
-        send_view(
-            &mut socket,
-            id,
-            serde_json::json!({"az": f64::from(event) * 7.0}),
-        )
-        .await?;
-        let Some((header, size)) = next_frame_sized(&mut socket, Some(id)).await? else {
-            anyhow::bail!("no frame for message {id}");
-        };
-        sizes.push(size as f64);
-        let ms = start.elapsed().as_secs_f64() * 1e3;
-        latency.push(ms);
-        overhead.push(ms - f64::from(header.render_ms));
-        render.push(f64::from(header.render_ms));
-        encode.push(f64::from(header.encode_ms));
-        queue.push(f64::from(header.queue_ms));
-        pixels += usize::from(header.width) * usize::from(header.height);
-    }
+    let mut id = 2;
+    let mut m = camera_moves(&mut socket, &mut id, args.events, None).await?;
+    // Before the quantiles sort the columns.
+    let mut overhead: Vec<f64> = m
+        .latency
+        .iter()
+        .zip(&m.render)
+        .map(|(l, r)| l - r)
+        .collect();
     say(&serde_json::json!({
         "bench": "stream-latency",
         "adapter": adapter,
@@ -227,16 +211,16 @@ async fn latency(
         "width": edge,
         "height": edge,
         "events": args.events,
-        "latency_ms_p50": quantile(&mut latency, 0.5),
-        "latency_ms_p95": quantile(&mut latency, 0.95),
+        "latency_ms_p50": quantile(&mut m.latency, 0.5),
+        "latency_ms_p95": quantile(&mut m.latency, 0.95),
         "latency_minus_render_ms_p50": quantile(&mut overhead, 0.5),
         "latency_minus_render_ms_p95": quantile(&mut overhead, 0.95),
-        "render_ms_p50": quantile(&mut render, 0.5),
-        "encode_ms_p50": quantile(&mut encode, 0.5),
-        "encode_ms_p95": quantile(&mut encode, 0.95),
-        "queue_ms_p50": quantile(&mut queue, 0.5),
-        "pixels_per_frame": pixels / args.events.max(1) as usize,
-        "frame_bytes_p50": quantile(&mut sizes, 0.5),
+        "render_ms_p50": quantile(&mut m.render, 0.5),
+        "encode_ms_p50": quantile(&mut m.encode, 0.5),
+        "encode_ms_p95": quantile(&mut m.encode, 0.95),
+        "queue_ms_p50": quantile(&mut m.queue, 0.5),
+        "pixels_per_frame": m.pixels / args.events.max(1) as usize,
+        "frame_bytes_p50": quantile(&mut m.bytes, 0.5),
     })
     .to_string())
 }
@@ -390,13 +374,17 @@ async fn change_while_moving(
     Ok((a_frames?, during?))
 }
 
-/// B's camera moves: each one's event-to-frame milliseconds, and its frame's
-/// render and queue milliseconds.
+/// Camera moves, one entry per move: its event-to-frame milliseconds, and
+/// its frame's render, queue and encode milliseconds and size in bytes
+/// (header included); the pixels of all its frames.
 #[derive(Debug, Default)]
 struct Moves {
     latency: Vec<f64>,
     render: Vec<f64>,
     queue: Vec<f64>,
+    encode: Vec<f64>,
+    bytes: Vec<f64>,
+    pixels: usize,
 }
 
 /// What every `stream-cold-change` line shares.
@@ -471,14 +459,17 @@ async fn camera_moves(
             break;
         }
         let start = Instant::now();
-        let az = f64::from(*id) * 7.0;
+        let az = moves.latency.len() as f64 * 7.0;
         send_view(socket, *id, serde_json::json!({"az": az})).await?;
-        let Some(header) = next_frame(socket, Some(*id)).await? else {
+        let Some((header, bytes)) = next_frame_sized(socket, Some(*id)).await? else {
             anyhow::bail!("no frame for message {id}");
         };
         moves.latency.push(start.elapsed().as_secs_f64() * 1e3);
         moves.render.push(f64::from(header.render_ms));
         moves.queue.push(f64::from(header.queue_ms));
+        moves.encode.push(f64::from(header.encode_ms));
+        moves.bytes.push(bytes as f64);
+        moves.pixels += usize::from(header.width) * usize::from(header.height);
         *id += 1;
     }
     Ok(moves)
@@ -491,7 +482,7 @@ async fn until_converged(socket: &mut Socket, id: u32) -> anyhow::Result<Vec<(Fr
     let mut frames = Vec::new();
     loop {
         let Some(header) = next_frame(socket, Some(id)).await? else {
-            continue;
+            anyhow::bail!("no frame for message {id}");
         };
         let done = header.lossless && header.converged;
         frames.push((header, start.elapsed().as_secs_f64() * 1e3));
