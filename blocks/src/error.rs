@@ -48,6 +48,14 @@ pub enum Error {
         /// The decoder's reason.
         detail: String,
     },
+    /// A file a store must hold is missing: its voxels are unknown, never empty.
+    #[error("{}: missing: {detail}", path.display())]
+    Missing {
+        /// The (first) missing file.
+        path: PathBuf,
+        /// Which files, and what it means for the view.
+        detail: String,
+    },
     /// A folder holds several DICOM series and none was chosen.
     #[error(
         "{}: the folder holds {count} DICOM series; choose one with --series UID:\n{listing}",

@@ -7,81 +7,12 @@ use std::path::Path;
 use std::sync::Arc;
 
 use blocks::cache::BlockCache;
-use blocks::ingest::{self, VolumeInfo, VolumeSource};
+use blocks::ingest;
 use blocks::store::{self, BLOCK, IngestOptions, LEVELS, Store, level_dims};
-use blocks::{Error, Geometry, Preset, ValueMap, VoxelData, VoxelType};
+use blocks::{Error, Geometry, Preset, VoxelData, VoxelType};
 
-/// An in-memory volume as a source, optionally failing at a slab.
-#[derive(Debug)]
-struct Memory {
-    info: VolumeInfo,
-    voxels: VoxelData,
-    fail_at_slab: Option<u32>,
-}
-
-impl Memory {
-    fn new(dims: [u32; 3], voxels: VoxelData) -> Memory {
-        Memory {
-            info: VolumeInfo {
-                path: "memory.raw".into(),
-                format: ingest::Format::Raw,
-                geometry: Geometry {
-                    dims,
-                    spacing: [0.5, 0.75, 2.0],
-                    origin: [10.0, -20.0, 30.0],
-                    direction: blocks::geometry::IDENTITY_DIRECTION,
-                },
-                voxel_type: voxels.voxel_type(),
-                value_map: ValueMap {
-                    slope: 1.0,
-                    intercept: -1024.0,
-                },
-                unit: Some("HU".into()),
-                modality: Some("CT".into()),
-                description: None,
-                notes: vec![],
-            },
-            voxels,
-            fail_at_slab: None,
-        }
-    }
-
-    fn at(&self, x: u32, y: u32, z: u32) -> f64 {
-        let [nx, ny, _] = self.info.geometry.dims;
-        self.voxels.get(((z * ny + y) * nx + x) as usize)
-    }
-}
-
-impl VolumeSource for Memory {
-    fn info(&self) -> &VolumeInfo {
-        &self.info
-    }
-
-    fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
-        if self.fail_at_slab == Some(z0 / BLOCK) && depth <= BLOCK {
-            return Err(Error::InvalidVolume {
-                name: "memory".into(),
-                reason: "injected failure".into(),
-            });
-        }
-        let slice = (self.info.geometry.dims[0] * self.info.geometry.dims[1]) as usize;
-        let range = z0 as usize * slice..(z0 + depth) as usize * slice;
-        Ok(self.voxels.slice(range))
-    }
-}
-
-/// A deterministic pseudo-random u16 volume with structure (so levels differ).
-fn noise_u16(dims: [u32; 3]) -> VoxelData {
-    let n = dims.iter().product::<u32>();
-    VoxelData::U16(
-        (0..n)
-            .map(|i| {
-                let h = u64::from(i).wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 52;
-                (h as u16).wrapping_add((i % dims[0]) as u16 * 37)
-            })
-            .collect(),
-    )
-}
+mod common;
+use common::{Memory, noise_u16, reseal};
 
 fn ingest_to(dir: &Path, source: &mut Memory) -> Result<Store, Error> {
     let out = dir.join("store");
@@ -269,6 +200,7 @@ fn folders_that_are_not_complete_stores_are_refused() {
     let dims = [16, 16, 16];
     let mut source = Memory::new(dims, noise_u16(dims));
     let store = ingest_to(dir.path(), &mut source).expect("ingest");
+    let folder = store.location().file("");
     let root = store.location().file("zarr.json");
     let text = std::fs::read_to_string(&root).expect("read");
     std::fs::write(
@@ -276,6 +208,7 @@ fn folders_that_are_not_complete_stores_are_refused() {
         text.replace("\"complete\": true", "\"complete\": false"),
     )
     .expect("write");
+    reseal(&folder);
     let msg = Store::open(store.location().clone())
         .expect_err("incomplete")
         .to_string();
@@ -328,19 +261,36 @@ fn a_new_store_writes_the_old_metadata_and_opens_with_it() {
     let volume = Arc::new(blocks::phantom::head(100).expect("phantom"));
     let mut source = ingest::MemorySource::new(volume, "phantom");
     store::ingest(&mut source, &path, &IngestOptions::default(), &mut |_| {}).expect("ingest");
-    // What the old code reads: the same record it wrote itself.
+    // What the old code reads: the same record it wrote itself, but for the
+    // format version (2 since stores carry a manifest).
     let root = path.join("zarr.json");
     let mut json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&root).expect("read")).expect("JSON");
-    assert_eq!(json["attributes"]["voxserve"], old_meta());
-    // A store whose record the old code wrote opens.
-    json["attributes"]["voxserve"] = old_meta();
+    let mut record = old_meta();
+    record["format_version"] = store::FORMAT_VERSION.into();
+    assert_eq!(json["attributes"]["voxserve"], record);
+    // A store whose record the old code wrote opens (with the manifest made again
+    // for the edited metadata).
+    json["attributes"]["voxserve"] = record;
     std::fs::write(&root, json.to_string()).expect("write");
+    reseal(&path);
     let store = Store::open(&path).expect("a store with the old record opens");
     assert_eq!(store.meta().geometry.dims, [100; 3]);
+    // A store of format 1, without a manifest, is refused naming the format.
+    json["attributes"]["voxserve"] = old_meta();
+    std::fs::write(&root, json.to_string()).expect("write");
+    std::fs::remove_file(path.join(store::manifest::MANIFEST_KEY)).expect("rm manifest");
+    let msg = Store::open(&path).expect_err("format 1").to_string();
+    assert!(
+        msg.contains("format_version: 1: expected 2 (a store with a manifest of its files)"),
+        "{msg}"
+    );
     // Its geometry is checked on open, naming the key at fault.
+    json["attributes"]["voxserve"] = old_meta();
+    json["attributes"]["voxserve"]["format_version"] = store::FORMAT_VERSION.into();
     json["attributes"]["voxserve"]["spacing"] = serde_json::json!([2.4, 0.0, 2.4]);
     std::fs::write(&root, json.to_string()).expect("write");
+    reseal(&path);
     let msg = Store::open(&path).expect_err("zero spacing").to_string();
     assert!(
         msg.contains("attributes.voxserve.spacing: [2.4, 0.0, 2.4]: expected finite positive"),

@@ -11,7 +11,9 @@ use blocks::ingest::{self, VolumeInfo, VolumeSource, VolumeStats};
 use shaders::{GpuContext, Renderer};
 use tokio::net::TcpListener;
 
-use crate::cli::{Command, DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs, SettingsArgs};
+use crate::cli::{
+    Command, DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs, SettingsArgs, VerifyArgs,
+};
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
 
@@ -32,6 +34,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Render(args) => render(*args),
         Command::Info(args) => info(&args),
         Command::Ingest(args) => ingest(&args),
+        Command::Verify(args) => verify(&args),
         Command::Settings(args) => settings(&args),
     }
 }
@@ -75,7 +78,9 @@ pub fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
     Ok(dataset)
 }
 
-/// The brick stores directly inside `dir`, by name.
+/// The brick stores directly inside `dir`, by name. Hidden entries are never
+/// stores: what an interrupted ingest left there (`.NAME.partial-PID`,
+/// `.NAME.old-PID`) is reported, not served.
 pub fn stores_in(dir: &std::path::Path) -> anyhow::Result<Vec<PathBuf>> {
     let entries = std::fs::read_dir(dir).with_context(|| {
         format!(
@@ -83,11 +88,22 @@ pub fn stores_in(dir: &std::path::Path) -> anyhow::Result<Vec<PathBuf>> {
             dir.display()
         )
     })?;
-    let mut stores: Vec<PathBuf> = entries
-        .filter_map(Result::ok)
-        .map(|e| e.path())
-        .filter(|p| blocks::store::Store::is_store(p))
-        .collect();
+    let mut stores = Vec::new();
+    for entry in entries.filter_map(Result::ok) {
+        let (path, name) = (entry.path(), entry.file_name());
+        let name = name.to_string_lossy();
+        if let Some((of, pid)) = blocks::store::ingest::leftover_of(&name) {
+            if !blocks::store::ingest::process_runs(pid) {
+                tracing::warn!(
+                    "{}: left by an ingest of {of} that did not finish (process {pid}); not \
+                     served; the next ingest to {of} removes it, or remove it yourself",
+                    path.display()
+                );
+            }
+        } else if !name.starts_with('.') && blocks::store::Store::is_store(&path) {
+            stores.push(path);
+        }
+    }
     stores.sort();
     if stores.is_empty() {
         tracing::warn!("--data {}: no brick stores in it", dir.display());
@@ -111,7 +127,12 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     }
     if let Some(dir) = &args.data_dir {
         for path in stores_in(dir)? {
-            datasets.push(load_dataset(&path.to_string_lossy(), &args.data)?);
+            // A store that does not open is left out, named in the log; the
+            // others are served.
+            match load_dataset(&path.to_string_lossy(), &args.data) {
+                Ok(dataset) => datasets.push(dataset),
+                Err(e) => tracing::error!("not serving {}: {e:#}", path.display()),
+            }
         }
     }
     for (i, d) in datasets.iter().enumerate() {
@@ -423,9 +444,9 @@ pub fn ingest(args: &IngestArgs) -> anyhow::Result<()> {
     let options = blocks::store::IngestOptions {
         overwrite: args.force,
         zstd_level: args.zstd_level,
-        abort_after_slabs: std::env::var("VOXSERVE_FAULT_ABORT_AFTER_SLABS")
+        fault: std::env::var("VOXSERVE_FAULT_ABORT")
             .ok()
-            .and_then(|v| v.parse().ok()),
+            .and_then(|v| blocks::store::ingest::FaultPoint::parse(&v)),
     };
     let bar = progress_bar(nz, "value range");
     let summary = blocks::store::ingest(source.as_mut(), &args.out, &options, &mut |p| match p {
@@ -454,6 +475,29 @@ pub fn ingest(args: &IngestArgs) -> anyhow::Result<()> {
     ))
 }
 
+/// `voxserve verify STORE`: every file against the manifest.
+pub fn verify(args: &VerifyArgs) -> anyhow::Result<()> {
+    let report = blocks::store::verify(&args.store)?;
+    let problems = report.problems.len();
+    if problems > 0 {
+        let lines: Vec<String> = report.problems.iter().map(ToString::to_string).collect();
+        anyhow::bail!(
+            "{}: {problems} of its files do not match the manifest written at ingest; its \
+             voxels cannot be trusted (restore the files or ingest again):\n{}",
+            args.store.display(),
+            lines.join("\n")
+        );
+    }
+    // The metadata and the statistics, read as the server reads them.
+    blocks::store::Store::open(&args.store)?;
+    say(&format!(
+        "{}: intact: {} files, {:.2} MB, sizes and SHA-256 as written at ingest",
+        args.store.display(),
+        report.files,
+        report.bytes as f64 / 1e6
+    ))
+}
+
 /// `voxserve info STORE`: the store's metadata and block statistics, no voxels read.
 fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
     let store = blocks::store::Store::open(&args.path)?;
@@ -465,7 +509,7 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
             lo == hi
         })
         .count();
-    let bytes = blocks::store::ingest::folder_bytes(&args.path);
+    let usage = blocks::store::ingest::folder_usage(&args.path);
     let source_bytes = m.geometry.voxel_count() as f64 * store.voxel_type().size() as f64;
     if args.json {
         return say(&serde_json::to_string_pretty(&serde_json::json!({
@@ -473,7 +517,9 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
             "format": "voxserve brick store (OME-Zarr 0.5)",
             "meta": m,
             "uniform_blocks": uniform,
-            "store_bytes": bytes,
+            "store_files": usage.files,
+            "store_bytes": usage.bytes,
+            "store_allocated_bytes": usage.allocated,
             "value_range": m.value_range(),
         }))?);
     }
@@ -499,10 +545,13 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
             m.blocks[0], m.blocks[1], m.blocks[2], uniform
         ),
         format!(
-            "size:        {:.1} MB on disk for {:.1} MB of voxels ({:.2}:1)",
-            bytes as f64 / 1e6,
+            "size:        {:.2} MB in {} files ({:.2} MB allocated on disk) for {:.2} MB of \
+             voxels ({:.2}:1)",
+            usage.bytes as f64 / 1e6,
+            usage.files,
+            usage.allocated as f64 / 1e6,
             source_bytes / 1e6,
-            source_bytes / bytes.max(1) as f64
+            source_bytes / usage.bytes.max(1) as f64
         ),
         format!(
             "modality:    {}",

@@ -17,10 +17,27 @@ pub enum AppError {
     /// The server is at capacity; the client may retry. Answered with 503.
     #[error("{0}")]
     Busy(String),
+    /// The volume data the view needs cannot be read: a file of the store is
+    /// missing or damaged. Logged; answered with 500 and the reason, naming the
+    /// file, so the client shows it (never an image with the data left out).
+    #[error("the volume data of this view cannot be read: {0}")]
+    DataUnreadable(String),
     /// Something broke inside the server. Logged once here; the client sees a
     /// generic 500.
     #[error("internal error: {0}")]
     Internal(String),
+}
+
+impl AppError {
+    /// Logs the error if it is one the server's operator must see (data that
+    /// cannot be read, internal failures); returns it.
+    pub fn logged(self) -> AppError {
+        match &self {
+            AppError::DataUnreadable(_) | AppError::Internal(_) => tracing::error!("{self}"),
+            _ => {}
+        }
+        self
+    }
 }
 
 impl IntoResponse for AppError {
@@ -29,6 +46,10 @@ impl IntoResponse for AppError {
             AppError::BadRequest(m) => (StatusCode::BAD_REQUEST, m),
             AppError::NotFound(m) => (StatusCode::NOT_FOUND, m),
             AppError::Busy(m) => (StatusCode::SERVICE_UNAVAILABLE, m),
+            e @ AppError::DataUnreadable(_) => {
+                let message = e.logged().to_string();
+                (StatusCode::INTERNAL_SERVER_ERROR, message)
+            }
             AppError::Internal(m) => {
                 tracing::error!("{m}");
                 (

@@ -235,6 +235,7 @@ impl RenderService {
             GpuError::Unsupported { .. } | GpuError::Setting(_) => {
                 AppError::BadRequest(e.to_string())
             }
+            GpuError::Data(e) => AppError::DataUnreadable(e.to_string()),
             other => AppError::Internal(other.to_string()),
         })
     }

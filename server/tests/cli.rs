@@ -306,14 +306,24 @@ async fn serve_prints_its_url_and_renders_the_phantom() {
     let data = dir.path().join("data");
     std::fs::create_dir(&data).expect("data folder");
     std::fs::write(data.join("notes.txt"), "not a store").expect("a stray file");
-    let store = data.join("scan.zarr");
-    let out = voxserve(&[
-        "ingest",
-        raw.to_str().expect("utf-8"),
-        "--out",
-        store.to_str().expect("utf-8"),
-    ]);
-    assert!(out.status.success(), "ingest: {}", text(&out.stderr));
+    for name in ["scan.zarr", "broken.zarr", "leftover.zarr"] {
+        let out = voxserve(&[
+            "ingest",
+            raw.to_str().expect("utf-8"),
+            "--out",
+            data.join(name).to_str().expect("utf-8"),
+        ]);
+        assert!(out.status.success(), "ingest: {}", text(&out.stderr));
+    }
+    // A store missing a shard is not served; what a killed ingest left (a
+    // complete store under a hidden name) is reported, never listed.
+    let broken_shard = data.join("broken.zarr/0/c/0/0/0");
+    std::fs::remove_file(&broken_shard).expect("delete a shard");
+    let dead = Command::new("true").spawn().expect("spawn");
+    let dead_pid = dead.id();
+    let _ = { dead }.wait();
+    let leftover = data.join(format!(".scan.zarr.old-{dead_pid}"));
+    std::fs::rename(data.join("leftover.zarr"), &leftover).expect("rename");
     let mut child = Command::new(VOXSERVE)
         .args([
             "serve",
@@ -407,6 +417,20 @@ async fn serve_prints_its_url_and_renders_the_phantom() {
         .expect("PNG")
         .to_rgba8();
     assert_eq!(img.dimensions(), (32, 24));
+    drop(server);
+    let log = stderr.join().expect("stderr");
+    assert!(
+        log.contains("not serving")
+            && log.contains(&format!("{}: missing", broken_shard.display())),
+        "{log}"
+    );
+    assert!(
+        log.contains(&format!(
+            "{}: left by an ingest of scan.zarr",
+            leftover.display()
+        )),
+        "{log}"
+    );
 }
 
 #[test]
@@ -497,7 +521,7 @@ fn ingest_writes_a_store_and_a_killed_ingest_leaves_none() {
     // Killed after two slabs (the process aborts as a crash or SIGKILL would).
     let out = Command::new(VOXSERVE)
         .args(["ingest", raw_arg, "--out", store_arg])
-        .env("VOXSERVE_FAULT_ABORT_AFTER_SLABS", "2")
+        .env("VOXSERVE_FAULT_ABORT", "after-slabs:2")
         .output()
         .expect("run");
     assert!(!out.status.success(), "the ingest was aborted");
@@ -546,4 +570,150 @@ fn ingest_writes_a_store_and_a_killed_ingest_leaves_none() {
     );
     let forced = voxserve(&["ingest", raw_arg, "--out", store_arg, "--force"]);
     assert!(forced.status.success(), "{}", text(&forced.stderr));
+}
+
+/// Writes a `nx × ny × nz` uint16 raw volume named for its size into `dir`.
+fn raw_volume(dir: &std::path::Path, [nx, ny, nz]: [u32; 3]) -> PathBuf {
+    let raw = dir.join(format!("scan_{nx}x{ny}x{nz}_uint16.raw"));
+    let bytes: Vec<u8> = (0..nx * ny * nz)
+        .flat_map(|i| (((i * 7) % 4000) as u16 + 1).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).expect("raw");
+    raw
+}
+
+#[test]
+fn ingest_force_killed_at_any_step_leaves_a_complete_store_that_verify_accepts() {
+    let dir = tempfile::tempdir().expect("temp");
+    let old = raw_volume(dir.path(), [40, 30, 70]);
+    let new = raw_volume(dir.path(), [40, 30, 90]);
+    let store = dir.path().join("scan.zarr");
+    let store_arg = store.to_str().expect("utf-8");
+    for point in [
+        "after-slabs:2",
+        "before-manifest",
+        "before-replace",
+        "after-exchange",
+        "after-move-aside",
+    ] {
+        let first = voxserve(&[
+            "ingest",
+            old.to_str().expect("utf-8"),
+            "--out",
+            store_arg,
+            "--force",
+        ]);
+        assert!(first.status.success(), "{}", text(&first.stderr));
+        // Killed (the process aborts as SIGKILL or a crash would) at `point`.
+        let killed = Command::new(VOXSERVE)
+            .args([
+                "ingest",
+                new.to_str().expect("utf-8"),
+                "--out",
+                store_arg,
+                "--force",
+            ])
+            .env("VOXSERVE_FAULT_ABORT", point)
+            .output()
+            .expect("run");
+        assert!(!killed.status.success(), "{point}: aborted");
+        let verified = voxserve(&["verify", store_arg]);
+        assert!(
+            verified.status.success() && text(&verified.stdout).contains(": intact: "),
+            "{point}: {}{}",
+            text(&verified.stdout),
+            text(&verified.stderr)
+        );
+        let dims = blocks::store::Store::open(&store)
+            .expect("opens")
+            .meta()
+            .geometry
+            .dims;
+        let expected = if point.starts_with("after-e") || point.starts_with("after-m") {
+            [40, 30, 90]
+        } else {
+            [40, 30, 70]
+        };
+        assert_eq!(
+            dims, expected,
+            "{point}: the old store until the exchange, then the new"
+        );
+        let hidden: Vec<String> = std::fs::read_dir(dir.path())
+            .expect("dir")
+            .filter_map(Result::ok)
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with('.'))
+            .collect();
+        assert_eq!(hidden.len(), 1, "{point}: one leftover: {hidden:?}");
+        assert!(
+            blocks::store::ingest::leftover_of(&hidden[0]).is_some(),
+            "{point}: {hidden:?}"
+        );
+    }
+    // The next ingest removes what the killed one left.
+    let last = voxserve(&[
+        "ingest",
+        old.to_str().expect("utf-8"),
+        "--out",
+        store_arg,
+        "--force",
+    ]);
+    assert!(last.status.success(), "{}", text(&last.stderr));
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .expect("dir")
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(names.is_empty(), "{names:?}");
+}
+
+#[test]
+fn info_render_and_verify_name_a_missing_shard_and_info_counts_every_file() {
+    let dir = tempfile::tempdir().expect("temp");
+    let raw = raw_volume(dir.path(), [20, 20, 150]);
+    let store = dir.path().join("scan.zarr");
+    let store_arg = store.to_str().expect("utf-8");
+    let out = voxserve(&["ingest", raw.to_str().expect("utf-8"), "--out", store_arg]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    // The size counts every file, the statistics and metadata included.
+    let out = voxserve(&["info", "--json", store_arg]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let usage = blocks::store::ingest::folder_usage(&store);
+    let stats_bytes = blocks::store::ingest::folder_usage(&store.join("voxserve")).bytes;
+    assert!(stats_bytes > 0);
+    assert_eq!(json["store_bytes"], usage.bytes);
+    assert_eq!(json["store_files"], usage.files);
+    let info = text(&voxserve(&["info", store_arg]).stdout);
+    let raw_mb = 20.0 * 20.0 * 150.0 * 2.0 / 1e6;
+    let ratio = raw_mb / (usage.bytes as f64 / 1e6);
+    assert!(
+        ratio < 1.0,
+        "a tiny volume's store is larger than its voxels"
+    );
+    assert!(info.contains(&format!("({ratio:.2}:1)")), "{info}");
+
+    let shard = store.join("0/c/1/0/0");
+    std::fs::remove_file(&shard).expect("delete");
+    let named = format!("{}: missing", shard.display());
+    for args in [
+        vec!["info", store_arg],
+        vec!["verify", store_arg],
+        vec![
+            "render",
+            store_arg,
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--out",
+            "/dev/null",
+        ],
+    ] {
+        let out = voxserve(&args);
+        let stderr = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(stderr.contains(&named), "{args:?}: {stderr}");
+    }
 }

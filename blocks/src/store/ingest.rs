@@ -22,6 +22,7 @@ use zarrs::group::GroupBuilder;
 use zarrs::storage::store::MemoryStore;
 use zarrs::storage::{ReadableStorageTraits, ReadableWritableStorageTraits};
 
+use super::manifest::{self, Manifest};
 use super::pyramid::{self, LEVELS, level_dims};
 use super::stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
 use super::{FORMAT_VERSION, SHARD, StoreMeta, store_error};
@@ -35,9 +36,47 @@ pub struct IngestOptions {
     pub overwrite: bool,
     /// zstd compression level (1 fast … 19 small).
     pub zstd_level: i32,
-    /// Fault injection for tests: abort the process after this many slabs, as a
-    /// crash or a kill would.
-    pub abort_after_slabs: Option<u32>,
+    /// Fault injection for tests: abort the process at this point, as a crash
+    /// or a kill would.
+    pub fault: Option<FaultPoint>,
+}
+
+/// A point of an ingest where a test may make the process abort.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultPoint {
+    /// After this many slabs were written.
+    AfterSlabs(u32),
+    /// With every level, the statistics and the root metadata written, before
+    /// the manifest.
+    BeforeManifest,
+    /// With the new store complete and flushed, before it moves into place.
+    BeforeReplace,
+    /// After the exchange: the destination holds the new store, the temporary
+    /// name the old one.
+    AfterExchange,
+    /// After the old store was renamed `.NAME.old-PID`, before it is removed.
+    AfterMoveAside,
+}
+
+impl FaultPoint {
+    /// The point named `text`: `after-slabs:N`, `before-manifest`,
+    /// `before-replace`, `after-exchange` or `after-move-aside`.
+    pub fn parse(text: &str) -> Option<FaultPoint> {
+        Some(match text {
+            "before-manifest" => FaultPoint::BeforeManifest,
+            "before-replace" => FaultPoint::BeforeReplace,
+            "after-exchange" => FaultPoint::AfterExchange,
+            "after-move-aside" => FaultPoint::AfterMoveAside,
+            _ => FaultPoint::AfterSlabs(text.strip_prefix("after-slabs:")?.parse().ok()?),
+        })
+    }
+
+    /// Aborts the process if `self` is `at`.
+    fn abort_at(this: Option<FaultPoint>, at: FaultPoint) {
+        if this == Some(at) {
+            std::process::abort();
+        }
+    }
 }
 
 impl Default for IngestOptions {
@@ -45,7 +84,7 @@ impl Default for IngestOptions {
         IngestOptions {
             overwrite: false,
             zstd_level: 3,
-            abort_after_slabs: None,
+            fault: None,
         }
     }
 }
@@ -132,7 +171,8 @@ fn zarr_type(t: VoxelType) -> (zarrs::array::DataType, zarrs::array::FillValue) 
 }
 
 /// Writes `source` as a brick store in the folder `out` (see the module docs of
-/// [`super`] for crash safety).
+/// [`super`] for crash safety). An existing `out` is refused unless
+/// `options.overwrite` is set, and then only if it is a brick store.
 pub fn ingest(
     source: &mut dyn VolumeSource,
     out: &Path,
@@ -140,13 +180,7 @@ pub fn ingest(
     progress: &mut dyn FnMut(IngestProgress),
 ) -> Result<IngestSummary, Error> {
     let start = Instant::now();
-    if out.exists() && !options.overwrite {
-        return Err(store_error(
-            out,
-            "output",
-            "exists: expected a new path (or --force to replace it)",
-        ));
-    }
+    check_destination(out, options.overwrite)?;
     let name = out
         .file_name()
         .ok_or_else(|| store_error(out, "output", "expected a folder name"))?
@@ -166,7 +200,7 @@ pub fn ingest(
             ),
         ));
     }
-    remove_stale_partials(&parent, &name);
+    remove_leftovers(&parent, &name);
     let temp = TempDir {
         path: parent.join(format!(".{name}.partial-{}", std::process::id())),
         keep: false,
@@ -178,24 +212,85 @@ pub fn ingest(
     let storage: Arc<dyn ReadableWritableStorageTraits> =
         Arc::new(FilesystemStore::new(&temp.path).map_err(|e| zarr_error(&temp.path, "store", e))?);
     let written = write_store(source, &storage, &temp.path, options, progress)?;
-
-    // Into place: move an old store aside first, so the destination always holds
-    // a complete store (old or new).
-    if out.exists() {
-        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-        std::fs::rename(out, &old).map_err(io_error(out))?;
-        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
-        std::fs::remove_dir_all(&old).map_err(io_error(&old))?;
-    } else {
-        std::fs::rename(&temp.path, out).map_err(io_error(out))?;
-    }
+    FaultPoint::abort_at(options.fault, FaultPoint::BeforeManifest);
+    let manifest = Manifest::of_folder(&temp.path)?;
+    manifest.write(&temp.path)?;
+    manifest::sync_tree(&temp.path)?;
+    FaultPoint::abort_at(options.fault, FaultPoint::BeforeReplace);
     let mut temp = temp;
+    move_into_place(&temp.path, out, options)?;
     temp.keep = true;
     Ok(IngestSummary {
-        store_bytes: folder_bytes(out),
+        store_bytes: folder_usage(out).bytes,
         seconds: start.elapsed().as_secs_f64(),
         ..written
     })
+}
+
+/// Refuses an existing `out` unless `overwrite`, and then anything but a brick store.
+fn check_destination(out: &Path, overwrite: bool) -> Result<(), Error> {
+    if std::fs::symlink_metadata(out).is_err() {
+        return Ok(());
+    }
+    if !overwrite {
+        return Err(store_error(
+            out,
+            "output",
+            "exists: expected a new path (or --force to replace the brick store there)",
+        ));
+    }
+    if !out.is_dir() || !super::Store::is_store(out) {
+        return Err(store_error(
+            out,
+            "output",
+            "exists and is not a voxserve brick store: --force replaces only a store (remove \
+             the path yourself, or choose another --out)",
+        ));
+    }
+    Ok(())
+}
+
+/// Moves the complete store at `temp` to `out`. A new path is taken only if it
+/// is still free; an existing store is exchanged with the new one in one atomic
+/// step, then moved aside as `.NAME.old-PID` and removed. The parent folder is
+/// flushed after each step.
+fn move_into_place(temp: &Path, out: &Path, options: &IngestOptions) -> Result<(), Error> {
+    use rustix::fs::{CWD, RenameFlags, renameat_with};
+    let parent = temp.parent().unwrap_or(Path::new("."));
+    let rename_error = |source: rustix::io::Errno| Error::Io {
+        path: out.to_owned(),
+        source: source.into(),
+    };
+    let taken = || {
+        store_error(
+            out,
+            "output",
+            "exists (another ingest finished there first): expected a new path (or --force \
+             to replace the brick store there)",
+        )
+    };
+    if std::fs::symlink_metadata(out).is_err() {
+        return match renameat_with(CWD, temp, CWD, out, RenameFlags::NOREPLACE) {
+            Ok(()) => manifest::sync_folder(parent),
+            Err(rustix::io::Errno::EXIST) => Err(taken()),
+            Err(e) => Err(rename_error(e)),
+        };
+    }
+    if !options.overwrite {
+        return Err(taken());
+    }
+    check_destination(out, options.overwrite)?;
+    renameat_with(CWD, temp, CWD, out, RenameFlags::EXCHANGE).map_err(rename_error)?;
+    manifest::sync_folder(parent)?;
+    FaultPoint::abort_at(options.fault, FaultPoint::AfterExchange);
+    // `temp` now holds the old store.
+    let name = out.file_name().unwrap_or_default().to_string_lossy();
+    let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+    std::fs::rename(temp, &old).map_err(io_error(&old))?;
+    manifest::sync_folder(parent)?;
+    FaultPoint::abort_at(options.fault, FaultPoint::AfterMoveAside);
+    std::fs::remove_dir_all(&old).map_err(io_error(&old))?;
+    manifest::sync_folder(parent)
 }
 
 /// Bricks `source` into a store held in memory (compressed as on disk), for
@@ -243,7 +338,10 @@ fn write_store(
         voxel_type: info.voxel_type,
         path,
         last_row: grid[2] - 1,
-        abort_after_slabs: options.abort_after_slabs,
+        abort_after_slabs: match options.fault {
+            Some(FaultPoint::AfterSlabs(n)) => Some(n),
+            _ => None,
+        },
     };
     let uniform_blocks = write_slabs(source, writer, grid, range, progress)?;
 
@@ -603,44 +701,81 @@ fn ome_multiscales(meta: &StoreMeta) -> serde_json::Value {
     })
 }
 
-/// Removes temporary folders that ingests to the same destination left behind
-/// when they were killed: `.NAME.partial-PID` whose process no longer runs
-/// (checked in /proc; elsewhere nothing is removed).
-fn remove_stale_partials(parent: &Path, name: &str) {
-    let prefix = format!(".{name}.partial-");
+/// What an ingest that did not finish may leave beside its destination `NAME`:
+/// `.NAME.partial-PID` (the new store being written; after an exchange, the old
+/// one) and `.NAME.old-PID` (the old store being removed). Returns the name of
+/// the destination and the process that left it.
+pub fn leftover_of(file_name: &str) -> Option<(&str, u32)> {
+    let rest = file_name.strip_prefix('.')?;
+    [".partial-", ".old-"].iter().find_map(|marker| {
+        let (name, pid) = rest.rsplit_once(marker)?;
+        Some((name, pid.parse().ok()?))
+    })
+}
+
+/// Whether process `pid` runs (checked in /proc; `true` where there is none,
+/// so nothing is removed there).
+pub fn process_runs(pid: u32) -> bool {
+    !Path::new("/proc/self").exists() || Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Removes what ingests to the same destination left behind when they were
+/// killed (see [`leftover_of`]), unless their process still runs.
+fn remove_leftovers(parent: &Path, name: &str) {
     let Ok(entries) = std::fs::read_dir(parent) else {
         return;
     };
     for entry in entries.filter_map(Result::ok) {
         let file_name = entry.file_name().to_string_lossy().into_owned();
-        let Some(pid) = file_name
-            .strip_prefix(&prefix)
-            .and_then(|p| p.parse::<u32>().ok())
-        else {
-            continue;
-        };
-        let alive = Path::new(&format!("/proc/{pid}")).exists();
-        if Path::new("/proc/self").exists() && !alive {
-            tracing::info!(
-                "removing {}, left by an ingest that did not finish",
-                entry.path().display()
-            );
-            let _ = std::fs::remove_dir_all(entry.path());
+        match leftover_of(&file_name) {
+            Some((of, pid)) if of == name && !process_runs(pid) => {
+                tracing::info!(
+                    "removing {}, left by an ingest that did not finish",
+                    entry.path().display()
+                );
+                let _ = std::fs::remove_dir_all(entry.path());
+            }
+            _ => {}
         }
     }
 }
 
-/// Bytes of all files under `path`.
-pub fn folder_bytes(path: &Path) -> u64 {
-    let Ok(entries) = std::fs::read_dir(path) else {
-        return 0;
+/// What a folder takes: its files and bytes, and the bytes the file system
+/// allocates for them and for the folders (what `du` counts).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FolderUsage {
+    /// Regular files under the folder.
+    pub files: u64,
+    /// Their bytes.
+    pub bytes: u64,
+    /// Bytes allocated on disk for the files and every folder, the folder itself included.
+    pub allocated: u64,
+}
+
+/// What the folder `path` takes (links are not followed).
+pub fn folder_usage(path: &Path) -> FolderUsage {
+    use std::os::unix::fs::MetadataExt;
+    let mut usage = FolderUsage {
+        allocated: std::fs::symlink_metadata(path).map_or(0, |m| m.blocks() * 512),
+        ..FolderUsage::default()
     };
-    entries
-        .filter_map(Result::ok)
-        .map(|e| match e.file_type() {
-            Ok(t) if t.is_dir() => folder_bytes(&e.path()),
-            Ok(_) => e.metadata().map_or(0, |m| m.len()),
-            Err(_) => 0,
-        })
-        .sum()
+    let Ok(entries) = std::fs::read_dir(path) else {
+        return usage;
+    };
+    for entry in entries.filter_map(Result::ok) {
+        let Ok(meta) = entry.metadata() else {
+            continue;
+        };
+        if meta.is_dir() {
+            let inner = folder_usage(&entry.path());
+            usage.files += inner.files;
+            usage.bytes += inner.bytes;
+            usage.allocated += inner.allocated;
+        } else {
+            usage.files += u64::from(meta.is_file());
+            usage.bytes += meta.len();
+            usage.allocated += meta.blocks() * 512;
+        }
+    }
+    usage
 }

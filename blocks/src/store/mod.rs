@@ -10,28 +10,44 @@
 //!                                 the shard index carries a crc32c
 //! STORE/voxserve/block_min_max    f64 [level, bz, by, bx, 2]: stored min and max
 //! STORE/voxserve/block_histogram  u16 [level, bz, by, bx, 32]: over the stored range
+//! STORE/voxserve/manifest.json    every other file with its size and SHA-256 (written last)
 //! ```
 //! Level l is the volume averaged over boxes of 2^l voxels. A flat-blocking block
 //! at level l — the 16³ region of the full volume seen at (16 / 2^l)³ voxels — is
 //! the matching sub-cube of a level-l inner chunk: block b lies in chunk b >> l.
 //! Any Zarr v3 reader (zarr-python, napari, neuroglancer) can read the levels.
 //!
+//! # Completeness
+//! `zarrs` leaves out a shard whose voxels all hold the fill value (0) and reads
+//! a missing one as that value, so a deleted shard would look like air. The
+//! [`manifest`] lists every file the ingest wrote; a listed file that is missing
+//! is [`Error::Missing`] naming it (when the store opens, and on every read), and
+//! a shard it does not list must be one whose blocks the statistics say are all
+//! 0, which [`Store::open`] checks. Opening also checks the metadata files
+//! against their SHA-256; `voxserve verify` checks every byte.
+//!
 //! # Crash safety
-//! A store is written under a hidden temporary name beside its destination and
-//! renamed into place only when complete; its root metadata, written last,
-//! carries `"complete": true`. An interrupted ingest leaves at most the
-//! temporary folder, which [`Store::open`] refuses. Corruption is caught by the
-//! checksums: a damaged shard index or chunk reads as [`Error::Corrupt`] naming
-//! the shard file, never as garbage voxels.
+//! A store is written under a hidden temporary name beside its destination,
+//! flushed to disk, and moved into place only when complete; its root metadata
+//! carries `"complete": true` and the manifest is written after it. An existing
+//! store is replaced by one atomic exchange of the two folders, so the
+//! destination holds a complete store, old or new, at every moment
+//! ([`ingest`]). An interrupted ingest leaves at most hidden folders
+//! (`.NAME.partial-PID`, `.NAME.old-PID`), which [`Store::open`] refuses and the
+//! next ingest removes. Corruption is caught by the checksums: a damaged shard
+//! index or chunk reads as [`Error::Corrupt`] naming the shard file, never as
+//! garbage voxels.
 //!
 //! # Layout of this module
 //! - [`pyramid`]: box averages of a slab for every level.
 //! - [`stats`]: [`BlockStats`], per-block min, max and histogram.
 //! - [`ingest`]: the writer, slab by slab from any [`crate::VolumeSource`].
+//! - [`manifest`]: the store's files and their checksums; `verify`.
 //! - [`StoreLocation`]: where a store lives (a folder, memory).
 
 pub mod ingest;
 mod location;
+pub mod manifest;
 pub mod pyramid;
 pub mod stats;
 
@@ -49,14 +65,16 @@ use zarrs::storage::ReadableStorageTraits;
 
 pub use ingest::{IngestOptions, IngestProgress, IngestSummary, ingest, ingest_in_memory};
 pub use location::StoreLocation;
+pub use manifest::{Manifest, Verification, verify};
 pub use pyramid::{LEVELS, level_dims};
 pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
 
 use crate::geometry::GeometryFields;
 use crate::{Error, Geometry, ValueMap, VoxelData, VoxelType};
 
-/// The version of the `voxserve` metadata this code writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The version of the `voxserve` metadata this code writes and reads (2: with
+/// a manifest).
+pub const FORMAT_VERSION: u32 = 2;
 /// Shard edge in voxels (8 inner chunks per axis).
 pub const SHARD: u32 = 128;
 
@@ -133,6 +151,8 @@ pub struct Store {
     levels: Vec<Array<dyn ReadableStorageTraits>>,
     shard_indexes: Vec<ArrayShardedReadableExtCache>,
     stats: BlockStats,
+    /// The files a store on disk must hold (none for a store in memory).
+    manifest: Option<Manifest>,
 }
 
 impl std::fmt::Debug for Store {
@@ -181,11 +201,20 @@ impl Store {
                 },
             ));
         }
-        let storage = Arc::new(
+        let manifest = match Manifest::read(path) {
+            Ok(manifest) => manifest,
+            Err(missing) => return Err(older_format(&root).unwrap_or(missing)),
+        };
+        manifest.check_quick(path)?;
+        let files: Arc<dyn ReadableStorageTraits> = Arc::new(
             FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?,
         );
-        let storage: Arc<dyn ReadableStorageTraits> = storage;
-        Store::from_storage(&storage, location)
+        let storage: Arc<dyn ReadableStorageTraits> =
+            Arc::new(manifest::ManifestStorage::new(files, &manifest, path));
+        let mut store = Store::from_storage(&storage, location)?;
+        store.check_left_out_shards(&manifest)?;
+        store.manifest = Some(manifest);
+        Ok(store)
     }
 
     /// Opens a complete store in any zarrs storage found at `location`.
@@ -244,7 +273,51 @@ impl Store {
             levels,
             shard_indexes,
             stats,
+            manifest: None,
         })
+    }
+
+    /// Checks that every shard the manifest does not list is one `zarrs` left
+    /// out because all its voxels are 0: each of its blocks must have the
+    /// statistics `[0, 0]`.
+    fn check_left_out_shards(&self, manifest: &Manifest) -> Result<(), Error> {
+        let per_shard = SHARD / BLOCK;
+        for level in 0..LEVELS {
+            let shards = self.chunk_grid(level).map(|n| n.div_ceil(per_shard));
+            // Which shards hold a block with data, by the statistics.
+            let mut holds_data = vec![false; shards.iter().map(|&n| n as usize).product()];
+            for b in 0..self.stats.block_count() {
+                let [lo, hi] = self.stats.min_max(level, b);
+                if lo == 0.0 && hi == 0.0 {
+                    continue;
+                }
+                let [x, y, z] = self
+                    .stats
+                    .block_position(b)
+                    .map(|c| (c >> level) / per_shard);
+                holds_data[((z * shards[1] + y) * shards[0] + x) as usize] = true;
+            }
+            for (i, _) in holds_data.iter().enumerate().filter(|(_, d)| **d) {
+                let i = i as u32;
+                let shard = [
+                    i % shards[0],
+                    (i / shards[0]) % shards[1],
+                    i / (shards[0] * shards[1]),
+                ];
+                let [x, y, z] = shard;
+                let key = format!("{level}/c/{z}/{y}/{x}");
+                if !manifest.lists(&key) {
+                    return Err(Error::Missing {
+                        path: self.location.file(&key),
+                        detail: "the block statistics say this shard holds data, but the \
+                                 store's manifest does not list it: the store is damaged (run \
+                                 voxserve verify; ingest again)"
+                            .into(),
+                    });
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Where the store lives.
@@ -358,6 +431,20 @@ impl Store {
 
     fn read_error(&self, level: usize, chunk: [u32; 3], e: ArrayError) -> Error {
         let shard = self.shard_path(level, chunk);
+        if let Some(manifest) = &self.manifest {
+            let per_shard = SHARD / BLOCK;
+            let [x, y, z] = chunk.map(|c| c / per_shard);
+            if manifest.lists(&format!("{level}/c/{z}/{y}/{x}")) && !shard.is_file() {
+                return Error::Missing {
+                    path: shard,
+                    detail: format!(
+                        "the store's manifest lists this shard (inner chunk {chunk:?} of \
+                         level {level}); its voxels are unknown, not empty, so the view is not \
+                         drawn (restore the file or ingest again)"
+                    ),
+                };
+            }
+        }
         match e {
             ArrayError::CodecError(codec) => Error::Corrupt {
                 path: shard,
@@ -371,6 +458,32 @@ impl Store {
             ),
         }
     }
+}
+
+/// For a store without a manifest, the error that names its older format, if
+/// its root metadata says so.
+fn older_format(root: &Path) -> Option<Error> {
+    use std::io::Read;
+    let mut text = Vec::new();
+    std::fs::File::open(root)
+        .ok()?
+        .take(1 << 20)
+        .read_to_end(&mut text)
+        .ok()?;
+    let json: serde_json::Value = serde_json::from_slice(&text).ok()?;
+    let version = json
+        .pointer("/attributes/voxserve/format_version")?
+        .as_u64()?;
+    (version < u64::from(FORMAT_VERSION)).then(|| {
+        store_error(
+            root,
+            "attributes.voxserve.format_version",
+            format!(
+                "{version}: expected {FORMAT_VERSION} (a store with a manifest of its files); \
+                 ingest the source again"
+            ),
+        )
+    })
 }
 
 /// The (16 / 2^l)³ sub-cube of a 16³ level-l chunk that is block `block`.

@@ -29,6 +29,10 @@ pub enum Command {
     /// Write a volume file or DICOM folder as a brick store (OME-Zarr, 16³ blocks
     /// at every level of detail), slab by slab in bounded memory.
     Ingest(IngestArgs),
+    /// Check every file of a brick store against the manifest written at ingest
+    /// (sizes and SHA-256); exits with an error naming each missing, changed or
+    /// unexpected file.
+    Verify(VerifyArgs),
     /// List every view setting: name, flag, what it takes and its default
     /// (`--json`: as `GET /api/settings` gives them).
     Settings(SettingsArgs),
@@ -135,7 +139,9 @@ pub struct IngestArgs {
     /// The store to write (a folder; written under a temporary name and renamed when complete).
     #[arg(long, short)]
     pub out: PathBuf,
-    /// Replace the store if it exists (the old one stays until the new one is complete).
+    /// Replace the brick store at --out if there is one (only a brick store: any
+    /// other file or folder is refused). The old store stays in place until the
+    /// new one is complete and on disk, then the two are exchanged atomically.
     #[arg(long)]
     pub force: bool,
     /// zstd compression level, 1 (fast) to 19 (small).
@@ -143,6 +149,13 @@ pub struct IngestArgs {
     pub zstd_level: i32,
     #[command(flatten)]
     pub input_options: InputArgs,
+}
+
+/// `voxserve verify`.
+#[derive(Debug, Args)]
+pub struct VerifyArgs {
+    /// The brick store (a folder written by `voxserve ingest`).
+    pub store: PathBuf,
 }
 
 /// `voxserve info`.

@@ -299,7 +299,7 @@ fn render_job(state: &AppState, render: Render) -> Job {
         let rendered = renderer
             .render_waiting(&dataset, request)
             .await
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| e.logged().to_string())?;
         let converged = rendered.stats.converged();
         let light = rendered.stats.light().copied();
         let frame = rendered.frame;
