@@ -375,6 +375,7 @@ fn info_json(
         "stored_range": stats.stored_range,
         "value_range": physical_range(info, stats),
         "mean_stored": stats.mean,
+        "mean": info.value_map.physical(stats.mean),
         "nan_voxels": stats.nans,
         "unit": info.unit,
         "modality": info.modality,
@@ -411,9 +412,10 @@ fn info_text(
             g(f64::from(info.value_map.intercept))
         ),
         format!(
-            "values:      {} … {}{unit} (stored {} … {}, mean {})",
+            "values:      {} … {}{unit}, mean {}{unit} (stored {} … {}, mean {})",
             g(lo),
             g(hi),
+            g(info.value_map.physical(stats.mean)),
             g(stats.stored_range[0]),
             g(stats.stored_range[1]),
             g(stats.mean)

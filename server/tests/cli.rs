@@ -448,7 +448,7 @@ fn info_prints_what_a_file_holds_as_text_and_json() {
         "format:      raw",
         "dims:        256 × 256 × 128 voxels",
         "voxel type:  uint8",
-        "values:      0 … 255",
+        "values:      0 … 255, mean ",
     ] {
         assert!(stdout.contains(line), "missing '{line}' in:\n{stdout}");
     }
@@ -461,6 +461,16 @@ fn info_prints_what_a_file_holds_as_text_and_json() {
     assert_eq!(json["unit"], "HU");
     assert_eq!(json["value_range"][0], -1024.0);
     assert_eq!(json["series"].as_array().map(Vec::len), Some(1));
+    // The mean beside the physical range is physical too (HU here).
+    let number = |key: &str| {
+        json[key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key}: {json}"))
+    };
+    let physical = number("mean_stored") * json["value_map"]["slope"].as_f64().expect("slope")
+        + json["value_map"]["intercept"].as_f64().expect("intercept");
+    assert!((number("mean") - physical).abs() < 1e-6, "{json}");
+    assert!(number("mean") < number("mean_stored"), "{json}");
 
     let out = voxserve(&[
         "info",
