@@ -56,6 +56,21 @@ pub enum Error {
         /// Which files, and what it means for the view.
         detail: String,
     },
+    /// A decoder voxserve does not own panicked on this file (caught at the
+    /// boundary of [`crate::ingest::boundary::guard`]).
+    #[error(
+        "{}: the {decoder} decoder failed on this file ({message}): expected a file it can \
+         decode; the file is damaged, or uses a variant the decoder mishandles",
+        path.display()
+    )]
+    DecoderPanic {
+        /// The file.
+        path: PathBuf,
+        /// The decoder, e.g. `RLE Lossless pixel data`.
+        decoder: String,
+        /// The panic's message.
+        message: String,
+    },
     /// A folder holds several DICOM series and none was chosen.
     #[error(
         "{}: the folder holds {count} DICOM series; choose one with --series UID:\n{listing}",

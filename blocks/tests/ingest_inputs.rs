@@ -92,6 +92,7 @@ fn raw_reads_layout_from_the_name_or_the_options_and_swaps_big_endian() {
             spacing: Some([0.5, 0.5, 2.0]),
             direction: None,
         },
+        ..OpenOptions::default()
     };
     let mut source = ingest::open(&plain, &options).expect("raw with options");
     assert_eq!(source.info().geometry.spacing, [0.5, 0.5, 2.0]);
@@ -748,14 +749,19 @@ fn a_dicom_folder_with_a_missing_slice_or_a_duplicate_is_refused() {
 }
 
 #[test]
-fn a_non_dicom_file_in_a_dicom_folder_is_named() {
+fn non_dicom_files_in_a_dicom_folder_are_skipped_and_named_when_nothing_is_left() {
     let dir = dicom_folder(&stack(&[0.0, 1.0]));
-    write(&dir.path().join("notes.txt"), b"not an image");
+    write(&dir.path().join("README.txt"), b"not an image");
     // Hidden files are passed over.
     write(&dir.path().join(".DS_Store"), b"\0\0\0\x01Bud1");
-    let msg = message_naming(open(dir.path()), "notes.txt");
+    let source = open(dir.path()).expect("the series, README.txt skipped");
+    assert_eq!(source.info().geometry.dims, [4, 3, 2]);
+    // With no image left, the error names what was skipped and why.
+    let only = temp();
+    write(&only.path().join("README.txt"), b"not an image");
+    let msg = message_naming(open(only.path()), "README.txt");
     assert!(
-        msg.contains("no 'DICM' marker at byte 128: expected a DICOM file"),
+        msg.contains("none found") && msg.contains("not DICOM: no DICM marker at byte 128"),
         "{msg}"
     );
 }
@@ -851,5 +857,350 @@ fn compressed_slabs_read_out_of_order_match_in_order_reads() {
     assert!(
         msg.contains("slab: slices 9..14: expected a non-empty range within 0..10"),
         "{msg}"
+    );
+}
+
+// ---- hostile inputs (issue 14) ----------------------------------------------
+// The binary runs a larger generated corpus of these: server/tests/malformed.rs.
+
+/// The error of opening `path` and reading all its voxels.
+fn scan_error(path: &Path, options: &OpenOptions) -> String {
+    let result = ingest::open(path, options).and_then(|mut s| ingest::scan(s.as_mut(), |_| {}));
+    result.expect_err("must be refused").to_string()
+}
+
+#[test]
+fn infinite_float_voxels_are_refused_naming_the_slice_and_nan_stays_missing() {
+    let dir = temp();
+    let floats = |bad: f32, at: usize| -> Vec<u8> {
+        (0..24)
+            .flat_map(|i| (if i == at { bad } else { 1.0f32 }).to_le_bytes())
+            .collect()
+    };
+    let inf = dir.path().join("inf_4x3x2_float32.raw");
+    write(&inf, &floats(f32::INFINITY, 12 + 5));
+    let msg = scan_error(&inf, &OpenOptions::default());
+    assert!(
+        msg.contains("inf_4x3x2_float32.raw: voxel data: slice 1 holds inf at voxel (x 1, y 1)"),
+        "{msg}"
+    );
+    let nan = dir.path().join("nan_4x3x2_float32.raw");
+    write(&nan, &floats(f32::NAN, 3));
+    let mut source = open(&nan).expect("open");
+    let stats = ingest::scan(source.as_mut(), |_| {}).expect("NaN is a missing value");
+    assert_eq!((stats.nans, stats.stored_range), (1, [1.0, 1.0]));
+}
+
+/// An RLE Lossless file of 4 × 4 8-bit pixels whose one segment decodes to a
+/// single byte: dicom-rs 0.10's RLE decoder indexes past it and panics.
+fn write_rle_short_segment(path: &Path) {
+    use dicom_core::value::PixelFragmentSequence;
+    let mut fragment = vec![0u8; 64];
+    fragment[..4].copy_from_slice(&1u32.to_le_bytes()); // one segment
+    fragment[4..8].copy_from_slice(&64u32.to_le_bytes()); // at byte 64
+    fragment.extend_from_slice(&[0, 5]); // a literal run of one byte
+    let mut obj = InMemDicomObject::new_empty();
+    for (tag, vr, value) in [
+        (tags::SOP_CLASS_UID, VR::UI, "1.2.840.10008.5.1.4.1.1.2"),
+        (tags::SOP_INSTANCE_UID, VR::UI, "1.2.3.4.5"),
+        (tags::SERIES_INSTANCE_UID, VR::UI, "1.2.3.4"),
+        (tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
+    ] {
+        obj.put(DataElement::new(tag, vr, PrimitiveValue::from(value)));
+    }
+    for (tag, value) in [
+        (tags::ROWS, 4u16),
+        (tags::COLUMNS, 4),
+        (tags::SAMPLES_PER_PIXEL, 1),
+        (tags::BITS_ALLOCATED, 8),
+        (tags::BITS_STORED, 8),
+        (tags::HIGH_BIT, 7),
+        (tags::PIXEL_REPRESENTATION, 0),
+    ] {
+        obj.put(DataElement::new(tag, VR::US, PrimitiveValue::from(value)));
+    }
+    obj.put(DataElement::new(
+        tags::PIXEL_DATA,
+        VR::OB,
+        PixelFragmentSequence::new_fragments(vec![fragment]),
+    ));
+    obj.with_meta(FileMetaTableBuilder::new().transfer_syntax("1.2.840.10008.1.2.5"))
+        .expect("meta")
+        .write_to_file(path)
+        .expect("write DICOM");
+}
+
+#[test]
+fn a_panic_in_the_rle_decoder_is_an_error_naming_the_file() {
+    let dir = temp();
+    let path = dir.path().join("rle.dcm");
+    write_rle_short_segment(&path);
+    let msg = scan_error(&path, &OpenOptions::default());
+    assert!(
+        msg.contains("rle.dcm: the RLE Lossless (1.2.840.10008.1.2.5) pixel data decoder failed")
+            && msg.contains("index out of bounds"),
+        "{msg}"
+    );
+    // The real file with the flipped byte: server/tests/malformed.rs, when the
+    // shared data is there.
+}
+
+/// Sets the 4-byte length of the explicit-VR element `tag` with VR `vr`.
+fn set_long_length(bytes: &mut [u8], tag: (u16, u16), vr: &[u8; 2], len: u32) {
+    let mut header = tag.0.to_le_bytes().to_vec();
+    header.extend_from_slice(&tag.1.to_le_bytes());
+    header.extend_from_slice(vr);
+    let at = bytes
+        .windows(header.len())
+        .position(|w| w == header.as_slice())
+        .expect("element");
+    bytes[at + 8..at + 12].copy_from_slice(&len.to_le_bytes());
+}
+
+#[test]
+fn dicom_lengths_past_the_end_of_the_file_are_refused_before_reading() {
+    let dir = temp();
+    let good = dir.path().join("good.dcm");
+    write_dicom(&good, &Slice::default(), 0);
+    let bytes = std::fs::read(&good).expect("read");
+    for (name, tag, vr, what) in [
+        ("pixels.dcm", (0x7fe0, 0x0010), b"OW", "element (7FE0,0010)"),
+        (
+            "meta.dcm",
+            (0x0002, 0x0001),
+            b"OB",
+            "file meta element (0002,0001)",
+        ),
+    ] {
+        let mut b = bytes.clone();
+        set_long_length(&mut b, tag, vr, 0xFFFF_FFF0);
+        let path = dir.path().join(name);
+        write(&path, &b);
+        let msg = scan_error(&path, &OpenOptions::default());
+        assert!(
+            msg.contains(&format!(
+                "{name}: {what}: declares 4294967280 bytes at byte"
+            )),
+            "{msg}"
+        );
+    }
+}
+
+#[test]
+fn detached_data_files_must_be_regular_files_in_the_headers_folder() {
+    let root = temp();
+    let dir = root.path().join("headers");
+    std::fs::create_dir(&dir).expect("dir");
+    write(&root.path().join("outside.raw"), &[1u8; 24]);
+    write(&dir.join("inside.raw"), &[1u8; 24]);
+    let header = |name: &str, data: &str| {
+        let p = dir.join(name);
+        let text = format!(
+            "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 3 2\nencoding: raw\ndata file: {data}\n"
+        );
+        write(&p, text.as_bytes());
+        p
+    };
+    let allow = OpenOptions {
+        allow_data_outside: true,
+        ..OpenOptions::default()
+    };
+    for data in ["/etc/passwd", "../outside.raw"] {
+        let p = header("away.nhdr", data);
+        let msg = message_naming(open(&p), "away.nhdr");
+        assert!(
+            msg.contains("data file: '")
+                && msg.contains("outside the header's folder")
+                && msg.contains("--allow-data-outside"),
+            "{msg}"
+        );
+        assert!(
+            ingest::open(&p, &allow).is_ok(),
+            "{data} with --allow-data-outside"
+        );
+    }
+    // A link inside the folder to a file outside it is outside too.
+    std::os::unix::fs::symlink(root.path().join("outside.raw"), dir.join("link.raw"))
+        .expect("symlink");
+    let msg = message_naming(open(&header("link.nhdr", "link.raw")), "link.nhdr");
+    assert!(msg.contains("outside the header's folder"), "{msg}");
+    assert!(open(&header("in.nhdr", "inside.raw")).is_ok());
+    // A device never ends: refused at once, even where outside data is allowed.
+    let p = header("zero.nhdr", "/dev/zero\nline skip: 1000000000000");
+    let msg = ingest::open(&p, &allow).expect_err("a device").to_string();
+    assert!(
+        msg.contains("zero.nhdr: data file: '/dev/zero' is not a regular file"),
+        "{msg}"
+    );
+    let start = std::time::Instant::now();
+    let msg = message_naming(
+        open(&header(
+            "lines.nhdr",
+            "inside.raw\nline skip: 1000000000000",
+        )),
+        "lines.nhdr",
+    );
+    assert!(
+        msg.contains("line skip: 1000000000000 lines") && msg.contains("ends first"),
+        "{msg}"
+    );
+    assert!(start.elapsed().as_secs() < 2);
+}
+
+#[test]
+fn sizes_from_headers_that_overflow_are_refused() {
+    let dir = temp();
+    let mha = dir.path().join("wrap.mha");
+    let mut b = b"NDims = 3\nDimSize = 4 3 2\nElementType = MET_UCHAR\nHeaderSize = 18446744073709551500\nElementDataFile = LOCAL\n".to_vec();
+    b.extend_from_slice(&[1u8; 24]);
+    write(&mha, &b);
+    let msg = message_naming(open(&mha), "wrap.mha");
+    assert!(
+        msg.contains("HeaderSize: 18446744073709551500: the voxels would start past the end"),
+        "{msg}"
+    );
+    let nrrd = dir.path().join("skip.nrrd");
+    let mut b = b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 3 2\nencoding: gzip\nbyte skip: 18446744073709551615\n\n".to_vec();
+    b.extend(gzip(&[1u8; 24]));
+    write(&nrrd, &b);
+    let msg = message_naming(open(&nrrd), "skip.nrrd");
+    assert!(
+        msg.contains("byte skip: 18446744073709551615 bytes to skip"),
+        "{msg}"
+    );
+    let raw = dir.path().join("v.bin");
+    write(&raw, &[0u8; 8]);
+    let options = OpenOptions {
+        raw: RawOptions {
+            dims: Some([4_294_967_296, 4_294_967_296, 1]),
+            sample: Some(SampleType::Voxel(VoxelType::U8)),
+            ..RawOptions::default()
+        },
+        ..OpenOptions::default()
+    };
+    let msg = message_naming(ingest::open(&raw, &options), "v.bin");
+    assert!(
+        msg.contains("4294967296 voxels along x is out of range: expected 1 to 4294967295"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn absurd_scaling_and_an_empty_nifti_are_refused_clearly() {
+    let dir = temp();
+    let p = dir.path().join("slope.nii");
+    let mut b = nifti_header(2, 8, 3e38, 0.0);
+    b.extend_from_slice(&[1u8; 24]);
+    write(&p, &b);
+    let msg = message_naming(open(&p), "slope.nii");
+    assert!(
+        msg.contains("scl_slope and scl_inter: slope")
+            && msg.contains("expected physical values within ±1e30"),
+        "{msg}"
+    );
+    let empty = dir.path().join("empty.nii.gz");
+    write(&empty, &[]);
+    let msg = message_naming(open(&empty), "empty.nii.gz");
+    assert!(
+        msg.contains("header: the file ends before the header does") && !msg.contains("Error {"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn directions_that_are_not_orthonormal_are_refused() {
+    let dir = temp();
+    let mha = dir.path().join("scaled.mha");
+    let mut b = b"NDims = 3\nDimSize = 4 3 2\nElementType = MET_UCHAR\nTransformMatrix = 1000 0 0 0 0.001 0 0 0 1\nElementDataFile = LOCAL\n".to_vec();
+    b.extend_from_slice(&[1u8; 24]);
+    write(&mha, &b);
+    let msg = message_naming(open(&mha), "scaled.mha");
+    assert!(
+        msg.contains("TransformMatrix: the direction of index axis x"),
+        "{msg}"
+    );
+    let dcm = dicom_folder(&[Slice {
+        orientation: [2.0, 0.0, 0.0, 0.0, 0.5, 0.0],
+        ..Slice::default()
+    }]);
+    let msg = open(dcm.path())
+        .expect_err("scaled orientation")
+        .to_string();
+    assert!(
+        msg.contains("ImageOrientationPatient (0020,0037): the direction of index axis x"),
+        "{msg}"
+    );
+    let nii = dir.path().join("quaternion.nii");
+    let mut h = nifti_header(2, 8, 1.0, 0.0);
+    h[252..254].copy_from_slice(&1i16.to_le_bytes()); // qform_code
+    h[254..256].copy_from_slice(&0i16.to_le_bytes()); // no sform
+    for (i, q) in [0.6f32, 0.6, 0.6].iter().enumerate() {
+        h[256 + 4 * i..260 + 4 * i].copy_from_slice(&q.to_le_bytes());
+    }
+    h.extend_from_slice(&[1u8; 24]);
+    write(&nii, &h);
+    let msg = message_naming(open(&nii), "quaternion.nii");
+    assert!(
+        msg.contains("quatern_b, quatern_c, quatern_d: (0.6") && msg.contains("expected at most 1"),
+        "{msg}"
+    );
+    // Stacked off the normal, but about neither image axis: no gantry does that.
+    let sheared: Vec<Slice> = (0..4)
+        .map(|i| Slice {
+            position: [0.5 * f64::from(i), 0.5 * f64::from(i), f64::from(i)],
+            ..Slice::default()
+        })
+        .collect();
+    let folder = dicom_folder(&sheared);
+    let msg = open(folder.path()).expect_err("shear").to_string();
+    assert!(
+        msg.contains("expected a stack along the normal, or a gantry tilt"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn symlinked_dicom_slices_are_read_inside_the_folder_and_named_outside_it() {
+    let elsewhere = dicom_folder(&stack(&[0.0, 1.0]));
+    let folder = temp();
+    for name in ["img001.dcm", "img002.dcm"] {
+        std::os::unix::fs::symlink(elsewhere.path().join(name), folder.path().join(name))
+            .expect("symlink");
+    }
+    let msg = message_naming(open(folder.path()), "img001.dcm");
+    assert!(
+        msg.contains("none found")
+            && msg.contains("a symbolic link to")
+            && msg.contains("outside the folder; --allow-data-outside reads it"),
+        "{msg}"
+    );
+    let allow = OpenOptions {
+        allow_data_outside: true,
+        ..OpenOptions::default()
+    };
+    assert_eq!(
+        ingest::open(folder.path(), &allow)
+            .expect("allowed")
+            .info()
+            .geometry
+            .dims[2],
+        2
+    );
+    // Links to files inside the folder (here in a subfolder, which is not read
+    // itself) are followed.
+    let inside = temp();
+    let data = inside.path().join("data");
+    std::fs::create_dir(&data).expect("subfolder");
+    for name in ["img001.dcm", "img002.dcm"] {
+        std::fs::copy(elsewhere.path().join(name), data.join(name)).expect("copy");
+        std::os::unix::fs::symlink(data.join(name), inside.path().join(name)).expect("symlink");
+    }
+    assert_eq!(
+        open(inside.path())
+            .expect("links inside")
+            .info()
+            .geometry
+            .dims[2],
+        2
     );
 }

@@ -333,7 +333,7 @@ fn open_for_info(args: &InfoArgs) -> anyhow::Result<Opened> {
             series: None,
         });
     }
-    let scan = FolderScan::new(&args.path)?;
+    let scan = FolderScan::new(&args.path, options.allow_data_outside)?;
     let summaries = scan.summaries();
     if summaries.len() > 1 && options.series.is_none() && !args.json {
         say(&format!(

@@ -46,6 +46,9 @@ fn main() -> ExitCode {
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal())
         .init();
+    // A panic inside a decoder of a volume file is reported as that file's
+    // error (see blocks::ingest::boundary), not as a crash.
+    blocks::ingest::boundary::install_panic_hook();
     let cli = Cli::parse();
     let result = match cli.command {
         Subcommands::Server(command) => server::commands::run(*command),

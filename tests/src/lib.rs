@@ -16,11 +16,14 @@
 //! - [`checks`]: facts that show a volume is really in an image (coverage,
 //!   left–right symmetry, centroid).
 //! - [`server`]: a real server on port 0 for end-to-end tests.
+//! - [`malformed`]: a generated corpus of malformed and hostile volume files,
+//!   as a table of cases with the words each error must contain.
 
 pub mod checks;
 pub mod data;
 pub mod gpu;
 pub mod image_compare;
+pub mod malformed;
 pub mod phantom;
 #[path = "../../server/src/bench/reference_data.rs"]
 pub mod reference_data;

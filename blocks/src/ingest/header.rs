@@ -1,7 +1,7 @@
 //! Parsing helpers shared by the text headers (NRRD, MetaImage).
 
 use std::io::{BufRead, BufReader, Read};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use crate::Error;
@@ -26,6 +26,77 @@ pub fn file_len(path: &Path) -> Result<u64, Error> {
             path: path.to_owned(),
             source,
         })
+}
+
+/// The data file `name` that the header `header` names in `field`: resolved
+/// against the header's folder, symbolic links followed, and required to be a
+/// regular file inside that folder (unless `allow_outside`), so a header can
+/// neither read a device nor reach files elsewhere.
+pub fn data_file(
+    header: &Path,
+    field_name: &str,
+    name: &str,
+    allow_outside: bool,
+) -> Result<PathBuf, Error> {
+    let folder = header.parent().unwrap_or(Path::new("."));
+    let folder = if folder.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        folder
+    };
+    let joined = folder.join(name);
+    let resolved = joined.canonicalize().map_err(|e| {
+        let why = if e.kind() == std::io::ErrorKind::NotFound {
+            "not found".to_owned()
+        } else {
+            e.to_string()
+        };
+        field(
+            header,
+            field_name,
+            format!(
+                "{} {why}: expected the data file the header names",
+                joined.display()
+            ),
+        )
+    })?;
+    let meta = std::fs::metadata(&resolved).map_err(|source| Error::Io {
+        path: resolved.clone(),
+        source,
+    })?;
+    if !meta.is_file() {
+        return Err(field(
+            header,
+            field_name,
+            format!(
+                "'{name}' is {}: expected a regular data file",
+                if meta.is_dir() {
+                    "a folder"
+                } else {
+                    "not a regular file (a device, pipe or socket)"
+                }
+            ),
+        ));
+    }
+    if !allow_outside {
+        let home = folder.canonicalize().map_err(|source| Error::Io {
+            path: folder.to_owned(),
+            source,
+        })?;
+        if !resolved.starts_with(&home) {
+            return Err(field(
+                header,
+                field_name,
+                format!(
+                    "'{name}' resolves to {}, outside the header's folder {}: expected a data \
+                     file beside the header (give --allow-data-outside to read it anyway)",
+                    resolved.display(),
+                    home.display()
+                ),
+            ));
+        }
+    }
+    Ok(resolved)
 }
 
 /// The first `n` bytes of a file (fewer if it is shorter).

@@ -13,9 +13,11 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use super::header::{boolean, field, numbers, read_text_header, three};
+use super::header::{
+    boolean, data_file as data_file_path, field, numbers, read_text_header, three,
+};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
-use super::{Format, VolumeInfo, check_dims};
+use super::{Format, VolumeInfo, check_dims, check_orthonormal};
 use crate::geometry::GeometryFields;
 use crate::{Error, Geometry, ValueMap, VoxelType};
 
@@ -34,8 +36,9 @@ fn sample_type(name: &str) -> Option<SampleType> {
     Some(SampleType::Voxel(t))
 }
 
-/// Opens a MetaImage file.
-pub fn open(path: &Path) -> Result<StreamSource, Error> {
+/// Opens a MetaImage file; a separate data file must lie in the header's
+/// folder unless `allow_data_outside`.
+pub fn open(path: &Path, allow_data_outside: bool) -> Result<StreamSource, Error> {
     let is_data_file_line = |line: &str| {
         line.split_once('=')
             .is_some_and(|(k, _)| k.trim().eq_ignore_ascii_case("ElementDataFile"))
@@ -50,8 +53,11 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let encoding = Encoding::read(&fields)?;
     let (data_path, file_offset) = data_location(
         &fields,
-        data_file,
-        head.len,
+        DataFile {
+            name: data_file,
+            header_len: head.len,
+            allow_outside: allow_data_outside,
+        },
         encoding.compressed,
         dims,
         samples.sample,
@@ -236,7 +242,7 @@ fn read_geometry(
             "AnatomicalOrientation {orientation} (geometry from TransformMatrix)"
         ));
     }
-    Geometry {
+    let geometry = Geometry {
         dims,
         spacing: three(&spacing),
         origin: three(&origin),
@@ -246,7 +252,9 @@ fn read_geometry(
             [matrix[6], matrix[7], matrix[8]],
         ],
     }
-    .checked(path, &GEOMETRY_FIELDS)
+    .checked(path, &GEOMETRY_FIELDS)?;
+    check_orthonormal(path, "TransformMatrix", geometry.direction)?;
+    Ok(geometry)
 }
 
 /// How the voxel bytes are stored: byte order and zlib compression; text data
@@ -284,19 +292,30 @@ impl Encoding {
     }
 }
 
+/// What the header says of the data file.
+#[derive(Clone, Copy)]
+struct DataFile<'a> {
+    /// `ElementDataFile`.
+    name: &'a str,
+    /// Bytes of the header (where `LOCAL` data starts).
+    header_len: u64,
+    /// Whether the data file may lie outside the header's folder.
+    allow_outside: bool,
+}
+
 /// Where the voxels are: the data file (`LOCAL`: after the header) and the
 /// offset of the stream in it, after `HeaderSize`.
 fn data_location(
     fields: &Fields<'_>,
-    data_file: &str,
-    header_len: u64,
+    data: DataFile<'_>,
     compressed: bool,
     dims: [u32; 3],
     sample: SampleType,
 ) -> Result<(PathBuf, u64), Error> {
     let path = fields.path;
+    let data_file = data.name;
     let (data_path, mut file_offset) = if data_file.eq_ignore_ascii_case("LOCAL") {
-        (path.to_owned(), header_len)
+        (path.to_owned(), data.header_len)
     } else if data_file.starts_with("LIST")
         || data_file.contains('%')
         || data_file.split_whitespace().count() > 1
@@ -309,7 +328,10 @@ fn data_location(
             ),
         ));
     } else {
-        (path.parent().unwrap_or(Path::new(".")).join(data_file), 0)
+        (
+            data_file_path(path, "ElementDataFile", data_file, data.allow_outside)?,
+            0,
+        )
     };
     match fields.get("HeaderSize") {
         None => {}
@@ -317,13 +339,28 @@ fn data_location(
             file_offset = trailing_data_offset(&data_path, dims, sample)?;
         }
         Some(n) => {
-            file_offset += n.parse::<u64>().map_err(|_| {
+            let size = n.parse::<u64>().map_err(|_| {
                 field(
                     path,
                     "HeaderSize",
                     format!("'{n}': expected a whole number, or -1 for uncompressed data"),
                 )
             })?;
+            let len = super::header::file_len(&data_path)?;
+            file_offset = file_offset
+                .checked_add(size)
+                .filter(|&offset| offset <= len)
+                .ok_or_else(|| {
+                    field(
+                        path,
+                        "HeaderSize",
+                        format!(
+                            "{size}: the voxels would start past the end of {} ({len} bytes): \
+                             expected a header size within the data file",
+                            data_path.display()
+                        ),
+                    )
+                })?;
         }
     }
     Ok((data_path, file_offset))

@@ -14,13 +14,24 @@
 //! against [`MAX_SLICE_BYTES`] and [`MAX_VOXELS`], and against the size of the
 //! data they describe, before anything is read.
 //!
+//! Files a header names (NRRD's `data file`, MetaImage's `ElementDataFile`, a
+//! NIfTI pair's `.img`) must be regular files inside the header's folder unless
+//! [`OpenOptions::allow_data_outside`] says otherwise; every size derived from a
+//! header is computed with checked arithmetic and compared with the file's real
+//! size before anything is allocated or sought.
+//!
+//! Decoders voxserve does not own run inside [`boundary::guard`]: a panic in one
+//! is an error naming the file, never a crash.
+//!
 //! # Layout
+//! - [`boundary`]: the panic boundary around decoders.
 //! - [`stream`]: voxels as a byte stream in a file (raw, gzip or zlib), shared by
 //!   raw, NRRD, NIfTI and MetaImage.
 //! - [`raw`], [`nrrd`], [`nifti`], [`metaimage`]: the header readers.
 //! - [`dicom`]: DICOM series: grouping, sorting, spacing checks, pixel decoding.
 //! - [`header`]: parsing helpers shared by the text headers.
 
+pub mod boundary;
 pub mod dicom;
 pub mod header;
 pub mod metaimage;
@@ -39,6 +50,8 @@ use crate::{Error, Geometry, ValueMap, Volume, VoxelData, VoxelType};
 pub const MAX_SLICE_BYTES: u64 = 1 << 30;
 /// The largest volume accepted, in voxels (2⁴⁰: 4 TiB of 32-bit voxels).
 pub const MAX_VOXELS: u64 = 1 << 40;
+/// The most voxels along one axis.
+pub const MAX_AXIS: u64 = u32::MAX as u64;
 /// Slab size aimed at by [`slab_depth`].
 pub const SLAB_BYTES: u64 = 64 << 20;
 
@@ -131,14 +144,49 @@ pub struct OpenOptions {
     pub series: Option<String>,
     /// Layout of a raw file (each field overrides what the file name says).
     pub raw: raw::RawOptions,
+    /// Whether a detached header may name a data file outside its own folder
+    /// (and a DICOM folder hold symbolic links to files outside it).
+    pub allow_data_outside: bool,
 }
 
-/// Opens `path` with the reader its name or first bytes call for.
+/// Opens `path` with the reader its name or first bytes call for. Headers are
+/// read, and slabs later decoded, inside the panic [`boundary`].
 pub fn open(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>, Error> {
+    let inner = boundary::guard(path, "volume header", || open_unguarded(path, options))?;
+    Ok(Box::new(Guarded { inner }))
+}
+
+/// A source whose slab reads run inside the panic [`boundary`].
+#[derive(Debug)]
+struct Guarded {
+    inner: Box<dyn VolumeSource>,
+}
+
+impl VolumeSource for Guarded {
+    fn info(&self) -> &VolumeInfo {
+        self.inner.info()
+    }
+
+    fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
+        let path = self.inner.info().path.clone();
+        let decoder = format!("{} voxel data", self.inner.info().format);
+        boundary::guard(&path, &decoder, || self.inner.read_slab(z0, depth))
+    }
+}
+
+/// [`open`] without the boundary.
+fn open_unguarded(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>, Error> {
     let meta = std::fs::metadata(path).map_err(|source| Error::Io {
         path: path.to_owned(),
         source,
     })?;
+    if !meta.is_dir() && !meta.is_file() {
+        return Err(header::field(
+            path,
+            "input",
+            "not a regular file (a device, pipe or socket): expected a volume file or a folder",
+        ));
+    }
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().to_lowercase())
@@ -164,16 +212,17 @@ pub fn open(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>,
         return Ok(Box::new(dicom::open_folder(
             path,
             options.series.as_deref(),
+            options.allow_data_outside,
         )?));
     }
     if ext(".nrrd") || ext(".nhdr") {
-        return Ok(Box::new(nrrd::open(path)?));
+        return Ok(Box::new(nrrd::open(path, options.allow_data_outside)?));
     }
     if ext(".nii") || ext(".nii.gz") || ext(".hdr") {
-        return Ok(Box::new(nifti::open(path)?));
+        return Ok(Box::new(nifti::open(path, options.allow_data_outside)?));
     }
     if ext(".mha") || ext(".mhd") {
-        return Ok(Box::new(metaimage::open(path)?));
+        return Ok(Box::new(metaimage::open(path, options.allow_data_outside)?));
     }
     if ext(".dcm") {
         return Ok(Box::new(dicom::open_file(path)?));
@@ -184,13 +233,13 @@ pub fn open(path: &Path, options: &OpenOptions) -> Result<Box<dyn VolumeSource>,
     // No telling extension: look at the first bytes.
     let head = header::read_prefix(path, 352)?;
     if head.starts_with(b"NRRD") {
-        Ok(Box::new(nrrd::open(path)?))
+        Ok(Box::new(nrrd::open(path, options.allow_data_outside)?))
     } else if head.get(128..132) == Some(b"DICM") {
         Ok(Box::new(dicom::open_file(path)?))
     } else if head.get(344..347) == Some(b"n+1") || head.starts_with(&[0x1f, 0x8b]) {
-        Ok(Box::new(nifti::open(path)?))
+        Ok(Box::new(nifti::open(path, options.allow_data_outside)?))
     } else if head.starts_with(b"ObjectType") || head.starts_with(b"NDims") {
-        Ok(Box::new(metaimage::open(path)?))
+        Ok(Box::new(metaimage::open(path, options.allow_data_outside)?))
     } else {
         Err(Error::UnknownFormat {
             path: path.to_owned(),
@@ -233,7 +282,18 @@ pub fn check_dims(
             "{dims:?}: expected at least one voxel along every axis"
         )));
     }
-    let slice = dims[0].saturating_mul(dims[1]).saturating_mul(voxel_size);
+    for (axis, d) in ["x", "y", "z"].into_iter().zip(dims) {
+        if d > MAX_AXIS {
+            return Err(bad(format!(
+                "{} × {} × {}: {d} voxels along {axis} is out of range: expected 1 to {MAX_AXIS} \
+                 voxels per axis, at most {MAX_SLICE_BYTES} bytes per slice and {MAX_VOXELS} \
+                 voxels in all",
+                dims[0], dims[1], dims[2]
+            )));
+        }
+    }
+    // Each axis is below 2³², so the product of two fits u64.
+    let slice = (dims[0] * dims[1]).saturating_mul(voxel_size);
     if slice > MAX_SLICE_BYTES {
         return Err(bad(format!(
             "{} × {} × {}: one slice would be {slice} bytes; expected at most {MAX_SLICE_BYTES} \
@@ -241,7 +301,7 @@ pub fn check_dims(
             dims[0], dims[1], dims[2]
         )));
     }
-    let voxels = dims[0].saturating_mul(dims[1]).saturating_mul(dims[2]);
+    let voxels = (dims[0] * dims[1]).saturating_mul(dims[2]);
     if voxels > MAX_VOXELS {
         return Err(bad(format!(
             "{} × {} × {} = {voxels} voxels: expected at most {MAX_VOXELS}",
@@ -254,6 +314,118 @@ pub fn check_dims(
             .map_err(|_| bad(format!("axis of {d} voxels: expected at most {}", u32::MAX)))
     };
     Ok([axis(dims[0])?, axis(dims[1])?, axis(dims[2])?])
+}
+
+/// The largest physical value accepted, in magnitude: far inside `f32`'s range
+/// (3.4·10³⁸), so that sums, differences and gradients of physical values stay
+/// finite on the GPU.
+pub const MAX_PHYSICAL: f64 = 1e30;
+
+/// Checks a value map read from `field`: a finite, non-zero slope, a finite
+/// intercept and, for integer types, every value `voxel_type` can store mapped
+/// within ±[`MAX_PHYSICAL`] (float data is checked on its values by [`scan`]).
+pub fn check_value_map(
+    path: &Path,
+    field: &str,
+    map: ValueMap,
+    voxel_type: VoxelType,
+) -> Result<(), Error> {
+    let bad = |message: String| Error::Field {
+        path: path.to_owned(),
+        field: field.to_owned(),
+        message,
+    };
+    let (slope, intercept) = (f64::from(map.slope), f64::from(map.intercept));
+    if !slope.is_finite() || slope == 0.0 || !intercept.is_finite() {
+        return Err(bad(format!(
+            "slope {slope}, intercept {intercept}: expected a finite, non-zero slope and a \
+             finite intercept"
+        )));
+    }
+    if let Some(max) = voxel_type.max_stored() {
+        let max = f64::from(max);
+        let min = if matches!(voxel_type, VoxelType::I8 | VoxelType::I16 | VoxelType::I32) {
+            -max - 1.0
+        } else {
+            0.0
+        };
+        let ends = [map.physical(min), map.physical(max)];
+        if !ends.iter().all(|v| within(*v, MAX_PHYSICAL)) {
+            return Err(bad(format!(
+                "slope {slope}, intercept {intercept} map {} values {min}..{max} to {}..{}: \
+                 expected physical values within ±{MAX_PHYSICAL:e}",
+                voxel_type.name(),
+                ends[0],
+                ends[1]
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Whether `|v| <= bound` (false for NaN).
+fn within(v: f64, bound: f64) -> bool {
+    v.abs() <= bound
+}
+
+/// Refuses stored values whose physical values lie beyond ±[`MAX_PHYSICAL`].
+fn check_physical_range(info: &VolumeInfo, stored: [f64; 2]) -> Result<(), Error> {
+    let ends = stored.map(|v| info.value_map.physical(v));
+    if ends.iter().all(|v| v.abs() <= MAX_PHYSICAL) {
+        return Ok(());
+    }
+    Err(Error::Field {
+        path: info.path.clone(),
+        field: "voxel data".into(),
+        message: format!(
+            "stored values {}..{} are {}..{} physical (slope {}, intercept {}): expected \
+             physical values within ±{MAX_PHYSICAL:e}",
+            stored[0], stored[1], ends[0], ends[1], info.value_map.slope, info.value_map.intercept
+        ),
+    })
+}
+
+/// How far a direction matrix read from a header may be from orthonormal: each
+/// column's length from 1, and each pair's dot product from 0 (about 0.06°).
+/// Headers written in single precision stay far inside it.
+pub const ORTHONORMAL_TOLERANCE: f64 = 1e-3;
+
+/// Checks that `direction` (unit vectors of the index axes, as columns) is
+/// orthonormal within [`ORTHONORMAL_TOLERANCE`]: a sheared or scaled matrix is
+/// a damaged header, and would place voxels where the scanner did not.
+pub fn check_orthonormal(path: &Path, field: &str, direction: [[f64; 3]; 3]) -> Result<(), Error> {
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let bad = |message: String| Error::Field {
+        path: path.to_owned(),
+        field: field.to_owned(),
+        message,
+    };
+    for (axis, column) in ["x", "y", "z"].into_iter().zip(direction) {
+        let length = dot(column, column).sqrt();
+        if !within(length - 1.0, ORTHONORMAL_TOLERANCE) {
+            return Err(bad(format!(
+                "the direction of index axis {axis} {column:?} has length {length}: expected \
+                 unit vectors (orthonormal within {ORTHONORMAL_TOLERANCE})"
+            )));
+        }
+    }
+    for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+        let cos = dot(direction[a], direction[b]);
+        if !within(cos, ORTHONORMAL_TOLERANCE) {
+            let axes = ["x", "y", "z"];
+            return Err(bad(format!(
+                "the directions of index axes {} {:?} and {} {:?} are {:.3}° apart: expected \
+                 perpendicular axes (orthonormal within {ORTHONORMAL_TOLERANCE}); a sheared \
+                 grid is not supported",
+                axes[a],
+                direction[a],
+                axes[b],
+                direction[b],
+                cos.clamp(-1.0, 1.0).acos().to_degrees()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The number of slices per slab that keeps a slab near [`SLAB_BYTES`] (at least 1).
@@ -279,6 +451,8 @@ pub struct VolumeStats {
 
 /// Reads the whole volume slab by slab and gathers [`VolumeStats`], in memory
 /// bounded by one slab. `progress` is called with the slices read so far.
+/// Infinite values are refused (naming the slice and voxel): no value range or
+/// rendering can be made of them; NaN is kept as a missing value.
 pub fn scan(
     source: &mut dyn VolumeSource,
     mut progress: impl FnMut(u32),
@@ -292,6 +466,7 @@ pub fn scan(
     while z < nz {
         let d = depth.min(nz - z);
         let slab = source.read_slab(z, d)?;
+        check_finite(&info, z, &slab)?;
         crate::volume::with_voxels!(&slab, v => {
             for &x in v {
                 let x: f64 = x.into();
@@ -308,11 +483,38 @@ pub fn scan(
         z += d;
         progress(z);
     }
+    let stored_range = if count > 0 { [lo, hi] } else { [0.0, 0.0] };
+    check_physical_range(&info, stored_range)?;
     Ok(VolumeStats {
-        stored_range: if count > 0 { [lo, hi] } else { [0.0, 0.0] },
+        stored_range,
         mean: if count > 0 { sum / count as f64 } else { 0.0 },
         voxels: count + nans,
         nans,
+    })
+}
+
+/// Refuses a slab (starting at slice `z0`) holding an infinite value, naming
+/// the slice and voxel of the first.
+fn check_finite(info: &VolumeInfo, z0: u32, slab: &VoxelData) -> Result<(), Error> {
+    let VoxelData::F32(v) = slab else {
+        return Ok(()); // integers are always finite
+    };
+    let Some(i) = v.iter().position(|x| x.is_infinite()) else {
+        return Ok(());
+    };
+    let slice = info.geometry.slice_voxels().max(1);
+    let nx = u64::from(info.geometry.dims[0]).max(1);
+    let (z, within) = (u64::from(z0) + i as u64 / slice, i as u64 % slice);
+    Err(Error::Field {
+        path: info.path.clone(),
+        field: "voxel data".into(),
+        message: format!(
+            "slice {z} holds {x} at voxel (x {}, y {}): expected finite values (NaN is \
+             accepted as a missing value, infinity is not)",
+            within % nx,
+            within / nx,
+            x = v[i]
+        ),
     })
 }
 
@@ -382,7 +584,9 @@ pub fn load(source: &mut dyn VolumeSource) -> Result<Volume, Error> {
     let mut z = 0;
     while z < nz {
         let d = depth.min(nz - z);
-        voxels.append(source.read_slab(z, d)?)?;
+        let slab = source.read_slab(z, d)?;
+        check_finite(&info, z, &slab)?;
+        voxels.append(slab)?;
         z += d;
     }
     let mut volume = Volume::new(info.name(), info.geometry, voxels, info.value_map)?;

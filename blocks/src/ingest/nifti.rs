@@ -13,9 +13,11 @@ use std::path::{Path, PathBuf};
 
 use flate2::bufread::MultiGzDecoder;
 
-use super::header::{field, open_file};
+use super::header::{data_file, field, open_file};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource};
-use super::{Format, VolumeInfo, check_dims};
+use super::{
+    Format, ORTHONORMAL_TOLERANCE, VolumeInfo, check_dims, check_orthonormal, check_value_map,
+};
 use crate::geometry::{GeometryFields, spacing_and_direction};
 use crate::{Error, Geometry, ValueMap, VoxelType};
 
@@ -57,13 +59,21 @@ fn is_gzip(path: &Path) -> Result<bool, Error> {
     Ok(super::header::read_prefix(path, 2)? == [0x1f, 0x8b])
 }
 
-/// Opens a NIfTI-1 dataset.
-pub fn open(path: &Path) -> Result<StreamSource, Error> {
+/// Opens a NIfTI-1 dataset; the `.img` of a pair must lie in the header's
+/// folder unless `allow_data_outside`.
+pub fn open(path: &Path, allow_data_outside: bool) -> Result<StreamSource, Error> {
     let (h, gz) = read_header(path)?;
     let shape = Shape::read(path, &h)?;
     let mut notes = Vec::new();
     let geometry = read_geometry(path, &h, &shape, &mut notes)?;
-    let data = DataLocation::read(path, &h, gz, &mut notes)?;
+    let value_map = value_map(&h);
+    check_value_map(
+        path,
+        "scl_slope and scl_inter",
+        value_map,
+        shape.sample.voxel_type(),
+    )?;
+    let data = DataLocation::read(path, &h, gz, allow_data_outside, &mut notes)?;
     let description = String::from_utf8_lossy(&h.descrip)
         .trim_matches(char::from(0))
         .trim()
@@ -73,7 +83,7 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
         format: Format::Nifti,
         geometry,
         voxel_type: shape.sample.voxel_type(),
-        value_map: value_map(&h),
+        value_map,
         unit: None,
         modality: None,
         description: (!description.is_empty()).then_some(description),
@@ -107,6 +117,17 @@ fn read_header(path: &Path) -> Result<(nifti::NiftiHeader, bool), Error> {
             path: path.to_owned(),
             codec: "gzip".into(),
             detail: source.to_string(),
+        },
+        nifti::NiftiError::Io(source) if source.kind() == std::io::ErrorKind::UnexpectedEof => {
+            field(
+                path,
+                "header",
+                "the file ends before the header does: expected a 348-byte NIfTI-1 header",
+            )
+        }
+        nifti::NiftiError::Io(source) => Error::Io {
+            path: path.to_owned(),
+            source,
         },
         other => field(
             path,
@@ -181,12 +202,15 @@ fn read_geometry(
     notes: &mut Vec<String>,
 ) -> Result<Geometry, Error> {
     let unit_to_mm = unit_to_mm(h, notes);
+    if h.sform_code <= 0 && h.qform_code > 0 {
+        check_quaternion(path, h)?;
+    }
     let (columns, origin_ras) = affine_ras(h, shape.rank, notes);
     // RAS → LPS: negate x and y; then units → mm.
     let to_lps = |v: [f64; 3]| [-v[0] * unit_to_mm, -v[1] * unit_to_mm, v[2] * unit_to_mm];
     let (spacing, direction) = spacing_and_direction(columns.map(to_lps));
     let affine_field = if h.sform_code > 0 { "srow" } else { "pixdim" };
-    Geometry {
+    let geometry = Geometry {
         dims: shape.dims,
         spacing,
         origin: to_lps(origin_ras),
@@ -200,7 +224,33 @@ fn read_geometry(
             origin: "qoffset or srow",
             direction: affine_field,
         },
-    )
+    )?;
+    let direction_field = if h.sform_code > 0 {
+        "srow_x, srow_y, srow_z"
+    } else {
+        "quatern_b, quatern_c, quatern_d"
+    };
+    check_orthonormal(path, direction_field, geometry.direction)?;
+    Ok(geometry)
+}
+
+/// Checks the qform quaternion (b, c, d): finite, and b² + c² + d² at most 1
+/// (the standard allows rounding just above 1, which
+/// [`ORTHONORMAL_TOLERANCE`] covers): a larger one is no rotation.
+fn check_quaternion(path: &Path, h: &nifti::NiftiHeader) -> Result<(), Error> {
+    let [b, c, d] = [h.quatern_b, h.quatern_c, h.quatern_d].map(f64::from);
+    let norm = b * b + c * c + d * d;
+    if norm.is_finite() && norm <= 1.0 + ORTHONORMAL_TOLERANCE {
+        return Ok(());
+    }
+    Err(field(
+        path,
+        "quatern_b, quatern_c, quatern_d",
+        format!(
+            "({b}, {c}, {d}): b² + c² + d² = {norm}: expected at most 1 (a unit quaternion, \
+             within {ORTHONORMAL_TOLERANCE})"
+        ),
+    ))
 }
 
 /// Millimetres per spatial unit of `xyzt_units` (mm, with a note, when unset).
@@ -262,19 +312,17 @@ fn affine_ras(
     }
 }
 
-/// `scl_slope`/`scl_inter` as a value map; a slope of 0 or NaN means no scaling.
+/// `scl_slope`/`scl_inter` as a value map; a slope of 0 or NaN means no scaling,
+/// as the standard says. Anything else is taken as given, for
+/// [`check_value_map`] to judge (an infinite slope is refused, not ignored).
 fn value_map(h: &nifti::NiftiHeader) -> ValueMap {
-    if h.scl_slope.is_finite() && h.scl_slope != 0.0 {
+    if h.scl_slope.is_nan() || h.scl_slope == 0.0 {
+        ValueMap::IDENTITY
+    } else {
         ValueMap {
             slope: h.scl_slope,
-            intercept: if h.scl_inter.is_finite() {
-                h.scl_inter
-            } else {
-                0.0
-            },
+            intercept: h.scl_inter,
         }
-    } else {
-        ValueMap::IDENTITY
     }
 }
 
@@ -295,12 +343,23 @@ impl DataLocation {
         path: &Path,
         h: &nifti::NiftiHeader,
         gz: bool,
+        allow_outside: bool,
         notes: &mut Vec<String>,
     ) -> Result<DataLocation, Error> {
         let magic = &h.magic[..3];
-        let vox_offset = f64::from(h.vox_offset).max(0.0) as u64;
+        let vox_offset = f64::from(h.vox_offset);
+        if !(vox_offset.is_finite() && vox_offset >= 0.0 && vox_offset.fract() == 0.0) {
+            return Err(field(
+                path,
+                "vox_offset",
+                format!("{vox_offset}: expected a whole, non-negative byte offset"),
+            ));
+        }
+        // A whole f32 of at most 2^64 fits u64; larger ones saturate, and the
+        // stream's size check refuses them.
+        let vox_offset = vox_offset as u64;
         let (data_path, compression, offset) = if magic == b"ni1" {
-            let img = pair_data_file(path)?;
+            let img = pair_data_file(path, allow_outside)?;
             let gz = is_gzip(&img)?;
             (
                 img,
@@ -343,18 +402,32 @@ impl DataLocation {
     }
 }
 
-/// The `.img` (or `.img.gz`) beside a `.hdr`.
-fn pair_data_file(header: &Path) -> Result<PathBuf, Error> {
-    let name = header.to_string_lossy();
+/// The `.img` (or `.img.gz`) beside a `.hdr`: a regular file in the header's
+/// folder (also when it is a symbolic link) unless `allow_outside`.
+fn pair_data_file(header: &Path, allow_outside: bool) -> Result<PathBuf, Error> {
+    let name = header
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let stem = name
         .strip_suffix(".hdr")
         .or_else(|| name.strip_suffix(".hdr.gz"))
         .unwrap_or(&name);
-    [format!("{stem}.img"), format!("{stem}.img.gz")]
+    let folder = header.parent().unwrap_or(Path::new(""));
+    let img = [format!("{stem}.img"), format!("{stem}.img.gz")]
         .into_iter()
-        .map(PathBuf::from)
-        .find(|p| p.exists())
-        .ok_or_else(|| field(header, "data file", format!("{stem}.img not found: expected the image file of a NIfTI pair beside its header")))
+        .find(|n| folder.join(n).exists())
+        .ok_or_else(|| {
+            field(
+                header,
+                "data file",
+                format!(
+                    "{} not found: expected the image file of a NIfTI pair beside its header",
+                    folder.join(format!("{stem}.img")).display()
+                ),
+            )
+        })?;
+    data_file(header, "data file", &img, allow_outside)
 }
 
 /// The rotation of NIfTI's qform quaternion (b, c, d); a = √(1 − b² − c² − d²).

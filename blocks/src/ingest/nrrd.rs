@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use super::header::{self, field, numbers, read_text_header, three, vector};
 use super::stream::{Compression, SampleType, StreamLayout, StreamSource, trailing_data_offset};
-use super::{Format, VolumeInfo, check_dims};
+use super::{Format, VolumeInfo, check_dims, check_orthonormal};
 use crate::geometry::{GeometryFields, IDENTITY_DIRECTION, spacing_and_direction};
 use crate::{Error, Geometry, ValueMap, VoxelType};
 
@@ -57,8 +57,9 @@ fn space_to_lps(path: &Path, space: &str) -> Result<([f64; 3], Option<String>), 
     })
 }
 
-/// Opens a NRRD file (`.nrrd` attached or `.nhdr` detached).
-pub fn open(path: &Path) -> Result<StreamSource, Error> {
+/// Opens a NRRD file (`.nrrd` attached or `.nhdr` detached); a detached data
+/// file must lie in the header's folder unless `allow_data_outside`.
+pub fn open(path: &Path, allow_data_outside: bool) -> Result<StreamSource, Error> {
     let head = read_text_header(path, str::is_empty)?;
     let fields = Fields::read(path, &head.lines)?;
     let samples = Samples::read(&fields)?;
@@ -66,7 +67,7 @@ pub fn open(path: &Path) -> Result<StreamSource, Error> {
     let dims = check_dims(path, "sizes", samples.sizes, samples.sample.size() as u64)?;
     let geometry = read_geometry(&fields, samples.dimension, dims, &mut notes)?;
     let (data_path, file_offset, skip) =
-        data_location(&fields, head.len, samples.compression, dims, samples.sample)?;
+        data_location(&fields, head.len, &samples, dims, allow_data_outside)?;
     let info = VolumeInfo {
         path: path.to_owned(),
         format: Format::Nrrd,
@@ -251,13 +252,15 @@ fn read_geometry(
         }
         None => [0.0; 3],
     };
-    Geometry {
+    let geometry = Geometry {
         dims,
         spacing,
         origin,
         direction,
     }
-    .checked(path, &GEOMETRY_FIELDS)
+    .checked(path, &GEOMETRY_FIELDS)?;
+    check_orthonormal(path, "space directions", geometry.direction)?;
+    Ok(geometry)
 }
 
 /// Spacings and unit directions from `space directions`, one vector per axis,
@@ -312,11 +315,12 @@ fn spacings(
 fn data_location(
     fields: &Fields<'_>,
     header_len: u64,
-    compression: Compression,
+    samples: &Samples,
     dims: [u32; 3],
-    sample: SampleType,
+    allow_outside: bool,
 ) -> Result<(PathBuf, u64, u64), Error> {
     let path = fields.path;
+    let (compression, sample) = (samples.compression, samples.sample);
     let detached = fields.get("data file").or(fields.get("datafile"));
     let (data_path, mut file_offset) = match detached {
         Some(name) if name.starts_with("LIST") || name.split_whitespace().count() > 1 => {
@@ -326,17 +330,17 @@ fn data_location(
                 format!("'{name}': expected one data file (lists and patterns are not supported)"),
             ));
         }
-        Some(name) => {
-            let base = path.parent().unwrap_or(Path::new("."));
-            (base.join(name), 0)
-        }
+        Some(name) => (
+            header::data_file(path, "data file", name, allow_outside)?,
+            0,
+        ),
         None => (path.to_owned(), header_len),
     };
     if let Some(lines) = fields.get("line skip").or(fields.get("lineskip")) {
         let lines: u64 = lines
             .parse()
             .map_err(|_| field(path, "line skip", "expected a whole number"))?;
-        file_offset = skip_lines(&data_path, file_offset, lines)?;
+        file_offset = skip_lines(path, &data_path, file_offset, lines)?;
     }
     let mut skip = 0;
     match fields.get("byte skip").or(fields.get("byteskip")) {
@@ -353,7 +357,13 @@ fn data_location(
                 )
             })?;
             if compression == Compression::None {
-                file_offset += n;
+                file_offset = file_offset.checked_add(n).ok_or_else(|| {
+                    field(
+                        path,
+                        "byte skip",
+                        format!("{n}: expected a skip within the data file"),
+                    )
+                })?;
             } else {
                 skip = n;
             }
@@ -362,13 +372,31 @@ fn data_location(
     Ok((data_path, file_offset, skip))
 }
 
-/// The offset after skipping `lines` text lines from `offset` in `path`.
-fn skip_lines(path: &Path, offset: u64, lines: u64) -> Result<u64, Error> {
+/// The offset after skipping `lines` text lines from `offset` in `path`
+/// (`header` names the field in messages). The loop is bounded by the file:
+/// a line takes at least one byte, so more lines than bytes are refused at
+/// once, and a line longer than [`header::MAX_HEADER_BYTES`] is not text.
+fn skip_lines(header: &Path, path: &Path, offset: u64, lines: u64) -> Result<u64, Error> {
     use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
     let io_err = |source| Error::Io {
         path: path.to_owned(),
         source,
     };
+    let size = header::file_len(path)?;
+    let ends_first = || {
+        field(
+            header,
+            "line skip",
+            format!(
+                "{lines} lines: {} ends first ({size} bytes): expected at most as many lines as \
+                 the data file holds",
+                path.display()
+            ),
+        )
+    };
+    if lines > size.saturating_sub(offset) {
+        return Err(ends_first());
+    }
     let mut file = header::open_file(path)?;
     file.seek(SeekFrom::Start(offset)).map_err(io_err)?;
     let mut reader = BufReader::new(file);
@@ -378,14 +406,21 @@ fn skip_lines(path: &Path, offset: u64, lines: u64) -> Result<u64, Error> {
         line.clear();
         let n = reader
             .by_ref()
-            .take(header::MAX_HEADER_BYTES as u64)
+            .take(header::MAX_HEADER_BYTES as u64 + 1)
             .read_until(b'\n', &mut line)
             .map_err(io_err)?;
         if n == 0 {
+            return Err(ends_first());
+        }
+        if n > header::MAX_HEADER_BYTES {
             return Err(field(
-                path,
+                header,
                 "line skip",
-                format!("{lines} lines: the file ends first"),
+                format!(
+                    "a line at byte {position} of {} runs over {} bytes: expected text lines to skip",
+                    path.display(),
+                    header::MAX_HEADER_BYTES
+                ),
             ));
         }
         position += n as u64;

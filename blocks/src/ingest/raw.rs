@@ -285,6 +285,7 @@ fn checked_direction(
             ),
         ));
     }
+    super::check_orthonormal(path, "direction", direction)?;
     Ok(direction)
 }
 

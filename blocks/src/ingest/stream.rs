@@ -114,27 +114,33 @@ impl StreamSource {
     /// more than deflate could expand the stream to).
     pub fn new(mut info: VolumeInfo, layout: StreamLayout) -> Result<StreamSource, Error> {
         info.voxel_type = layout.sample.voxel_type();
-        let size = std::fs::metadata(&layout.data_path)
-            .map_err(|source| {
-                if source.kind() == io::ErrorKind::NotFound && layout.data_path != info.path {
-                    field(
-                        &info.path,
-                        "data file",
-                        format!(
-                            "{} not found: expected the data file the header names",
-                            layout.data_path.display()
-                        ),
-                    )
-                } else {
-                    Error::Io {
-                        path: layout.data_path.clone(),
-                        source,
-                    }
-                }
-            })?
-            .len();
-        let needed = layout.skip + sample_bytes(&info, &layout);
-        let available = size.saturating_sub(layout.file_offset);
+        let size = data_file_len(&info, &layout)?;
+        if layout.file_offset > size {
+            return Err(field(
+                &info.path,
+                "data offset",
+                format!(
+                    "the voxels would start at byte {} of {}, which has {size} bytes: expected \
+                     an offset within the file (check the header size or byte skip)",
+                    layout.file_offset,
+                    layout.data_path.display()
+                ),
+            ));
+        }
+        let needed = layout
+            .skip
+            .checked_add(sample_bytes(&info, &layout))
+            .ok_or_else(|| {
+                field(
+                    &info.path,
+                    "byte skip",
+                    format!(
+                        "{} bytes to skip before the voxels: expected a skip within the data",
+                        layout.skip
+                    ),
+                )
+            })?;
+        let available = size - layout.file_offset;
         match layout.compression {
             Compression::None if available < needed => {
                 return Err(Error::Truncated {
@@ -148,10 +154,16 @@ impl StreamSource {
             {
                 return Err(field(
                     &info.path,
-                    "dimensions",
+                    if layout.skip > 0 {
+                        "byte skip or dimensions"
+                    } else {
+                        "dimensions"
+                    },
                     format!(
-                        "{:?} voxels of {} bytes need {needed} bytes, more than the {available}-byte \
-                         {} stream can expand to: expected dimensions that match the data",
+                        "{} skipped bytes and {:?} voxels of {} bytes need {needed} bytes, more than \
+                         the {available}-byte {} stream can expand to: expected a skip and \
+                         dimensions that match the data",
+                        layout.skip,
                         info.geometry.dims,
                         layout.sample.size(),
                         layout.compression.name()
@@ -288,6 +300,39 @@ pub fn trailing_data_offset(
         expected: total,
         got: size,
     })
+}
+
+/// The size of the data file, which must be a regular file (a device such as
+/// `/dev/zero` would never end).
+fn data_file_len(info: &VolumeInfo, layout: &StreamLayout) -> Result<u64, Error> {
+    let meta = std::fs::metadata(&layout.data_path).map_err(|source| {
+        if source.kind() == io::ErrorKind::NotFound && layout.data_path != info.path {
+            field(
+                &info.path,
+                "data file",
+                format!(
+                    "{} not found: expected the data file the header names",
+                    layout.data_path.display()
+                ),
+            )
+        } else {
+            Error::Io {
+                path: layout.data_path.clone(),
+                source,
+            }
+        }
+    })?;
+    if !meta.is_file() {
+        return Err(field(
+            &info.path,
+            "data file",
+            format!(
+                "{} is not a regular file: expected a file holding the voxels",
+                layout.data_path.display()
+            ),
+        ));
+    }
+    Ok(meta.len())
 }
 
 /// Bytes of samples in the whole volume.

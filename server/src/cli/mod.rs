@@ -112,6 +112,13 @@ pub struct InputArgs {
     /// stored from the top of the head down.
     #[arg(long, value_name = "AXES", value_parser = raw::parse_flip)]
     pub raw_flip: Option<[bool; 3]>,
+    /// Read data files that lie outside the header's folder: a detached NRRD
+    /// `data file`, a MetaImage `ElementDataFile` or a NIfTI `.img` that is (or
+    /// links to) a file elsewhere, and symbolic links in a DICOM folder to files
+    /// outside it. Without it such files are refused, so a header cannot make
+    /// voxserve read, say, /etc/passwd as voxels.
+    #[arg(long)]
+    pub allow_data_outside: bool,
 }
 
 impl InputArgs {
@@ -127,6 +134,7 @@ impl InputArgs {
                 spacing: self.raw_spacing,
                 direction: self.raw_direction.or(self.raw_flip.map(raw::flip_axes)),
             },
+            allow_data_outside: self.allow_data_outside,
         }
     }
 }
@@ -415,6 +423,7 @@ mod tests {
             "1,1,2.5",
             "--raw-flip",
             "z",
+            "--allow-data-outside",
         ])
         .expect("valid");
         let Command::Info(args) = cli.command else {
@@ -430,5 +439,6 @@ mod tests {
             o.raw.direction,
             Some([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
         );
+        assert!(o.allow_data_outside);
     }
 }

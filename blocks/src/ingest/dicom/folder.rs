@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 
 use super::series::DicomSeries;
-use super::slice_header::{SliceHeader, read_header};
+use super::slice_header::{SliceHeader, has_dicom_marker, read_header};
 use crate::Error;
 use crate::ingest::header::field;
 
@@ -61,33 +61,42 @@ pub struct FolderScan {
 }
 
 impl FolderScan {
-    /// Reads the headers of every file in `folder` (not its subfolders; files
-    /// whose names start with a dot are skipped, files without an image are
-    /// passed over, any other non-DICOM file is an error).
-    pub fn new(folder: &Path) -> Result<FolderScan, Error> {
-        let io_err = |source| Error::Io {
-            path: folder.to_owned(),
-            source,
-        };
-        let mut files: Vec<PathBuf> = std::fs::read_dir(folder)
-            .map_err(io_err)?
-            .filter_map(Result::ok)
-            .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
-            .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
-            .map(|e| e.path())
-            .collect();
-        files.sort();
-        let headers: Vec<Option<SliceHeader>> = files
-            .par_iter()
-            .map(|p| read_header(p))
+    /// Reads the headers of every DICOM file in `folder` (not its subfolders;
+    /// files whose names start with a dot are passed over). Symbolic links are
+    /// followed to regular files inside the folder (anywhere with
+    /// `allow_outside`). Files that are not DICOM, and DICOM files without an
+    /// image, are skipped with a warning naming them; a damaged DICOM file is an
+    /// error.
+    pub fn new(folder: &Path, allow_outside: bool) -> Result<FolderScan, Error> {
+        let (files, mut skipped) = candidate_files(folder, allow_outside)?;
+        let headers: Vec<(PathBuf, Option<SliceHeader>)> = files
+            .into_par_iter()
+            .map(|p| read_header(&p).map(|h| (p, h)))
             .collect::<Result<_, _>>()?;
-        let images: Vec<SliceHeader> = headers.into_iter().flatten().collect();
+        let mut images = Vec::new();
+        for (path, header) in headers {
+            match header {
+                Some(h) => images.push(h),
+                None => skipped.push((path, "a DICOM file without an image".to_owned())),
+            }
+        }
         if images.is_empty() {
             return Err(field(
                 folder,
                 "images",
-                "none found: expected DICOM image files in the folder",
+                format!(
+                    "none found: expected DICOM image files in the folder{}",
+                    listing(&skipped, "; skipped ")
+                ),
             ));
+        }
+        if !skipped.is_empty() {
+            tracing::warn!(
+                "{}: {} file(s) skipped, not read as part of a series{}",
+                folder.display(),
+                skipped.len(),
+                listing(&skipped, ": ")
+            );
         }
         Ok(FolderScan {
             folder: folder.to_owned(),
@@ -153,9 +162,99 @@ impl FolderScan {
     }
 }
 
+/// Files skipped, each with the reason.
+type Skipped = Vec<(PathBuf, String)>;
+
+/// The most skipped files a message names one by one.
+const NAMED_SKIPPED: usize = 10;
+
+/// `skipped` files as `prefix` and a list of names with reasons (the first
+/// [`NAMED_SKIPPED`], then a count), or nothing when there are none.
+fn listing(skipped: &[(PathBuf, String)], prefix: &str) -> String {
+    if skipped.is_empty() {
+        return String::new();
+    }
+    let mut names: Vec<String> = skipped
+        .iter()
+        .take(NAMED_SKIPPED)
+        .map(|(p, why)| {
+            let name = p.file_name().map_or_else(
+                || p.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            );
+            format!("{name} ({why})")
+        })
+        .collect();
+    if skipped.len() > NAMED_SKIPPED {
+        names.push(format!("and {} more", skipped.len() - NAMED_SKIPPED));
+    }
+    format!("{prefix}{} file(s): {}", skipped.len(), names.join(", "))
+}
+
+/// The files of `folder` that may be DICOM (sorted), and those skipped with
+/// why: not a regular file, a symbolic link leading outside the folder (unless
+/// `allow_outside`) or nowhere, or no `DICM` marker.
+fn candidate_files(folder: &Path, allow_outside: bool) -> Result<(Vec<PathBuf>, Skipped), Error> {
+    let io_err = |source| Error::Io {
+        path: folder.to_owned(),
+        source,
+    };
+    let home = folder.canonicalize().map_err(io_err)?;
+    let mut entries: Vec<std::fs::DirEntry> = std::fs::read_dir(folder)
+        .map_err(io_err)?
+        .filter_map(Result::ok)
+        .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
+        .collect();
+    entries.sort_by_key(std::fs::DirEntry::path);
+    let (mut files, mut skipped) = (Vec::new(), Vec::new());
+    for entry in entries {
+        let path = entry.path();
+        let Ok(kind) = entry.file_type() else {
+            continue;
+        };
+        if kind.is_dir() {
+            continue; // subfolders are not read
+        }
+        if kind.is_symlink() {
+            match path.canonicalize() {
+                Err(_) => {
+                    skipped.push((path, "a broken symbolic link".to_owned()));
+                    continue;
+                }
+                Ok(target) if !allow_outside && !target.starts_with(&home) => {
+                    skipped.push((
+                        path,
+                        format!(
+                            "a symbolic link to {}, outside the folder; --allow-data-outside reads it",
+                            target.display()
+                        ),
+                    ));
+                    continue;
+                }
+                Ok(target) if target.is_dir() => continue,
+                Ok(_) => {}
+            }
+        }
+        if !path.is_file() {
+            skipped.push((path, "not a regular file".to_owned()));
+        } else if !has_dicom_marker(&path)? {
+            skipped.push((path, "not DICOM: no DICM marker at byte 128".to_owned()));
+        } else {
+            files.push(path);
+        }
+    }
+    Ok((files, skipped))
+}
+
 /// Opens the DICOM series in `folder`: the only one, or the one `series` names.
-pub fn open_folder(folder: &Path, series: Option<&str>) -> Result<DicomSeries, Error> {
-    FolderScan::new(folder)?.open(series)
+/// Symbolic links to files outside the folder are read only with
+/// `allow_outside`.
+pub fn open_folder(
+    folder: &Path,
+    series: Option<&str>,
+    allow_outside: bool,
+) -> Result<DicomSeries, Error> {
+    FolderScan::new(folder, allow_outside)?.open(series)
 }
 
 /// Opens a single DICOM file as a one-slice volume.

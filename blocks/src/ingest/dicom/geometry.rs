@@ -6,6 +6,7 @@
 use super::slice_header::SliceHeader;
 use crate::geometry::GeometryFields;
 use crate::ingest::header::field;
+use crate::ingest::{ORTHONORMAL_TOLERANCE, check_orthonormal};
 use crate::{Error, Geometry};
 
 /// The attributes each part of a series' geometry comes from.
@@ -22,6 +23,8 @@ pub const SPACING_TOLERANCE: f64 = 0.01;
 /// Stacking directions further than this from the normal (radians, 0.06°) are
 /// a gantry tilt.
 const TILT_TOLERANCE: f64 = 1e-3;
+/// The largest gantry tilt accepted, degrees (CT gantries tilt up to about 30°).
+const MAX_GANTRY_TILT_DEG: f64 = 45.0;
 
 /// Places `slices` — a volume of `dims` — in patient LPS, sorting them along
 /// the stacking direction. `first` is the series' first file as listed (before
@@ -49,16 +52,12 @@ pub(super) fn place(
         }
     };
     let normal = cross(row_dir, col_dir);
-    if (dot(normal, normal) - 1.0).abs() > 1e-3 {
-        return Err(field(
-            &first.path,
-            "ImageOrientationPatient (0020,0037)",
-            format!(
-                "{:?}: expected two orthogonal unit vectors",
-                first.orientation
-            ),
-        ));
-    }
+    // The row and column directions, with their normal, must be orthonormal.
+    check_orthonormal(
+        &first.path,
+        "ImageOrientationPatient (0020,0037)",
+        [row_dir, col_dir, normal],
+    )?;
     let [row_spacing, column_spacing] = first.pixel_spacing.unwrap_or_else(|| {
         notes.push("no PixelSpacing: assumed 1 mm".to_owned());
         [1.0, 1.0]
@@ -70,7 +69,7 @@ pub(super) fn place(
             .unwrap_or(1.0);
         (normal, if s > 0.0 { s } else { 1.0 })
     } else {
-        stack_slices(slices, normal, notes)?
+        stack_slices(slices, [row_dir, col_dir, normal], notes)?
     };
     Geometry {
         dims,
@@ -82,13 +81,15 @@ pub(super) fn place(
     .checked(&first.path, &GEOMETRY_FIELDS)
 }
 
-/// Sorts `slices` along `normal`, checks their spacing, and returns the stacking
-/// direction and slice spacing (a sheared direction when the gantry is tilted).
+/// Sorts `slices` along the normal of `axes` (row, column, normal), checks
+/// their spacing, and returns the stacking direction and slice spacing (a
+/// sheared direction when the gantry is tilted).
 fn stack_slices(
     slices: &mut [SliceHeader],
-    normal: [f64; 3],
+    axes: [[f64; 3]; 3],
     notes: &mut Vec<String>,
 ) -> Result<([f64; 3], f64), Error> {
+    let normal = axes[2];
     for s in slices.iter() {
         if s.position.is_none() {
             return Err(field(
@@ -146,11 +147,28 @@ fn stack_slices(
     let along = dot(step, normal) / length;
     if along < 1.0 - TILT_TOLERANCE {
         let angle = along.clamp(-1.0, 1.0).acos().to_degrees();
+        let unit = step.map(|x| x / length);
+        // A gantry tilts about one image axis: the stacking direction stays
+        // perpendicular to it, and the tilt is moderate.
+        let about_an_axis = axes[..2]
+            .iter()
+            .any(|&a| dot(unit, a).abs() <= ORTHONORMAL_TOLERANCE);
+        if !about_an_axis || angle > MAX_GANTRY_TILT_DEG {
+            return Err(field(
+                &slices[slices.len() - 1].path,
+                "ImagePositionPatient (0020,0032)",
+                format!(
+                    "the slices are stacked along {unit:?}, {angle:.2}° off their normal \
+                     {normal:?}: expected a stack along the normal, or a gantry tilt (about the \
+                     row or the column direction, at most {MAX_GANTRY_TILT_DEG}°)"
+                ),
+            ));
+        }
         notes.push(format!(
             "gantry tilt of {angle:.2}°: slices are stacked {length:.3} mm apart along a direction \
              {angle:.2}° off their normal; kept as a sheared affine"
         ));
-        Ok((step.map(|x| x / length), length))
+        Ok((unit, length))
     } else {
         Ok((normal, median))
     }

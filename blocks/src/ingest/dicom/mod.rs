@@ -22,7 +22,12 @@
 //! physical values in `f32`. Compressed transfer syntaxes (RLE, JPEG lossless,
 //! JPEG-LS, JPEG 2000) are decoded by dicom-pixeldata.
 //!
+//! Hostile files: every element length is checked against the file's size
+//! before dicom-rs reads the file (`bounds`), and every header read and pixel
+//! decode runs inside the panic boundary ([`crate::ingest::boundary`]).
+//!
 //! # Layout
+//! - `bounds`: element lengths checked against the file before reading it.
 //! - `slice_header`: what one file's header says, read up to the pixel data.
 //! - `folder`: [`FolderScan`], the series of a folder grouped by UID and
 //!   geometry, their [`SeriesSummary`] listing, [`open_folder`] and [`open_file`].
@@ -31,6 +36,7 @@
 //! - `pixels`: the series' one pixel format and decoding a slice to values.
 //! - `series`: [`DicomSeries`], a checked series as a [`super::VolumeSource`].
 
+mod bounds;
 mod folder;
 mod geometry;
 mod pixels;

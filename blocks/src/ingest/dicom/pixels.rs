@@ -3,9 +3,13 @@
 //! the output domain: stored bits selected and sign-extended, MONOCHROME1
 //! inverted, padding marked, and rescaled when slices disagree on the rescale.
 
+use dicom_encoding::TransferSyntaxIndex;
 use dicom_pixeldata::PixelDecoder;
+use dicom_transfer_syntax_registry::TransferSyntaxRegistry;
 
+use super::bounds;
 use super::slice_header::SliceHeader;
+use crate::ingest::boundary;
 use crate::ingest::header::field;
 use crate::{Error, VoxelData, VoxelType};
 
@@ -158,30 +162,39 @@ fn check_one_format(slices: &[SliceHeader]) -> Result<(), Error> {
     Ok(())
 }
 
-/// Decodes `slice` into output-domain values, `None` for padded pixels, and
-/// the pixel count. With `rescale_each`, values are rescaled to physical ones
-/// by the slice's own RescaleSlope and RescaleIntercept.
-pub(super) fn decode(
+/// Opens slice `s` (its element lengths checked against the file first) and
+/// decodes its pixel data, both inside the panic boundary, then hands the
+/// decoded bytes — at least one sample per pixel — to `use_pixels`.
+fn with_decoded<T>(
     s: &SliceHeader,
     format: &PixelFormat,
-    rescale_each: bool,
-) -> Result<(Vec<Option<f64>>, usize), Error> {
-    let obj = dicom_object::open_file(&s.path).map_err(|e| {
-        field(
-            &s.path,
-            "file",
-            format!("{e}: expected a readable DICOM file"),
-        )
+    use_pixels: impl FnOnce(&[u8]) -> T,
+) -> Result<T, Error> {
+    let obj = boundary::guard(&s.path, "DICOM", || {
+        bounds::check_lengths(&s.path, false)?;
+        dicom_object::open_file(&s.path).map_err(|e| {
+            field(
+                &s.path,
+                "file",
+                format!("{e}: expected a readable DICOM file"),
+            )
+        })
     })?;
     let syntax = obj
         .meta()
         .transfer_syntax()
         .trim_end_matches('\0')
         .to_owned();
-    let decoded = obj.decode_pixel_data().map_err(|e| Error::Corrupt {
-        path: s.path.clone(),
-        codec: format!("pixel data (transfer syntax {syntax})"),
-        detail: e.to_string(),
+    let codec = match TransferSyntaxRegistry.get(&syntax) {
+        Some(ts) => format!("{} ({syntax}) pixel data", ts.name()),
+        None => format!("pixel data (transfer syntax {syntax})"),
+    };
+    let decoded = boundary::guard(&s.path, &codec, || {
+        obj.decode_pixel_data().map_err(|e| Error::Corrupt {
+            path: s.path.clone(),
+            codec: codec.clone(),
+            detail: e.to_string(),
+        })
     })?;
     let count = s.rows as usize * s.columns as usize;
     let bytes = decoded.data();
@@ -193,43 +206,76 @@ pub(super) fn decode(
             got: bytes.len() as u64,
         });
     }
-    let (smin, smax) = format.stored_range();
-    let values = (0..count)
-        .map(|p| {
-            let stored = format.sample(bytes, p);
-            if s.padding
-                .is_some_and(|(lo, hi)| (lo..=hi).contains(&stored))
-            {
-                return None;
-            }
-            let v = if format.monochrome1 {
-                smin + smax - stored
-            } else {
-                stored
-            };
-            Some(if rescale_each {
-                v as f64 * s.slope + s.intercept
-            } else {
-                v as f64
-            })
-        })
-        .collect();
-    Ok((values, count))
+    Ok(use_pixels(&bytes[..needed]))
 }
 
-/// Output-domain values as voxels of `voxel_type`, padded pixels as `fill`.
-pub(super) fn to_voxels(values: Vec<Option<f64>>, fill: f64, voxel_type: VoxelType) -> VoxelData {
-    let v = values.into_iter().map(|v| v.unwrap_or(fill));
-    // Values fit their type: they come from that many stored bits.
-    match voxel_type {
-        VoxelType::U8 => VoxelData::U8(v.map(|x| x as u8).collect()),
-        VoxelType::I8 => VoxelData::I8(v.map(|x| x as i8).collect()),
-        VoxelType::U16 => VoxelData::U16(v.map(|x| x as u16).collect()),
-        VoxelType::I16 => VoxelData::I16(v.map(|x| x as i16).collect()),
-        VoxelType::U32 => VoxelData::U32(v.map(|x| x as u32).collect()),
-        VoxelType::I32 => VoxelData::I32(v.map(|x| x as i32).collect()),
-        VoxelType::F32 => VoxelData::F32(v.map(|x| x as f32).collect()),
+/// The output-domain value of pixel `p` of the decoded `bytes`, `None` when it
+/// is padding. With `rescale_each`, values are rescaled to physical ones by the
+/// slice's own RescaleSlope and RescaleIntercept.
+fn value(
+    s: &SliceHeader,
+    format: &PixelFormat,
+    rescale_each: bool,
+    bytes: &[u8],
+    p: usize,
+) -> Option<f64> {
+    let stored = format.sample(bytes, p);
+    if s.padding
+        .is_some_and(|(lo, hi)| (lo..=hi).contains(&stored))
+    {
+        return None;
     }
+    let (smin, smax) = format.stored_range();
+    let v = if format.monochrome1 {
+        smin + smax - stored
+    } else {
+        stored
+    };
+    Some(if rescale_each {
+        v as f64 * s.slope + s.intercept
+    } else {
+        v as f64
+    })
+}
+
+/// The lowest value of slice `s` that is not padding (infinity when all is).
+pub(super) fn lowest_unpadded(
+    s: &SliceHeader,
+    format: &PixelFormat,
+    rescale_each: bool,
+) -> Result<f64, Error> {
+    with_decoded(s, format, |bytes| {
+        let count = bytes.len() / usize::from(format.sample_bytes());
+        (0..count)
+            .filter_map(|p| value(s, format, rescale_each, bytes, p))
+            .fold(f64::INFINITY, f64::min)
+    })
+}
+
+/// Decodes slice `s` straight into voxels of `voxel_type` (a few bytes per
+/// pixel: the file, its decoded pixel data and the voxels), padded pixels set
+/// to `fill`.
+pub(super) fn decode(
+    s: &SliceHeader,
+    format: &PixelFormat,
+    rescale_each: bool,
+    fill: f64,
+    voxel_type: VoxelType,
+) -> Result<VoxelData, Error> {
+    with_decoded(s, format, |bytes| {
+        let count = bytes.len() / usize::from(format.sample_bytes());
+        let v = (0..count).map(|p| value(s, format, rescale_each, bytes, p).unwrap_or(fill));
+        // Values fit their type: they come from that many stored bits.
+        match voxel_type {
+            VoxelType::U8 => VoxelData::U8(v.map(|x| x as u8).collect()),
+            VoxelType::I8 => VoxelData::I8(v.map(|x| x as i8).collect()),
+            VoxelType::U16 => VoxelData::U16(v.map(|x| x as u16).collect()),
+            VoxelType::I16 => VoxelData::I16(v.map(|x| x as i16).collect()),
+            VoxelType::U32 => VoxelData::U32(v.map(|x| x as u32).collect()),
+            VoxelType::I32 => VoxelData::I32(v.map(|x| x as i32).collect()),
+            VoxelType::F32 => VoxelData::F32(v.map(|x| x as f32).collect()),
+        }
+    })
 }
 
 #[cfg(test)]

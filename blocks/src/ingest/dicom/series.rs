@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use super::geometry;
 use super::pixels::{self, PixelFormat};
 use super::slice_header::SliceHeader;
-use crate::ingest::{Format, VolumeInfo, VolumeSource, check_dims, check_slab};
+use crate::ingest::{Format, VolumeInfo, VolumeSource, check_dims, check_slab, check_value_map};
 use crate::{Error, ValueMap, VoxelData, VoxelType};
 
 /// A DICOM series as a [`VolumeSource`].
@@ -46,6 +46,17 @@ impl DicomSeries {
             ],
             u64::from(format.sample_bytes()),
         )?;
+        for s in &slices {
+            check_value_map(
+                &s.path,
+                "RescaleSlope (0028,1053) and RescaleIntercept (0028,1052)",
+                ValueMap {
+                    slope: s.slope as f32,
+                    intercept: s.intercept as f32,
+                },
+                format.voxel_type(),
+            )?;
+        }
         let geometry = geometry::place(&first, &mut slices, dims, &mut notes)?;
         let rescale_each = slices
             .iter()
@@ -98,27 +109,24 @@ impl DicomSeries {
     /// The lowest non-padding value of the series in the output domain (one pass
     /// over the pixels, made only for series that declare padding).
     fn lowest_unpadded_value(&self) -> Result<f64, Error> {
-        let lows: Vec<f64> = (0..self.slices.len())
-            .into_par_iter()
-            .map(|i| {
-                self.decode(i)
-                    .map(|(values, _)| values.into_iter().flatten().fold(f64::INFINITY, f64::min))
-            })
+        let lows: Vec<f64> = self
+            .slices
+            .par_iter()
+            .map(|s| pixels::lowest_unpadded(s, &self.format, self.rescale_each))
             .collect::<Result<_, _>>()?;
         let low = lows.into_iter().fold(f64::INFINITY, f64::min);
         Ok(if low.is_finite() { low } else { 0.0 })
     }
 
-    /// Decodes slice `i` into output-domain values, `None` for padded pixels.
-    fn decode(&self, i: usize) -> Result<(Vec<Option<f64>>, usize), Error> {
-        pixels::decode(&self.slices[i], &self.format, self.rescale_each)
-    }
-
     /// Slice `i` as output voxels.
     fn slice(&self, i: usize) -> Result<VoxelData, Error> {
-        let (values, _) = self.decode(i)?;
-        let fill = self.padding_replacement.unwrap_or(0.0);
-        Ok(pixels::to_voxels(values, fill, self.info.voxel_type))
+        pixels::decode(
+            &self.slices[i],
+            &self.format,
+            self.rescale_each,
+            self.padding_replacement.unwrap_or(0.0),
+            self.info.voxel_type,
+        )
     }
 }
 

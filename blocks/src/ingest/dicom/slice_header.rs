@@ -7,6 +7,7 @@ use dicom_dictionary_std::tags;
 use dicom_object::{DefaultDicomObject, OpenFileOptions};
 
 use crate::Error;
+use crate::ingest::boundary;
 use crate::ingest::header::{field, read_prefix};
 
 /// What one file's header says, read up to the pixel data.
@@ -55,26 +56,33 @@ impl SliceHeader {
     }
 }
 
+/// Whether `path` has the `DICM` marker at byte 128 of a DICOM file.
+pub(super) fn has_dicom_marker(path: &Path) -> Result<bool, Error> {
+    Ok(read_prefix(path, 132)?.get(128..132) == Some(b"DICM"))
+}
+
 /// Reads the header of one file (up to the pixel data).
 pub(super) fn read_header(path: &Path) -> Result<Option<SliceHeader>, Error> {
-    let prefix = read_prefix(path, 132)?;
-    if prefix.get(128..132) != Some(b"DICM") {
+    if !has_dicom_marker(path)? {
         return Err(field(
             path,
             "preamble",
             "no 'DICM' marker at byte 128: expected a DICOM file (move other files out of the series folder)",
         ));
     }
-    let obj = OpenFileOptions::new()
-        .read_until(tags::PIXEL_DATA)
-        .open_file(path)
-        .map_err(|e| {
-            field(
-                path,
-                "header",
-                format!("{e}: expected a readable DICOM file"),
-            )
-        })?;
+    let obj = boundary::guard(path, "DICOM header", || {
+        super::bounds::check_lengths(path, true)?;
+        OpenFileOptions::new()
+            .read_until(tags::PIXEL_DATA)
+            .open_file(path)
+            .map_err(|e| {
+                field(
+                    path,
+                    "header",
+                    format!("{e}: expected a readable DICOM file"),
+                )
+            })
+    })?;
     let Some(rows) = opt_int::<u32>(&obj, tags::ROWS) else {
         return Ok(None); // no image: DICOMDIR, structured report, …
     };
