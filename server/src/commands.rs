@@ -301,7 +301,12 @@ impl OutputFile {
 /// `voxserve info`: what a file or DICOM folder holds, and its value statistics
 /// (a full read, slab by slab).
 pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
-    if blocks::store::Store::is_store(&args.path) {
+    let leftover = args
+        .path
+        .file_name()
+        .and_then(|n| blocks::store::ingest::leftover_of(&n.to_string_lossy()).map(|_| ()))
+        .is_some();
+    if blocks::store::Store::is_store(&args.path) || (leftover && args.path.is_dir()) {
         return store_info(args);
     }
     let Opened { mut source, series } = open_for_info(args)?;

@@ -133,6 +133,8 @@ fn every_malformed_file_gets_a_clear_error_in_bounded_time_and_memory() {
         let commands: &[&str] = match case.run {
             Run::Info => &["info"],
             Run::InfoAndIngest => &["info", "ingest"],
+            Run::InfoAndVerify => &["info", "verify"],
+            Run::Verify => &["verify"],
         };
         for command in commands {
             let store = dir.path().join(format!("store-{runs}"));

@@ -25,6 +25,10 @@ pub enum Run {
     Info,
     /// `voxserve info INPUT`, then `voxserve ingest INPUT --out …`.
     InfoAndIngest,
+    /// `voxserve info STORE`, then `voxserve verify STORE`.
+    InfoAndVerify,
+    /// `voxserve verify STORE` (damage that only reading every byte finds).
+    Verify,
 }
 
 /// One malformed input and what its error must say.
@@ -138,7 +142,120 @@ pub fn corpus(dir: &Path) -> Vec<Case> {
     metaimage_cases(&mut c);
     dicom_file_cases(&mut c);
     dicom_folder_cases(&mut c);
+    store_cases(&mut c);
     c.cases
+}
+
+/// Ingests the 24³ phantom as a store named `name` in the corpus folder.
+fn store(c: &Corpus, name: &str) -> PathBuf {
+    let path = c.path(name);
+    let volume = std::sync::Arc::new(blocks::phantom::head(24).expect("phantom"));
+    let mut source = blocks::ingest::MemorySource::new(volume, "phantom");
+    blocks::store::ingest(&mut source, &path, &Default::default(), &mut |_| {})
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    path
+}
+
+/// Damaged brick stores: missing files, changed metadata, hostile manifests,
+/// an older format, an ingest's leftover.
+fn store_cases(c: &mut Corpus) {
+    let missing_shard = store(c, "missing-shard.zarr");
+    std::fs::remove_file(missing_shard.join("0/c/0/0/0")).expect("rm");
+    c.case("missing-shard.zarr", missing_shard, &["0/c/0/0/0: missing"])
+        .run = Run::InfoAndVerify;
+    let missing_stats = store(c, "missing-stats.zarr");
+    std::fs::remove_dir_all(missing_stats.join("voxserve/block_histogram/c")).expect("rm");
+    c.case(
+        "missing-stats.zarr",
+        missing_stats,
+        &["block_histogram/c/", "missing"],
+    )
+    .run = Run::InfoAndVerify;
+    let respaced = store(c, "respaced.zarr");
+    let root = respaced.join("zarr.json");
+    let text = std::fs::read_to_string(&root).expect("read");
+    // CT → MR at the same length (another preset, another meaning): only the
+    // checksum tells.
+    let changed = text.replacen("\"modality\": \"CT\"", "\"modality\": \"MR\"", 1);
+    assert_ne!(changed, text, "the root metadata names the modality");
+    write(&root, changed.as_bytes());
+    c.case("respaced.zarr", respaced, &["zarr.json", "SHA-256"])
+        .run = Run::InfoAndVerify;
+    let huge = store(c, "huge-metadata.zarr");
+    write(&huge.join("zarr.json"), &vec![b' '; 40 << 20]);
+    c.case(
+        "huge-metadata.zarr",
+        huge,
+        &["zarr.json", "the manifest says"],
+    )
+    .run = Run::InfoAndVerify;
+    let flipped = store(c, "flipped-byte.zarr");
+    let shard = flipped.join("0/c/0/0/0");
+    let mut bytes = std::fs::read(&shard).expect("read");
+    let middle = bytes.len() / 2;
+    bytes[middle] ^= 0x10;
+    write(&shard, &bytes);
+    c.case("flipped-byte.zarr", flipped, &["0/c/0/0/0", "SHA-256"])
+        .run = Run::Verify;
+    let stray = store(c, "stray-file.zarr");
+    write(&stray.join("0/c/7"), b"stray");
+    c.case("stray-file.zarr", stray, &["0/c/7", "not in the manifest"])
+        .run = Run::Verify;
+    manifest_cases(c);
+}
+
+/// Stores whose manifest is missing, damaged or hostile, and one of format 1.
+fn manifest_cases(c: &mut Corpus) {
+    let manifest = blocks::store::manifest::MANIFEST_KEY;
+    let no_manifest = store(c, "no-manifest.zarr");
+    std::fs::remove_file(no_manifest.join(manifest)).expect("rm");
+    c.case("no-manifest.zarr", no_manifest, &["manifest", "missing"])
+        .run = Run::InfoAndVerify;
+    for (name, edit, expect) in [
+        (
+            "manifest-garbage.zarr",
+            "{\"files\": 7",
+            &["manifest: invalid type"][..],
+        ),
+        (
+            "manifest-escape.zarr",
+            "../../../etc/passwd",
+            &["manifest", "a relative path inside the store"][..],
+        ),
+        (
+            "manifest-md5.zarr",
+            "md5",
+            &["algorithm", "expected sha256"][..],
+        ),
+    ] {
+        let path = store(c, name);
+        let file = path.join(manifest);
+        let text = std::fs::read_to_string(&file).expect("read");
+        let changed = match edit {
+            "md5" => text.replacen("\"sha256\",", "\"md5\",", 1),
+            "../../../etc/passwd" => text.replacen("\"0/c/0/0/0\"", "\"../../../etc/passwd\"", 1),
+            garbage => garbage.to_owned(),
+        };
+        write(&file, changed.as_bytes());
+        c.case(name, path, expect).run = Run::InfoAndVerify;
+    }
+    let old = store(c, "format-1.zarr");
+    std::fs::remove_file(old.join(manifest)).expect("rm");
+    let root = old.join("zarr.json");
+    let text = std::fs::read_to_string(&root).expect("read");
+    write(
+        &root,
+        text.replacen("\"format_version\": 2", "\"format_version\": 1", 1)
+            .as_bytes(),
+    );
+    c.case(
+        "format-1.zarr",
+        old,
+        &["format_version: 1: expected 2", "ingest the source again"],
+    );
+    let partial = c.path(".scan.zarr.partial-1");
+    std::fs::create_dir_all(partial.join("0")).expect("mkdir");
+    c.case(".scan.zarr.partial-1", partial, &["did not finish"]);
 }
 
 fn raw_cases(c: &mut Corpus) {

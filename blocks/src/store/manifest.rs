@@ -33,6 +33,8 @@ pub const MANIFEST_KEY: &str = "voxserve/manifest.json";
 const MAX_MANIFEST_BYTES: u64 = 64 << 20;
 /// The most files a manifest may list.
 const MAX_FILES: usize = 1 << 20;
+/// The largest metadata file (`zarr.json`) read: a store's are a few KB.
+pub const MAX_METADATA_BYTES: u64 = 16 << 20;
 /// How many missing or damaged files a message names before it counts the rest.
 const NAMED_IN_MESSAGES: usize = 3;
 
@@ -228,6 +230,16 @@ impl Manifest {
             .collect();
         for (key, entry) in metadata {
             let path = folder.join(key);
+            if entry.bytes > MAX_METADATA_BYTES {
+                return Err(store_error(
+                    &path,
+                    "size",
+                    format!(
+                        "{} bytes: expected metadata of at most {MAX_METADATA_BYTES} bytes",
+                        entry.bytes
+                    ),
+                ));
+            }
             let (_, sha256) = hash_file(&path)?;
             if sha256 != entry.sha256 {
                 return Err(Error::Corrupt {

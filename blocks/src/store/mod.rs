@@ -387,9 +387,16 @@ impl Store {
         Ok(sub_cube(&data, block, level))
     }
 
-    /// Whether `path` is a folder holding a brick store (its root metadata names one).
+    /// Whether `path` is a folder holding a brick store: its root metadata
+    /// names one, or it has the `voxserve` folder of one (metadata too large
+    /// to read here is left to [`Store::open`] to refuse).
     pub fn is_store(path: &Path) -> bool {
-        std::fs::read_to_string(path.join("zarr.json")).is_ok_and(|t| t.contains("\"voxserve\""))
+        use std::io::Read;
+        let mut text = Vec::new();
+        let read = std::fs::File::open(path.join("zarr.json"))
+            .and_then(|f| f.take(manifest::MAX_METADATA_BYTES).read_to_end(&mut text));
+        read.is_ok()
+            && (path.join("voxserve").is_dir() || text.windows(10).any(|w| w == b"\"voxserve\""))
     }
 
     /// A whole level in memory as a [`Volume`](crate::Volume) (for data that fits;
