@@ -1,0 +1,60 @@
+//! What the fuzz targets share: reading a file the way `voxserve info` and
+//! `ingest` do, from bytes the fuzzer made, and a dataset to check views against.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use blocks::ingest::{self, OpenOptions};
+
+/// At most this many slabs of 16 slices are read per input (the header and
+/// the first slabs are where sizes are derived and checked).
+const SLABS: u32 = 2;
+
+/// Writes `bytes` as `name` into a fresh folder and reads it as a volume.
+pub fn read_file(name: &str, bytes: &[u8]) {
+    let dir = tempfile::tempdir().expect("temp folder");
+    let path = dir.path().join(name);
+    std::fs::write(&path, bytes).expect("write input");
+    read_volume(&path);
+}
+
+/// Opens `path` (a file or a DICOM folder) and reads its first slabs; every
+/// error is an answer, a panic, a hang or a huge allocation is a finding.
+pub fn read_volume(path: &Path) {
+    let Ok(mut source) = ingest::open(path, &OpenOptions::default()) else {
+        return;
+    };
+    let nz = source.info().geometry.dims[2];
+    for slab in 0..SLABS {
+        let z0 = slab * 16;
+        if z0 >= nz {
+            break;
+        }
+        if source.read_slab(z0, 16.min(nz - z0)).is_err() {
+            break;
+        }
+    }
+}
+
+/// Splits `data` at each `sep` into at most `max` parts.
+pub fn split<'a>(data: &'a [u8], sep: &[u8], max: usize) -> Vec<&'a [u8]> {
+    let mut parts = Vec::new();
+    let mut rest = data;
+    while parts.len() + 1 < max {
+        match rest.windows(sep.len()).position(|w| w == sep) {
+            Some(i) => {
+                parts.push(&rest[..i]);
+                rest = &rest[i + sep.len()..];
+            }
+            None => break,
+        }
+    }
+    parts.push(rest);
+    parts
+}
+
+/// The 16³ phantom as a dataset, made once.
+pub fn datasets() -> &'static [server::Dataset] {
+    static DATASETS: OnceLock<Vec<server::Dataset>> = OnceLock::new();
+    DATASETS.get_or_init(|| vec![server::Dataset::phantom(16, 16 << 20).expect("phantom")])
+}
