@@ -2,13 +2,33 @@
 //! `ingest` do, from bytes the fuzzer made, and a dataset to check views against.
 
 use std::path::Path;
-use std::sync::OnceLock;
+use std::sync::{Once, OnceLock};
 
 use blocks::ingest::{self, OpenOptions};
 
 /// At most this many slabs of 16 slices are read per input (the header and
 /// the first slabs are where sizes are derived and checked).
 const SLABS: u32 = 2;
+
+/// Replaces libFuzzer's panic hook (which aborts on every panic) with one
+/// that lets a panic inside a crates.io dependency unwind to voxserve's
+/// decoder boundary (`blocks::ingest::boundary`), which turns it into an error
+/// naming the file, as in the binary; a panic anywhere else, or one that
+/// escapes the boundary (the fuzz target catches it and aborts), is a finding.
+fn let_the_boundary_catch_dependency_panics() {
+    static HOOK: Once = Once::new();
+    HOOK.call_once(|| {
+        let fuzzer_hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            let in_dependency = info
+                .location()
+                .is_some_and(|l| l.file().contains("/registry/src/"));
+            if !in_dependency {
+                fuzzer_hook(info);
+            }
+        }));
+    });
+}
 
 /// Writes `bytes` as `name` into a fresh folder and reads it as a volume.
 pub fn read_file(name: &str, bytes: &[u8]) {
@@ -21,6 +41,7 @@ pub fn read_file(name: &str, bytes: &[u8]) {
 /// Opens `path` (a file or a DICOM folder) and reads its first slabs; every
 /// error is an answer, a panic, a hang or a huge allocation is a finding.
 pub fn read_volume(path: &Path) {
+    let_the_boundary_catch_dependency_panics();
     let Ok(mut source) = ingest::open(path, &OpenOptions::default()) else {
         return;
     };
