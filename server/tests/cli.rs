@@ -599,6 +599,29 @@ fn ingest_force_killed_at_any_step_leaves_a_complete_store_that_verify_accepts()
     let new = raw_volume(dir.path(), [40, 30, 90]);
     let store = dir.path().join("scan.zarr");
     let store_arg = store.to_str().expect("utf-8");
+    // `ingest SOURCE --out scan.zarr --force`, aborted at `fault` if given.
+    let ingest_force = |source: &PathBuf, fault: Option<&str>| {
+        let mut command = Command::new(VOXSERVE);
+        command.args([
+            "ingest",
+            source.to_str().expect("utf-8"),
+            "--out",
+            store_arg,
+            "--force",
+        ]);
+        if let Some(point) = fault {
+            command.env("VOXSERVE_FAULT_ABORT", point);
+        }
+        command.output().expect("run")
+    };
+    let hidden = || -> Vec<String> {
+        std::fs::read_dir(dir.path())
+            .expect("dir")
+            .filter_map(Result::ok)
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with('.'))
+            .collect()
+    };
     for point in [
         "after-slabs:2",
         "before-manifest",
@@ -606,26 +629,10 @@ fn ingest_force_killed_at_any_step_leaves_a_complete_store_that_verify_accepts()
         "after-exchange",
         "after-move-aside",
     ] {
-        let first = voxserve(&[
-            "ingest",
-            old.to_str().expect("utf-8"),
-            "--out",
-            store_arg,
-            "--force",
-        ]);
+        let first = ingest_force(&old, None);
         assert!(first.status.success(), "{}", text(&first.stderr));
         // Killed (the process aborts as SIGKILL or a crash would) at `point`.
-        let killed = Command::new(VOXSERVE)
-            .args([
-                "ingest",
-                new.to_str().expect("utf-8"),
-                "--out",
-                store_arg,
-                "--force",
-            ])
-            .env("VOXSERVE_FAULT_ABORT", point)
-            .output()
-            .expect("run");
+        let killed = ingest_force(&new, Some(point));
         assert!(!killed.status.success(), "{point}: aborted");
         let verified = voxserve(&["verify", store_arg]);
         assert!(
@@ -648,34 +655,18 @@ fn ingest_force_killed_at_any_step_leaves_a_complete_store_that_verify_accepts()
             dims, expected,
             "{point}: the old store until the exchange, then the new"
         );
-        let hidden: Vec<String> = std::fs::read_dir(dir.path())
-            .expect("dir")
-            .filter_map(Result::ok)
-            .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|n| n.starts_with('.'))
-            .collect();
-        assert_eq!(hidden.len(), 1, "{point}: one leftover: {hidden:?}");
+        let left = hidden();
+        assert_eq!(left.len(), 1, "{point}: one leftover: {left:?}");
         assert!(
-            blocks::store::ingest::leftover_of(&hidden[0]).is_some(),
-            "{point}: {hidden:?}"
+            blocks::store::ingest::leftover_of(&left[0]).is_some(),
+            "{point}: {left:?}"
         );
     }
     // The next ingest removes what the killed one left.
-    let last = voxserve(&[
-        "ingest",
-        old.to_str().expect("utf-8"),
-        "--out",
-        store_arg,
-        "--force",
-    ]);
+    let last = ingest_force(&old, None);
     assert!(last.status.success(), "{}", text(&last.stderr));
-    let names: Vec<String> = std::fs::read_dir(dir.path())
-        .expect("dir")
-        .filter_map(Result::ok)
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n.starts_with('.'))
-        .collect();
-    assert!(names.is_empty(), "{names:?}");
+    let left = hidden();
+    assert!(left.is_empty(), "{left:?}");
 }
 
 #[test]

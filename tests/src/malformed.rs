@@ -76,6 +76,19 @@ impl Corpus {
         self.case(name, path, expect)
     }
 
+    /// Writes an 8 × 8 Explicit VR Little Endian DICOM slice as `name`, changed
+    /// by `edit`, and adds an `info` case expecting `expect`.
+    pub fn dicom(
+        &mut self,
+        name: &str,
+        edit: impl FnOnce(&mut InMemDicomObject),
+        expect: &[&str],
+    ) -> &mut Case {
+        let path = self.path(name);
+        dicom_slice(&path, 8, 8, EXPLICIT_LE, edit);
+        self.case(name, path, expect)
+    }
+
     /// Adds an `info` case on `input` (already written) expecting `expect`.
     pub fn case(&mut self, name: &str, input: PathBuf, expect: &[&str]) -> &mut Case {
         self.cases.push(Case {
@@ -859,44 +872,46 @@ fn dicom_file_cases(c: &mut Corpus) {
     );
     c.file("not-dicom.dcm", b"hello, not an image", &["DICM"]);
     // Finding: ImageOrientationPatient (2,0,0,0,0.5,0) was accepted.
-    let iop = c.path("orientation-scaled.dcm");
-    dicom_slice(&iop, 8, 8, EXPLICIT_LE, |o| {
-        ds(o, tags::IMAGE_ORIENTATION_PATIENT, "2\\0\\0\\0\\0.5\\0");
-    });
-    c.case(
+    c.dicom(
         "orientation-scaled.dcm",
-        iop,
+        |o| {
+            ds(o, tags::IMAGE_ORIENTATION_PATIENT, "2\\0\\0\\0\\0.5\\0");
+        },
         &["ImageOrientationPatient", "unit vectors"],
     );
-    let bits = c.path("bits12.dcm");
-    dicom_slice(&bits, 8, 8, EXPLICIT_LE, |o| {
-        us(o, tags::BITS_ALLOCATED, 12);
-    });
-    c.case("bits12.dcm", bits, &["BitsAllocated"]);
-    let huge = c.path("rows-huge.dcm");
-    dicom_slice(&huge, 8, 8, EXPLICIT_LE, |o| {
-        us(o, tags::ROWS, 65535);
-        us(o, tags::COLUMNS, 65535);
-    });
-    c.case("rows-huge.dcm", huge, &["Rows", "per slice"]);
-    let slope = c.path("rescale-slope-huge.dcm");
-    dicom_slice(&slope, 8, 8, EXPLICIT_LE, |o| {
-        ds(o, tags::RESCALE_SLOPE, "3e38");
-    });
-    c.case(
+    c.dicom(
+        "bits12.dcm",
+        |o| {
+            us(o, tags::BITS_ALLOCATED, 12);
+        },
+        &["BitsAllocated"],
+    );
+    c.dicom(
+        "rows-huge.dcm",
+        |o| {
+            us(o, tags::ROWS, 65535);
+            us(o, tags::COLUMNS, 65535);
+        },
+        &["Rows", "per slice"],
+    );
+    c.dicom(
         "rescale-slope-huge.dcm",
-        slope,
+        |o| {
+            ds(o, tags::RESCALE_SLOPE, "3e38");
+        },
         &["RescaleSlope", "physical values within"],
     );
-    let frames = c.path("frames.dcm");
-    dicom_slice(&frames, 8, 8, EXPLICIT_LE, |o| {
-        o.put(DataElement::new(
-            tags::NUMBER_OF_FRAMES,
-            VR::IS,
-            PrimitiveValue::from("1000000"),
-        ));
-    });
-    c.case("frames.dcm", frames, &["NumberOfFrames"]);
+    c.dicom(
+        "frames.dcm",
+        |o| {
+            o.put(DataElement::new(
+                tags::NUMBER_OF_FRAMES,
+                VR::IS,
+                PrimitiveValue::from("1000000"),
+            ));
+        },
+        &["NumberOfFrames"],
+    );
 }
 
 /// Writes a series of `n` 8 × 8 slices into `folder`, slice `i` at

@@ -1,8 +1,9 @@
 //! View sessions over WebSocket against a real server on port 0: frames of the
 //! requested size that follow the camera, a lossless frame after idling,
 //! latest state wins under a burst, the acknowledgement window, bad messages
-//! refused without harm to the session or to others, the session cap, and
-//! shutdown closing every session.
+//! refused without harm to the session or to others, the session cap,
+//! shutdown closing every session, and a store that lost a shard answered with
+//! an error naming it (over HTTP too), never drawn as air.
 //!
 //! Nothing here waits for time to pass: what did *not* happen is read from a
 //! `status` reply, which comes in order after everything sent before it. The
@@ -681,4 +682,52 @@ async fn a_cold_transfer_function_change_renders_from_memory_while_another_sessi
         "the render worker read no chunk itself"
     );
     assert!(b_frames.iter().all(|(h, _)| h.message_id == 1));
+}
+
+#[tokio::test]
+async fn a_missing_shard_is_an_error_naming_it_over_http_and_websocket() {
+    let test = "a_missing_shard_is_an_error_naming_it_over_http_and_websocket";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp");
+    // Opened as at start: only the two coarsest levels are in memory.
+    let dataset = voxserve_tests::phantom::phantom_64_on_disk(dir.path());
+    let shard = dir.path().join("cold.zarr/0/c/0/0/0");
+    std::fs::remove_file(&shard).expect("delete level 0's shard");
+    let server = TestServer::with_datasets(gpu, vec![dataset], 1, StreamSettings::default()).await;
+
+    let response = reqwest::get(server.url("/api/render?w=48&h=48"))
+        .await
+        .expect("request");
+    assert_eq!(response.status(), 500);
+    let body: serde_json::Value =
+        serde_json::from_str(&response.text().await.expect("body")).expect("JSON error");
+    let message = body["error"].as_str().expect("an error message");
+    assert!(
+        message.starts_with("the volume data of this view cannot be read: ")
+            && message.contains(&format!("{}: missing", shard.display())),
+        "{message}"
+    );
+
+    let mut socket = connect(&server).await;
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 40, "h": 40}}),
+    )
+    .await;
+    // Frames may come first, drawn from the coarse levels in memory while the
+    // finer blocks load; then the error, and no converged status before it.
+    let error = loop {
+        if let Received::Json(json) = next(&mut socket).await {
+            match json["type"].as_str() {
+                Some("error") => break json,
+                Some("status" | "frame") => {}
+                other => panic!("unexpected {other:?}: {json}"),
+            }
+            assert_ne!(json["converged"], true, "{json}");
+        }
+    };
+    let message = error["message"].as_str().expect("a message");
+    assert!(message.contains("0/c/0/0/0: missing"), "{message}");
 }

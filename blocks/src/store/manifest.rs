@@ -10,7 +10,7 @@
 //! listed file is there and that the metadata (`zarr.json`) files are unchanged;
 //! [`verify`] checks every byte.
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -422,7 +422,7 @@ pub fn sync_folder(folder: &Path) -> Result<(), Error> {
 /// storage lacks into an error, where `zarrs` would read the fill value.
 pub struct ManifestStorage {
     inner: Arc<dyn ReadableStorageTraits>,
-    listed: HashSet<String>,
+    manifest: Arc<Manifest>,
     folder: PathBuf,
 }
 
@@ -430,7 +430,7 @@ impl std::fmt::Debug for ManifestStorage {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ManifestStorage")
             .field("folder", &self.folder)
-            .field("listed", &self.listed.len())
+            .field("listed", &self.manifest.files.len())
             .finish_non_exhaustive()
     }
 }
@@ -439,19 +439,19 @@ impl ManifestStorage {
     /// Wraps `inner`, the storage of the store in `folder`.
     pub fn new(
         inner: Arc<dyn ReadableStorageTraits>,
-        manifest: &Manifest,
+        manifest: Arc<Manifest>,
         folder: &Path,
     ) -> ManifestStorage {
         ManifestStorage {
             inner,
-            listed: manifest.files.keys().cloned().collect(),
+            manifest,
             folder: folder.to_owned(),
         }
     }
 
     /// `value`, or the error for a listed key that storage lacks.
     fn expected<T>(&self, key: &StoreKey, value: Option<T>) -> Result<Option<T>, StorageError> {
-        if value.is_none() && self.listed.contains(key.as_str()) {
+        if value.is_none() && self.manifest.lists(key.as_str()) {
             return Err(StorageError::IOError(Arc::new(std::io::Error::new(
                 std::io::ErrorKind::NotFound,
                 format!(

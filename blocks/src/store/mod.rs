@@ -152,7 +152,7 @@ pub struct Store {
     shard_indexes: Vec<ArrayShardedReadableExtCache>,
     stats: BlockStats,
     /// The files a store on disk must hold (none for a store in memory).
-    manifest: Option<Manifest>,
+    manifest: Option<Arc<Manifest>>,
 }
 
 impl std::fmt::Debug for Store {
@@ -202,15 +202,18 @@ impl Store {
             ));
         }
         let manifest = match Manifest::read(path) {
-            Ok(manifest) => manifest,
+            Ok(manifest) => Arc::new(manifest),
             Err(missing) => return Err(older_format(&root).unwrap_or(missing)),
         };
         manifest.check_quick(path)?;
         let files: Arc<dyn ReadableStorageTraits> = Arc::new(
             FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?,
         );
-        let storage: Arc<dyn ReadableStorageTraits> =
-            Arc::new(manifest::ManifestStorage::new(files, &manifest, path));
+        let storage: Arc<dyn ReadableStorageTraits> = Arc::new(manifest::ManifestStorage::new(
+            files,
+            manifest.clone(),
+            path,
+        ));
         let mut store = Store::from_storage(&storage, location)?;
         store.check_left_out_shards(&manifest)?;
         store.manifest = Some(manifest);
@@ -281,31 +284,21 @@ impl Store {
     /// out because all its voxels are 0: each of its blocks must have the
     /// statistics `[0, 0]`.
     fn check_left_out_shards(&self, manifest: &Manifest) -> Result<(), Error> {
-        let per_shard = SHARD / BLOCK;
         for level in 0..LEVELS {
-            let shards = self.chunk_grid(level).map(|n| n.div_ceil(per_shard));
-            // Which shards hold a block with data, by the statistics.
-            let mut holds_data = vec![false; shards.iter().map(|&n| n as usize).product()];
+            let shards = self.chunk_grid(level).map(|n| n.div_ceil(CHUNKS_PER_SHARD));
+            // The first inner chunk of each shard that holds a block with data,
+            // by the statistics.
+            let mut holds_data = vec![None; shards.iter().map(|&n| n as usize).product()];
             for b in 0..self.stats.block_count() {
-                let [lo, hi] = self.stats.min_max(level, b);
-                if lo == 0.0 && hi == 0.0 {
+                if self.stats.min_max(level, b) == [0.0, 0.0] {
                     continue;
                 }
-                let [x, y, z] = self
-                    .stats
-                    .block_position(b)
-                    .map(|c| (c >> level) / per_shard);
-                holds_data[((z * shards[1] + y) * shards[0] + x) as usize] = true;
+                let chunk = self.stats.block_position(b).map(|c| c >> level);
+                let [x, y, z] = chunk.map(|c| c / CHUNKS_PER_SHARD);
+                holds_data[((z * shards[1] + y) * shards[0] + x) as usize] = Some(chunk);
             }
-            for (i, _) in holds_data.iter().enumerate().filter(|(_, d)| **d) {
-                let i = i as u32;
-                let shard = [
-                    i % shards[0],
-                    (i / shards[0]) % shards[1],
-                    i / (shards[0] * shards[1]),
-                ];
-                let [x, y, z] = shard;
-                let key = format!("{level}/c/{z}/{y}/{x}");
+            for chunk in holds_data.into_iter().flatten() {
+                let key = shard_key(level, chunk);
                 if !manifest.lists(&key) {
                     return Err(Error::Missing {
                         path: self.location.file(&key),
@@ -347,9 +340,7 @@ impl Store {
 
     /// How messages name the shard file that holds inner chunk `chunk` (x, y, z) of `level`.
     pub fn shard_path(&self, level: usize, chunk: [u32; 3]) -> PathBuf {
-        let per_shard = SHARD / BLOCK;
-        let [x, y, z] = chunk.map(|c| c / per_shard);
-        self.location.file(&format!("{level}/c/{z}/{y}/{x}"))
+        self.location.file(&shard_key(level, chunk))
     }
 
     /// The decoded 16³ inner chunk `chunk` (x, y, z) of `level`; voxels beyond the
@@ -438,19 +429,18 @@ impl Store {
 
     fn read_error(&self, level: usize, chunk: [u32; 3], e: ArrayError) -> Error {
         let shard = self.shard_path(level, chunk);
-        if let Some(manifest) = &self.manifest {
-            let per_shard = SHARD / BLOCK;
-            let [x, y, z] = chunk.map(|c| c / per_shard);
-            if manifest.lists(&format!("{level}/c/{z}/{y}/{x}")) && !shard.is_file() {
-                return Error::Missing {
-                    path: shard,
-                    detail: format!(
-                        "the store's manifest lists this shard (inner chunk {chunk:?} of \
-                         level {level}); its voxels are unknown, not empty, so the view is not \
-                         drawn (restore the file or ingest again)"
-                    ),
-                };
-            }
+        if let Some(manifest) = &self.manifest
+            && manifest.lists(&shard_key(level, chunk))
+            && !shard.is_file()
+        {
+            return Error::Missing {
+                path: shard,
+                detail: format!(
+                    "the store's manifest lists this shard (inner chunk {chunk:?} of level \
+                     {level}); its voxels are unknown, not empty, so the view is not drawn \
+                     (restore the file or ingest again)"
+                ),
+            };
         }
         match e {
             ArrayError::CodecError(codec) => Error::Corrupt {
@@ -465,6 +455,15 @@ impl Store {
             ),
         }
     }
+}
+
+/// Inner chunks per shard along each axis.
+const CHUNKS_PER_SHARD: u32 = SHARD / BLOCK;
+
+/// The key of the shard file that holds inner chunk `chunk` (x, y, z) of `level`.
+fn shard_key(level: usize, chunk: [u32; 3]) -> String {
+    let [x, y, z] = chunk.map(|c| c / CHUNKS_PER_SHARD);
+    format!("{level}/c/{z}/{y}/{x}")
 }
 
 /// For a store without a manifest, the error that names its older format, if

@@ -38,6 +38,22 @@ pub fn read_file(name: &str, bytes: &[u8]) {
     read_volume(&path);
 }
 
+/// Splits `data` at a `#DATA#` line into a detached header, written as
+/// `header_name`, and its data file `volume.raw` in the same folder, and reads
+/// the header as a volume.
+pub fn read_detached(header_name: &str, data: &[u8]) {
+    let parts = split(data, b"\n#DATA#\n", 2);
+    let dir = tempfile::tempdir().expect("temp");
+    std::fs::write(
+        dir.path().join("volume.raw"),
+        parts.get(1).copied().unwrap_or(&[]),
+    )
+    .expect("data");
+    let header = dir.path().join(header_name);
+    std::fs::write(&header, parts[0]).expect("header");
+    read_volume(&header);
+}
+
 /// Opens `path` (a file or a DICOM folder) and reads its first slabs; every
 /// error is an answer, a panic, a hang or a huge allocation is a finding.
 pub fn read_volume(path: &Path) {
