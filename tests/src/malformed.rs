@@ -823,6 +823,29 @@ fn dicom_file_cases(c: &mut Corpus) {
     let us = |obj: &mut InMemDicomObject, tag, value: u16| {
         obj.put(DataElement::new(tag, VR::US, PrimitiveValue::from(value)));
     };
+    // Found by fuzzing: a 2-byte value whose VR says FD (8 bytes each) put
+    // dicom-rs out of step; it then allocated a 540 MB "length" from later bytes.
+    let fd = c.path("fd-two-bytes.dcm");
+    dicom_slice(&fd, 2, 2, EXPLICIT_LE, |obj| {
+        obj.put(DataElement::new(
+            tags::IMAGED_NUCLEUS,
+            VR::SH,
+            PrimitiveValue::from("1H"),
+        ));
+    });
+    let mut bytes = std::fs::read(&fd).expect("read");
+    let at = bytes
+        .windows(8)
+        .position(|w| w == b"\x18\x00\x85\x00SH\x02\x00")
+        .expect("the ImagedNucleus element");
+    bytes[at + 4..at + 6].copy_from_slice(b"FD");
+    write(&fd, &bytes);
+    c.case(
+        "fd-two-bytes.dcm",
+        fd,
+        &["element (0018,0085)", "expected a multiple of 8"],
+    )
+    .and_ingest();
     // Finding: a panic in dicom-rs' RLE decoder took the process down.
     let rle = c.path("rle-short-segment.dcm");
     rle_short_segment(&rle);

@@ -61,6 +61,20 @@ pub(super) fn check_lengths(path: &Path, until_pixel_data: bool) -> Result<(), E
     check_data_set(path, size, reader, syntax, until_pixel_data)
 }
 
+/// The size of one value of a binary VR: a value's length must be a multiple
+/// of it, or dicom-rs reads a different number of bytes than the length says
+/// and the rest of the file is parsed out of step (a 2-byte FD made it read a
+/// later 540 MB length).
+fn value_unit(vr: dicom_core::VR) -> Option<u64> {
+    use dicom_core::VR;
+    match vr {
+        VR::FD | VR::OD | VR::SV | VR::UV | VR::OV => Some(8),
+        VR::FL | VR::OF | VR::SL | VR::UL | VR::OL | VR::AT => Some(4),
+        VR::SS | VR::US | VR::OW => Some(2),
+        _ => None,
+    }
+}
+
 /// The error for a value of `len` bytes at byte `at` of a `size`-byte file.
 fn too_long(path: &Path, what: &str, len: u64, at: u64, size: u64) -> Error {
     field(
@@ -193,6 +207,19 @@ fn check_data_set(
                         at,
                         size,
                     ));
+                }
+                if let Some(unit) = value_unit(header.vr) {
+                    if len % unit != 0 {
+                        return Err(field(
+                            path,
+                            &format!("element {}", header.tag),
+                            format!(
+                                "{len} bytes of VR {}: expected a multiple of {unit} (the \
+                                 file is damaged; a reader would fall out of step)",
+                                header.vr
+                            ),
+                        ));
+                    }
                 }
                 if until_pixel_data && depth == 0 && header.tag == tags::PIXEL_DATA {
                     return Ok(());
