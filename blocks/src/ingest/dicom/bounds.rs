@@ -208,18 +208,18 @@ fn check_data_set(
                         size,
                     ));
                 }
-                if let Some(unit) = value_unit(header.vr) {
-                    if len % unit != 0 {
-                        return Err(field(
-                            path,
-                            &format!("element {}", header.tag),
-                            format!(
-                                "{len} bytes of VR {}: expected a multiple of {unit} (the \
-                                 file is damaged; a reader would fall out of step)",
-                                header.vr
-                            ),
-                        ));
-                    }
+                if let Some(unit) = value_unit(header.vr)
+                    && len % unit != 0
+                {
+                    return Err(field(
+                        path,
+                        &format!("element {}", header.tag),
+                        format!(
+                            "{len} bytes of VR {}: expected a multiple of {unit} (the file is \
+                             damaged; a reader would fall out of step)",
+                            header.vr
+                        ),
+                    ));
                 }
                 if until_pixel_data && depth == 0 && header.tag == tags::PIXEL_DATA {
                     return Ok(());
