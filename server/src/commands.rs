@@ -8,7 +8,7 @@ use anyhow::Context;
 use blocks::Geometry;
 use blocks::ingest::dicom::{FolderScan, SeriesSummary};
 use blocks::ingest::{self, VolumeInfo, VolumeSource, VolumeStats};
-use shaders::{GpuContext, Renderer};
+
 use tokio::net::TcpListener;
 
 use crate::cli::{
@@ -143,9 +143,9 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
             );
         }
     }
-    let gpu = GpuContext::new()?;
+    let backend = args.renderer.backend()?;
     let resident = usize::try_from(args.resident_datasets).unwrap_or(usize::MAX);
-    let renderer = RenderService::start(gpu, args.data.gpu_budget_bytes(), resident)?;
+    let renderer = RenderService::start(backend, args.data.gpu_budget_bytes(), resident)?;
     let listener = TcpListener::bind(args.addr)
         .await
         .with_context(|| format!("cannot listen on {}", args.addr))?;
@@ -189,39 +189,23 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
             .to_string(),
     };
     let start = Instant::now();
-    let (frame, reduction, levels, device) = if args.cpu {
-        let (frame, selection) = shaders::cpu::render_packed(
-            &dataset.cache,
-            &request,
-            CPU_TWIN_FEATURES,
-            CPU_TWIN_MAX_EDGE,
-        )?;
-        (
-            frame,
-            selection.reduction(),
-            selection.level_counts(),
-            "the CPU twin".to_owned(),
-        )
-    } else {
-        let gpu = GpuContext::new()?;
-        let device = gpu.describe();
-        let mut renderer = Renderer::new(gpu, dataset.cache.clone(), args.data.gpu_budget_bytes())?;
-        // A still image: the light with every in-scattering direction in.
-        let frame = renderer.render_converged(&request)?;
-        let stats = renderer.last_stats();
-        if let Some(light) = stats.light() {
-            tracing::info!(
-                "light: local_opacity {:.0} ms, global_opacity {:.0} ms, direct_light {:.0} ms, \
-                 in_scatter {:.0} ms ({} directions)",
-                light.local_opacity_ms,
-                light.global_opacity_ms,
-                light.direct_light_ms,
-                light.in_scatter_ms,
-                light.directions
-            );
-        }
-        (frame, stats.reduction, stats.level_counts, device)
-    };
+    let backend = args.renderer.backend()?;
+    let mut renderer = backend.renderer(dataset.cache.clone(), args.data.gpu_budget_bytes())?;
+    // A still image: the light with every in-scattering direction in.
+    let frame = renderer.render_converged(&request)?;
+    let stats = renderer.last_stats();
+    if let Some(light) = stats.light() {
+        tracing::info!(
+            "light: local_opacity {:.0} ms, global_opacity {:.0} ms, direct_light {:.0} ms, \
+             in_scatter {:.0} ms ({} directions)",
+            light.local_opacity_ms,
+            light.global_opacity_ms,
+            light.direct_light_ms,
+            light.in_scatter_ms,
+            light.directions
+        );
+    }
+    let (reduction, levels, device) = (stats.reduction, stats.level_counts, backend.describe());
     let ms = start.elapsed().as_secs_f64() * 1e3;
     let out = output.write(&encode::png(&frame)?)?;
     say(&format!(

@@ -1,20 +1,23 @@
-//! [`RenderService`]: one worker thread owns the GPU and a [`Renderer`] per
-//! dataset in use; handlers and view sessions send it jobs over a bounded
-//! channel and await the reply.
+//! [`RenderService`]: one worker thread owns the renderer backend (the GPU,
+//! or the CPU renderer: [`Backend`]) and a renderer per dataset in use;
+//! handlers and view sessions send it jobs over a bounded channel and await
+//! the reply.
 //!
-//! A renderer keeps its dataset's blocks (and light) on the GPU; at most
-//! [`RenderService::start`]'s `resident_datasets` renderers are kept, and the
-//! one used least recently goes (its GPU memory freed) before another is made.
+//! A renderer keeps its dataset's blocks (and light) in its atlas (on the
+//! GPU, or in memory); at most [`RenderService::start`]'s
+//! `resident_datasets` renderers are kept, and the one used least recently
+//! goes (its memory freed) before another is made.
 //!
-//! GPU work is blocking (submit, then wait for the queue), so it runs on its own
-//! thread rather than on the async runtime. Jobs are served in arrival order; when
+//! Rendering is blocking (GPU: submit, then wait for the queue; CPU: every
+//! core busy until the frame is done), so it runs on its own thread rather
+//! than on the async runtime. Jobs are served in arrival order; when
 //! the queue is full a request is refused at once (503) instead of waiting behind
 //! work that will be stale by the time it runs.
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use shaders::{Frame, FrameRequest, GpuContext, GpuError, RenderStats, Renderer};
+use shaders::{AnyRenderer, Backend, Frame, FrameRequest, GpuError, RenderStats};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::{AppError, Dataset};
@@ -53,6 +56,7 @@ pub struct RenderService {
     // first, so the worker's loop ends and the join below returns.
     jobs: mpsc::Sender<Job>,
     adapter: Arc<str>,
+    kind: &'static str,
     _worker: Arc<WorkerThread>,
 }
 
@@ -90,16 +94,16 @@ impl Job {
 
 /// The worker's renderers, least recently used first.
 struct Renderers {
-    gpu: GpuContext,
+    backend: Backend,
     budget_bytes: u64,
     capacity: usize,
-    by_use: Vec<(String, Renderer)>,
+    by_use: Vec<(String, AnyRenderer)>,
 }
 
 impl Renderers {
     /// The renderer of `dataset`, made (after dropping the least recently used
     /// one when all places are taken) if there is none.
-    fn get(&mut self, dataset: &Dataset) -> Result<&mut Renderer, GpuError> {
+    fn get(&mut self, dataset: &Dataset) -> Result<&mut AnyRenderer, GpuError> {
         if let Some(i) = self.by_use.iter().position(|(id, _)| *id == dataset.id) {
             let entry = self.by_use.remove(i);
             self.by_use.push(entry);
@@ -107,10 +111,11 @@ impl Renderers {
             if self.by_use.len() >= self.capacity {
                 // Freed before the next one allocates.
                 let (id, _) = self.by_use.remove(0);
-                tracing::info!("released dataset '{id}' from the GPU");
+                tracing::info!("released dataset '{id}' from the renderer");
             }
-            let renderer =
-                Renderer::new(self.gpu.clone(), dataset.cache.clone(), self.budget_bytes)?;
+            let renderer = self
+                .backend
+                .renderer(dataset.cache.clone(), self.budget_bytes)?;
             self.by_use.push((dataset.id.clone(), renderer));
         }
         self.by_use
@@ -129,18 +134,19 @@ impl std::fmt::Debug for Job {
 }
 
 impl RenderService {
-    /// Starts the worker thread rendering on `gpu`, keeping at most
-    /// `gpu_budget_bytes` of each dataset's blocks on the device and the
+    /// Starts the worker thread rendering with `backend`, keeping at most
+    /// `budget_bytes` of each dataset's blocks in its atlas and the
     /// renderers of at most `resident_datasets` datasets.
     pub fn start(
-        gpu: GpuContext,
-        gpu_budget_bytes: u64,
+        backend: Backend,
+        budget_bytes: u64,
         resident_datasets: usize,
     ) -> Result<RenderService, GpuError> {
-        let adapter: Arc<str> = gpu.describe().into();
+        let adapter: Arc<str> = backend.describe().into();
+        let kind = backend.kind();
         let mut renderers = Renderers {
-            gpu,
-            budget_bytes: gpu_budget_bytes,
+            backend,
+            budget_bytes,
             capacity: resident_datasets.max(1),
             by_use: Vec::new(),
         };
@@ -180,13 +186,19 @@ impl RenderService {
         Ok(RenderService {
             jobs,
             adapter,
+            kind,
             _worker: Arc::new(WorkerThread(Some(handle))),
         })
     }
 
-    /// The adapter the worker renders on.
+    /// What the worker renders on, in words: the adapter, or the CPU.
     pub fn adapter(&self) -> &str {
         &self.adapter
+    }
+
+    /// Which renderer serves: `gpu` or `cpu`.
+    pub fn kind(&self) -> &'static str {
+        self.kind
     }
 
     /// Renders `request`, or refuses at once when the queue is full (single

@@ -44,8 +44,12 @@
 //! - [`renderer`]: [`Renderer`] (a brick store rendered from its packed blocks,
 //!   frame by frame) and [`ReferenceRenderer`] (tests and benchmarks).
 //! - [`cpu`]: the CPU twins (`cpu::raycast`, `cpu::reference`,
-//!   `cpu::global_light`, `cpu::extinction`)
-//!   and whole-frame CPU renders.
+//!   `cpu::global_light`, `cpu::extinction`), whole-frame CPU renders, and
+//!   [`cpu::CpuRenderer`], the CPU backend: a brick store rendered frame by
+//!   frame through the twins, as [`Renderer`] renders it on the GPU.
+//! - [`backend`]: `--renderer auto|gpu|cpu` ([`RendererChoice`]), the
+//!   [`Backend`] it picks (the CPU when the only adapter is a software one),
+//!   and [`AnyRenderer`], either renderer behind the same calls.
 //! - [`colour_difference`]: CIE ΔE*uv between a frame and its reference (mean,
 //!   RMS, 99th percentile, ΔE₆; over the image or the object's pixels), for
 //!   tests and benchmarks.
@@ -54,6 +58,7 @@
 //! The WGSL sources are in `shaders/wgsl/`: one file per stage, shared structs and
 //! helpers in `shaders/wgsl/shared/`, concatenated ahead of the stage by [`wgsl`].
 
+pub mod backend;
 pub mod camera;
 pub mod colour_difference;
 pub mod cpu;
@@ -78,6 +83,7 @@ pub mod wgsl;
 /// The wgpu this crate is built on, for callers that name its types.
 pub use wgpu;
 
+pub use backend::{AnyRenderer, Backend, RendererChoice};
 pub use camera::{Camera, Projection};
 pub use error::GpuError;
 pub use frame::{ClipBox, Compositing, Frame, FrameRequest, Shading};

@@ -1,7 +1,8 @@
 //! Packed blocks resident on the GPU: the atlas (one 3D texture of slots, each a
 //! block at its level with a one-voxel apron, see [`blocks::packing`]) and the
-//! block index (a small `rgba16uint` 3D texture), and the same atlas assembled
-//! in memory for the CPU twin.
+//! block index (a small `rgba16uint` 3D texture), and the same atlas in memory
+//! for the CPU renderer ([`CpuAtlas`]) and the CPU twins ([`assemble_cpu`]).
+//! [`Atlas`] is what both offer a [`crate::residency::Residency`].
 //!
 //! A full upload writes the atlas a row of slots at a time (a few MiB per write,
 //! whatever the atlas's size); after a transfer-function or budget change only
@@ -61,6 +62,75 @@ fn slot_bytes(
 ) -> Result<Vec<u8>, GpuError> {
     let voxels = source(b, usize::from(packing.lod[b]))?;
     Ok(desc.texel_bytes(&voxels).into_owned())
+}
+
+/// Where a [`crate::residency::Residency`] keeps its packed blocks: on the
+/// GPU ([`GpuAtlas`]) or in memory ([`CpuAtlas`]).
+pub trait Atlas: Sized + Sync + std::fmt::Debug {
+    /// What making and writing the atlas needs: the GPU, or nothing.
+    type Device: ?Sized + Sync;
+    /// The largest atlas edge in texels the device allows.
+    fn max_edge(device: &Self::Device) -> u32;
+    /// Bytes one texel of a volume stored as `desc` takes in this atlas.
+    fn texel_bytes(desc: &VolumeTexture) -> u64;
+    /// Makes the atlas of `packing` of a volume of `grid` blocks and writes
+    /// every selected block from `source`.
+    fn upload(
+        device: &Self::Device,
+        grid: [u32; 3],
+        packing: Packing,
+        desc: &VolumeTexture,
+        source: BlockSource<'_>,
+    ) -> Result<Self, GpuError>;
+    /// Writes the blocks `uploads` of a new packing with the same layout into
+    /// their slots, and the new index.
+    fn update(
+        &mut self,
+        device: &Self::Device,
+        packing: Packing,
+        uploads: &[usize],
+        desc: &VolumeTexture,
+        source: BlockSource<'_>,
+    ) -> Result<(), GpuError>;
+    /// What the atlas holds.
+    fn packing(&self) -> &Packing;
+}
+
+impl Atlas for GpuAtlas {
+    type Device = GpuContext;
+
+    fn max_edge(gpu: &GpuContext) -> u32 {
+        gpu.device.limits().max_texture_dimension_3d
+    }
+
+    fn texel_bytes(desc: &VolumeTexture) -> u64 {
+        desc.format.size() as u64
+    }
+
+    fn upload(
+        gpu: &GpuContext,
+        grid: [u32; 3],
+        packing: Packing,
+        desc: &VolumeTexture,
+        source: BlockSource<'_>,
+    ) -> Result<GpuAtlas, GpuError> {
+        GpuAtlas::upload(gpu, grid, packing, desc, source)
+    }
+
+    fn update(
+        &mut self,
+        gpu: &GpuContext,
+        packing: Packing,
+        uploads: &[usize],
+        desc: &VolumeTexture,
+        source: BlockSource<'_>,
+    ) -> Result<(), GpuError> {
+        GpuAtlas::update(self, gpu, packing, uploads, desc, source)
+    }
+
+    fn packing(&self) -> &Packing {
+        &self.packing
+    }
 }
 
 impl GpuAtlas {
@@ -210,24 +280,39 @@ fn upload_region(
     Ok(())
 }
 
-/// The atlas of `packing` assembled in memory as the GPU samples it, with its
-/// index: the bindings of the `raycast` CPU twin.
-pub fn assemble_cpu(
-    cache: &BlockCache,
-    packing: &Packing,
-    desc: &VolumeTexture,
-) -> Result<PackedTexture, GpuError> {
-    let [ax, ay, az] = packing.atlas_dims.map(|d| d as usize);
-    let mut texels = vec![0.0f32; ax * ay * az];
-    for b in 0..packing.lod.len() {
+/// The largest atlas edge of a [`CpuAtlas`]: the block index holds atlas
+/// positions as 16-bit integers.
+pub const CPU_MAX_EDGE: u32 = 8192;
+
+/// The packed blocks in memory, as the CPU renderer and the CPU twins read
+/// them: texel values as the GPU samples them, and the block index.
+#[derive(Debug, Clone)]
+pub struct CpuAtlas {
+    /// The atlas and index as the `raycast` twin binds them (no light).
+    pub texture: PackedTexture,
+    /// What the atlas holds.
+    pub packing: Packing,
+    /// Sizes the stages need.
+    pub layout: PackedLayout,
+}
+
+impl CpuAtlas {
+    /// Writes block `b`'s slot (its voxels with the apron) from `source`.
+    fn write_slot(
+        texels: &mut [f32],
+        dims: [u32; 3],
+        packing: &Packing,
+        desc: &VolumeTexture,
+        source: BlockSource<'_>,
+        b: usize,
+    ) -> Result<(), GpuError> {
         let Some(origin) = packing.slot_origin(b) else {
-            continue;
+            return Ok(());
         };
         let level = usize::from(packing.lod[b]);
-        let block = cache.store().stats().block_position(b);
-        let voxels = cache.block_with_apron(level, block, blocks::packing::APRON)?;
-        let values = desc.texel_values(&voxels);
+        let values = desc.texel_values(&source(b, level)?);
         let e = slot_edge(level) as usize;
+        let [ax, ay, _] = dims.map(|d| d as usize);
         let [ox, oy, oz] = origin.map(|o| o as usize);
         for z in 0..e {
             for y in 0..e {
@@ -235,13 +320,92 @@ pub fn assemble_cpu(
                 texels[dst..dst + e].copy_from_slice(&values[(z * e + y) * e..][..e]);
             }
         }
+        Ok(())
     }
+}
+
+/// What a [`CpuAtlas`] is made for: the largest atlas edge (the CPU
+/// renderer's [`CPU_MAX_EDGE`], or a GPU's limit where a test packs exactly
+/// as that GPU does).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CpuDevice {
+    /// The largest atlas edge in texels.
+    pub max_edge: u32,
+}
+
+impl Atlas for CpuAtlas {
+    type Device = CpuDevice;
+
+    fn max_edge(device: &CpuDevice) -> u32 {
+        device.max_edge.min(CPU_MAX_EDGE)
+    }
+
+    fn texel_bytes(_desc: &VolumeTexture) -> u64 {
+        size_of::<f32>() as u64
+    }
+
+    fn upload(
+        _device: &CpuDevice,
+        grid: [u32; 3],
+        packing: Packing,
+        desc: &VolumeTexture,
+        source: BlockSource<'_>,
+    ) -> Result<CpuAtlas, GpuError> {
+        let dims = packing.atlas_dims;
+        let mut texels = vec![0.0f32; dims.iter().map(|&d| d as usize).product()];
+        for b in 0..packing.lod.len() {
+            CpuAtlas::write_slot(&mut texels, dims, &packing, desc, source, b)?;
+        }
+        Ok(CpuAtlas {
+            texture: PackedTexture {
+                atlas: Texture3d::new(dims, texels),
+                index: packing.block_index(grid).entries,
+                grid,
+                light: None,
+                light_cache: None,
+            },
+            layout: PackedLayout {
+                atlas_dims: dims,
+                block_grid: grid,
+            },
+            packing,
+        })
+    }
+
+    fn update(
+        &mut self,
+        _device: &CpuDevice,
+        packing: Packing,
+        uploads: &[usize],
+        desc: &VolumeTexture,
+        source: BlockSource<'_>,
+    ) -> Result<(), GpuError> {
+        let dims = packing.atlas_dims;
+        let texels = self.texture.atlas.texels_mut();
+        for &b in uploads {
+            CpuAtlas::write_slot(texels, dims, &packing, desc, source, b)?;
+        }
+        self.texture.index = packing.block_index(self.layout.block_grid).entries;
+        self.packing = packing;
+        Ok(())
+    }
+
+    fn packing(&self) -> &Packing {
+        &self.packing
+    }
+}
+
+/// The atlas of `packing` assembled in memory as the GPU samples it, with its
+/// index: the bindings of the `raycast` CPU twin.
+pub fn assemble_cpu(
+    cache: &BlockCache,
+    packing: &Packing,
+    desc: &VolumeTexture,
+) -> Result<PackedTexture, GpuError> {
     let grid = cache.store().meta().blocks;
-    Ok(PackedTexture {
-        atlas: Texture3d::new(packing.atlas_dims, texels),
-        index: packing.block_index(grid).entries,
-        grid,
-        light: None,
-        light_cache: None,
-    })
+    let source = cache_source(cache);
+    let device = CpuDevice {
+        max_edge: CPU_MAX_EDGE,
+    };
+    Ok(CpuAtlas::upload(&device, grid, packing.clone(), desc, &source)?.texture)
 }

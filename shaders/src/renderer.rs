@@ -22,7 +22,7 @@ use blocks::{TransferFunction, Volume};
 use crate::extinction::{Extinction, ExtinctionTimings};
 use crate::global_light::{GlobalLight, LightTimings};
 use crate::illumination::{Illumination, Inputs, Mode, Timings};
-use crate::packed::GpuAtlas;
+use crate::packed::{Atlas, GpuAtlas};
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
 use crate::residency::{Residency, budget_voxels};
@@ -31,7 +31,7 @@ use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
 /// How long a renderer that waits for blocks ([`Renderer::render`]) sleeps
 /// between checks when no arrival wakes it.
-const ARRIVAL_PATIENCE: std::time::Duration = std::time::Duration::from_millis(200);
+pub(crate) const ARRIVAL_PATIENCE: std::time::Duration = std::time::Duration::from_millis(200);
 /// Rows of a texture-to-buffer copy are padded to this many bytes.
 const ROW_ALIGN: u32 = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
 
@@ -261,7 +261,7 @@ pub struct Renderer {
     cache: Arc<BlockCache>,
     desc: VolumeTexture,
     full_voxels: u64,
-    residency: Residency,
+    residency: Residency<GpuAtlas>,
     /// The illumination modes used so far: each one's GPU state and the
     /// ray-caster variant that reads its light.
     lit: Vec<LitMode>,
@@ -330,7 +330,7 @@ impl Renderer {
 
     /// The packing in use, once a frame was rendered.
     pub fn packing(&self) -> Option<&Packing> {
-        self.residency.atlas().map(|a| &a.packing)
+        self.residency.atlas().map(Atlas::packing)
     }
 
     /// The GPU state of illumination mode `mode`, once it was used.

@@ -1,5 +1,6 @@
-//! [`Residency`]: which blocks a renderer keeps on the GPU, at which level,
-//! and how it gets there without the render thread ever waiting for storage.
+//! [`Residency`]: which blocks a renderer keeps in its atlas (on the GPU, or
+//! in memory for the CPU renderer: any [`Atlas`]), at which level, and how it
+//! gets there without the render thread ever waiting for storage.
 //!
 //! A frame's transfer function and data reduction give a *target* selection
 //! ([`select_levels`]: a few milliseconds from the block statistics). What is
@@ -22,9 +23,9 @@ use blocks::packing::{APRON, Packing};
 use blocks::store::{LEVELS, Store};
 use rayon::prelude::*;
 
-use crate::packed::GpuAtlas;
+use crate::GpuError;
+use crate::packed::Atlas;
 use crate::volume_texture::VolumeTexture;
-use crate::{GpuContext, GpuError};
 
 /// Selections tried before a device budget is declared too small.
 const MAX_SELECTIONS: usize = 12;
@@ -53,10 +54,10 @@ struct Target {
     selection: LodSelection,
 }
 
-/// What is on the GPU.
+/// What is in the atlas.
 #[derive(Debug)]
-struct Shown {
-    atlas: GpuAtlas,
+struct Shown<A> {
+    atlas: A,
     selection: LodSelection,
 }
 
@@ -68,22 +69,22 @@ struct Plan {
     pending: usize,
 }
 
-/// The blocks of one store on the GPU; see the module docs.
+/// The blocks of one store in an atlas `A`; see the module docs.
 #[derive(Debug)]
-pub struct Residency {
+pub struct Residency<A> {
     cache: Arc<BlockCache>,
     device_budget_bytes: u64,
     target: Option<Target>,
-    shown: Option<Shown>,
+    shown: Option<Shown<A>>,
     pending: usize,
     /// Bumped whenever the shown blocks change: light computed from them is stale.
     data_version: u64,
 }
 
-impl Residency {
+impl<A: Atlas> Residency<A> {
     /// Nothing resident yet, of the store behind `cache`, in at most
     /// `device_budget_bytes` of atlas.
-    pub fn new(cache: Arc<BlockCache>, device_budget_bytes: u64) -> Residency {
+    pub fn new(cache: Arc<BlockCache>, device_budget_bytes: u64) -> Residency<A> {
         Residency {
             cache,
             device_budget_bytes,
@@ -94,9 +95,15 @@ impl Residency {
         }
     }
 
-    /// The atlas on the GPU, once a frame was rendered.
-    pub fn atlas(&self) -> Option<&GpuAtlas> {
+    /// The atlas, once a frame was rendered.
+    pub fn atlas(&self) -> Option<&A> {
         self.shown.as_ref().map(|s| &s.atlas)
+    }
+
+    /// The atlas to write in place (the CPU renderer's light), once a frame
+    /// was rendered.
+    pub fn atlas_mut(&mut self) -> Option<&mut A> {
+        self.shown.as_mut().map(|s| &mut s.atlas)
     }
 
     /// The selection shown, once a frame was rendered.
@@ -114,11 +121,11 @@ impl Residency {
         self.pending
     }
 
-    /// Brings the GPU towards the selection for `tf` under `budget` voxels,
+    /// Brings the atlas towards the selection for `tf` under `budget` voxels,
     /// never reading storage on this thread: see the module docs.
     pub fn update(
         &mut self,
-        gpu: &GpuContext,
+        device: &A::Device,
         desc: &VolumeTexture,
         tf: &TransferFunction,
         budget: u64,
@@ -130,8 +137,8 @@ impl Residency {
             .is_some_and(|t| t.tf == *tf && t.budget_voxels == budget);
         if retarget {
             let start = std::time::Instant::now();
-            let device = self.device_budget(gpu, desc);
-            let (selection, _) = select_levels(self.cache.store(), tf, budget, device)?;
+            let device_budget = self.device_budget(device, desc);
+            let (selection, _) = select_levels(self.cache.store(), tf, budget, device_budget)?;
             stats.select_ms = start.elapsed().as_secs_f64() * 1e3;
             self.target = Some(Target {
                 tf: tf.clone(),
@@ -142,18 +149,18 @@ impl Residency {
             return Ok(stats);
         }
         let start = std::time::Instant::now();
-        self.show(gpu, desc, &mut stats)?;
+        self.show(device, desc, &mut stats)?;
         stats.upload_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.pending_blocks = self.pending;
         Ok(stats)
     }
 
     /// What the device can hold.
-    fn device_budget(&self, gpu: &GpuContext, desc: &VolumeTexture) -> DeviceBudget {
+    fn device_budget(&self, device: &A::Device, desc: &VolumeTexture) -> DeviceBudget {
         DeviceBudget {
             bytes: self.device_budget_bytes,
-            texel_bytes: desc.format.size() as u64,
-            max_edge: gpu.device.limits().max_texture_dimension_3d,
+            texel_bytes: A::texel_bytes(desc),
+            max_edge: A::max_edge(device),
         }
     }
 
@@ -161,7 +168,7 @@ impl Residency {
     /// level changes (or every block, when the atlas is laid out anew).
     fn show(
         &mut self,
-        gpu: &GpuContext,
+        device: &A::Device,
         desc: &VolumeTexture,
         stats: &mut ResidencyStats,
     ) -> Result<(), GpuError> {
@@ -174,20 +181,20 @@ impl Residency {
         if shown_lod == Some(plan.lod.as_slice()) {
             return Ok(());
         }
-        let max_edge = gpu.device.limits().max_texture_dimension_3d;
+        let max_edge = A::max_edge(device);
         let selection = target.selection.with_levels(plan.lod.clone());
         self.data_version += 1;
         let grid = self.cache.store().meta().blocks;
         let kept = self.shown.take().map(|s| s.atlas);
         let update = match &kept {
-            Some(atlas) => Some(atlas.packing.update(&selection, max_edge)?),
+            Some(atlas) => Some(atlas.packing().update(&selection, max_edge)?),
             None => None,
         };
         match (kept, update) {
             (Some(mut atlas), Some(update)) if !update.relayout => {
                 stats.uploaded_blocks = update.uploads.len();
                 let source = pinned_source(&self.cache, &plan.pins);
-                atlas.update(gpu, update.packing, &update.uploads, desc, &source)?;
+                atlas.update(device, update.packing, &update.uploads, desc, &source)?;
                 self.shown = Some(Shown { atlas, selection });
             }
             (kept, _) => {
@@ -199,7 +206,7 @@ impl Residency {
                 stats.uploaded_blocks = selection.non_empty;
                 stats.relayout = true;
                 let source = pinned_source(&self.cache, &plan.pins);
-                let atlas = GpuAtlas::upload(gpu, grid, packing, desc, &source)?;
+                let atlas = A::upload(device, grid, packing, desc, &source)?;
                 self.shown = Some(Shown { atlas, selection });
             }
         }

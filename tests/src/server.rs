@@ -2,7 +2,7 @@
 
 use server::stream::StreamSettings;
 use server::{AppState, Dataset, RenderService};
-use shaders::GpuContext;
+use shaders::{Backend, GpuContext};
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -50,8 +50,22 @@ impl TestServer {
         resident: usize,
         stream: StreamSettings,
     ) -> TestServer {
-        let renderer =
-            RenderService::start(gpu.clone(), 512 << 20, resident).expect("render worker");
+        TestServer::with_backend(Backend::Gpu(gpu.clone()), datasets, resident, stream).await
+    }
+
+    /// A server rendering with `backend` (the GPU or the CPU renderer),
+    /// offering `datasets` (the first is the default), keeping the blocks of
+    /// at most `resident` of them in the renderer's atlas.
+    ///
+    /// # Panics
+    /// When the server cannot start.
+    pub async fn with_backend(
+        backend: Backend,
+        datasets: Vec<Dataset>,
+        resident: usize,
+        stream: StreamSettings,
+    ) -> TestServer {
+        let renderer = RenderService::start(backend, 512 << 20, resident).expect("render worker");
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind port 0");
         let addr = listener.local_addr().expect("local address");
         let (stop, stopped) = oneshot::channel::<()>();

@@ -3,9 +3,11 @@
 use std::path::PathBuf;
 
 use clap::{Args, Subcommand};
-use server::cli::{DataArgs, finite_in, setting_value};
+use server::cli::{DataArgs, RendererArgs, finite_in, setting_value};
 use server::dataset::PHANTOM_ID;
 use shaders::Shading;
+
+use super::peer::PeerMode;
 
 /// `voxserve bench`.
 #[derive(Debug, Args)]
@@ -44,6 +46,54 @@ pub enum BenchCommand {
     /// explicit sampling, soft shadows per cone sampling against one shadow
     /// ray (times and ΔE*uv), and lit against unlit frames.
     Extinction(Box<BenchExtinctionArgs>),
+    /// voxserve against VTK's ray casters (`../shared/bench/vtk_bench.py`)
+    /// on the same raw file, image size, step, transfer function and camera,
+    /// interleaved in one run: the ratio of frame times per dataset and mode,
+    /// and both images' coverage.
+    Peer(Box<BenchPeerArgs>),
+}
+
+/// `voxserve bench peer`.
+#[derive(Debug, Args)]
+pub struct BenchPeerArgs {
+    /// Datasets: engine, bonsai, cthead (from --data-dir; skipped with a
+    /// warning when missing), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = ["engine", "bonsai", "cthead"].map(String::from))]
+    pub datasets: Vec<String>,
+    /// Where the real datasets are.
+    #[arg(long, default_value = "../shared/data")]
+    pub data_dir: PathBuf,
+    /// Modes compared, comma separated: composite, phong, global_light,
+    /// extinction (VTK FixedPoint) and shadows (VTK's GPU mapper, slow).
+    #[arg(long, value_delimiter = ',', default_value = "composite,phong,global_light,extinction",
+          value_parser = PeerMode::parse)]
+    pub modes: Vec<PeerMode>,
+    /// Image edge in pixels (square images).
+    #[arg(long, default_value_t = 512, value_parser = setting_value::<u32>("w"))]
+    pub size: u32,
+    /// Distance between samples in voxels, for both renderers.
+    #[arg(long, default_value_t = 0.5, value_parser = setting_value::<f32>("step"))]
+    pub step: f32,
+    /// Frames timed per run (each renderer turns the camera 2° between frames).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub frames: u32,
+    /// Runs of each renderer per dataset and mode, alternating.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub rounds: u32,
+    /// VTK's peer benchmark script.
+    #[arg(long, default_value = "../shared/bench/vtk_bench.py")]
+    pub vtk_bench: PathBuf,
+    /// A Python that imports vtk and numpy [default: a virtual environment
+    /// under the user's cache folder, created with pip the first time].
+    #[arg(long)]
+    pub python: Option<PathBuf>,
+    /// Write both renderers' first frames here as PNG files.
+    #[arg(long, value_name = "DIR")]
+    pub images: Option<PathBuf>,
+    #[command(flatten)]
+    pub renderer: RendererArgs,
+    #[command(flatten)]
+    pub data: DataArgs,
 }
 
 /// `voxserve bench extinction`.
@@ -128,6 +178,8 @@ pub struct BenchStreamArgs {
           value_parser = clap::value_parser!(u32).range(
               i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
     pub cold_phantom: u32,
+    #[command(flatten)]
+    pub renderer: RendererArgs,
     #[command(flatten)]
     pub data: DataArgs,
 }
@@ -215,9 +267,8 @@ pub struct BenchRenderArgs {
     /// Frames timed per measurement (after the frame that selects and uploads).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub frames: u32,
-    /// Also time the packed CPU twin (slow).
-    #[arg(long)]
-    pub cpu: bool,
+    #[command(flatten)]
+    pub renderer: RendererArgs,
     #[command(flatten)]
     pub data: DataArgs,
 }

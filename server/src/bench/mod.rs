@@ -2,7 +2,7 @@
 //! that produced it. Speed and memory targets are checked here, never by tests.
 //!
 //! One module per benchmark (`render`, `read`, `blocks`, `light`, `stream`,
-//! `extinction`), its flags in `args`, the real datasets in `reference_data`;
+//! `extinction`, `peer`), its flags in `args`, the real datasets in `reference_data`;
 //! this module dispatches and holds what several benchmarks share.
 
 use std::io::Write as _;
@@ -21,6 +21,7 @@ pub mod args;
 mod blocks;
 mod extinction;
 mod light;
+mod peer;
 mod read;
 pub mod reference_data;
 mod render;
@@ -29,6 +30,7 @@ mod stream;
 use blocks::blocks;
 use extinction::extinction;
 use light::light;
+use peer::peer;
 use read::read;
 use render::render;
 use stream::stream;
@@ -42,6 +44,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Light(a) => light(a),
         BenchCommand::Stream(a) => stream(a),
         BenchCommand::Extinction(a) => extinction(a),
+        BenchCommand::Peer(a) => peer(a),
     }
 }
 

@@ -1,29 +1,32 @@
-//! `voxserve bench render`: for each dataset, the packed renderer at every
-//! image size and data reduction, with and without empty-block skipping, against
-//! the full-resolution reference renderer (time and colour difference); with
-//! `--cpu`, the packed CPU twin as well.
+//! `voxserve bench render`: for each dataset, the packed renderer (GPU or
+//! CPU, `--renderer`) at every image size and data reduction, with and without
+//! empty-block skipping, against the full-resolution reference renderer of
+//! the same backend (time and colour difference).
 
 use std::time::Instant;
 
-use blocks::TransferFunction;
+use blocks::{TransferFunction, Volume};
 use shaders::colour_difference::colour_difference;
-use shaders::{Choice, Frame, FrameRequest, GpuContext, ReferenceRenderer, Renderer, Shading};
+use shaders::cpu::CPU_FEATURES;
+use shaders::{
+    AnyRenderer, Backend, Choice, Frame, FrameRequest, GpuError, ReferenceRenderer, Shading,
+};
 
 use super::args::BenchRenderArgs;
 use super::{bench_dataset, timed, view_request};
 use server::Dataset;
-use server::commands::{CPU_TWIN_FEATURES, say};
+use server::commands::say;
 
 /// `voxserve bench render`; see the module docs.
 pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
-    let gpu = GpuContext::new()?;
+    let backend = args.renderer.backend()?;
     for name in &args.datasets {
         let start = Instant::now();
         let Some((dataset, tf)) = bench_dataset(name, &args.data_dir, &args.data)? else {
             continue;
         };
         let bricked_ms = start.elapsed().as_secs_f64() * 1e3;
-        let mut bench = RenderBench::new(&gpu, args, name, dataset, tf)?;
+        let mut bench = RenderBench::new(&backend, args, name, dataset, tf)?;
         say(&bench.dataset_line(bricked_ms).to_string())?;
         for &edge in &args.sizes {
             for &shading in &args.shadings {
@@ -34,36 +37,50 @@ pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The full-resolution reference a backend's packed renderer is compared
+/// with: the GPU's reference stage, or its CPU twin.
+enum Reference {
+    Gpu(ReferenceRenderer),
+    Cpu(Volume),
+}
+
+impl Reference {
+    fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        match self {
+            Reference::Gpu(r) => r.render(request),
+            Reference::Cpu(volume) => shaders::cpu::render_reference(volume, request, CPU_FEATURES),
+        }
+    }
+}
+
 /// One dataset with its two renderers: the packed one measured and the
 /// full-resolution reference it is compared with.
 struct RenderBench<'a> {
-    gpu: &'a GpuContext,
+    backend: &'a Backend,
     args: &'a BenchRenderArgs,
     name: &'a str,
     dataset: Dataset,
     tf: TransferFunction,
-    reference: ReferenceRenderer,
-    renderer: Renderer,
+    reference: Reference,
+    renderer: AnyRenderer,
 }
 
 impl<'a> RenderBench<'a> {
     fn new(
-        gpu: &'a GpuContext,
+        backend: &'a Backend,
         args: &'a BenchRenderArgs,
         name: &'a str,
         dataset: Dataset,
         tf: TransferFunction,
     ) -> anyhow::Result<Self> {
         let volume = dataset.store.load_level(0)?;
-        let reference = ReferenceRenderer::new(gpu.clone(), &volume)?;
-        drop(volume);
-        let renderer = Renderer::new(
-            gpu.clone(),
-            dataset.cache.clone(),
-            args.data.gpu_budget_bytes(),
-        )?;
+        let reference = match backend {
+            Backend::Gpu(gpu) => Reference::Gpu(ReferenceRenderer::new(gpu.clone(), &volume)?),
+            Backend::Cpu => Reference::Cpu(volume),
+        };
+        let renderer = backend.renderer(dataset.cache.clone(), args.data.gpu_budget_bytes())?;
         Ok(Self {
-            gpu,
+            backend,
             args,
             name,
             dataset,
@@ -87,7 +104,7 @@ impl<'a> RenderBench<'a> {
     }
 
     /// One image size and shading: the reference frame, then the packed
-    /// renderer (and the CPU twin when `--cpu` asks) at every data reduction.
+    /// renderer at every data reduction.
     fn view(&mut self, edge: u32, shading: Shading) -> anyhow::Result<()> {
         let base = view_request(edge, shading, &self.tf);
         let (reference_frame, reference_ms) =
@@ -100,9 +117,6 @@ impl<'a> RenderBench<'a> {
             say(&self
                 .packed(&request, &reference_frame, reference_ms)?
                 .to_string())?;
-            if self.args.cpu {
-                say(&self.cpu_twin(&request)?.to_string())?;
-            }
         }
         Ok(())
     }
@@ -130,13 +144,11 @@ impl<'a> RenderBench<'a> {
         let (_, no_skip_ms) = timed(frames, || renderer.render(&no_skip))?;
         let error = colour_difference(&frame, reference_frame).map_err(anyhow::Error::msg)?;
         let selection = renderer.selection();
-        let info = &self.gpu.info;
         Ok(serde_json::json!({
             "bench": "render",
-            "renderer": "gpu",
-            "adapter": info.name,
-            "backend": info.backend.to_string(),
-            "device_type": format!("{:?}", info.device_type),
+            "renderer": self.backend.kind(),
+            "adapter": self.backend.describe(),
+            "threads": rayon::current_num_threads(),
             "dataset": self.name,
             "dims": self.dataset.dims(),
             "shading": request.shading.name(),
@@ -160,27 +172,6 @@ impl<'a> RenderBench<'a> {
             "packed_vs_reference_speedup": reference_ms / skip_ms,
             "mpix_per_s": f64::from(request.width * request.height) / 1e3 / skip_ms,
             "delta_e_vs_reference": error,
-        }))
-    }
-
-    /// A `render` line of the packed CPU twin on `request`, one frame.
-    fn cpu_twin(&self, request: &FrameRequest) -> anyhow::Result<serde_json::Value> {
-        let start = Instant::now();
-        let max_edge = self.gpu.device.limits().max_texture_dimension_3d;
-        shaders::cpu::render_packed(&self.dataset.cache, request, CPU_TWIN_FEATURES, max_edge)?;
-        let ms = start.elapsed().as_secs_f64() * 1e3;
-        Ok(serde_json::json!({
-            "bench": "render",
-            "renderer": "cpu-twin",
-            "threads": std::thread::available_parallelism().map_or(1, usize::from),
-            "dataset": self.name,
-            "shading": request.shading.name(),
-            "width": request.width,
-            "height": request.height,
-            "requested_reduction": request.reduction,
-            "frames": 1,
-            "ms_mean": ms,
-            "note": "includes level selection and atlas assembly",
         }))
     }
 }

@@ -26,7 +26,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use futures_util::{SinkExt, StreamExt};
-use shaders::GpuContext;
 use tokio::net::TcpListener;
 use tokio_tungstenite::tungstenite::Message;
 
@@ -144,10 +143,10 @@ fn rss_mib() -> Option<f64> {
 /// on the JPEG server the frame rate per number of sessions.
 async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
     let dataset = load_dataset(&args.dataset, &args.data)?;
-    let gpu = GpuContext::new()?;
-    let adapter = gpu.info.name.clone();
+    let backend = args.renderer.backend()?;
+    let adapter = backend.describe();
     // Two datasets resident: the cold-change measurement's two sessions.
-    let renderer = RenderService::start(gpu, args.data.gpu_budget_bytes(), 2)?;
+    let renderer = RenderService::start(backend, args.data.gpu_budget_bytes(), 2)?;
     let full_size = StreamSettings {
         interactive_scale: 1.0,
         interactive_reduction: 1.0,

@@ -12,6 +12,7 @@ use blocks::ingest::raw::{self, RawOptions};
 use clap::builder::PossibleValuesParser;
 use clap::{Args, Subcommand};
 use shaders::settings::{Raw, SettingValue, Settings};
+use shaders::{Backend, RendererChoice};
 
 pub use view_args::ViewArgs;
 
@@ -46,6 +47,33 @@ pub struct SettingsArgs {
     pub json: bool,
 }
 
+/// Which renderer draws.
+#[derive(Debug, Clone, Copy, Args)]
+pub struct RendererArgs {
+    /// Which renderer draws: `auto` (the GPU; the CPU when the only adapter is
+    /// a software rasterizer such as lavapipe or llvmpipe, or there is none),
+    /// `gpu` (any adapter, a software one too) or `cpu` (the CPU renderer, on
+    /// every core).
+    #[arg(long = "renderer", default_value = "auto", value_name = "auto|gpu|cpu",
+          value_parser = parse_renderer)]
+    pub choice: RendererChoice,
+}
+
+/// `--renderer`'s value.
+fn parse_renderer(text: &str) -> Result<RendererChoice, String> {
+    RendererChoice::ALL
+        .into_iter()
+        .find(|c| c.name() == text)
+        .ok_or_else(|| format!("expected auto, gpu or cpu, got '{text}'"))
+}
+
+impl RendererArgs {
+    /// The backend `--renderer` picks.
+    pub fn backend(&self) -> Result<Backend, shaders::GpuError> {
+        Backend::choose(self.choice)
+    }
+}
+
 /// Where the volume comes from.
 #[derive(Debug, Clone, Args)]
 pub struct DataArgs {
@@ -58,8 +86,9 @@ pub struct DataArgs {
     #[arg(long, default_value_t = 1024, value_name = "MIB",
           value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
     pub cache_mib: u64,
-    /// Voxels kept on the GPU at most, MiB: a volume whose selected blocks need
-    /// more renders at coarser levels of detail.
+    /// Voxels kept in the renderer's atlas at most (GPU memory, or memory for
+    /// the CPU renderer, which keeps 4 bytes per voxel), MiB: a volume whose
+    /// selected blocks need more renders at coarser levels of detail.
     #[arg(long, default_value_t = 2048, value_name = "MIB",
           value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
     pub gpu_budget_mib: u64,
@@ -199,6 +228,8 @@ pub struct ServeArgs {
     #[command(flatten)]
     pub stream: StreamArgs,
     #[command(flatten)]
+    pub renderer: RendererArgs,
+    #[command(flatten)]
     pub data: DataArgs,
 }
 
@@ -265,10 +296,8 @@ pub struct RenderArgs {
     /// settings`).
     #[command(flatten)]
     pub view: ViewArgs,
-    /// Render on the CPU with the ray caster's CPU twin instead of the GPU (slow;
-    /// for checking, or where no GPU driver is installed).
-    #[arg(long)]
-    pub cpu: bool,
+    #[command(flatten)]
+    pub renderer: RendererArgs,
     #[command(flatten)]
     pub data: DataArgs,
 }

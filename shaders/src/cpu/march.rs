@@ -7,6 +7,7 @@ use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 
 use super::hash::{pcg_hash, unit_from_hash};
+use super::texture::floor;
 use crate::raycast::{
     FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP,
     RaycastParams, WORKGROUP_SIZE,
@@ -16,11 +17,31 @@ use crate::raycast::{
 pub const MAX_SAMPLE_OPACITY: f32 = 0.9999;
 
 /// Where voxels come from: the stage-specific functions of the march.
-pub trait Storage: Sync {
+pub trait Storage: Sync + Sized {
     /// Where a sample falls (WGSL `Location`).
     type Location: Copy;
     /// WGSL `locate`.
     fn locate(&self, p: &RaycastParams, tc: Vec3) -> Self::Location;
+    /// CPU only: the stretch of the ray `origin + t·dir` from `t` on whose
+    /// samples share one location (a block), found once for all of them
+    /// where the GPU locates every sample; see [`Span`].
+    fn span(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, t: f32) -> Span<Self::Location>;
+    /// WGSL `sample_at` for the sample at `t` (at `tc`) in `span`.
+    fn sample_in(&self, p: &RaycastParams, span: &Span<Self::Location>, t: f32, tc: Vec3) -> f32 {
+        let _ = t;
+        self.sample_at(p, tc, &span.loc)
+    }
+    /// WGSL `gradient_at` for the sample at `t` (at `tc`) in `span`.
+    fn gradient_in(
+        &self,
+        p: &RaycastParams,
+        span: &Span<Self::Location>,
+        t: f32,
+        tc: Vec3,
+    ) -> Vec3 {
+        let _ = t;
+        gradient_at(self, p, tc, &span.loc)
+    }
     /// WGSL `Location.empty`.
     fn is_empty(loc: &Self::Location) -> bool;
     /// WGSL `sample_at`.
@@ -34,8 +55,32 @@ pub trait Storage: Sync {
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &Self::Location) -> f32;
 }
 
+/// Where the samples of a stretch of a ray fall (the CPU's way of walking
+/// the block grid: one lookup per block the ray crosses, not per sample).
+#[derive(Debug, Clone, Copy)]
+pub struct Span<L> {
+    /// The location of every sample in the stretch.
+    pub loc: L,
+    /// The ray parameter where the stretch ends: samples at `t < exit` are in it.
+    pub exit: f32,
+    /// Storage-specific: the sample's texel position is `texel_at_zero + t·texel_per_t`.
+    pub texel_at_zero: Vec3,
+    /// See `texel_at_zero`.
+    pub texel_per_t: Vec3,
+    /// Storage-specific: the sample's position in level-0 voxels within its
+    /// block is `local_at_zero + t·local_per_t`.
+    pub local_at_zero: Vec3,
+    /// See `local_at_zero`.
+    pub local_per_t: Vec3,
+}
+
+/// Rows of pixels one task renders: neighbouring rays read the same blocks,
+/// so a band of rows keeps them in cache.
+const BAND_ROWS: usize = WORKGROUP_SIZE as usize;
+
 /// Renders into `output` (RGBA8, `params.width * params.height * 4` bytes) as the
-/// GPU dispatch does: one call of `main` per invocation.
+/// GPU dispatch does: one call of `main` per invocation, bands of rows in
+/// parallel.
 pub fn march<S: Storage>(
     params: &RaycastParams,
     storage: &S,
@@ -43,15 +88,16 @@ pub fn march<S: Storage>(
     output: &mut [u8],
 ) {
     let width = params.width as usize;
-    let (groups_x, _) = params.workgroups();
     output
-        .par_chunks_mut(width * 4)
+        .par_chunks_mut(width * 4 * BAND_ROWS)
         .enumerate()
-        .for_each(|(y, row)| {
-            // The dispatch covers whole workgroups; invocations past the image return early.
-            for x in 0..groups_x * WORKGROUP_SIZE {
-                if let Some(rgba) = main(params, storage, transfer_function, [x, y as u32]) {
-                    row[x as usize * 4..x as usize * 4 + 4].copy_from_slice(&rgba);
+        .for_each(|(band, rows)| {
+            for (dy, row) in rows.chunks_mut(width * 4).enumerate() {
+                let y = (band * BAND_ROWS + dy) as u32;
+                for (x, pixel) in row.chunks_exact_mut(4).enumerate() {
+                    if let Some(rgba) = main(params, storage, transfer_function, [x as u32, y]) {
+                        pixel.copy_from_slice(&rgba);
+                    }
                 }
             }
         });
@@ -61,7 +107,7 @@ pub fn march<S: Storage>(
 pub fn classify_table(tf_len: u32, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
     let n = tf_len as i32;
     let x = u.clamp(0.0, 1.0) * n as f32 - 0.5;
-    let i0f = x.floor();
+    let i0f = floor(x);
     let f = x - i0f;
     let i0 = i0f as i32;
     let a = Vec4::from(transfer_function[i0.clamp(0, n - 1) as usize]);
@@ -80,7 +126,7 @@ pub fn corrected_opacity(a: f32, exponent: f32) -> f32 {
 }
 
 /// WGSL `gradient_at`.
-fn gradient_at<S: Storage>(s: &S, p: &RaycastParams, tc: Vec3, loc: &S::Location) -> Vec3 {
+pub fn gradient_at<S: Storage>(s: &S, p: &RaycastParams, tc: Vec3, loc: &S::Location) -> Vec3 {
     let h = Vec3::from(p.volume.texel);
     let dx = Vec3::new(h.x, 0.0, 0.0);
     let dy = Vec3::new(0.0, h.y, 0.0);
@@ -162,32 +208,37 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         let first = span.x + jitter * p.step;
         let gradient_from_texture = p.gradient_from_texture;
         let mut i = 0u32;
+        let mut stretch = s.span(p, tex_origin, tex_dir, first);
         for _k in 0..p.max_steps {
             let t = first + i as f32 * p.step;
             if t > span.y {
                 break;
             }
             let tc = tex_origin + tex_dir * t;
-            let loc = s.locate(p, tc);
-            if S::is_empty(&loc) {
+            if t >= stretch.exit {
+                stretch = s.span(p, tex_origin, tex_dir, t);
+            }
+            let loc = &stretch.loc;
+            if S::is_empty(loc) {
                 let mut next = i + 1;
                 if p.flags & FLAG_SKIP_EMPTY != 0 {
-                    let exit = s.empty_exit(p, tex_origin, tex_dir, &loc);
+                    let exit = s.empty_exit(p, tex_origin, tex_dir, loc);
                     // WGSL's f32 → u32 conversion saturates like Rust's `as`.
-                    next = next.max(((exit - first) / p.step).ceil() as u32);
+                    next = next.max(-floor(-(exit - first) / p.step) as u32);
                 }
                 i = next;
                 continue;
             }
-            let u = s.sample_at(p, tc, &loc) * p.volume.value_scale + p.volume.value_offset;
+            let u = s.sample_in(p, &stretch, t, tc) * p.volume.value_scale + p.volume.value_offset;
             let rgba = classify(p, tf, u);
             if rgba.w > 0.0 {
                 if p.mode == MODE_COMPOSITE {
                     let a = corrected_opacity(rgba.w, exponent);
                     let mut rgb = rgba.xyz();
                     if p.flags & FLAG_SHADED != 0 {
-                        let g = (gradient_from_texture * gradient_at(s, p, tc, &loc).extend(0.0))
-                            .xyz()
+                        let g = (gradient_from_texture
+                            * s.gradient_in(p, &stretch, t, tc).extend(0.0))
+                        .xyz()
                             * p.volume.value_scale;
                         rgb = shade(p, rgb, g, dir);
                     }
@@ -198,7 +249,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                         rgb *= Vec3::splat(bias)
                             + (1.0 - bias)
                                 * colour
-                                * s.light_at(p, tc - tex_dir * p.light_offset, &loc);
+                                * s.light_at(p, tc - tex_dir * p.light_offset, loc);
                     }
                     if p.flags & FLAG_EXTINCTION != 0 {
                         // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).

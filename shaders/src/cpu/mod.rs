@@ -28,12 +28,16 @@ pub mod march;
 pub mod packed;
 pub mod raycast;
 pub mod reference;
+pub mod renderer;
 pub mod texture;
 
 pub use packed::PackedTexture;
 pub use raycast::raycast;
 pub use reference::reference;
+pub use renderer::{CPU_FEATURES, CpuRenderer};
 pub use texture::Texture3d;
+
+use std::sync::Arc;
 
 use blocks::Volume;
 use blocks::cache::BlockCache;
@@ -43,51 +47,28 @@ use blocks::transfer_function::TABLE_LEN;
 use crate::extinction::ExtinctionParams;
 use crate::global_light::LightParams;
 use crate::illumination::{Mode, near_blocks, slot_blocks};
-use crate::packed::assemble_cpu;
 use crate::packed_volume::PackedLayout;
 use crate::raycast::RaycastParams;
-use crate::residency::{DeviceBudget, budget_voxels, select_levels};
-use crate::volume_texture::{VolumeDescription, VolumeTexture};
+use crate::volume_texture::VolumeTexture;
 use crate::{Frame, FrameRequest, GpuError};
 
-/// Renders `request` of the store behind `cache` on the CPU through the twin of
-/// `raycast`: levels selected for the request's data reduction, blocks packed
-/// into an atlas of at most `max_edge` texels per axis, texels in the format the
-/// GPU would use given `features`. Returns the frame and the selection.
+/// Renders `request` of the store behind `cache` on the CPU, converged,
+/// through a [`CpuRenderer`] that stores texels as a GPU with `features`
+/// does and packs into atlas edges of at most `max_edge` (no memory budget:
+/// the request's data reduction alone selects levels). Returns the frame and
+/// the selection.
 pub fn render_packed(
-    cache: &BlockCache,
+    cache: &Arc<BlockCache>,
     request: &FrameRequest,
     features: wgpu::Features,
     max_edge: u32,
 ) -> Result<(Frame, LodSelection), GpuError> {
-    request.validate()?;
-    let store = cache.store();
-    let tf = request.store_transfer_function(store.meta());
-    let desc = VolumeTexture::new(
-        VolumeDescription::of_store(store.meta(), store.voxel_type()),
-        features,
-    );
-    let full_voxels = store.meta().geometry.voxel_count();
-    let budget = budget_voxels(full_voxels, request.reduction);
-    let (selection, packing) =
-        select_levels(store, &tf, budget, DeviceBudget::unlimited(max_edge))?;
-    let mut packed = assemble_cpu(cache, &packing, &desc)?;
-    let table = tf.table(desc.tf_domain, TABLE_LEN)?;
-    let layout = PackedLayout {
-        atlas_dims: packing.atlas_dims,
-        block_grid: store.meta().blocks,
-    };
-    if let Some(mode) = Mode::of(request.shading) {
-        illuminate(mode, &desc, request, &packing, layout, &mut packed, &table);
-    }
-    let params = RaycastParams::new(&desc, request, table.len() as u32, layout);
-    let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
-    raycast(&params, &packed, &table, &mut rgba);
-    let frame = Frame {
-        width: request.width,
-        height: request.height,
-        rgba,
-    };
+    let mut renderer = CpuRenderer::matching(Arc::clone(cache), u64::MAX, features, max_edge);
+    let frame = renderer.render_converged(request)?;
+    let selection = renderer
+        .selection()
+        .cloned()
+        .ok_or_else(|| GpuError::InvalidRequest("no blocks were selected".into()))?;
     Ok((frame, selection))
 }
 

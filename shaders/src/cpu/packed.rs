@@ -6,6 +6,7 @@ use glam::Vec3;
 
 use super::Texture3d;
 use super::march::intersect_box;
+use super::texture::floor3;
 use crate::packed_volume::PackedVolume;
 
 /// Edge of a block in level-0 voxels.
@@ -46,7 +47,7 @@ pub struct BlockLocation {
 /// WGSL `block_of`.
 pub fn block_of(g: &PackedVolume, tc: Vec3) -> [i32; 3] {
     let last = g.block_grid.map(|n| n as i32 - 1);
-    let b = (tc * Vec3::from(g.volume_dims) / BLOCK).floor();
+    let b = floor3(tc * Vec3::from(g.volume_dims) / BLOCK);
     [
         (b.x as i32).clamp(0, last[0]),
         (b.y as i32).clamp(0, last[1]),
@@ -56,6 +57,14 @@ pub fn block_of(g: &PackedVolume, tc: Vec3) -> [i32; 3] {
 
 /// WGSL `atlas_coord`.
 pub fn atlas_coord(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
+    (atlas_texel(g, tc, loc) + 0.5) / Vec3::from(g.atlas_size)
+}
+
+/// [`atlas_coord`] in texels (texel centres at integers), what
+/// [`Texture3d::sample_texel`] reads: inside the block's slot, its apron
+/// included, so every texel trilinear filtering touches is the block's own.
+#[inline]
+pub fn atlas_texel(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
     let p = tc * Vec3::from(g.volume_dims);
     let block = Vec3::new(
         loc.block[0] as f32,
@@ -65,7 +74,7 @@ pub fn atlas_coord(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
     let local = (p - block * BLOCK) * loc.scale;
     let edge = BLOCK * loc.scale;
     let inside = local.clamp(Vec3::splat(-0.5), Vec3::splat(edge + 0.5));
-    (loc.origin + inside) / Vec3::from(g.atlas_size)
+    loc.origin + inside - 0.5
 }
 
 /// WGSL `empty_exit`.
@@ -84,7 +93,11 @@ pub fn empty_exit(g: &PackedVolume, origin: Vec3, dir: Vec3, loc: &BlockLocation
 impl PackedTexture {
     /// WGSL `locate`.
     pub fn locate(&self, g: &PackedVolume, tc: Vec3) -> BlockLocation {
-        let block = block_of(g, tc);
+        self.locate_block(block_of(g, tc))
+    }
+
+    /// The location of every sample in `block`: the index entry read.
+    pub fn locate_block(&self, block: [i32; 3]) -> BlockLocation {
         let [gx, gy, _] = self.grid.map(|n| n as usize);
         let entry =
             self.index[(block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize];

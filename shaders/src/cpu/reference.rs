@@ -4,7 +4,7 @@
 use glam::Vec3;
 
 use super::Texture3d;
-use super::march::{Storage, march};
+use super::march::{Span, Storage, march};
 use crate::raycast::RaycastParams;
 
 /// WGSL `Location` of the reference stage: nothing is ever empty.
@@ -16,6 +16,17 @@ impl Storage for Texture3d {
 
     fn locate(&self, _p: &RaycastParams, _tc: Vec3) -> PlainLocation {
         PlainLocation
+    }
+
+    fn span(&self, _p: &RaycastParams, _origin: Vec3, _dir: Vec3, _t: f32) -> Span<PlainLocation> {
+        Span {
+            loc: PlainLocation,
+            exit: f32::INFINITY,
+            texel_at_zero: Vec3::ZERO,
+            texel_per_t: Vec3::ZERO,
+            local_at_zero: Vec3::ZERO,
+            local_per_t: Vec3::ZERO,
+        }
     }
 
     fn is_empty(_loc: &PlainLocation) -> bool {

@@ -3,6 +3,25 @@
 
 use glam::Vec3;
 
+/// `floor(x)` without a call into the C library (where the target has no
+/// rounding instruction, `f32::floor` is one, and it dominated sampling):
+/// truncation, one lower for negative non-integers. Exact for every `f32`.
+#[inline]
+pub fn floor(x: f32) -> f32 {
+    if x.abs() >= 8_388_608.0 || x.is_nan() {
+        // Already an integer (or NaN, which stays NaN).
+        return x;
+    }
+    let t = x as i32 as f32;
+    if t > x { t - 1.0 } else { t }
+}
+
+/// [`floor`] per component.
+#[inline]
+pub fn floor3(v: Vec3) -> Vec3 {
+    Vec3::new(floor(v.x), floor(v.y), floor(v.z))
+}
+
 /// Texel values x fastest, sampled at texture coordinates in 0..1 with texel
 /// centres at (i + 0.5) / n.
 #[derive(Debug, Clone)]
@@ -27,6 +46,11 @@ impl Texture3d {
         self.dims
     }
 
+    /// The texels, x fastest, to write in place.
+    pub fn texels_mut(&mut self) -> &mut [f32] {
+        &mut self.texels
+    }
+
     /// The texel at integer coordinates, clamped to the edge.
     pub fn load(&self, x: i32, y: i32, z: i32) -> f32 {
         let clamp = |v: i32, n: u32| v.clamp(0, n as i32 - 1) as usize;
@@ -47,11 +71,29 @@ impl Texture3d {
             self.dims[1] as f32,
             self.dims[2] as f32,
         );
-        let p = tc * dims - 0.5;
-        let base = p.floor();
+        self.sample_texel(tc * dims - 0.5)
+    }
+
+    /// Trilinear sample at texel position `p` (texel centres at integers): the
+    /// eight texels around it read straight from memory when all are inside,
+    /// else through [`Texture3d::load`]'s clamp to the edge.
+    #[inline]
+    pub fn sample_texel(&self, p: Vec3) -> f32 {
+        let base = floor3(p);
         let f = p - base;
         let (x, y, z) = (base.x as i32, base.y as i32, base.z as i32);
+        let [nx, ny, nz] = self.dims.map(|d| d as i32);
         let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        if x >= 0 && y >= 0 && z >= 0 && x + 1 < nx && y + 1 < ny && z + 1 < nz {
+            let (row, slice) = (nx as usize, (nx * ny) as usize);
+            let first = (z as usize * ny as usize + y as usize) * row + x as usize;
+            let t = &self.texels[first..first + slice + row + 2];
+            let c00 = lerp(t[0], t[1], f.x);
+            let c10 = lerp(t[row], t[row + 1], f.x);
+            let c01 = lerp(t[slice], t[slice + 1], f.x);
+            let c11 = lerp(t[slice + row], t[slice + row + 1], f.x);
+            return lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z);
+        }
         let c00 = lerp(self.load(x, y, z), self.load(x + 1, y, z), f.x);
         let c10 = lerp(self.load(x, y + 1, z), self.load(x + 1, y + 1, z), f.x);
         let c01 = lerp(self.load(x, y, z + 1), self.load(x + 1, y, z + 1), f.x);
@@ -81,5 +123,53 @@ mod tests {
         let t = Texture3d::new([2, 1, 1], vec![0.25, 1.0]);
         assert_eq!(t.sample_level(Vec3::new(-3.0, 0.5, 0.5)), 0.25);
         assert_eq!(t.sample_level(Vec3::new(7.0, 9.0, -1.0)), 1.0);
+    }
+
+    #[test]
+    fn floor_matches_the_library() {
+        for x in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.999,
+            -2.001,
+            1e7,
+            -1e7,
+            8_388_607.5,
+            -8_388_607.5,
+            3e9,
+            -3e9,
+            f32::MAX,
+            f32::MIN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ] {
+            assert_eq!(floor(x), x.floor(), "floor({x})");
+        }
+        assert!(floor(f32::NAN).is_nan());
+    }
+
+    #[test]
+    fn inside_and_at_the_edge_sample_alike() {
+        let texels = (0..4 * 3 * 2).map(|i| (i * i % 7) as f32).collect();
+        let t = Texture3d::new([4, 3, 2], texels);
+        // Interpolating by hand from `load` must match the direct read inside.
+        let p = Vec3::new(1.25, 0.5, 0.75);
+        let base = floor3(p);
+        let f = p - base;
+        let mut expected = 0.0;
+        for corner in 0..8 {
+            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+            let w = [f.x, f.y, f.z]
+                .iter()
+                .zip(d)
+                .map(|(&f, d)| if d == 1 { f } else { 1.0 - f })
+                .product::<f32>();
+            expected += w * t.load(1 + d[0], d[1], d[2]);
+        }
+        assert!((t.sample_texel(p) - expected).abs() < 1e-5);
     }
 }

@@ -1,0 +1,221 @@
+//! [`CpuRenderer`]: a brick store rendered on the CPU, frame by frame, the way
+//! [`crate::Renderer`] renders it on the GPU: the same level-of-detail
+//! selection and residency (blocks packed into an atlas in memory, only
+//! changed blocks rewritten, storage never read on the render thread), the
+//! same stages through their CPU twins.
+//!
+//! Illumination is computed converged (every stage, every refinement) when
+//! its inputs change (the blocks shown, the transfer function, the mode's
+//! settings) and kept while they do not: a camera move only ray-casts.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use blocks::TransferFunction;
+use blocks::cache::BlockCache;
+use blocks::lod::LodSelection;
+use blocks::packing::Packing;
+use blocks::transfer_function::TABLE_LEN;
+
+use super::{illuminate, raycast};
+use crate::extinction::ExtinctionSettings;
+use crate::illumination::Mode;
+use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
+use crate::raycast::RaycastParams;
+use crate::renderer::{ARRIVAL_PATIENCE, RenderStats};
+use crate::residency::{Residency, budget_voxels};
+use crate::volume_texture::{VolumeDescription, VolumeTexture};
+use crate::{Frame, FrameRequest, GpuError, LightSettings};
+
+/// The texel formats the CPU renderer stores voxels as: those of a GPU with
+/// 16-bit normalized textures, so CPU and GPU frames quantize alike.
+pub const CPU_FEATURES: wgpu::Features = wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
+
+/// What a computed light depends on besides the camera.
+#[derive(Debug, Clone, PartialEq)]
+struct LightKey {
+    mode: Mode,
+    data_version: u64,
+    tf: TransferFunction,
+    light: LightSettings,
+    extinction: ExtinctionSettings,
+}
+
+/// Renders a brick store on the CPU; see the module docs.
+#[derive(Debug)]
+pub struct CpuRenderer {
+    cache: Arc<BlockCache>,
+    desc: VolumeTexture,
+    device: CpuDevice,
+    full_voxels: u64,
+    residency: Residency<CpuAtlas>,
+    /// The transfer function's table, for the function it was made from.
+    table: Option<(TransferFunction, Vec<[f32; 4]>)>,
+    /// The light last computed into the atlas's texture, and what it depends on.
+    light: Option<LightKey>,
+    last: RenderStats,
+}
+
+impl CpuRenderer {
+    /// A renderer of the store behind `cache`, keeping at most `budget_bytes`
+    /// of atlas in memory.
+    pub fn new(cache: Arc<BlockCache>, budget_bytes: u64) -> CpuRenderer {
+        CpuRenderer::matching(cache, budget_bytes, CPU_FEATURES, CPU_MAX_EDGE)
+    }
+
+    /// [`CpuRenderer::new`] storing texels as a GPU with `features` does and
+    /// packing blocks into atlas edges of at most `max_edge` as it does, so
+    /// its frames can be compared with that GPU's.
+    pub fn matching(
+        cache: Arc<BlockCache>,
+        budget_bytes: u64,
+        features: wgpu::Features,
+        max_edge: u32,
+    ) -> CpuRenderer {
+        let store = cache.store();
+        let desc = VolumeTexture::new(
+            VolumeDescription::of_store(store.meta(), store.voxel_type()),
+            features,
+        );
+        CpuRenderer {
+            device: CpuDevice { max_edge },
+            full_voxels: store.meta().geometry.voxel_count(),
+            residency: Residency::new(Arc::clone(&cache), budget_bytes),
+            cache,
+            desc,
+            table: None,
+            light: None,
+            last: RenderStats::default(),
+        }
+    }
+
+    /// How voxels become texels.
+    pub fn volume_texture(&self) -> &VolumeTexture {
+        &self.desc
+    }
+
+    /// What the last frame took and showed.
+    pub fn last_stats(&self) -> &RenderStats {
+        &self.last
+    }
+
+    /// The level-of-detail selection in use, once a frame was rendered.
+    pub fn selection(&self) -> Option<&LodSelection> {
+        self.residency.selection()
+    }
+
+    /// The packing in use, once a frame was rendered.
+    pub fn packing(&self) -> Option<&Packing> {
+        self.residency.atlas().map(Atlas::packing)
+    }
+
+    /// Renders one frame at the detail the request selects, waiting on this
+    /// thread for blocks still being read (as [`crate::Renderer::render`]).
+    pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.render_lit(request, true)
+    }
+
+    /// Renders one frame from the blocks in memory now, never waiting for
+    /// storage (as [`crate::Renderer::render_now`]).
+    pub fn render_now(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.render_lit(request, false)
+    }
+
+    /// Renders one frame with the light converged: on the CPU every frame's
+    /// light is (as [`crate::Renderer::render_converged`]).
+    pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.render_lit(request, true)
+    }
+
+    /// Prepares the blocks (all of them, waiting, when `complete`), brings
+    /// the request's light up to date and draws.
+    fn render_lit(&mut self, request: &FrameRequest, complete: bool) -> Result<Frame, GpuError> {
+        request.validate()?;
+        let tf = request.store_transfer_function(self.cache.store().meta());
+        let mut stats = self.prepare(&tf, request.reduction)?;
+        while complete && stats.pending_blocks > 0 {
+            let seen = self.cache.arrivals();
+            if self.cache.loading() > 0 {
+                self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
+            }
+            let more = self.prepare(&tf, request.reduction)?;
+            stats = RenderStats {
+                uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
+                relayout: stats.relayout || more.relayout,
+                select_ms: stats.select_ms + more.select_ms,
+                upload_ms: stats.upload_ms + more.upload_ms,
+                ..more
+            };
+        }
+        if self.table.as_ref().is_none_or(|(t, _)| *t != tf) {
+            self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
+        }
+        if let Some(mode) = Mode::of(request.shading) {
+            self.update_light(mode, request, &tf);
+        }
+        self.draw(request, stats)
+    }
+
+    /// Brings the resident blocks up to date.
+    fn prepare(&mut self, tf: &TransferFunction, reduction: f32) -> Result<RenderStats, GpuError> {
+        let budget = budget_voxels(self.full_voxels, reduction);
+        let r = self
+            .residency
+            .update(&self.device, &self.desc, tf, budget)?;
+        Ok(RenderStats {
+            uploaded_blocks: r.uploaded_blocks,
+            relayout: r.relayout,
+            select_ms: r.select_ms,
+            upload_ms: r.upload_ms,
+            pending_blocks: r.pending_blocks,
+            ..RenderStats::default()
+        })
+    }
+
+    /// Computes illumination mode `mode`'s light into the atlas's texture
+    /// unless what it depends on is unchanged.
+    fn update_light(&mut self, mode: Mode, request: &FrameRequest, tf: &TransferFunction) {
+        let key = LightKey {
+            mode,
+            data_version: self.residency.data_version(),
+            tf: tf.clone(),
+            light: request.light,
+            extinction: request.extinction.clone(),
+        };
+        let (Some(atlas), Some((_, table))) = (self.residency.atlas_mut(), &self.table) else {
+            return;
+        };
+        if self.light.as_ref() == Some(&key) {
+            return;
+        }
+        let (packing, layout) = (atlas.packing.clone(), atlas.layout);
+        let texture = &mut atlas.texture;
+        (texture.light, texture.light_cache) = (None, None);
+        illuminate(mode, &self.desc, request, &packing, layout, texture, table);
+        self.light = Some(key);
+    }
+
+    /// Ray-casts the frame of `request` from what is resident.
+    fn draw(&mut self, request: &FrameRequest, mut stats: RenderStats) -> Result<Frame, GpuError> {
+        let (Some(atlas), Some(selection), Some((_, table))) = (
+            self.residency.atlas(),
+            self.residency.selection(),
+            &self.table,
+        ) else {
+            return Err(GpuError::InvalidRequest("no blocks are resident".into()));
+        };
+        let params = RaycastParams::new(&self.desc, request, table.len() as u32, atlas.layout);
+        let start = Instant::now();
+        let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
+        raycast(&params, &atlas.texture, table, &mut rgba);
+        stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
+        stats.reduction = selection.reduction();
+        stats.level_counts = selection.level_counts();
+        self.last = stats;
+        Ok(Frame {
+            width: request.width,
+            height: request.height,
+            rgba,
+        })
+    }
+}
