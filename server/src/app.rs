@@ -6,7 +6,7 @@
 //! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), `X-Pending-Blocks` (blocks still shown coarser: 0 unless reading them took too long), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
 //! | `GET /api/stream` | a WebSocket view session: [`crate::protocol`], [`crate::stream`] |
 //! | `GET /api/settings` | every view setting (name, flag, group, kind, range or choices, unit, default, doc, what it takes), as JSON: the web client builds its controls from it |
-//! | `GET /api/datasets` | the datasets offered, as JSON |
+//! | `GET /api/datasets` | the datasets offered, as JSON, each with the `renderer` serving it (`{"kind":…,"device":…}`, kind `gpu` or `cpu`) |
 //! | `GET /api/datasets/{id}` | one dataset's description; 404 for an unknown id |
 //! | `GET /api/datasets/{id}/render?…` | `GET /api/render` for that dataset (thumbnails, embedding) |
 //! | `GET /metrics` | OpenMetrics text: [`crate::metrics`] |
@@ -60,13 +60,15 @@ impl AppState {
         stream: StreamSettings,
     ) -> AppState {
         assert!(!datasets.is_empty(), "a server offers at least one dataset");
+        let mut metrics = Metrics::default();
+        metrics.set_renderer(renderer.kind(), renderer.adapter());
         AppState {
             datasets: datasets.into(),
             renderer,
             stream,
             sessions: Sessions::new(stream.max_sessions),
             shutdown: CancellationToken::new(),
-            metrics: Arc::new(Metrics::default()),
+            metrics: Arc::new(metrics),
         }
     }
 }
@@ -121,8 +123,23 @@ async fn settings(State(state): State<AppState>) -> Json<serde_json::Value> {
     Json(crate::view::describe(&state.datasets))
 }
 
-async fn datasets(State(state): State<AppState>) -> Json<Vec<DatasetInfo>> {
-    Json(state.datasets.iter().map(Dataset::info).collect())
+async fn datasets(State(state): State<AppState>) -> Json<Vec<serde_json::Value>> {
+    Json(
+        state
+            .datasets
+            .iter()
+            .map(|d| with_renderer(&state, d.info()))
+            .collect(),
+    )
+}
+
+/// A dataset's description with the renderer that serves it.
+fn with_renderer(state: &AppState, info: DatasetInfo) -> serde_json::Value {
+    let mut value = serde_json::to_value(info).unwrap_or_default();
+    if let Some(fields) = value.as_object_mut() {
+        fields.insert("renderer".into(), state.renderer.describe());
+    }
+    value
 }
 
 /// The dataset `id`, or a 404 naming the ones there are.

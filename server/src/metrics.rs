@@ -19,6 +19,7 @@ use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
+use prometheus_client::metrics::info::Info;
 use prometheus_client::registry::Registry;
 
 /// Where a frame went.
@@ -155,6 +156,20 @@ impl Default for Metrics {
 }
 
 impl Metrics {
+    /// Records which renderer serves (`gpu` or `cpu`) and on what, as
+    /// `voxserve_renderer_info{kind,device}`.
+    pub fn set_renderer(&mut self, kind: &str, device: &str) {
+        let labels = vec![
+            ("kind".to_owned(), kind.to_owned()),
+            ("device".to_owned(), device.to_owned()),
+        ];
+        self.registry.register(
+            "renderer",
+            "Which renderer serves frames",
+            Info::new(labels),
+        );
+    }
+
     /// A session opened.
     pub fn session_opened(&self) {
         self.sessions_total.inc();

@@ -15,7 +15,7 @@
 //!
 //! # Server → client
 //!
-//! JSON text: `{"type":"hello","protocol":1,"datasets":[…],"settings":{…}}` once
+//! JSON text: `{"type":"hello","protocol":1,"datasets":[…],"renderer":{"kind":…,"device":…},"settings":{…}}` once
 //! at the start (the datasets' descriptions as `GET /api/datasets` gives them,
 //! and the stream settings), `{"type":"error","id":N,"message":"…"}` for a
 //! refused message (`id`: the message's, when it had one) or a view that

@@ -201,6 +201,11 @@ impl RenderService {
         self.kind
     }
 
+    /// `{"kind": "gpu"|"cpu", "device": …}`, for clients.
+    pub fn describe(&self) -> serde_json::Value {
+        serde_json::json!({ "kind": self.kind, "device": &*self.adapter })
+    }
+
     /// Renders `request`, or refuses at once when the queue is full (single
     /// HTTP frames: a client retries rather than waiting behind stale work).
     pub async fn render(

@@ -62,7 +62,7 @@ fn help_explains_every_subcommand_and_flag() {
         "--preset",
         "--shading",
         "--step",
-        "--cpu",
+        "--renderer",
         "--phantom-size",
         "--projection",
         "--clip",
@@ -107,6 +107,7 @@ fn bad_flags_are_refused_with_the_flag_named() {
         (vec!["render", "--reduction", "0"], "--reduction"),
         (vec!["render", "--projection", "fisheye"], "--projection"),
         (vec!["render", "--background", "white"], "--background"),
+        (vec!["render", "--renderer", "quantum"], "--renderer"),
         (vec!["serve", "--addr", "localhost"], "--addr"),
         (
             vec!["serve", "--data", "/no/such/folder"],
@@ -180,7 +181,8 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
         &[
             &[
                 "render",
-                "--cpu",
+                "--renderer",
+                "cpu",
                 "--out",
                 cpu_path.to_str().expect("utf-8"),
             ][..],
@@ -188,7 +190,11 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
         ]
         .concat(),
     );
-    assert!(out.status.success(), "render --cpu: {}", text(&out.stderr));
+    assert!(
+        out.status.success(),
+        "render --renderer cpu: {}",
+        text(&out.stderr)
+    );
     let said = text(&out.stdout);
     let reduction: f64 = said
         .split("reduction ")
@@ -247,6 +253,28 @@ fn without_an_adapter_render_names_the_package_to_install() {
     let stderr = text(&out.stderr);
     assert!(stderr.contains("no GPU adapter found"), "{stderr}");
     assert!(stderr.contains("mesa-vulkan-drivers"), "{stderr}");
+    // `--renderer auto` renders on the CPU instead.
+    let png = temp_path("auto.png");
+    let out = Command::new(VOXSERVE)
+        .args([
+            "render",
+            "--phantom-size",
+            "16",
+            "--width",
+            "32",
+            "--height",
+            "32",
+        ])
+        .args(["--renderer", "auto", "--out", png.to_str().expect("utf-8")])
+        .env("WGPU_BACKEND", "dx12")
+        .output()
+        .expect("run voxserve");
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("on CPU renderer"),
+        "{}",
+        text(&out.stdout)
+    );
 }
 
 #[test]
@@ -500,7 +528,8 @@ fn render_reads_a_volume_file() {
     let out = voxserve(&[
         "render",
         nucleon.to_str().expect("utf-8"),
-        "--cpu",
+        "--renderer",
+        "cpu",
         "--width",
         "64",
         "--height",

@@ -18,9 +18,11 @@ pub enum RendererChoice {
     /// The GPU when there is a hardware adapter; the CPU when the only one
     /// is a software rasterizer (lavapipe, llvmpipe, WARP, SwiftShader) or
     /// there is none.
-    #[default]
     Auto,
     /// The GPU adapter (a software one too); an error when there is none.
+    /// The default until the CPU renderer computes global light a step per
+    /// frame as the GPU does (it computes it in one go).
+    #[default]
     Gpu,
     /// The CPU renderer.
     Cpu,
@@ -42,6 +44,10 @@ impl RendererChoice {
 
 /// The renderer a process uses.
 #[derive(Debug, Clone)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "one per process, made once: boxing the GPU context buys nothing"
+)]
 pub enum Backend {
     /// Frames ray-cast by the GPU stages.
     Gpu(GpuContext),
@@ -104,6 +110,10 @@ impl Backend {
 
 /// A [`Renderer`] or a [`CpuRenderer`]: the calls they share.
 #[derive(Debug)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "one per resident dataset, made once and kept in place"
+)]
 pub enum AnyRenderer {
     /// On the GPU.
     Gpu(Renderer),

@@ -15,7 +15,7 @@ use blocks::packing::{Packing, slot_edge};
 use blocks::store::LEVELS;
 use rayon::prelude::*;
 
-use crate::cpu::{PackedTexture, Texture3d};
+use crate::cpu::{PackedTexture, SlotAtlas};
 use crate::packed_volume::PackedLayout;
 use crate::volume_texture::{VolumeTexture, create_texture_3d, write_box};
 use crate::{GpuContext, GpuError};
@@ -297,27 +297,28 @@ pub struct CpuAtlas {
 }
 
 impl CpuAtlas {
-    /// Writes block `b`'s slot (its voxels with the apron) from `source`.
-    fn write_slot(
-        texels: &mut [f32],
-        dims: [u32; 3],
+    /// Writes the slots of blocks `blocks` (their voxels with the apron)
+    /// from `source`, decoding in parallel.
+    fn write_slots(
+        atlas: &mut SlotAtlas,
         packing: &Packing,
         desc: &VolumeTexture,
         source: BlockSource<'_>,
-        b: usize,
+        blocks: &[usize],
     ) -> Result<(), GpuError> {
-        let Some(origin) = packing.slot_origin(b) else {
-            return Ok(());
-        };
-        let level = usize::from(packing.lod[b]);
-        let values = desc.texel_values(&source(b, level)?);
-        let e = slot_edge(level) as usize;
-        let [ax, ay, _] = dims.map(|d| d as usize);
-        let [ox, oy, oz] = origin.map(|o| o as usize);
-        for z in 0..e {
-            for y in 0..e {
-                let dst = ((oz + z) * ay + oy + y) * ax + ox;
-                texels[dst..dst + e].copy_from_slice(&values[(z * e + y) * e..][..e]);
+        for chunk in blocks.chunks(256) {
+            let slots: Vec<(usize, Vec<f32>)> = chunk
+                .par_iter()
+                .filter(|&&b| packing.slot_origin(b).is_some())
+                .map(|&b| {
+                    let voxels = source(b, usize::from(packing.lod[b]))?;
+                    Ok((b, desc.texel_values(&voxels)))
+                })
+                .collect::<Result<_, GpuError>>()?;
+            for (b, values) in slots {
+                if let Some(slot) = atlas.slot_mut(b, usize::from(packing.lod[b])) {
+                    slot.copy_from_slice(&values);
+                }
             }
         }
         Ok(())
@@ -352,17 +353,17 @@ impl Atlas for CpuAtlas {
         source: BlockSource<'_>,
     ) -> Result<CpuAtlas, GpuError> {
         let dims = packing.atlas_dims;
-        let mut texels = vec![0.0f32; dims.iter().map(|&d| d as usize).product()];
-        for b in 0..packing.lod.len() {
-            CpuAtlas::write_slot(&mut texels, dims, &packing, desc, source, b)?;
-        }
+        let mut atlas = SlotAtlas::new(&packing);
+        let blocks: Vec<usize> = (0..packing.lod.len()).collect();
+        CpuAtlas::write_slots(&mut atlas, &packing, desc, source, &blocks)?;
         Ok(CpuAtlas {
             texture: PackedTexture {
-                atlas: Texture3d::new(dims, texels),
+                atlas,
                 index: packing.block_index(grid).entries,
                 grid,
                 light: None,
                 light_cache: None,
+                visible_cells: None,
             },
             layout: PackedLayout {
                 atlas_dims: dims,
@@ -380,11 +381,9 @@ impl Atlas for CpuAtlas {
         desc: &VolumeTexture,
         source: BlockSource<'_>,
     ) -> Result<(), GpuError> {
-        let dims = packing.atlas_dims;
-        let texels = self.texture.atlas.texels_mut();
-        for &b in uploads {
-            CpuAtlas::write_slot(texels, dims, &packing, desc, source, b)?;
-        }
+        let atlas = &mut self.texture.atlas;
+        atlas.set_packing(&packing);
+        CpuAtlas::write_slots(atlas, &packing, desc, source, uploads)?;
         self.texture.index = packing.block_index(self.layout.block_grid).entries;
         self.packing = packing;
         Ok(())

@@ -731,3 +731,48 @@ async fn a_missing_shard_is_an_error_naming_it_over_http_and_websocket() {
     let message = error["message"].as_str().expect("a message");
     assert!(message.contains("0/c/0/0/0: missing"), "{message}");
 }
+
+#[tokio::test]
+async fn a_server_on_the_cpu_renderer_streams_frames_and_says_which_renderer_serves() {
+    // No GPU needed: the CPU renderer runs everywhere.
+    let dataset = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![dataset],
+        1,
+        StreamSettings::default(),
+    )
+    .await;
+    let (mut socket, _) = connect_async(server.ws_url("/api/stream"))
+        .await
+        .expect("WebSocket connects");
+    let Received::Json(hello) = next(&mut socket).await else {
+        panic!("expected hello first");
+    };
+    assert_eq!(hello["renderer"]["kind"], "cpu", "{hello}");
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 40, "az": 20}}),
+    )
+    .await;
+    let frames = until_converged(&mut socket, 1).await;
+    let (header, image) = frames.last().expect("frames");
+    assert_eq!((image.width(), image.height()), (48, 40), "{header:?}");
+    assert!(
+        image.pixels().any(|p| p.0[..3] != [0, 0, 0]),
+        "the phantom is drawn"
+    );
+    let body = reqwest::get(server.url("/api/datasets"))
+        .await
+        .expect("GET /api/datasets")
+        .text()
+        .await
+        .expect("body");
+    let datasets: serde_json::Value = serde_json::from_str(&body).expect("JSON");
+    assert_eq!(datasets[0]["renderer"]["kind"], "cpu", "{datasets}");
+    let text = metrics(&server).await;
+    assert!(
+        text.contains("voxserve_renderer_info{kind=\"cpu\""),
+        "{text}"
+    );
+}

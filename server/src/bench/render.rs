@@ -40,8 +40,8 @@ pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
 /// The full-resolution reference a backend's packed renderer is compared
 /// with: the GPU's reference stage, or its CPU twin.
 enum Reference {
-    Gpu(ReferenceRenderer),
-    Cpu(Volume),
+    Gpu(Box<ReferenceRenderer>),
+    Cpu(Box<Volume>),
 }
 
 impl Reference {
@@ -75,8 +75,10 @@ impl<'a> RenderBench<'a> {
     ) -> anyhow::Result<Self> {
         let volume = dataset.store.load_level(0)?;
         let reference = match backend {
-            Backend::Gpu(gpu) => Reference::Gpu(ReferenceRenderer::new(gpu.clone(), &volume)?),
-            Backend::Cpu => Reference::Cpu(volume),
+            Backend::Gpu(gpu) => {
+                Reference::Gpu(Box::new(ReferenceRenderer::new(gpu.clone(), &volume)?))
+            }
+            Backend::Cpu => Reference::Cpu(Box::new(volume)),
         };
         let renderer = backend.renderer(dataset.cache.clone(), args.data.gpu_budget_bytes())?;
         Ok(Self {

@@ -100,6 +100,7 @@ fn hello(state: &AppState) -> String {
         "type": "hello",
         "protocol": protocol::PROTOCOL,
         "datasets": state.datasets.iter().map(Dataset::info).collect::<Vec<_>>(),
+        "renderer": state.renderer.describe(),
         "settings": state.stream,
     })
     .to_string()
@@ -444,7 +445,8 @@ mod tests {
             return;
         };
         let _watchdog = Watchdog::new(test);
-        let renderer = RenderService::start(gpu.clone(), 64 << 20, 1).expect("render worker");
+        let renderer = RenderService::start(shaders::Backend::Gpu(gpu.clone()), 64 << 20, 1)
+            .expect("render worker");
         let phantom = Dataset::phantom(16, 16 << 20).expect("phantom");
         // An hour of stillness before the full frame: on the paused clock the
         // loop's timer fires as soon as nothing else is left to do.
@@ -510,7 +512,8 @@ mod tests {
         let Some(gpu) = voxserve_tests::gpu_or_skip(test) else {
             return;
         };
-        let renderer = RenderService::start(gpu.clone(), 64 << 20, 1).expect("render worker");
+        let renderer = RenderService::start(shaders::Backend::Gpu(gpu.clone()), 64 << 20, 1)
+            .expect("render worker");
         let phantom = Dataset::phantom(16, 16 << 20).expect("phantom");
         let state = AppState::new(vec![phantom], renderer, StreamSettings::default());
         let (mut client, running) = start(&state);

@@ -31,6 +31,20 @@ pub trait Storage: Sync + Sized {
         let _ = t;
         self.sample_at(p, tc, &span.loc)
     }
+    /// CPU only: where the ray `origin + t·dir` leaves the cell of transparent
+    /// samples (zero opacity whatever their value) that holds its sample at
+    /// `t` in `span`, or `None` if the sample may be visible.
+    fn transparent_exit(
+        &self,
+        p: &RaycastParams,
+        span: &Span<Self::Location>,
+        t: f32,
+        origin: Vec3,
+        dir: Vec3,
+    ) -> Option<f32> {
+        let _ = (p, span, t, origin, dir);
+        None
+    }
     /// WGSL `gradient_at` for the sample at `t` (at `tc`) in `span`.
     fn gradient_in(
         &self,
@@ -72,15 +86,18 @@ pub struct Span<L> {
     pub local_at_zero: Vec3,
     /// See `local_at_zero`.
     pub local_per_t: Vec3,
+    /// Storage-specific: the block's cells that may be visible
+    /// ([`super::occupancy`]); all bits set where nothing is known.
+    pub visible: u64,
 }
 
-/// Rows of pixels one task renders: neighbouring rays read the same blocks,
-/// so a band of rows keeps them in cache.
-const BAND_ROWS: usize = WORKGROUP_SIZE as usize;
+/// Rows of pixels one task renders, and columns of a tile within them:
+/// neighbouring rays read the same voxels, so a tile's rays find them in cache.
+const TILE: usize = WORKGROUP_SIZE as usize;
 
 /// Renders into `output` (RGBA8, `params.width * params.height * 4` bytes) as the
 /// GPU dispatch does: one call of `main` per invocation, bands of rows in
-/// parallel.
+/// parallel, tile by tile within a band.
 pub fn march<S: Storage>(
     params: &RaycastParams,
     storage: &S,
@@ -89,14 +106,19 @@ pub fn march<S: Storage>(
 ) {
     let width = params.width as usize;
     output
-        .par_chunks_mut(width * 4 * BAND_ROWS)
+        .par_chunks_mut(width * 4 * TILE)
         .enumerate()
         .for_each(|(band, rows)| {
-            for (dy, row) in rows.chunks_mut(width * 4).enumerate() {
-                let y = (band * BAND_ROWS + dy) as u32;
-                for (x, pixel) in row.chunks_exact_mut(4).enumerate() {
-                    if let Some(rgba) = main(params, storage, transfer_function, [x as u32, y]) {
-                        pixel.copy_from_slice(&rgba);
+            let height = rows.len() / (width * 4);
+            for x0 in (0..width).step_by(TILE) {
+                for dy in 0..height {
+                    let y = (band * TILE + dy) as u32;
+                    for x in x0..(x0 + TILE).min(width) {
+                        if let Some(rgba) = main(params, storage, transfer_function, [x as u32, y])
+                        {
+                            let at = (dy * width + x) * 4;
+                            rows[at..at + 4].copy_from_slice(&rgba);
+                        }
                     }
                 }
             }
@@ -227,6 +249,16 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                     next = next.max(-floor(-(exit - first) / p.step) as u32);
                 }
                 i = next;
+                continue;
+            }
+            // With empty-space skipping, samples the transfer function hides
+            // are jumped over too (the GPU looks at each and drops it: the
+            // same pixels).
+            if p.flags & FLAG_SKIP_EMPTY != 0
+                && stretch.visible != u64::MAX
+                && let Some(exit) = s.transparent_exit(p, &stretch, t, tex_origin, tex_dir)
+            {
+                i = (i + 1).max(-floor(-(exit - first) / p.step) as u32);
                 continue;
             }
             let u = s.sample_in(p, &stretch, t, tc) * p.volume.value_scale + p.volume.value_offset;

@@ -8,6 +8,8 @@
 //!   plain texture).
 //! - [`march`]: twin of `shaders/wgsl/shared/march.wgsl`, the ray march both share.
 //! - [`packed`]: twin of `shaders/wgsl/shared/packed.wgsl`, block addressing.
+//! - [`occupancy`]: CPU only, transparent cells inside blocks, which the
+//!   CPU march jumps over (pixels unchanged).
 //! - [`global_light`]: twins of the global light stages (`local_opacity`,
 //!   `global_opacity`, `direct_light`, `in_scatter`, `direct_light_reference`)
 //!   and [`global_light::run`], which runs one stage of
@@ -16,6 +18,8 @@
 //!   `ambient_occlusion`, `soft_shadow` and their references) and
 //!   [`extinction::run`], likewise.
 //! - [`texture`]: [`Texture3d`], a 3D texture sampled like the GPU samples one.
+//! - [`slot_atlas`]: [`SlotAtlas`], the packed atlas with each slot's texels
+//!   contiguous in memory, addressed like the GPU's atlas texture.
 //! - [`hash`]: twin of `shaders/wgsl/shared/hash.wgsl`.
 //!
 //! [`render_packed`] and [`render_reference`] render whole frames the way
@@ -25,16 +29,19 @@ pub mod extinction;
 pub mod global_light;
 pub mod hash;
 pub mod march;
+pub mod occupancy;
 pub mod packed;
 pub mod raycast;
 pub mod reference;
 pub mod renderer;
+pub mod slot_atlas;
 pub mod texture;
 
 pub use packed::PackedTexture;
 pub use raycast::raycast;
 pub use reference::reference;
 pub use renderer::{CPU_FEATURES, CpuRenderer};
+pub use slot_atlas::SlotAtlas;
 pub use texture::Texture3d;
 
 use std::sync::Arc;

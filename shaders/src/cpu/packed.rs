@@ -4,9 +4,12 @@
 
 use glam::Vec3;
 
-use super::Texture3d;
+use blocks::packing::slot_edge;
+use blocks::store::LEVELS;
+
 use super::march::intersect_box;
 use super::texture::floor3;
+use super::{SlotAtlas, Texture3d};
 use crate::packed_volume::PackedVolume;
 
 /// Edge of a block in level-0 voxels.
@@ -18,8 +21,8 @@ pub const EMPTY_LEVEL: u16 = u16::MAX;
 /// and — for the lit ray caster — the light volume.
 #[derive(Debug, Clone)]
 pub struct PackedTexture {
-    /// The atlas texels as the GPU samples them.
-    pub atlas: Texture3d,
+    /// The atlas texels as the GPU samples them, slot by slot in memory.
+    pub atlas: SlotAtlas,
     /// Per block (x fastest): atlas position of the first interior texel, level.
     pub index: Vec<[u16; 4]>,
     /// Blocks along x, y, z.
@@ -29,6 +32,9 @@ pub struct PackedTexture {
     /// The light cache of extinction-based illumination, grid-shaped, one
     /// texture per channel r, g, b.
     pub light_cache: Option<[Texture3d; 3]>,
+    /// CPU only: per block, its cells that may be visible under the current
+    /// transfer function ([`super::occupancy`]); `None`: all may be.
+    pub visible_cells: Option<Vec<u64>>,
 }
 
 /// WGSL `Location`.
@@ -42,6 +48,10 @@ pub struct BlockLocation {
     pub origin: Vec3,
     /// Level-l texels per level-0 voxel.
     pub scale: f32,
+    /// CPU only: where the block's slot starts in the [`SlotAtlas`]'s texels.
+    pub slot: usize,
+    /// CPU only: the slot's edge in texels, its apron included.
+    pub slot_edge: usize,
 }
 
 /// WGSL `block_of`.
@@ -99,10 +109,18 @@ impl PackedTexture {
     /// The location of every sample in `block`: the index entry read.
     pub fn locate_block(&self, block: [i32; 3]) -> BlockLocation {
         let [gx, gy, _] = self.grid.map(|n| n as usize);
-        let entry =
-            self.index[(block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize];
+        let b = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
+        let entry = self.index[b];
+        let empty = entry[3] == EMPTY_LEVEL;
+        let slot = self.atlas.slot_base(b);
+        debug_assert!(
+            empty || slot.is_some(),
+            "block {b} is indexed but has no slot"
+        );
         BlockLocation {
-            empty: entry[3] == EMPTY_LEVEL,
+            empty,
+            slot: slot.unwrap_or(0),
+            slot_edge: slot_edge(usize::from(entry[3]).min(LEVELS - 1)) as usize,
             block,
             origin: Vec3::new(
                 f32::from(entry[0]),

@@ -4,7 +4,9 @@
 use glam::Vec3;
 
 use super::march::{Span, Storage, gradient_at, march};
+use super::occupancy::transparent_exit;
 use super::packed::{BLOCK, BlockLocation, PackedTexture, atlas_texel, block_of, empty_exit};
+use super::slot_atlas::SLOT_APRON;
 use super::texture::floor3;
 use crate::raycast::RaycastParams;
 
@@ -26,18 +28,43 @@ impl Storage for PackedTexture {
         // `atlas_texel` unclamped, as a function of t.
         let local_at_zero = origin * dims - corner;
         let local_per_t = dir * dims;
+        let [gx, gy, _] = self.grid.map(|n| n as usize);
+        let index = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
+        let visible = self
+            .visible_cells
+            .as_ref()
+            .map_or(u64::MAX, |cells| cells[index]);
         Span {
+            visible,
             loc,
             exit,
-            texel_at_zero: loc.origin - 0.5 + local_at_zero * loc.scale,
+            // Within the slot, whose first interior texel is at the apron's width.
+            texel_at_zero: local_at_zero * loc.scale + (SLOT_APRON - 0.5),
             texel_per_t: local_per_t * loc.scale,
             local_at_zero,
             local_per_t,
         }
     }
 
+    fn transparent_exit(
+        &self,
+        p: &RaycastParams,
+        span: &Span<BlockLocation>,
+        t: f32,
+        origin: Vec3,
+        dir: Vec3,
+    ) -> Option<f32> {
+        let local = span.local_at_zero + span.local_per_t * t;
+        transparent_exit(&p.volume, span.visible, &span.loc, local, origin, dir)
+    }
+
     fn sample_in(&self, _p: &RaycastParams, span: &Span<BlockLocation>, t: f32, _tc: Vec3) -> f32 {
-        self.atlas.sample_texel(slot_texel(span, t))
+        let loc = &span.loc;
+        self.atlas.sample_slot(
+            loc.slot,
+            loc.slot_edge,
+            span.texel_at_zero + span.texel_per_t * t,
+        )
     }
 
     fn gradient_in(&self, p: &RaycastParams, span: &Span<BlockLocation>, t: f32, tc: Vec3) -> Vec3 {
@@ -48,10 +75,11 @@ impl Storage for PackedTexture {
         if !inner.all() {
             return gradient_at(self, p, tc, &span.loc);
         }
-        let centre = slot_texel(span, t);
-        let s = span.loc.scale;
+        let loc = &span.loc;
+        let centre = span.texel_at_zero + span.texel_per_t * t;
+        let s = loc.scale;
         let h = Vec3::from(p.volume.texel);
-        let at = |d: Vec3| self.atlas.sample_texel(centre + d);
+        let at = |d: Vec3| self.atlas.sample_slot(loc.slot, loc.slot_edge, centre + d);
         let differences = Vec3::new(
             at(Vec3::new(s, 0.0, 0.0)) - at(Vec3::new(-s, 0.0, 0.0)),
             at(Vec3::new(0.0, s, 0.0)) - at(Vec3::new(0.0, -s, 0.0)),
@@ -65,7 +93,10 @@ impl Storage for PackedTexture {
     }
 
     fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> f32 {
-        self.atlas.sample_texel(atlas_texel(&p.volume, tc, loc))
+        // `atlas_texel` within the slot, whose apron starts one texel before
+        // the block's first interior texel.
+        let in_slot = atlas_texel(&p.volume, tc, loc) - (loc.origin - SLOT_APRON);
+        self.atlas.sample_slot(loc.slot, loc.slot_edge, in_slot)
     }
 
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &BlockLocation) -> f32 {
@@ -96,15 +127,6 @@ impl Storage for PackedTexture {
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
         empty_exit(&p.volume, origin, dir, loc)
     }
-}
-
-/// The atlas texel position of the sample at `t` in `span`, kept in the
-/// block's slot (its apron included) as `atlas_texel` keeps it.
-#[inline]
-fn slot_texel(span: &Span<BlockLocation>, t: f32) -> Vec3 {
-    let origin = span.loc.origin;
-    let edge = BLOCK * span.loc.scale;
-    (span.texel_at_zero + span.texel_per_t * t).clamp(origin - 1.0, origin + Vec3::splat(edge))
 }
 
 /// Renders like the `raycast` dispatch: packed blocks through the block index

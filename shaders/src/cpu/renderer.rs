@@ -17,10 +17,12 @@ use blocks::lod::LodSelection;
 use blocks::packing::Packing;
 use blocks::transfer_function::TABLE_LEN;
 
+use super::occupancy::visible_cells;
 use super::{illuminate, raycast};
 use crate::extinction::ExtinctionSettings;
 use crate::illumination::Mode;
 use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
+use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
 use crate::renderer::{ARRIVAL_PATIENCE, RenderStats};
 use crate::residency::{Residency, budget_voxels};
@@ -53,6 +55,9 @@ pub struct CpuRenderer {
     table: Option<(TransferFunction, Vec<[f32; 4]>)>,
     /// The light last computed into the atlas's texture, and what it depends on.
     light: Option<LightKey>,
+    /// What the atlas's visible cells were computed for: the shown blocks
+    /// and the transfer function.
+    cells: Option<(u64, TransferFunction)>,
     last: RenderStats,
 }
 
@@ -85,6 +90,7 @@ impl CpuRenderer {
             desc,
             table: None,
             light: None,
+            cells: None,
             last: RenderStats::default(),
         }
     }
@@ -150,6 +156,7 @@ impl CpuRenderer {
         if self.table.as_ref().is_none_or(|(t, _)| *t != tf) {
             self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
         }
+        self.update_cells(&tf);
         if let Some(mode) = Mode::of(request.shading) {
             self.update_light(mode, request, &tf);
         }
@@ -170,6 +177,21 @@ impl CpuRenderer {
             pending_blocks: r.pending_blocks,
             ..RenderStats::default()
         })
+    }
+
+    /// Finds the atlas's transparent cells for `tf` unless the shown blocks
+    /// and the transfer function are those they were found for.
+    fn update_cells(&mut self, tf: &TransferFunction) {
+        let key = (self.residency.data_version(), tf.clone());
+        let (Some(atlas), Some((_, table))) = (self.residency.atlas_mut(), &self.table) else {
+            return;
+        };
+        if self.cells.as_ref() == Some(&key) {
+            return;
+        }
+        let g = PackedVolume::new(&self.desc, atlas.layout, table.len() as u32);
+        atlas.texture.visible_cells = Some(visible_cells(&atlas.texture, &g, table));
+        self.cells = Some(key);
     }
 
     /// Computes illumination mode `mode`'s light into the atlas's texture

@@ -16,6 +16,19 @@ pub fn floor(x: f32) -> f32 {
     if t > x { t - 1.0 } else { t }
 }
 
+/// Trilinear interpolation of the 2×2×2 texels whose first (lowest) is
+/// `texels[first]`, rows `row` and slices `slice` apart, at fractions `f`.
+#[inline]
+pub fn trilinear(texels: &[f32], first: usize, row: usize, slice: usize, f: Vec3) -> f32 {
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    let t = &texels[first..first + slice + row + 2];
+    let c00 = lerp(t[0], t[1], f.x);
+    let c10 = lerp(t[row], t[row + 1], f.x);
+    let c01 = lerp(t[slice], t[slice + 1], f.x);
+    let c11 = lerp(t[slice + row], t[slice + row + 1], f.x);
+    lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z)
+}
+
 /// [`floor`] per component.
 #[inline]
 pub fn floor3(v: Vec3) -> Vec3 {
@@ -87,12 +100,7 @@ impl Texture3d {
         if x >= 0 && y >= 0 && z >= 0 && x + 1 < nx && y + 1 < ny && z + 1 < nz {
             let (row, slice) = (nx as usize, (nx * ny) as usize);
             let first = (z as usize * ny as usize + y as usize) * row + x as usize;
-            let t = &self.texels[first..first + slice + row + 2];
-            let c00 = lerp(t[0], t[1], f.x);
-            let c10 = lerp(t[row], t[row + 1], f.x);
-            let c01 = lerp(t[slice], t[slice + 1], f.x);
-            let c11 = lerp(t[slice + row], t[slice + row + 1], f.x);
-            return lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z);
+            return trilinear(&self.texels, first, row, slice, f);
         }
         let c00 = lerp(self.load(x, y, z), self.load(x + 1, y, z), f.x);
         let c10 = lerp(self.load(x, y + 1, z), self.load(x + 1, y + 1, z), f.x);

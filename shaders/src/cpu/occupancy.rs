@@ -1,0 +1,134 @@
+//! Transparent cells inside blocks, for the CPU ray caster: each stored block
+//! is cut into 4×4×4 cells of 4³ level-0 voxels, and a cell is *transparent*
+//! when the transfer function gives zero opacity to every value trilinear
+//! filtering can produce in it (the range of the texels it reads, with a
+//! texel of margin). With empty-space skipping on, a ray jumps over
+//! transparent cells as it jumps over empty blocks; the samples it skips
+//! would have been invisible, so every pixel stays what the GPU draws (its
+//! march looks at each such sample and drops it; `tests/tests/raycast.rs`
+//! checks skipping changes no pixel). Computed per transfer function and set
+//! of shown blocks.
+
+use blocks::packing::{APRON, slot_edge};
+use blocks::store::LEVELS;
+use rayon::prelude::*;
+
+use super::march::intersect_box;
+use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture};
+use super::texture::floor;
+use crate::packed_volume::PackedVolume;
+use glam::Vec3;
+
+/// Cells along each axis of a block.
+pub const CELLS: usize = 4;
+/// Edge of a cell in level-0 voxels.
+pub const CELL: f32 = BLOCK / CELLS as f32;
+
+/// Per block (block-grid order), a bit per cell (x fastest, bit
+/// `(z·4 + y)·4 + x`) that is set where the cell may be visible.
+pub fn visible_cells(
+    packed: &PackedTexture,
+    g: &PackedVolume,
+    transfer_function: &[[f32; 4]],
+) -> Vec<u64> {
+    // visible_before[i]: table entries before i with opacity above zero.
+    let mut visible_before = Vec::with_capacity(transfer_function.len() + 1);
+    visible_before.push(0u32);
+    for entry in transfer_function {
+        let last = visible_before.last().copied().unwrap_or(0);
+        visible_before.push(last + u32::from(entry[3] > 0.0));
+    }
+    let n = transfer_function.len() as i32;
+    // Any entry `classify` may blend for a texel value in lo..=hi opaque?
+    let any_visible = |lo: f32, hi: f32| {
+        let (a, b) = (
+            lo * g.value_scale + g.value_offset,
+            hi * g.value_scale + g.value_offset,
+        );
+        let (a, b) = (a.min(b).clamp(0.0, 1.0), a.max(b).clamp(0.0, 1.0));
+        let first = (floor(a * n as f32 - 0.5) as i32).clamp(0, n - 1) as usize;
+        let last = (floor(b * n as f32 - 0.5) as i32 + 1).clamp(0, n - 1) as usize;
+        visible_before[last + 1] > visible_before[first]
+    };
+    packed
+        .index
+        .par_iter()
+        .enumerate()
+        .map(|(b, entry)| match packed.atlas.slot_base(b) {
+            Some(base) if entry[3] != EMPTY_LEVEL => {
+                let level = usize::from(entry[3]).min(LEVELS - 1);
+                block_cells(&packed.atlas.texels()[base..], level, &any_visible)
+            }
+            _ => 0,
+        })
+        .collect()
+}
+
+/// The visible-cell bits of a block at `level` whose slot's texels start
+/// `slot`.
+fn block_cells(slot: &[f32], level: usize, any_visible: &dyn Fn(f32, f32) -> bool) -> u64 {
+    let e = slot_edge(level) as i32;
+    let scale = 1.0 / (1u32 << level) as f32;
+    let apron = APRON as i32;
+    // The slot texels samples in cell `c` along one axis may read: those
+    // around its texel span, a texel of margin, kept in the slot.
+    let span = |c: usize| {
+        let lo = floor(c as f32 * CELL * scale - 0.5) as i32 + apron - 1;
+        let hi = floor((c + 1) as f32 * CELL * scale - 0.5) as i32 + apron + 2;
+        (lo.max(0) as usize, hi.min(e - 1) as usize)
+    };
+    let e = e as usize;
+    let mut bits = 0u64;
+    for cz in 0..CELLS {
+        let (z0, z1) = span(cz);
+        for cy in 0..CELLS {
+            let (y0, y1) = span(cy);
+            for cx in 0..CELLS {
+                let (x0, x1) = span(cx);
+                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                for z in z0..=z1 {
+                    for y in y0..=y1 {
+                        for &v in &slot[(z * e + y) * e + x0..=(z * e + y) * e + x1] {
+                            lo = lo.min(v);
+                            hi = hi.max(v);
+                        }
+                    }
+                }
+                if any_visible(lo, hi) {
+                    bits |= 1 << ((cz * CELLS + cy) * CELLS + cx);
+                }
+            }
+        }
+    }
+    bits
+}
+
+/// Where the ray `origin + t·dir` leaves the transparent cell that holds
+/// its sample at `local` (level-0 voxels within the block of `loc`), or
+/// `None` when that cell may be visible.
+#[inline]
+pub fn transparent_exit(
+    g: &PackedVolume,
+    visible: u64,
+    loc: &BlockLocation,
+    local: Vec3,
+    origin: Vec3,
+    dir: Vec3,
+) -> Option<f32> {
+    let last = (CELLS - 1) as f32;
+    let cell = (local / CELL).clamp(Vec3::ZERO, Vec3::splat(last));
+    let c = [floor(cell.x), floor(cell.y), floor(cell.z)];
+    let bit = ((c[2] as usize * CELLS + c[1] as usize) * CELLS) + c[0] as usize;
+    if visible & (1 << bit) != 0 {
+        return None;
+    }
+    let texel = Vec3::from(g.texel);
+    let block = Vec3::new(
+        loc.block[0] as f32,
+        loc.block[1] as f32,
+        loc.block[2] as f32,
+    );
+    let lo = (block * BLOCK + Vec3::from(c) * CELL) * texel;
+    let hi = (lo + CELL * texel).min(Vec3::ONE);
+    Some(intersect_box(origin, dir, lo, hi).y)
+}

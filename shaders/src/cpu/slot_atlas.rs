@@ -1,0 +1,164 @@
+//! [`SlotAtlas`]: the packed atlas in memory as the CPU reads it best. The
+//! GPU's atlas is one 3D texture, so a slot's 18³ texels lie in 324 rows
+//! scattered over the texture (dozens of memory pages); here every slot's
+//! texels are contiguous (x fastest, then y, then z within the slot), so a
+//! ray crossing a block reads a few pages it keeps in cache. Texels are still
+//! addressed in the GPU atlas's coordinates ([`SlotAtlas::load`],
+//! [`SlotAtlas::sample_level`]) for the twins of the light stages; the ray
+//! caster reads a slot directly ([`SlotAtlas::slot_base`],
+//! [`SlotAtlas::sample_slot`]).
+
+use blocks::lod::EMPTY;
+use blocks::packing::{APRON, Packing, Region, slot_edge};
+use blocks::store::LEVELS;
+use glam::Vec3;
+
+use super::texture::{floor3, trilinear};
+
+/// The atlas of one packing, slot by slot; see the module docs.
+#[derive(Debug, Clone)]
+pub struct SlotAtlas {
+    dims: [u32; 3],
+    regions: [Region; LEVELS],
+    /// Where each level's region starts in `texels`.
+    region_base: [usize; LEVELS],
+    /// Per block (block-statistics order), where its slot starts in `texels`
+    /// (`usize::MAX` when the block is not stored).
+    block_base: Vec<usize>,
+    texels: Vec<f32>,
+}
+
+impl SlotAtlas {
+    /// Room for every slot of `packing`'s regions, texels zero.
+    pub fn new(packing: &Packing) -> SlotAtlas {
+        let mut region_base = [0usize; LEVELS];
+        let mut total = 0usize;
+        for (level, region) in packing.regions.iter().enumerate() {
+            region_base[level] = total;
+            let e = slot_edge(level) as usize;
+            let slots = region.slots.iter().map(|&s| s as usize).product::<usize>();
+            total += slots * e * e * e;
+        }
+        let mut atlas = SlotAtlas {
+            dims: packing.atlas_dims,
+            regions: packing.regions,
+            region_base,
+            block_base: Vec::new(),
+            texels: vec![0.0; total],
+        };
+        atlas.set_packing(packing);
+        atlas
+    }
+
+    /// Takes the slots of `packing`, whose layout (regions) must be this
+    /// atlas's: slots keep their texels, blocks move to theirs.
+    pub fn set_packing(&mut self, packing: &Packing) {
+        debug_assert_eq!(packing.regions, self.regions, "a packing of another layout");
+        self.block_base = (0..packing.lod.len())
+            .map(|b| {
+                let level = packing.lod[b];
+                if level == EMPTY || usize::from(level) >= LEVELS {
+                    return usize::MAX;
+                }
+                self.slot_start(usize::from(level), packing.slot[b])
+            })
+            .collect();
+    }
+
+    /// Where slot `slot` of level `level` starts in the texels.
+    fn slot_start(&self, level: usize, slot: u32) -> usize {
+        let e = slot_edge(level) as usize;
+        self.region_base[level] + slot as usize * e * e * e
+    }
+
+    /// Atlas size in texels, as the GPU texture's.
+    pub fn dims(&self) -> [u32; 3] {
+        self.dims
+    }
+
+    /// Where block `b`'s slot starts in [`SlotAtlas::texels`], or `None` when
+    /// the block is not stored.
+    pub fn slot_base(&self, b: usize) -> Option<usize> {
+        self.block_base.get(b).copied().filter(|&s| s != usize::MAX)
+    }
+
+    /// Every slot's texels.
+    pub fn texels(&self) -> &[f32] {
+        &self.texels
+    }
+
+    /// The texels of block `b`'s slot, an edge of `slot_edge(level)`, to write.
+    pub fn slot_mut(&mut self, b: usize, level: usize) -> Option<&mut [f32]> {
+        let start = self.slot_base(b)?;
+        let e = slot_edge(level) as usize;
+        self.texels.get_mut(start..start + e * e * e)
+    }
+
+    /// The texel at atlas coordinates (x, y, z), clamped to the atlas's edge,
+    /// as the GPU texture holds it (zero between slots).
+    pub fn load(&self, x: i32, y: i32, z: i32) -> f32 {
+        let clamp = |v: i32, n: u32| v.clamp(0, n as i32 - 1) as u32;
+        let (x, y, z) = (
+            clamp(x, self.dims[0]),
+            clamp(y, self.dims[1]),
+            clamp(z, self.dims[2]),
+        );
+        for (level, region) in self.regions.iter().enumerate().rev() {
+            if z < region.z0 {
+                continue;
+            }
+            let e = slot_edge(level);
+            let [sx, sy, sz] = region.slots;
+            let (gx, gy, gz) = (x / e, y / e, (z - region.z0) / e);
+            if gx >= sx || gy >= sy || gz >= sz {
+                return 0.0;
+            }
+            let slot = (gz * sy + gy) * sx + gx;
+            let (lx, ly, lz) = (x % e, y % e, (z - region.z0) % e);
+            let e = e as usize;
+            let at =
+                self.slot_start(level, slot) + (lz as usize * e + ly as usize) * e + lx as usize;
+            return self.texels.get(at).copied().unwrap_or(0.0);
+        }
+        0.0
+    }
+
+    /// Trilinear sample at atlas texture coordinates `tc`, as the GPU samples
+    /// its atlas texture (linear filtering, clamp to edge).
+    pub fn sample_level(&self, tc: Vec3) -> f32 {
+        let dims = Vec3::new(
+            self.dims[0] as f32,
+            self.dims[1] as f32,
+            self.dims[2] as f32,
+        );
+        let p = tc * dims - 0.5;
+        let base = floor3(p);
+        let f = p - base;
+        let (x, y, z) = (base.x as i32, base.y as i32, base.z as i32);
+        let corner = |dx: i32, dy: i32, dz: i32| self.load(x + dx, y + dy, z + dz);
+        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        let c00 = lerp(corner(0, 0, 0), corner(1, 0, 0), f.x);
+        let c10 = lerp(corner(0, 1, 0), corner(1, 1, 0), f.x);
+        let c01 = lerp(corner(0, 0, 1), corner(1, 0, 1), f.x);
+        let c11 = lerp(corner(0, 1, 1), corner(1, 1, 1), f.x);
+        lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z)
+    }
+
+    /// Trilinear sample at `p`, texel coordinates within the slot that starts
+    /// at `base` with edge `edge` (texel centres at integers, the apron at 0
+    /// and `edge − 1`), `p` kept in the slot: what the GPU's filtering reads
+    /// there, since every texel it touches is the slot's.
+    #[inline]
+    pub fn sample_slot(&self, base: usize, edge: usize, p: Vec3) -> f32 {
+        let last = (edge - 1) as f32;
+        let p = p.clamp(Vec3::ZERO, Vec3::splat(last));
+        let whole = floor3(p).min(Vec3::splat(last - 1.0));
+        let f = p - whole;
+        let (x, y, z) = (whole.x as usize, whole.y as usize, whole.z as usize);
+        let first = base + (z * edge + y) * edge + x;
+        trilinear(&self.texels, first, edge, edge * edge, f)
+    }
+}
+
+/// The apron's width, as a texel offset within a slot.
+pub const SLOT_APRON: f32 = APRON as f32;
