@@ -5,11 +5,15 @@
 //! another, a drag with "Drag moves the light" ticked moves the light (a new
 //! frame, new pixels), and a phone-sized window (390×844) gets a frame of its
 //! own with nothing wider than the screen. On failure a screenshot is written
-//! to `target/tmp/browser-failure.png`.
+//! to `target/tmp/TEST.png`.
+//!
+//! A second test serves from the CPU renderer (`--renderer cpu`) and counts
+//! the frames a 2-second drag brings: at least 5.
 //!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
 //! it).
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
 use std::net::TcpListener as StdListener;
 use std::path::PathBuf;
@@ -253,22 +257,19 @@ async fn drag_across(client: &Client) -> Result<(), String> {
         .map_err(|e| format!("dragging: {e}"))
 }
 
-#[tokio::test]
-async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium() {
-    let test = "the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium";
+/// A headless Chromium session through `chromedriver`, or `None` (the test
+/// skipped, with the reason printed) when there is none and
+/// `VOXSERVE_REQUIRE_BROWSER` is not `1`.
+async fn open_browser(test: &str) -> Option<(Driver, Client)> {
     let require = std::env::var("VOXSERVE_REQUIRE_BROWSER").is_ok_and(|v| v == "1");
     let driver = match start_driver() {
         Ok(d) => d,
         Err(reason) if require => panic!("{test}: VOXSERVE_REQUIRE_BROWSER=1 but {reason}"),
         Err(reason) => {
             report_skip(test, &reason);
-            return;
+            return None;
         }
     };
-    let Some(gpu) = gpu_or_skip(test) else {
-        return;
-    };
-    let server = TestServer::start(gpu, 64).await;
     let mut capabilities = serde_json::Map::new();
     let mut options = serde_json::json!({
         "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=640,480"],
@@ -294,9 +295,14 @@ async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium
             Err(e) => panic!("{test}: cannot open a Chromium session: {e}"),
         }
     };
-    let result = exercise(&client, &server.url("/")).await;
+    Some((driver, client))
+}
+
+/// Closes the browser; on `result`'s failure, writes a screenshot first and
+/// fails `test` naming it.
+async fn finish(test: &str, client: Client, result: Result<(), String>) {
     if let Err(reason) = &result {
-        let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("browser-failure.png");
+        let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{test}.png"));
         match client.screenshot().await {
             Ok(png) => {
                 let _ = std::fs::write(&path, png);
@@ -307,4 +313,95 @@ async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium
         panic!("{test}: {reason} (screenshot: {})", path.display());
     }
     client.close().await.expect("closing the browser");
+}
+
+#[tokio::test]
+async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium() {
+    let test = "the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let server = TestServer::start(gpu, 64).await;
+    let result = exercise(&client, &server.url("/")).await;
+    finish(test, client, result).await;
+}
+
+/// Frames drawn during a drag of `seconds` across the canvas.
+async fn frames_during_drag(client: &Client, seconds: f64) -> Result<f64, String> {
+    let canvas = client
+        .find(Locator::Id("view"))
+        .await
+        .map_err(|e| format!("the canvas: {e}"))?;
+    let steps = (seconds / 0.05).round() as u32;
+    let mut drag = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: canvas,
+            duration: None,
+            x: -100.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down { button: 0 });
+    for step in 1..=steps {
+        drag = drag.then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(50)),
+            x: 5.0,
+            y: if step % 2 == 0 { 1.0 } else { -1.0 },
+        });
+    }
+    drag = drag.then(PointerAction::Up { button: 0 });
+    let before = client
+        .execute(FRAMES, vec![])
+        .await
+        .map_err(|e| format!("frames: {e}"))?
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    client
+        .perform_actions(drag)
+        .await
+        .map_err(|e| format!("dragging: {e}"))?;
+    let after = client
+        .execute(FRAMES, vec![])
+        .await
+        .map_err(|e| format!("frames: {e}"))?
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    Ok(after - before)
+}
+
+#[tokio::test]
+async fn on_the_cpu_renderer_a_two_second_drag_shows_at_least_five_frames_in_chromium() {
+    // No GPU needed: the server renders on the CPU.
+    let test = "on_the_cpu_renderer_a_two_second_drag_shows_at_least_five_frames_in_chromium";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let dataset = server::Dataset::phantom(64, 256 << 20).expect("phantom");
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![dataset],
+        1,
+        server::stream::StreamSettings::default(),
+    )
+    .await;
+    let result = async {
+        client
+            .goto(&server.url("/"))
+            .await
+            .map_err(|e| format!("opening the page: {e}"))?;
+        wait_for(&client, "a first frame", FRAMES, |n| n >= 1.0).await?;
+        let frames = frames_during_drag(&client, 2.0).await?;
+        println!("{test}: {frames} frames during a 2 s drag");
+        if frames >= 5.0 {
+            Ok(())
+        } else {
+            Err(format!(
+                "{frames} frames during a 2 s drag: expected at least 5"
+            ))
+        }
+    }
+    .await;
+    finish(test, client, result).await;
 }

@@ -7,7 +7,7 @@ use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 
 use super::hash::{pcg_hash, unit_from_hash};
-use super::texture::floor;
+use super::texture::{floor, split};
 use crate::raycast::{
     FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP,
     RaycastParams, WORKGROUP_SIZE,
@@ -26,22 +26,36 @@ pub trait Storage: Sync + Sized {
     /// samples share one location (a block), found once for all of them
     /// where the GPU locates every sample; see [`Span`].
     fn span(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, t: f32) -> Span<Self::Location>;
+    /// CPU only: the stretch after `span` that holds the sample at `t`
+    /// (`t ≥ span.exit`), found from `span` where the storage can walk to it.
+    fn next_span(
+        &self,
+        p: &RaycastParams,
+        origin: Vec3,
+        dir: Vec3,
+        span: &Span<Self::Location>,
+        t: f32,
+    ) -> Span<Self::Location> {
+        let _ = span;
+        self.span(p, origin, dir, t)
+    }
     /// WGSL `sample_at` for the sample at `t` (at `tc`) in `span`.
     fn sample_in(&self, p: &RaycastParams, span: &Span<Self::Location>, t: f32, tc: Vec3) -> f32 {
         let _ = t;
         self.sample_at(p, tc, &span.loc)
     }
-    /// CPU only: where the ray `origin + t·dir` leaves the cell of transparent
-    /// samples (zero opacity whatever their value) that holds its sample at
-    /// `t` in `span`, or `None` if the sample may be visible.
-    fn transparent_exit(
+    /// CPU only: the cell of `span`'s block that holds the sample at `t`
+    /// on the ray `origin + t·dir`, whether the transfer function hides
+    /// every sample in it, and where the ray leaves it; `None` where the
+    /// storage knows no cells.
+    fn cell(
         &self,
         p: &RaycastParams,
         span: &Span<Self::Location>,
         t: f32,
         origin: Vec3,
         dir: Vec3,
-    ) -> Option<f32> {
+    ) -> Option<Cell> {
         let _ = (p, span, t, origin, dir);
         None
     }
@@ -89,6 +103,18 @@ pub struct Span<L> {
     /// Storage-specific: the block's cells that may be visible
     /// ([`super::occupancy`]); all bits set where nothing is known.
     pub visible: u64,
+    /// Storage-specific (a walk of the block grid): the ray parameter where
+    /// the ray crosses the stretch's next boundary along x, y and z.
+    pub t_max: Vec3,
+}
+
+/// A cell of a block as a ray crosses it ([`Storage::cell`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cell {
+    /// The transfer function hides every sample in it.
+    pub transparent: bool,
+    /// The ray parameter where the ray leaves it.
+    pub exit: f32,
 }
 
 /// Rows of pixels one task renders, and columns of a tile within them:
@@ -129,9 +155,8 @@ pub fn march<S: Storage>(
 pub fn classify_table(tf_len: u32, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
     let n = tf_len as i32;
     let x = u.clamp(0.0, 1.0) * n as f32 - 0.5;
-    let i0f = floor(x);
-    let f = x - i0f;
-    let i0 = i0f as i32;
+    // floor(x) and x − floor(x) (or one less and 1, which blends alike).
+    let (i0, f) = split(x);
     let a = Vec4::from(transfer_function[i0.clamp(0, n - 1) as usize]);
     let b = Vec4::from(transfer_function[(i0 + 1).clamp(0, n - 1) as usize]);
     a.lerp(b, f)
@@ -144,7 +169,16 @@ pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Ve
 
 /// WGSL `corrected_opacity`.
 pub fn corrected_opacity(a: f32, exponent: f32) -> f32 {
-    1.0 - (1.0 - a.min(MAX_SAMPLE_OPACITY)).powf(exponent)
+    let transmittance = 1.0 - a.min(MAX_SAMPLE_OPACITY);
+    // The common steps without a call into the C library: 1 and ½ of the
+    // reference step (powf(x, 0.5) is sqrt(x), both correctly rounded).
+    if exponent == 1.0 {
+        return 1.0 - transmittance;
+    }
+    if exponent == 0.5 {
+        return 1.0 - transmittance.sqrt();
+    }
+    1.0 - transmittance.powf(exponent)
 }
 
 /// WGSL `gradient_at`.
@@ -231,6 +265,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         let gradient_from_texture = p.gradient_from_texture;
         let mut i = 0u32;
         let mut stretch = s.span(p, tex_origin, tex_dir, first);
+        let mut visible_until = f32::NEG_INFINITY;
         for _k in 0..p.max_steps {
             let t = first + i as f32 * p.step;
             if t > span.y {
@@ -238,7 +273,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             }
             let tc = tex_origin + tex_dir * t;
             if t >= stretch.exit {
-                stretch = s.span(p, tex_origin, tex_dir, t);
+                stretch = s.next_span(p, tex_origin, tex_dir, &stretch, t);
             }
             let loc = &stretch.loc;
             if S::is_empty(loc) {
@@ -254,12 +289,17 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             // With empty-space skipping, samples the transfer function hides
             // are jumped over too (the GPU looks at each and drops it: the
             // same pixels).
+            // A cell found visible is not looked up again until the ray leaves it.
             if p.flags & FLAG_SKIP_EMPTY != 0
                 && stretch.visible != u64::MAX
-                && let Some(exit) = s.transparent_exit(p, &stretch, t, tex_origin, tex_dir)
+                && t >= visible_until
+                && let Some(cell) = s.cell(p, &stretch, t, tex_origin, tex_dir)
             {
-                i = (i + 1).max(-floor(-(exit - first) / p.step) as u32);
-                continue;
+                if cell.transparent {
+                    i = (i + 1).max(-floor(-(cell.exit - first) / p.step) as u32);
+                    continue;
+                }
+                visible_until = cell.exit;
             }
             let u = s.sample_in(p, &stretch, t, tc) * p.volume.value_scale + p.volume.value_offset;
             let rgba = classify(p, tf, u);

@@ -13,9 +13,9 @@ use blocks::packing::{APRON, slot_edge};
 use blocks::store::LEVELS;
 use rayon::prelude::*;
 
-use super::march::intersect_box;
-use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture};
-use super::texture::floor;
+use super::march::Cell;
+use super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture};
+use super::texture::{floor, split};
 use crate::packed_volume::PackedVolume;
 use glam::Vec3;
 
@@ -103,32 +103,26 @@ fn block_cells(slot: &[f32], level: usize, any_visible: &dyn Fn(f32, f32) -> boo
     bits
 }
 
-/// Where the ray `origin + t·dir` leaves the transparent cell that holds
-/// its sample at `local` (level-0 voxels within the block of `loc`), or
-/// `None` when that cell may be visible.
+/// The cell holding the sample at `t` on a ray whose position in level-0
+/// voxels within the block is `local_at_zero + t·local_per_t`, given the
+/// block's visible-cell bits `visible`.
 #[inline]
-pub fn transparent_exit(
-    g: &PackedVolume,
-    visible: u64,
-    loc: &BlockLocation,
-    local: Vec3,
-    origin: Vec3,
-    dir: Vec3,
-) -> Option<f32> {
-    let last = (CELLS - 1) as f32;
-    let cell = (local / CELL).clamp(Vec3::ZERO, Vec3::splat(last));
-    let c = [floor(cell.x), floor(cell.y), floor(cell.z)];
-    let bit = ((c[2] as usize * CELLS + c[1] as usize) * CELLS) + c[0] as usize;
-    if visible & (1 << bit) != 0 {
-        return None;
-    }
-    let texel = Vec3::from(g.texel);
-    let block = Vec3::new(
-        loc.block[0] as f32,
-        loc.block[1] as f32,
-        loc.block[2] as f32,
+pub fn cell_at(visible: u64, local_at_zero: Vec3, local_per_t: Vec3, t: f32) -> Cell {
+    let last = (CELLS - 1) as i32;
+    let local = local_at_zero + local_per_t * t;
+    let index = |v: f32| split(v / CELL).0.clamp(0, last);
+    let c = [index(local.x), index(local.y), index(local.z)];
+    let bit = (c[2] as usize * CELLS + c[1] as usize) * CELLS + c[0] as usize;
+    // Where the ray crosses the cell's far face along each axis.
+    let ahead = Vec3::select(local_per_t.cmpgt(Vec3::ZERO), Vec3::ONE, Vec3::ZERO);
+    let face = (Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) + ahead) * CELL;
+    let crossing = Vec3::select(
+        local_per_t.abs().cmplt(Vec3::splat(1e-12)),
+        Vec3::INFINITY,
+        (face - local_at_zero) / local_per_t,
     );
-    let lo = (block * BLOCK + Vec3::from(c) * CELL) * texel;
-    let hi = (lo + CELL * texel).min(Vec3::ONE);
-    Some(intersect_box(origin, dir, lo, hi).y)
+    Cell {
+        transparent: visible & (1 << bit) == 0,
+        exit: crossing.min_element(),
+    }
 }

@@ -3,11 +3,12 @@
 
 use glam::Vec3;
 
-use super::march::{Span, Storage, gradient_at, march};
-use super::occupancy::transparent_exit;
+use super::march::{Cell, Span, Storage, gradient_at, march};
+use super::occupancy::cell_at;
 use super::packed::{BLOCK, BlockLocation, PackedTexture, atlas_texel, block_of, empty_exit};
 use super::slot_atlas::SLOT_APRON;
 use super::texture::floor3;
+use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
 
 impl Storage for PackedTexture {
@@ -20,42 +21,68 @@ impl Storage for PackedTexture {
     fn span(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, t: f32) -> Span<BlockLocation> {
         let g = &p.volume;
         let block = block_of(g, origin + dir * t);
-        let loc = self.locate_block(block);
-        // Never behind `t`: a stretch ends at the next sample at the latest.
-        let exit = empty_exit(g, origin, dir, &loc).max(t);
-        let dims = Vec3::from(g.volume_dims);
-        let corner = Vec3::new(block[0] as f32, block[1] as f32, block[2] as f32) * BLOCK;
-        // `atlas_texel` unclamped, as a function of t.
-        let local_at_zero = origin * dims - corner;
-        let local_per_t = dir * dims;
-        let [gx, gy, _] = self.grid.map(|n| n as usize);
-        let index = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
-        let visible = self
-            .visible_cells
-            .as_ref()
-            .map_or(u64::MAX, |cells| cells[index]);
-        Span {
-            visible,
-            loc,
-            exit,
-            // Within the slot, whose first interior texel is at the apron's width.
-            texel_at_zero: local_at_zero * loc.scale + (SLOT_APRON - 0.5),
-            texel_per_t: local_per_t * loc.scale,
-            local_at_zero,
-            local_per_t,
+        // Where the ray crosses the block's far face along each axis.
+        let edge = Vec3::from(g.texel) * BLOCK;
+        let ahead = Vec3::select(dir.cmpgt(Vec3::ZERO), Vec3::ONE, Vec3::ZERO);
+        let face = (Vec3::new(block[0] as f32, block[1] as f32, block[2] as f32) + ahead) * edge;
+        let t_max = Vec3::select(
+            dir.abs().cmplt(Vec3::splat(1e-12)),
+            Vec3::INFINITY,
+            (face - origin) / dir,
+        );
+        self.block_span(g, origin, dir, block, t_max, t)
+    }
+
+    fn next_span(
+        &self,
+        p: &RaycastParams,
+        origin: Vec3,
+        dir: Vec3,
+        span: &Span<BlockLocation>,
+        t: f32,
+    ) -> Span<BlockLocation> {
+        // A walk of the block grid: into the neighbour across the nearest
+        // face, until the block holding the sample at `t`.
+        let g = &p.volume;
+        let edge = Vec3::from(g.texel) * BLOCK;
+        let t_delta = (edge / dir.abs()).min(Vec3::INFINITY);
+        let (mut block, mut t_max) = (span.loc.block, span.t_max);
+        let last = self.grid.map(|n| n as i32 - 1);
+        loop {
+            let axis = if t_max.x <= t_max.y && t_max.x <= t_max.z {
+                0
+            } else if t_max.y <= t_max.z {
+                1
+            } else {
+                2
+            };
+            block[axis] += if dir[axis] > 0.0 { 1 } else { -1 };
+            t_max[axis] += t_delta[axis];
+            if !(0..=last[axis]).contains(&block[axis]) {
+                // Out of the grid (rounding at the volume's edge): find the
+                // sample's block anew.
+                return self.span(p, origin, dir, t);
+            }
+            if t < t_max.min_element() {
+                return self.block_span(g, origin, dir, block, t_max, t);
+            }
         }
     }
 
-    fn transparent_exit(
+    fn cell(
         &self,
-        p: &RaycastParams,
+        _p: &RaycastParams,
         span: &Span<BlockLocation>,
         t: f32,
-        origin: Vec3,
-        dir: Vec3,
-    ) -> Option<f32> {
-        let local = span.local_at_zero + span.local_per_t * t;
-        transparent_exit(&p.volume, span.visible, &span.loc, local, origin, dir)
+        _origin: Vec3,
+        _dir: Vec3,
+    ) -> Option<Cell> {
+        Some(cell_at(
+            span.visible,
+            span.local_at_zero,
+            span.local_per_t,
+            t,
+        ))
     }
 
     fn sample_in(&self, _p: &RaycastParams, span: &Span<BlockLocation>, t: f32, _tc: Vec3) -> f32 {
@@ -126,6 +153,45 @@ impl Storage for PackedTexture {
 
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
         empty_exit(&p.volume, origin, dir, loc)
+    }
+}
+
+impl PackedTexture {
+    /// The stretch of the ray in `block`, which it leaves at the smallest of
+    /// `t_max` (never before `t`).
+    fn block_span(
+        &self,
+        g: &PackedVolume,
+        origin: Vec3,
+        dir: Vec3,
+        block: [i32; 3],
+        t_max: Vec3,
+        t: f32,
+    ) -> Span<BlockLocation> {
+        let loc = self.locate_block(block);
+        let dims = Vec3::from(g.volume_dims);
+        let corner = Vec3::new(block[0] as f32, block[1] as f32, block[2] as f32) * BLOCK;
+        // `atlas_texel` unclamped, as a function of t.
+        let local_at_zero = origin * dims - corner;
+        let local_per_t = dir * dims;
+        let [gx, gy, _] = self.grid.map(|n| n as usize);
+        let index = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
+        let visible = self
+            .visible_cells
+            .as_ref()
+            .map_or(u64::MAX, |cells| cells[index]);
+        Span {
+            visible,
+            loc,
+            // Never behind `t`: a stretch ends at the next sample at the latest.
+            exit: t_max.min_element().max(t),
+            // Within the slot, whose first interior texel is at the apron's width.
+            texel_at_zero: local_at_zero * loc.scale + (SLOT_APRON - 0.5),
+            texel_per_t: local_per_t * loc.scale,
+            local_at_zero,
+            local_per_t,
+            t_max,
+        }
     }
 }
 

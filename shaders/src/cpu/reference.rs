@@ -27,6 +27,7 @@ impl Storage for Texture3d {
             local_at_zero: Vec3::ZERO,
             local_per_t: Vec3::ZERO,
             visible: u64::MAX,
+            t_max: Vec3::INFINITY,
         }
     }
 

@@ -13,7 +13,7 @@ use blocks::packing::{APRON, Packing, Region, slot_edge};
 use blocks::store::LEVELS;
 use glam::Vec3;
 
-use super::texture::{floor3, trilinear};
+use super::texture::{floor3, split, trilinear};
 
 /// The atlas of one packing, slot by slot; see the module docs.
 #[derive(Debug, Clone)]
@@ -152,11 +152,21 @@ impl SlotAtlas {
     pub fn sample_slot(&self, base: usize, edge: usize, p: Vec3) -> f32 {
         let last = (edge - 1) as f32;
         let p = p.clamp(Vec3::ZERO, Vec3::splat(last));
-        let whole = floor3(p).min(Vec3::splat(last - 1.0));
-        let f = p - whole;
-        let (x, y, z) = (whole.x as usize, whole.y as usize, whole.z as usize);
+        // The lower texel of each pair, at most the one before the last.
+        let axis = |v: f32| {
+            let (whole, fraction) = split(v);
+            let lower = whole.clamp(0, edge as i32 - 2);
+            (lower as usize, fraction + (whole - lower) as f32)
+        };
+        let ((x, fx), (y, fy), (z, fz)) = (axis(p.x), axis(p.y), axis(p.z));
         let first = base + (z * edge + y) * edge + x;
-        trilinear(&self.texels, first, edge, edge * edge, f)
+        trilinear(
+            &self.texels,
+            first,
+            edge,
+            edge * edge,
+            Vec3::new(fx, fy, fz),
+        )
     }
 }
 

@@ -29,6 +29,19 @@ pub fn trilinear(texels: &[f32], first: usize, row: usize, slice: usize, f: Vec3
     lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z)
 }
 
+/// `x` as a whole number `i` and a fraction `x − i` in `0..=1`, for
+/// `|x| < 2²²`: the whole number is `floor(x)`, or one less where `x` is
+/// whole (the fraction is then 1, which interpolates alike). Rounding
+/// `x − ½` to the nearest integer in the mantissa of `x − ½ + 1.5·2²³` takes
+/// four instructions where `floor` and a saturating `as` take a dozen.
+#[inline]
+pub fn split(x: f32) -> (i32, f32) {
+    const MAGIC: f32 = 12_582_912.0;
+    let rounded = (x - 0.5) + MAGIC;
+    let whole = rounded.to_bits() as i32 - MAGIC.to_bits() as i32;
+    (whole, x - whole as f32)
+}
+
 /// [`floor`] per component.
 #[inline]
 pub fn floor3(v: Vec3) -> Vec3 {
@@ -158,6 +171,21 @@ mod tests {
             assert_eq!(floor(x), x.floor(), "floor({x})");
         }
         assert!(floor(f32::NAN).is_nan());
+    }
+
+    #[test]
+    fn split_gives_the_floor_and_a_fraction_up_to_one() {
+        for x in [
+            0.0f32, 0.25, 0.5, 0.999_999, 1.0, 1.5, 2.0, 17.0, 17.25, 1023.5, -0.5, -0.25,
+        ] {
+            let (whole, fraction) = split(x);
+            assert!(
+                (0.0..=1.0).contains(&fraction),
+                "split({x}) = {whole}, {fraction}"
+            );
+            assert_eq!(whole as f32 + fraction, x, "split({x})");
+            assert!(whole == x.floor() as i32 || (x == x.floor() && whole == x as i32 - 1));
+        }
     }
 
     #[test]
