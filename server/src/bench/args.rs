@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Args, Subcommand};
-use server::cli::{DataArgs, RendererArgs, finite_in, setting_value};
+use server::cli::{DataArgs, MemoryArgs, RendererArgs, finite_in, setting_value};
 use server::dataset::PHANTOM_ID;
 use shaders::Shading;
 
@@ -93,7 +93,7 @@ pub struct BenchPeerArgs {
     #[command(flatten)]
     pub renderer: RendererArgs,
     #[command(flatten)]
-    pub data: DataArgs,
+    pub memory: MemoryArgs,
 }
 
 /// `voxserve bench extinction`.

@@ -232,8 +232,9 @@ pub fn peer(args: &BenchPeerArgs) -> anyhow::Result<()> {
             tracing::warn!("{} not found: skipping {name}", path.display());
             continue;
         }
-        let dataset = Dataset::load(&path, &open_options(peer), args.data.cache_bytes())?;
-        let mut renderer = backend.renderer(dataset.cache.clone(), args.data.gpu_budget_bytes())?;
+        let dataset = Dataset::load(&path, &open_options(peer), args.memory.cache_bytes())?;
+        let mut renderer =
+            backend.renderer(dataset.cache.clone(), args.memory.gpu_budget_bytes())?;
         for &mode in &args.modes {
             let run = PeerRun {
                 args,

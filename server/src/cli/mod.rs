@@ -84,6 +84,16 @@ pub struct DataArgs {
           value_parser = clap::value_parser!(u32).range(
               i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
     pub phantom_size: u32,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// How much memory blocks may take: decoded in memory, and in the
+/// renderer's atlas.
+#[derive(Debug, Clone, Copy, Args)]
+pub struct MemoryArgs {
     /// Decoded blocks kept in memory, MiB (the two coarsest levels stay resident on top).
     #[arg(long, default_value_t = 1024, value_name = "MIB",
           value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
@@ -94,11 +104,9 @@ pub struct DataArgs {
     #[arg(long, default_value_t = 2048, value_name = "MIB",
           value_parser = clap::value_parser!(u64).range(16..=1 << 20))]
     pub gpu_budget_mib: u64,
-    #[command(flatten)]
-    pub input: InputArgs,
 }
 
-impl DataArgs {
+impl MemoryArgs {
     /// `--cache-mib` in bytes.
     pub fn cache_bytes(&self) -> u64 {
         self.cache_mib << 20
@@ -107,6 +115,18 @@ impl DataArgs {
     /// `--gpu-budget-mib` in bytes.
     pub fn gpu_budget_bytes(&self) -> u64 {
         self.gpu_budget_mib << 20
+    }
+}
+
+impl DataArgs {
+    /// `--cache-mib` in bytes.
+    pub fn cache_bytes(&self) -> u64 {
+        self.memory.cache_bytes()
+    }
+
+    /// `--gpu-budget-mib` in bytes.
+    pub fn gpu_budget_bytes(&self) -> u64 {
+        self.memory.gpu_budget_bytes()
     }
 }
 
