@@ -17,14 +17,6 @@ use crate::cli::{
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
 
-/// The adapter features the CPU twin assumes: 16-bit volumes in `r16unorm`
-/// textures, as on every Vulkan, Metal and DX12 adapter voxserve has met.
-pub const CPU_TWIN_FEATURES: shaders::wgpu::Features =
-    shaders::wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
-
-/// The atlas edge limit the CPU twin packs to (what Vulkan adapters commonly allow).
-pub const CPU_TWIN_MAX_EDGE: u32 = 2048;
-
 /// Runs one of the server's subcommands.
 pub fn run(command: Command) -> anyhow::Result<()> {
     match command {

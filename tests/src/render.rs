@@ -8,10 +8,13 @@ use blocks::Volume;
 use blocks::ingest::MemorySource;
 use blocks::store::{IngestOptions, ingest_in_memory};
 use server::Dataset;
-use server::commands::{CPU_TWIN_FEATURES, CPU_TWIN_MAX_EDGE};
 use shaders::{Frame, FrameRequest, GpuContext, ReferenceRenderer, Renderer};
 
 use crate::phantom::TEST_CACHE_BYTES;
+
+/// The atlas edge limit the CPU twin packs to without a GPU to match (what
+/// Vulkan adapters commonly allow).
+pub const CPU_TWIN_MAX_EDGE: u32 = 2048;
 
 /// Device budget for test renderers: every test volume fits at level 0.
 pub const TEST_GPU_BUDGET_BYTES: u64 = 512 << 20;
@@ -46,7 +49,7 @@ pub fn cpu_twin_device(gpu: Option<&GpuContext>) -> (wgpu::Features, u32) {
             g.device.features(),
             g.device.limits().max_texture_dimension_3d,
         ),
-        None => (CPU_TWIN_FEATURES, CPU_TWIN_MAX_EDGE),
+        None => (shaders::cpu::CPU_FEATURES, CPU_TWIN_MAX_EDGE),
     }
 }
 

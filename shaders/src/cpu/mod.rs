@@ -1,7 +1,9 @@
 //! CPU twins of the WGSL stages: each has the stage's name, reads the same
-//! bindings in the same order, and is written loop for loop like the shader, so a
-//! test can run a scene through both and compare. They are also the renderer of
-//! last resort (`voxserve render --cpu`).
+//! bindings in the same order, and is written like the shader, so a test can
+//! run a scene through both and compare. They are also the CPU renderer
+//! ([`CpuRenderer`], `--renderer cpu`): the march differs from the shader only
+//! where the CPU does better with the same pixels (walking the block grid,
+//! reading slots directly, jumping over transparent cells; see [`march`]).
 //!
 //! - [`raycast`](mod@raycast): twin of `shaders/wgsl/raycast.wgsl` (packed blocks).
 //! - [`reference`](mod@reference): twin of `shaders/wgsl/reference.wgsl` (one
