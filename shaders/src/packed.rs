@@ -107,36 +107,9 @@ impl Atlas for GpuAtlas {
         desc.format.size() as u64
     }
 
-    fn upload(
-        gpu: &GpuContext,
-        grid: [u32; 3],
-        packing: Packing,
-        desc: &VolumeTexture,
-        source: BlockSource<'_>,
-    ) -> Result<GpuAtlas, GpuError> {
-        GpuAtlas::upload(gpu, grid, packing, desc, source)
-    }
-
-    fn update(
-        &mut self,
-        gpu: &GpuContext,
-        packing: Packing,
-        uploads: &[usize],
-        desc: &VolumeTexture,
-        source: BlockSource<'_>,
-    ) -> Result<(), GpuError> {
-        GpuAtlas::update(self, gpu, packing, uploads, desc, source)
-    }
-
-    fn packing(&self) -> &Packing {
-        &self.packing
-    }
-}
-
-impl GpuAtlas {
     /// Creates the textures for `packing` of a volume of `grid` blocks and
     /// uploads every selected block from `source`.
-    pub fn upload(
+    fn upload(
         gpu: &GpuContext,
         grid: [u32; 3],
         packing: Packing,
@@ -166,7 +139,7 @@ impl GpuAtlas {
 
     /// Writes the blocks `uploads` of a new packing with the same layout into
     /// their slots, and the new index.
-    pub fn update(
+    fn update(
         &mut self,
         gpu: &GpuContext,
         packing: Packing,
@@ -195,6 +168,12 @@ impl GpuAtlas {
         gpu.wait("uploading changed blocks")
     }
 
+    fn packing(&self) -> &Packing {
+        &self.packing
+    }
+}
+
+impl GpuAtlas {
     fn write_index(&mut self, gpu: &GpuContext) -> Result<(), GpuError> {
         let grid = self.layout.block_grid;
         let index = self.packing.block_index(grid);

@@ -25,13 +25,10 @@ use crate::illumination::{Illumination, Inputs, Mode, Timings};
 use crate::packed::{Atlas, GpuAtlas};
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
-use crate::residency::{Residency, budget_voxels};
+use crate::residency::{Residency, ResidencyStats, budget_voxels};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
-/// How long a renderer that waits for blocks ([`Renderer::render`]) sleeps
-/// between checks when no arrival wakes it.
-pub(crate) const ARRIVAL_PATIENCE: std::time::Duration = std::time::Duration::from_millis(200);
 /// Rows of a texture-to-buffer copy are padded to this many bytes.
 const ROW_ALIGN: u32 = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
 
@@ -220,6 +217,20 @@ pub struct RenderStats {
     pub illumination: Option<Timings>,
 }
 
+impl From<ResidencyStats> for RenderStats {
+    /// A frame's stats as far as the resident blocks go.
+    fn from(r: ResidencyStats) -> RenderStats {
+        RenderStats {
+            uploaded_blocks: r.uploaded_blocks,
+            relayout: r.relayout,
+            select_ms: r.select_ms,
+            upload_ms: r.upload_ms,
+            pending_blocks: r.pending_blocks,
+            ..RenderStats::default()
+        }
+    }
+}
+
 impl RenderStats {
     /// Global light propagation's stages of this frame.
     pub fn light(&self) -> Option<&LightTimings> {
@@ -389,44 +400,16 @@ impl Renderer {
         complete: bool,
     ) -> Result<Frame, GpuError> {
         let tf = request.store_transfer_function(self.cache.store().meta());
-        let mut stats = self.prepare(request, &tf)?;
-        while complete && stats.pending_blocks > 0 {
-            let seen = self.cache.arrivals();
-            if self.cache.loading() > 0 {
-                self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
-            }
-            let more = self.prepare(request, &tf)?;
-            stats = RenderStats {
-                uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
-                relayout: stats.relayout || more.relayout,
-                select_ms: stats.select_ms + more.select_ms,
-                upload_ms: stats.upload_ms + more.upload_ms,
-                ..more
-            };
-        }
+        self.frame.prepare(&self.gpu, request, &tf, &self.desc)?;
+        let budget = budget_voxels(self.full_voxels, request.reduction);
+        let mut stats = RenderStats::from(
+            self.residency
+                .update_complete(&self.gpu, &self.desc, &tf, budget, complete)?,
+        );
         if let Some(mode) = Mode::of(request.shading) {
             stats.illumination = Some(self.update_illumination(mode, request, &tf, converge)?);
         }
         self.draw(request, stats)
-    }
-
-    /// Checks the request and brings the resident blocks up to date.
-    fn prepare(
-        &mut self,
-        request: &FrameRequest,
-        tf: &TransferFunction,
-    ) -> Result<RenderStats, GpuError> {
-        self.frame.prepare(&self.gpu, request, tf, &self.desc)?;
-        let budget = budget_voxels(self.full_voxels, request.reduction);
-        let r = self.residency.update(&self.gpu, &self.desc, tf, budget)?;
-        Ok(RenderStats {
-            uploaded_blocks: r.uploaded_blocks,
-            relayout: r.relayout,
-            select_ms: r.select_ms,
-            upload_ms: r.upload_ms,
-            pending_blocks: r.pending_blocks,
-            ..RenderStats::default()
-        })
     }
 
     /// Brings illumination mode `mode` up to date for `request` (every

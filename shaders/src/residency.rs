@@ -27,6 +27,9 @@ use crate::GpuError;
 use crate::packed::Atlas;
 use crate::volume_texture::VolumeTexture;
 
+/// How long [`Residency::update_complete`] sleeps between checks when no
+/// arrival wakes it.
+const ARRIVAL_PATIENCE: std::time::Duration = std::time::Duration::from_millis(200);
 /// Selections tried before a device budget is declared too small.
 const MAX_SELECTIONS: usize = 12;
 
@@ -152,6 +155,36 @@ impl<A: Atlas> Residency<A> {
         self.show(device, desc, &mut stats)?;
         stats.upload_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.pending_blocks = self.pending;
+        Ok(stats)
+    }
+
+    /// [`Residency::update`], then, when `complete`, again as blocks arrive
+    /// until none is pending, waiting on this thread for the background
+    /// reads (the command line, tests and benchmarks; a server never waits):
+    /// the totals of every update.
+    pub fn update_complete(
+        &mut self,
+        device: &A::Device,
+        desc: &VolumeTexture,
+        tf: &TransferFunction,
+        budget: u64,
+        complete: bool,
+    ) -> Result<ResidencyStats, GpuError> {
+        let mut stats = self.update(device, desc, tf, budget)?;
+        while complete && stats.pending_blocks > 0 {
+            let seen = self.cache.arrivals();
+            if self.cache.loading() > 0 {
+                self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
+            }
+            let more = self.update(device, desc, tf, budget)?;
+            stats = ResidencyStats {
+                uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
+                relayout: stats.relayout || more.relayout,
+                select_ms: stats.select_ms + more.select_ms,
+                upload_ms: stats.upload_ms + more.upload_ms,
+                pending_blocks: more.pending_blocks,
+            };
+        }
         Ok(stats)
     }
 

@@ -66,6 +66,16 @@ fn start_driver() -> Result<Driver, String> {
     Ok(Driver { child, port })
 }
 
+/// The number `script` computes in the page (NaN if it is not one).
+async fn number(client: &Client, what: &str, script: &str) -> Result<f64, String> {
+    Ok(client
+        .execute(script, vec![])
+        .await
+        .map_err(|e| format!("{what}: {e}"))?
+        .as_f64()
+        .unwrap_or(f64::NAN))
+}
+
 /// A number the page computes, polled until `done` accepts it.
 async fn wait_for(
     client: &Client,
@@ -75,12 +85,7 @@ async fn wait_for(
 ) -> Result<f64, String> {
     let start = Instant::now();
     loop {
-        let value = client
-            .execute(script, vec![])
-            .await
-            .map_err(|e| format!("{what}: {e}"))?
-            .as_f64()
-            .unwrap_or(f64::NAN);
+        let value = number(client, what, script).await?;
         if done(value) {
             return Ok(value);
         }
@@ -221,16 +226,26 @@ async fn exercise(client: &Client, url: &str) -> Result<(), String> {
 
 /// The canvas's pixel sum, as [`PIXELS`] reads it.
 async fn pixels(client: &Client) -> Result<f64, String> {
-    Ok(client
-        .execute(PIXELS, vec![])
-        .await
-        .map_err(|e| format!("reading the canvas: {e}"))?
-        .as_f64()
-        .unwrap_or(f64::NAN))
+    number(client, "reading the canvas", PIXELS).await
 }
 
 /// Drags the mouse across the canvas from its centre to the right.
 async fn drag_across(client: &Client) -> Result<(), String> {
+    let wobble = |step: u32| if step.is_multiple_of(2) { 4.0 } else { 0.0 };
+    drag(client, 0.0, 8, Duration::from_millis(30), 25.0, wobble).await
+}
+
+/// Presses the mouse `from_x` pixels right of the canvas's centre, moves it
+/// `steps` times by `dx` to the right (and `dy(step)` down), each move taking
+/// `step_time`, and releases it.
+async fn drag(
+    client: &Client,
+    from_x: f64,
+    steps: u32,
+    step_time: Duration,
+    dx: f64,
+    dy: impl Fn(u32) -> f64,
+) -> Result<(), String> {
     let canvas = client
         .find(Locator::Id("view"))
         .await
@@ -239,15 +254,15 @@ async fn drag_across(client: &Client) -> Result<(), String> {
         .then(PointerAction::MoveToElement {
             element: canvas,
             duration: None,
-            x: 0.0,
+            x: from_x,
             y: 0.0,
         })
         .then(PointerAction::Down { button: 0 });
-    for step in 1..=8 {
+    for step in 1..=steps {
         drag = drag.then(PointerAction::MoveBy {
-            duration: Some(Duration::from_millis(30)),
-            x: 25.0,
-            y: if step % 2 == 0 { 4.0 } else { 0.0 },
+            duration: Some(step_time),
+            x: dx,
+            y: dy(step),
         });
     }
     drag = drag.then(PointerAction::Up { button: 0 });
@@ -331,44 +346,12 @@ async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium
 
 /// Frames drawn during a drag of `seconds` across the canvas.
 async fn frames_during_drag(client: &Client, seconds: f64) -> Result<f64, String> {
-    let canvas = client
-        .find(Locator::Id("view"))
-        .await
-        .map_err(|e| format!("the canvas: {e}"))?;
-    let steps = (seconds / 0.05).round() as u32;
-    let mut drag = MouseActions::new("mouse".into())
-        .then(PointerAction::MoveToElement {
-            element: canvas,
-            duration: None,
-            x: -100.0,
-            y: 0.0,
-        })
-        .then(PointerAction::Down { button: 0 });
-    for step in 1..=steps {
-        drag = drag.then(PointerAction::MoveBy {
-            duration: Some(Duration::from_millis(50)),
-            x: 5.0,
-            y: if step % 2 == 0 { 1.0 } else { -1.0 },
-        });
-    }
-    drag = drag.then(PointerAction::Up { button: 0 });
-    let before = client
-        .execute(FRAMES, vec![])
-        .await
-        .map_err(|e| format!("frames: {e}"))?
-        .as_f64()
-        .unwrap_or(f64::NAN);
-    client
-        .perform_actions(drag)
-        .await
-        .map_err(|e| format!("dragging: {e}"))?;
-    let after = client
-        .execute(FRAMES, vec![])
-        .await
-        .map_err(|e| format!("frames: {e}"))?
-        .as_f64()
-        .unwrap_or(f64::NAN);
-    Ok(after - before)
+    let step_time = Duration::from_millis(50);
+    let steps = (seconds / step_time.as_secs_f64()).round() as u32;
+    let wobble = |step: u32| if step.is_multiple_of(2) { 1.0 } else { -1.0 };
+    let before = number(client, "frames", FRAMES).await?;
+    drag(client, -100.0, steps, step_time, 5.0, wobble).await?;
+    Ok(number(client, "frames", FRAMES).await? - before)
 }
 
 #[tokio::test]

@@ -35,6 +35,11 @@ enum Received {
 }
 
 async fn connect(server: &TestServer) -> Socket {
+    connect_with_hello(server).await.0
+}
+
+/// A session and its hello message.
+async fn connect_with_hello(server: &TestServer) -> (Socket, serde_json::Value) {
     let (mut socket, _) = connect_async(server.ws_url("/api/stream"))
         .await
         .expect("WebSocket connects");
@@ -42,10 +47,10 @@ async fn connect(server: &TestServer) -> Socket {
         Received::Json(hello) => {
             assert_eq!(hello["type"], "hello", "{hello}");
             assert_eq!(hello["protocol"], 1, "{hello}");
+            (socket, hello)
         }
         Received::Frame(h, _) => panic!("expected hello first, got frame {h:?}"),
     }
-    socket
 }
 
 /// The next message, decoded (frames checked: header, encoding, size).
@@ -266,12 +271,7 @@ async fn frames_follow_the_camera_at_the_requested_size_and_a_lossless_frame_fol
         "{quiet}"
     );
     // The metrics saw the session and its frames of both kinds.
-    let metrics = reqwest::get(server.url("/metrics"))
-        .await
-        .expect("GET /metrics")
-        .text()
-        .await
-        .expect("body");
+    let metrics = metrics(&server).await;
     for expected in [
         "voxserve_sessions_open 1",
         "voxserve_sessions_total 1",
@@ -547,9 +547,14 @@ async fn sessions_beyond_the_cap_are_refused_and_a_closed_session_frees_its_plac
 }
 
 async fn metrics(server: &TestServer) -> String {
-    reqwest::get(server.url("/metrics"))
+    get_text(server, "/metrics").await
+}
+
+/// The body of `GET path`.
+async fn get_text(server: &TestServer, path: &str) -> String {
+    reqwest::get(server.url(path))
         .await
-        .expect("GET /metrics")
+        .unwrap_or_else(|e| panic!("GET {path}: {e}"))
         .text()
         .await
         .expect("body")
@@ -743,12 +748,7 @@ async fn a_server_on_the_cpu_renderer_streams_frames_and_says_which_renderer_ser
         StreamSettings::default(),
     )
     .await;
-    let (mut socket, _) = connect_async(server.ws_url("/api/stream"))
-        .await
-        .expect("WebSocket connects");
-    let Received::Json(hello) = next(&mut socket).await else {
-        panic!("expected hello first");
-    };
+    let (mut socket, hello) = connect_with_hello(&server).await;
     assert_eq!(hello["renderer"]["kind"], "cpu", "{hello}");
     send(
         &mut socket,
@@ -762,12 +762,7 @@ async fn a_server_on_the_cpu_renderer_streams_frames_and_says_which_renderer_ser
         image.pixels().any(|p| p.0[..3] != [0, 0, 0]),
         "the phantom is drawn"
     );
-    let body = reqwest::get(server.url("/api/datasets"))
-        .await
-        .expect("GET /api/datasets")
-        .text()
-        .await
-        .expect("body");
+    let body = get_text(&server, "/api/datasets").await;
     let datasets: serde_json::Value = serde_json::from_str(&body).expect("JSON");
     assert_eq!(datasets[0]["renderer"]["kind"], "cpu", "{datasets}");
     let text = metrics(&server).await;

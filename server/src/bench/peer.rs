@@ -346,8 +346,8 @@ impl PeerRun<'_> {
             .args(["--size", &self.args.size.to_string()])
             .args(["--mapper", mapper, "--mode", mode])
             .args(["--step", &self.args.step.to_string()])
-            .args(["--frames", &self.frames().to_string()])
-            .args(["--min-frames", &self.frames().min(3).to_string()]);
+            .args(["--frames", &self.args.frames.to_string()])
+            .args(["--min-frames", &self.args.frames.min(3).to_string()]);
         if let Some(dir) = &self.args.images {
             let png = dir.join(format!(
                 "{}-{}-vtk-{round}.png",
@@ -421,11 +421,6 @@ impl PeerRun<'_> {
         })
     }
 
-    /// Frames timed per run.
-    fn frames(&self) -> u32 {
-        self.args.frames
-    }
-
     /// voxserve at `camera`: the first frame (selection, atlas and light)
     /// untimed, then `--frames` frames turning by VTK's azimuth step; returns
     /// the median frame time and the first frame's coverage.
@@ -459,7 +454,7 @@ impl PeerRun<'_> {
                 .with_context(|| format!("cannot write {}", png.display()))?;
         }
         let mut times = Vec::new();
-        for k in 1..=self.frames() {
+        for k in 1..=self.args.frames {
             let turned = FrameRequest {
                 camera: Camera {
                     azimuth_deg: camera.azimuth_deg + VTK_AZIMUTH_STEP * k as f32,
@@ -487,7 +482,7 @@ impl PeerRun<'_> {
                 "reduction": renderer.last_stats().reduction,
                 "levels": renderer.last_stats().level_counts,
                 "first_frame_ms": first_ms,
-                "frames": self.frames(),
+                "frames": self.args.frames,
                 "frame_ms": frame_ms,
                 "coverage": coverage,
                 "camera": format!("{camera:?}"),

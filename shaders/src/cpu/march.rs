@@ -154,12 +154,18 @@ pub fn march<S: Storage>(
 /// WGSL `classify` (`shared/transfer_function.wgsl`), for a table of `tf_len` entries.
 pub fn classify_table(tf_len: u32, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
     let n = tf_len as i32;
-    let x = u.clamp(0.0, 1.0) * n as f32 - 0.5;
-    // floor(x) and x − floor(x) (or one less and 1, which blends alike).
-    let (i0, f) = split(x);
+    let (i0, f) = table_position(tf_len, u);
     let a = Vec4::from(transfer_function[i0.clamp(0, n - 1) as usize]);
     let b = Vec4::from(transfer_function[(i0 + 1).clamp(0, n - 1) as usize]);
     a.lerp(b, f)
+}
+
+/// Where `classify` reads a table of `tf_len` entries for `u`: it blends
+/// entry `i` (clamped to the table) and the next by the fraction returned.
+#[inline]
+pub fn table_position(tf_len: u32, u: f32) -> (i32, f32) {
+    // floor(x) and x − floor(x) (or one less and 1, which blends alike).
+    split(u.clamp(0.0, 1.0) * tf_len as f32 - 0.5)
 }
 
 /// WGSL `classify`.
@@ -208,6 +214,21 @@ fn shade(p: &RaycastParams, rgb: Vec3, g: Vec3, view_dir: Vec3) -> Vec3 {
     let specular = n.dot(h).abs().powf(p.phong[3]);
     let [ambient, kd, ks, _] = p.phong;
     rgb * (ambient + kd * diffuse) + Vec3::splat(ks * specular)
+}
+
+/// CPU only: per axis, the ray parameter where the ray `origin + t·dir`
+/// crosses the far face (in its direction of travel) of the grid cell
+/// `cell` of a grid with cells `edge` wide; infinity along axes it does not
+/// move along. The walks of the block grid and of a block's cells use it.
+#[inline]
+pub fn far_face_crossing(cell: Vec3, edge: Vec3, origin: Vec3, dir: Vec3) -> Vec3 {
+    let ahead = Vec3::select(dir.cmpgt(Vec3::ZERO), Vec3::ONE, Vec3::ZERO);
+    let face = (cell + ahead) * edge;
+    Vec3::select(
+        dir.abs().cmplt(Vec3::splat(1e-12)),
+        Vec3::INFINITY,
+        (face - origin) / dir,
+    )
 }
 
 /// WGSL `intersect_box`.

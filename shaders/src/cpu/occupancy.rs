@@ -13,7 +13,7 @@ use blocks::packing::{APRON, slot_edge};
 use blocks::store::LEVELS;
 use rayon::prelude::*;
 
-use super::march::Cell;
+use super::march::{Cell, far_face_crossing, table_position};
 use super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture};
 use super::texture::{floor, split};
 use crate::packed_volume::PackedVolume;
@@ -45,9 +45,9 @@ pub fn visible_cells(
             lo * g.value_scale + g.value_offset,
             hi * g.value_scale + g.value_offset,
         );
-        let (a, b) = (a.min(b).clamp(0.0, 1.0), a.max(b).clamp(0.0, 1.0));
-        let first = (floor(a * n as f32 - 0.5) as i32).clamp(0, n - 1) as usize;
-        let last = (floor(b * n as f32 - 0.5) as i32 + 1).clamp(0, n - 1) as usize;
+        let tf_len = n as u32;
+        let first = table_position(tf_len, a.min(b)).0.clamp(0, n - 1) as usize;
+        let last = (table_position(tf_len, a.max(b)).0 + 1).clamp(0, n - 1) as usize;
         visible_before[last + 1] > visible_before[first]
     };
     packed
@@ -113,14 +113,8 @@ pub fn cell_at(visible: u64, local_at_zero: Vec3, local_per_t: Vec3, t: f32) -> 
     let index = |v: f32| split(v / CELL).0.clamp(0, last);
     let c = [index(local.x), index(local.y), index(local.z)];
     let bit = (c[2] as usize * CELLS + c[1] as usize) * CELLS + c[0] as usize;
-    // Where the ray crosses the cell's far face along each axis.
-    let ahead = Vec3::select(local_per_t.cmpgt(Vec3::ZERO), Vec3::ONE, Vec3::ZERO);
-    let face = (Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) + ahead) * CELL;
-    let crossing = Vec3::select(
-        local_per_t.abs().cmplt(Vec3::splat(1e-12)),
-        Vec3::INFINITY,
-        (face - local_at_zero) / local_per_t,
-    );
+    let cell = Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
+    let crossing = far_face_crossing(cell, Vec3::splat(CELL), local_at_zero, local_per_t);
     Cell {
         transparent: visible & (1 << bit) == 0,
         exit: crossing.min_element(),

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use super::march::{Cell, Span, Storage, gradient_at, march};
+use super::march::{Cell, Span, Storage, far_face_crossing, gradient_at, march};
 use super::occupancy::cell_at;
 use super::packed::{BLOCK, BlockLocation, PackedTexture, atlas_texel, block_of, empty_exit};
 use super::slot_atlas::SLOT_APRON;
@@ -21,15 +21,8 @@ impl Storage for PackedTexture {
     fn span(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, t: f32) -> Span<BlockLocation> {
         let g = &p.volume;
         let block = block_of(g, origin + dir * t);
-        // Where the ray crosses the block's far face along each axis.
-        let edge = Vec3::from(g.texel) * BLOCK;
-        let ahead = Vec3::select(dir.cmpgt(Vec3::ZERO), Vec3::ONE, Vec3::ZERO);
-        let face = (Vec3::new(block[0] as f32, block[1] as f32, block[2] as f32) + ahead) * edge;
-        let t_max = Vec3::select(
-            dir.abs().cmplt(Vec3::splat(1e-12)),
-            Vec3::INFINITY,
-            (face - origin) / dir,
-        );
+        let cell = Vec3::new(block[0] as f32, block[1] as f32, block[2] as f32);
+        let t_max = far_face_crossing(cell, Vec3::from(g.texel) * BLOCK, origin, dir);
         self.block_span(g, origin, dir, block, t_max, t)
     }
 

@@ -24,7 +24,7 @@ use crate::illumination::Mode;
 use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
-use crate::renderer::{ARRIVAL_PATIENCE, RenderStats};
+use crate::renderer::RenderStats;
 use crate::residency::{Residency, budget_voxels};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuError, LightSettings};
@@ -138,21 +138,14 @@ impl CpuRenderer {
     fn render_lit(&mut self, request: &FrameRequest, complete: bool) -> Result<Frame, GpuError> {
         request.validate()?;
         let tf = request.store_transfer_function(self.cache.store().meta());
-        let mut stats = self.prepare(&tf, request.reduction)?;
-        while complete && stats.pending_blocks > 0 {
-            let seen = self.cache.arrivals();
-            if self.cache.loading() > 0 {
-                self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
-            }
-            let more = self.prepare(&tf, request.reduction)?;
-            stats = RenderStats {
-                uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
-                relayout: stats.relayout || more.relayout,
-                select_ms: stats.select_ms + more.select_ms,
-                upload_ms: stats.upload_ms + more.upload_ms,
-                ..more
-            };
-        }
+        let budget = budget_voxels(self.full_voxels, request.reduction);
+        let stats = RenderStats::from(self.residency.update_complete(
+            &self.device,
+            &self.desc,
+            &tf,
+            budget,
+            complete,
+        )?);
         if self.table.as_ref().is_none_or(|(t, _)| *t != tf) {
             self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
         }
@@ -161,22 +154,6 @@ impl CpuRenderer {
             self.update_light(mode, request, &tf);
         }
         self.draw(request, stats)
-    }
-
-    /// Brings the resident blocks up to date.
-    fn prepare(&mut self, tf: &TransferFunction, reduction: f32) -> Result<RenderStats, GpuError> {
-        let budget = budget_voxels(self.full_voxels, reduction);
-        let r = self
-            .residency
-            .update(&self.device, &self.desc, tf, budget)?;
-        Ok(RenderStats {
-            uploaded_blocks: r.uploaded_blocks,
-            relayout: r.relayout,
-            select_ms: r.select_ms,
-            upload_ms: r.upload_ms,
-            pending_blocks: r.pending_blocks,
-            ..RenderStats::default()
-        })
     }
 
     /// Finds the atlas's transparent cells for `tf` unless the shown blocks
