@@ -5,6 +5,7 @@
 
 use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
+use wide::{f32x4, i32x4};
 
 use super::hash::{pcg_hash, unit_from_hash};
 use super::texture::{floor, split};
@@ -43,6 +44,20 @@ pub trait Storage: Sync + Sized {
     fn sample_in(&self, p: &RaycastParams, span: &Span<Self::Location>, t: f32, tc: Vec3) -> f32 {
         let _ = t;
         self.sample_at(p, tc, &span.loc)
+    }
+    /// CPU only: [`Storage::sample_in`] for the four samples at `ts` on the
+    /// ray `origin + t·dir`, all in `span` (where lanes past the stretch's
+    /// end read, they read something harmless; the march drops them).
+    #[inline(always)]
+    fn sample4_in(
+        &self,
+        p: &RaycastParams,
+        span: &Span<Self::Location>,
+        ts: [f32; 4],
+        origin: Vec3,
+        dir: Vec3,
+    ) -> [f32; 4] {
+        ts.map(|t| self.sample_in(p, span, t, origin + dir * t))
     }
     /// CPU only: the cell of `span`'s block that holds the sample at `t`
     /// on the ray `origin + t·dir`, whether the transfer function hides
@@ -91,6 +106,10 @@ pub struct Span<L> {
     pub loc: L,
     /// The ray parameter where the stretch ends: samples at `t < exit` are in it.
     pub exit: f32,
+    /// Where it begins, when a walk of the block grid reached it across
+    /// empty blocks it jumped (empty-space skipping): the samples before are
+    /// in those; minus infinity otherwise.
+    pub enter: f32,
     /// Storage-specific: the sample's texel position is `texel_at_zero + t·texel_per_t`.
     pub texel_at_zero: Vec3,
     /// See `texel_at_zero`.
@@ -134,21 +153,31 @@ pub fn march<S: Storage>(
     output
         .par_chunks_mut(width * 4 * TILE)
         .enumerate()
-        .for_each(|(band, rows)| {
-            let height = rows.len() / (width * 4);
-            for x0 in (0..width).step_by(TILE) {
-                for dy in 0..height {
-                    let y = (band * TILE + dy) as u32;
-                    for x in x0..(x0 + TILE).min(width) {
-                        if let Some(rgba) = main(params, storage, transfer_function, [x as u32, y])
-                        {
-                            let at = (dy * width + x) * 4;
-                            rows[at..at + 4].copy_from_slice(&rgba);
-                        }
-                    }
+        .for_each(|(band, rows)| march_band(params, storage, transfer_function, band, rows));
+}
+
+/// One band of rows of [`march`], tile by tile.
+#[inline(never)]
+fn march_band<S: Storage>(
+    params: &RaycastParams,
+    storage: &S,
+    transfer_function: &[[f32; 4]],
+    band: usize,
+    rows: &mut [u8],
+) {
+    let width = params.width as usize;
+    let height = rows.len() / (width * 4);
+    for x0 in (0..width).step_by(TILE) {
+        for dy in 0..height {
+            let y = (band * TILE + dy) as u32;
+            for x in x0..(x0 + TILE).min(width) {
+                if let Some(rgba) = main(params, storage, transfer_function, [x as u32, y]) {
+                    let at = (dy * width + x) * 4;
+                    rows[at..at + 4].copy_from_slice(&rgba);
                 }
             }
-        });
+        }
+    }
 }
 
 /// WGSL `classify` (`shared/transfer_function.wgsl`), for a table of `tf_len` entries.
@@ -158,6 +187,34 @@ pub fn classify_table(tf_len: u32, transfer_function: &[[f32; 4]], u: f32) -> Ve
     let a = Vec4::from(transfer_function[i0.clamp(0, n - 1) as usize]);
     let b = Vec4::from(transfer_function[(i0 + 1).clamp(0, n - 1) as usize]);
     a.lerp(b, f)
+}
+
+/// [`classify`] of four values at once: the table positions side by side
+/// (the same arithmetic as [`table_position`], so the same classes).
+#[inline(always)]
+pub fn classify4(p: &RaycastParams, transfer_function: &[[f32; 4]], us: [f32; 4]) -> [Vec4; 4] {
+    let n = p.volume.tf_len;
+    let x = f32x4::from(us).fast_max(f32x4::ZERO).fast_min(f32x4::ONE) * f32x4::splat(n as f32)
+        - f32x4::splat(0.5);
+    let whole = round_down(x);
+    let fraction = (x - whole).to_array();
+    let last = i32x4::splat(n as i32 - 1);
+    let i0 = whole.fast_trunc_int();
+    let lower = i0.max(i32x4::ZERO).min(last).to_array();
+    let upper = (i0 + i32x4::ONE).max(i32x4::ZERO).min(last).to_array();
+    [0, 1, 2, 3].map(|j| {
+        let a = Vec4::from(transfer_function[lower[j] as usize]);
+        let b = Vec4::from(transfer_function[upper[j] as usize]);
+        a.lerp(b, fraction[j])
+    })
+}
+
+/// Per lane, [`split`]'s whole number as a float: `floor(x)`, or one less
+/// where `x` is whole, for `|x| < 2²²`.
+#[inline(always)]
+pub fn round_down(x: f32x4) -> f32x4 {
+    const MAGIC: f32 = 12_582_912.0;
+    ((x - f32x4::splat(0.5)) + f32x4::splat(MAGIC)) - f32x4::splat(MAGIC)
 }
 
 /// Where `classify` reads a table of `tf_len` entries for `u`: it blends
@@ -245,6 +302,89 @@ pub fn intersect_box(origin: Vec3, dir: Vec3, lo: Vec3, hi: Vec3) -> Vec2 {
     Vec2::new(enter, exit)
 }
 
+/// A sample on a ray: where (`t`), its normalised value and its class.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    t: f32,
+    u: f32,
+    rgba: Vec4,
+}
+
+/// What a ray has gathered so far: the variables of WGSL `main`'s loop.
+#[derive(Debug, Default)]
+struct Accumulator {
+    /// The opacity correction's exponent (step over reference step).
+    exponent: f32,
+    color: Vec3,
+    alpha: f32,
+    /// Σ Δt·τ so far (extinction compositing).
+    depth: f32,
+    found: bool,
+    extreme: f32,
+}
+
+impl Accumulator {
+    /// The body of WGSL `main`'s loop after `classify`, for a sample of
+    /// `span`; true when the ray is done (early ray termination).
+    #[inline(always)]
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "the loop's variables, as the shader has them"
+    )]
+    fn add<S: Storage>(
+        &mut self,
+        p: &RaycastParams,
+        s: &S,
+        span: &Span<S::Location>,
+        sample: Sample,
+        tex_origin: Vec3,
+        tex_dir: Vec3,
+        dir: Vec3,
+    ) -> bool {
+        let Sample { t, u, rgba } = sample;
+        if rgba.w <= 0.0 {
+            return false;
+        }
+        if p.mode != MODE_COMPOSITE {
+            if !self.found {
+                self.extreme = u;
+                self.found = true;
+            } else if p.mode == MODE_MIP {
+                self.extreme = self.extreme.max(u);
+            } else {
+                self.extreme = self.extreme.min(u);
+            }
+            return false;
+        }
+        let tc = tex_origin + tex_dir * t;
+        let a = corrected_opacity(rgba.w, self.exponent);
+        let mut rgb = rgba.xyz();
+        if p.flags & FLAG_SHADED != 0 {
+            let g = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0)).xyz()
+                * p.volume.value_scale;
+            rgb = shade(p, rgb, g, dir);
+        }
+        if p.flags & FLAG_LIT != 0 {
+            // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
+            let bias = p.light[3];
+            let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
+            rgb *= Vec3::splat(bias)
+                + (1.0 - bias) * colour * s.light_at(p, tc - tex_dir * p.light_offset, &span.loc);
+        }
+        if p.flags & FLAG_EXTINCTION != 0 {
+            // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).
+            let dtau = -(1.0 - a.min(MAX_SAMPLE_OPACITY)).ln();
+            self.depth += dtau;
+            self.color += (-self.depth).exp() * dtau * rgb;
+            self.alpha = 1.0 - (-self.depth).exp();
+        } else {
+            self.color += (1.0 - self.alpha) * a * rgb;
+            self.alpha += (1.0 - self.alpha) * a;
+        }
+        self.alpha >= p.early_termination
+    }
+}
+
 /// WGSL `main`: the pixel at `gid`, or `None` past the image's edge.
 fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) -> Option<[u8; 4]> {
     if gid[0] >= p.width || gid[1] >= p.height {
@@ -270,105 +410,102 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         Vec3::from(p.clip_min),
         Vec3::from(p.clip_max),
     );
-    let mut color = Vec3::ZERO;
-    let mut alpha = 0.0f32;
-    // Σ Δt·τ so far (extinction compositing).
-    let mut depth = 0.0f32;
-    let mut found = false;
-    let mut extreme = 0.0f32;
+    let mut acc = Accumulator::default();
     if span.x < span.y {
         let mut jitter = 0.0;
         if p.flags & FLAG_JITTER != 0 {
             jitter = unit_from_hash(pcg_hash(gid[1] * p.width + gid[0]));
         }
-        let exponent = p.step / p.volume.reference_step;
+        acc.exponent = p.step / p.volume.reference_step;
         let first = span.x + jitter * p.step;
-        let gradient_from_texture = p.gradient_from_texture;
         let mut i = 0u32;
         let mut stretch = s.span(p, tex_origin, tex_dir, first);
         let mut visible_until = f32::NEG_INFINITY;
-        for _k in 0..p.max_steps {
+        let skipping = p.flags & FLAG_SKIP_EMPTY != 0;
+        // Loop iterations, as the GPU counts them (a sample or a skip each).
+        let mut k = 0u32;
+        'march: while k < p.max_steps {
             let t = first + i as f32 * p.step;
             if t > span.y {
                 break;
             }
-            let tc = tex_origin + tex_dir * t;
             if t >= stretch.exit {
                 stretch = s.next_span(p, tex_origin, tex_dir, &stretch, t);
+            }
+            if t < stretch.enter {
+                // In the empty blocks the walk jumped: on to the first
+                // sample in the stretch, as `empty_exit` jumps one block.
+                i = (i + 1).max(-floor(-(stretch.enter - first) / p.step) as u32);
+                k += 1;
+                continue;
             }
             let loc = &stretch.loc;
             if S::is_empty(loc) {
                 let mut next = i + 1;
-                if p.flags & FLAG_SKIP_EMPTY != 0 {
+                if skipping {
                     let exit = s.empty_exit(p, tex_origin, tex_dir, loc);
                     // WGSL's f32 → u32 conversion saturates like Rust's `as`.
                     next = next.max(-floor(-(exit - first) / p.step) as u32);
                 }
                 i = next;
+                k += 1;
                 continue;
             }
+            // Samples at t < `limit` share the stretch (and the cell).
+            let mut limit = stretch.exit;
             // With empty-space skipping, samples the transfer function hides
             // are jumped over too (the GPU looks at each and drops it: the
-            // same pixels).
-            // A cell found visible is not looked up again until the ray leaves it.
-            if p.flags & FLAG_SKIP_EMPTY != 0
-                && stretch.visible != u64::MAX
-                && t >= visible_until
-                && let Some(cell) = s.cell(p, &stretch, t, tex_origin, tex_dir)
-            {
-                if cell.transparent {
-                    i = (i + 1).max(-floor(-(cell.exit - first) / p.step) as u32);
-                    continue;
+            // same pixels). A cell found visible is not looked up again until
+            // the ray leaves it.
+            if skipping && stretch.visible != u64::MAX {
+                if t >= visible_until
+                    && let Some(cell) = s.cell(p, &stretch, t, tex_origin, tex_dir)
+                {
+                    if cell.transparent {
+                        i = (i + 1).max(-floor(-(cell.exit - first) / p.step) as u32);
+                        k += 1;
+                        continue;
+                    }
+                    visible_until = cell.exit;
                 }
-                visible_until = cell.exit;
+                limit = limit.min(visible_until);
             }
-            let u = s.sample_in(p, &stretch, t, tc) * p.volume.value_scale + p.volume.value_offset;
-            let rgba = classify(p, tf, u);
-            if rgba.w > 0.0 {
-                if p.mode == MODE_COMPOSITE {
-                    let a = corrected_opacity(rgba.w, exponent);
-                    let mut rgb = rgba.xyz();
-                    if p.flags & FLAG_SHADED != 0 {
-                        let g = (gradient_from_texture
-                            * s.gradient_in(p, &stretch, t, tc).extend(0.0))
-                        .xyz()
-                            * p.volume.value_scale;
-                        rgb = shade(p, rgb, g, dir);
+            // The run of samples from `t` to `limit`, four at a time, the
+            // first whatever `limit` says (a stretch never ends before its
+            // first sample).
+            let mut first_of_run = true;
+            loop {
+                let ts = [0, 1, 2, 3].map(|j| first + (i + j) as f32 * p.step);
+                let values = s.sample4_in(p, &stretch, ts, tex_origin, tex_dir);
+                let us = values.map(|v| v * p.volume.value_scale + p.volume.value_offset);
+                let rgbas = classify4(p, tf, us);
+                for j in 0..4 {
+                    let t = ts[j];
+                    if !first_of_run && (t >= limit || t > span.y || k >= p.max_steps) {
+                        continue 'march;
                     }
-                    if p.flags & FLAG_LIT != 0 {
-                        // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
-                        let bias = p.light[3];
-                        let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
-                        rgb *= Vec3::splat(bias)
-                            + (1.0 - bias)
-                                * colour
-                                * s.light_at(p, tc - tex_dir * p.light_offset, loc);
+                    first_of_run = false;
+                    let sample = Sample {
+                        t,
+                        u: us[j],
+                        rgba: rgbas[j],
+                    };
+                    if acc.add(p, s, &stretch, sample, tex_origin, tex_dir, dir) {
+                        break 'march;
                     }
-                    if p.flags & FLAG_EXTINCTION != 0 {
-                        // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).
-                        let dtau = -(1.0 - a.min(MAX_SAMPLE_OPACITY)).ln();
-                        depth += dtau;
-                        color += (-depth).exp() * dtau * rgb;
-                        alpha = 1.0 - (-depth).exp();
-                    } else {
-                        color += (1.0 - alpha) * a * rgb;
-                        alpha += (1.0 - alpha) * a;
-                    }
-                    if alpha >= p.early_termination {
-                        break;
-                    }
-                } else if !found {
-                    extreme = u;
-                    found = true;
-                } else if p.mode == MODE_MIP {
-                    extreme = extreme.max(u);
-                } else {
-                    extreme = extreme.min(u);
+                    i += 1;
+                    k += 1;
                 }
             }
-            i += 1;
         }
     }
+    let Accumulator {
+        color,
+        alpha,
+        found,
+        extreme,
+        ..
+    } = acc;
     let background = Vec4::from(p.background).xyz();
     let mut out = color + (1.0 - alpha) * background;
     if p.mode != MODE_COMPOSITE {

@@ -2,14 +2,17 @@
 //! function for function: the march of [`super::march`] over [`PackedTexture`].
 
 use glam::Vec3;
+use wide::f32x4;
 
 use super::march::{Cell, Span, Storage, far_face_crossing, gradient_at, march};
 use super::occupancy::cell_at;
-use super::packed::{BLOCK, BlockLocation, PackedTexture, atlas_texel, block_of, empty_exit};
+use super::packed::{
+    BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit,
+};
 use super::slot_atlas::SLOT_APRON;
 use super::texture::floor3;
 use crate::packed_volume::PackedVolume;
-use crate::raycast::RaycastParams;
+use crate::raycast::{FLAG_SKIP_EMPTY, RaycastParams};
 
 impl Storage for PackedTexture {
     type Location = BlockLocation;
@@ -35,12 +38,15 @@ impl Storage for PackedTexture {
         t: f32,
     ) -> Span<BlockLocation> {
         // A walk of the block grid: into the neighbour across the nearest
-        // face, until the block holding the sample at `t`.
+        // face, until the block holding the sample at `t`, or with
+        // empty-space skipping the first stored block at or after it.
         let g = &p.volume;
+        let skipping = p.flags & FLAG_SKIP_EMPTY != 0;
         let edge = Vec3::from(g.texel) * BLOCK;
         let t_delta = (edge / dir.abs()).min(Vec3::INFINITY);
         let (mut block, mut t_max) = (span.loc.block, span.t_max);
         let last = self.grid.map(|n| n as i32 - 1);
+        let [gx, gy, _] = self.grid.map(|n| n as usize);
         loop {
             let axis = if t_max.x <= t_max.y && t_max.x <= t_max.z {
                 0
@@ -49,15 +55,33 @@ impl Storage for PackedTexture {
             } else {
                 2
             };
+            let enter = t_max[axis];
             block[axis] += if dir[axis] > 0.0 { 1 } else { -1 };
             t_max[axis] += t_delta[axis];
             if !(0..=last[axis]).contains(&block[axis]) {
+                if skipping {
+                    // Past the last stored block: nothing more to sample
+                    // (the walk's rounding can cut a ray short by a hair
+                    // where it leaves through an edge of the grid).
+                    return Span {
+                        enter: f32::INFINITY,
+                        ..*span
+                    };
+                }
                 // Out of the grid (rounding at the volume's edge): find the
                 // sample's block anew.
                 return self.span(p, origin, dir, t);
             }
-            if t < t_max.min_element() {
-                return self.block_span(g, origin, dir, block, t_max, t);
+            if t >= t_max.min_element() {
+                continue;
+            }
+            let index = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
+            if !skipping || self.index[index][3] != EMPTY_LEVEL {
+                let mut next = self.block_span(g, origin, dir, block, t_max, t);
+                if t < enter {
+                    next.enter = enter;
+                }
+                return next;
             }
         }
     }
@@ -78,12 +102,32 @@ impl Storage for PackedTexture {
         ))
     }
 
+    #[inline(always)]
     fn sample_in(&self, _p: &RaycastParams, span: &Span<BlockLocation>, t: f32, _tc: Vec3) -> f32 {
         let loc = &span.loc;
         self.atlas.sample_slot(
             loc.slot,
             loc.slot_edge,
             span.texel_at_zero + span.texel_per_t * t,
+        )
+    }
+
+    #[inline(always)]
+    fn sample4_in(
+        &self,
+        _p: &RaycastParams,
+        span: &Span<BlockLocation>,
+        ts: [f32; 4],
+        _origin: Vec3,
+        _dir: Vec3,
+    ) -> [f32; 4] {
+        let t = f32x4::from(ts);
+        let (a, b) = (span.texel_at_zero, span.texel_per_t);
+        let axis = |a: f32, b: f32| f32x4::splat(a) + f32x4::splat(b) * t;
+        self.atlas.sample_slot4(
+            span.loc.slot,
+            span.loc.slot_edge,
+            [axis(a.x, b.x), axis(a.y, b.y), axis(a.z, b.z)],
         )
     }
 
@@ -176,6 +220,7 @@ impl PackedTexture {
         Span {
             visible,
             loc,
+            enter: f32::NEG_INFINITY,
             // Never behind `t`: a stretch ends at the next sample at the latest.
             exit: t_max.min_element().max(t),
             // Within the slot, whose first interior texel is at the apron's width.

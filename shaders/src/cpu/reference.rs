@@ -22,6 +22,7 @@ impl Storage for Texture3d {
         Span {
             loc: PlainLocation,
             exit: f32::INFINITY,
+            enter: f32::NEG_INFINITY,
             texel_at_zero: Vec3::ZERO,
             texel_per_t: Vec3::ZERO,
             local_at_zero: Vec3::ZERO,

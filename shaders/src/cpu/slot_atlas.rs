@@ -12,7 +12,9 @@ use blocks::lod::EMPTY;
 use blocks::packing::{APRON, Packing, Region, slot_edge};
 use blocks::store::LEVELS;
 use glam::Vec3;
+use wide::f32x4;
 
+use super::march::round_down;
 use super::texture::{floor3, split, trilinear};
 
 /// The atlas of one packing, slot by slot; see the module docs.
@@ -148,17 +150,17 @@ impl SlotAtlas {
     /// at `base` with edge `edge` (texel centres at integers, the apron at 0
     /// and `edge − 1`), `p` kept in the slot: what the GPU's filtering reads
     /// there, since every texel it touches is the slot's.
-    #[inline]
+    #[inline(always)]
     pub fn sample_slot(&self, base: usize, edge: usize, p: Vec3) -> f32 {
-        let last = (edge - 1) as f32;
+        // Kept a hair inside the last texel, so that the lower texel of each
+        // pair is at most the one before the last (the fraction there is
+        // 1 − 2⁻¹², where the GPU's filtering weights have 8 bits).
+        let last = (edge - 1) as f32 - 1.0 / 4096.0;
         let p = p.clamp(Vec3::ZERO, Vec3::splat(last));
-        // The lower texel of each pair, at most the one before the last.
-        let axis = |v: f32| {
-            let (whole, fraction) = split(v);
-            let lower = whole.clamp(0, edge as i32 - 2);
-            (lower as usize, fraction + (whole - lower) as f32)
-        };
-        let ((x, fx), (y, fy), (z, fz)) = (axis(p.x), axis(p.y), axis(p.z));
+        let (x, fx) = split(p.x);
+        let (y, fy) = split(p.y);
+        let (z, fz) = split(p.z);
+        let (x, y, z) = (x as usize, y as usize, z as usize);
         let first = base + (z * edge + y) * edge + x;
         trilinear(
             &self.texels,
@@ -167,6 +169,43 @@ impl SlotAtlas {
             edge * edge,
             Vec3::new(fx, fy, fz),
         )
+    }
+
+    /// [`SlotAtlas::sample_slot`] at four positions at once, their
+    /// coordinates along x, y and z side by side (the same arithmetic lane
+    /// by lane, so the same values).
+    #[inline(always)]
+    pub fn sample_slot4(&self, base: usize, edge: usize, p: [f32x4; 3]) -> [f32; 4] {
+        let last = f32x4::splat((edge - 1) as f32 - 1.0 / 4096.0);
+        let p = p.map(|v| v.fast_max(f32x4::ZERO).fast_min(last));
+        let whole = p.map(round_down);
+        let [fx, fy, fz] = [0, 1, 2].map(|a| p[a] - whole[a]);
+        let e = edge as f32;
+        // Whole numbers below 2²⁴: exact in floats.
+        let offset = ((whole[2] * f32x4::splat(e) + whole[1]) * f32x4::splat(e) + whole[0])
+            .fast_trunc_int()
+            .to_array();
+        let (row, slice) = (edge, edge * edge);
+        let corners = [
+            0,
+            1,
+            row,
+            row + 1,
+            slice,
+            slice + 1,
+            slice + row,
+            slice + row + 1,
+        ];
+        let texels = &self.texels[base..base + slice * edge];
+        let at = |corner: usize| {
+            f32x4::from([0, 1, 2, 3].map(|j| texels[offset[j] as usize + corners[corner]]))
+        };
+        let lerp = |a: f32x4, b: f32x4, t: f32x4| a + (b - a) * t;
+        let c00 = lerp(at(0), at(1), fx);
+        let c10 = lerp(at(2), at(3), fx);
+        let c01 = lerp(at(4), at(5), fx);
+        let c11 = lerp(at(6), at(7), fx);
+        lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array()
     }
 }
 

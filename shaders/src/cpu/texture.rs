@@ -18,7 +18,7 @@ pub fn floor(x: f32) -> f32 {
 
 /// Trilinear interpolation of the 2×2×2 texels whose first (lowest) is
 /// `texels[first]`, rows `row` and slices `slice` apart, at fractions `f`.
-#[inline]
+#[inline(always)]
 pub fn trilinear(texels: &[f32], first: usize, row: usize, slice: usize, f: Vec3) -> f32 {
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
     let t = &texels[first..first + slice + row + 2];
