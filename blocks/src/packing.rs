@@ -27,7 +27,7 @@ use crate::store::{BLOCK, LEVELS};
 pub const APRON: u32 = 1;
 
 /// The edge of a level-l slot: the block plus its apron.
-pub fn slot_edge(level: usize) -> u32 {
+pub const fn slot_edge(level: usize) -> u32 {
     (BLOCK >> level) + 2 * APRON
 }
 

@@ -4,12 +4,12 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{Cell, Span, Storage, far_face_crossing, gradient_at, march};
+use super::march::{Cell, Span, Storage, far_face_crossing, march};
 use super::occupancy::cell_at;
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit,
 };
-use super::slot_atlas::SLOT_APRON;
+use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON};
 use super::texture::floor3;
 use crate::packed_volume::PackedVolume;
 use crate::raycast::{FLAG_SKIP_EMPTY, RaycastParams};
@@ -132,23 +132,40 @@ impl Storage for PackedTexture {
     }
 
     fn gradient_in(&self, p: &RaycastParams, span: &Span<BlockLocation>, t: f32, tc: Vec3) -> Vec3 {
-        let local = span.local_at_zero + span.local_per_t * t;
-        // A voxel from every face of the block: all six neighbours are in it
-        // (what `sample_neighbour` finds), so they are read from its slot.
-        let inner = local.cmpge(Vec3::ONE) & local.cmplt(Vec3::splat(BLOCK - 1.0));
-        if !inner.all() {
-            return gradient_at(self, p, tc, &span.loc);
-        }
         let loc = &span.loc;
+        let local = span.local_at_zero + span.local_per_t * t;
         let centre = span.texel_at_zero + span.texel_per_t * t;
-        let s = loc.scale;
         let h = Vec3::from(p.volume.texel);
-        let at = |d: Vec3| self.atlas.sample_slot(loc.slot, loc.slot_edge, centre + d);
-        let differences = Vec3::new(
-            at(Vec3::new(s, 0.0, 0.0)) - at(Vec3::new(-s, 0.0, 0.0)),
-            at(Vec3::new(0.0, s, 0.0)) - at(Vec3::new(0.0, -s, 0.0)),
-            at(Vec3::new(0.0, 0.0, s)) - at(Vec3::new(0.0, 0.0, -s)),
-        );
+        // A voxel from the block's faces along an axis, both neighbours
+        // along it are in the block (what `sample_neighbour` finds), so
+        // they are read from its slot.
+        let inner = local.cmpge(Vec3::ONE) & local.cmplt(Vec3::splat(BLOCK - 1.0));
+        // At level 0 the neighbours are a texel away.
+        if inner.all()
+            && loc.slot_edge == LEVEL0_EDGE
+            && let Some(differences) = self.atlas.central_differences(loc.slot, centre)
+        {
+            return differences / (2.0 * h);
+        }
+        let at = |p: Vec3| self.atlas.sample_slot(loc.slot, loc.slot_edge, p);
+        let mut differences = Vec3::ZERO;
+        for axis in 0..3 {
+            let mut d = Vec3::ZERO;
+            d[axis] = loc.scale;
+            differences[axis] = if inner.test(axis) {
+                at(centre + d) - at(centre - d)
+            } else {
+                // Within a voxel of a face: the neighbour beyond it may be
+                // in the next block, the other one is in this one.
+                let mut step = Vec3::ZERO;
+                step[axis] = h[axis];
+                if local[axis] < 1.0 {
+                    at(centre + d) - self.sample_neighbour(p, tc - step, loc)
+                } else {
+                    self.sample_neighbour(p, tc + step, loc) - at(centre - d)
+                }
+            };
+        }
         differences / (2.0 * h)
     }
 

@@ -176,38 +176,105 @@ impl SlotAtlas {
     /// by lane, so the same values).
     #[inline(always)]
     pub fn sample_slot4(&self, base: usize, edge: usize, p: [f32x4; 3]) -> [f32; 4] {
-        let last = f32x4::splat((edge - 1) as f32 - 1.0 / 4096.0);
+        // The slot's edge as a constant: the eight texels a sample blends
+        // at fixed offsets in a window of fixed size, one bounds check.
+        match edge {
+            18 => self.sample_slot4_edge::<18, { 18 * 18 + 18 + 2 }>(base, p),
+            10 => self.sample_slot4_edge::<10, { 10 * 10 + 10 + 2 }>(base, p),
+            6 => self.sample_slot4_edge::<6, { 6 * 6 + 6 + 2 }>(base, p),
+            4 => self.sample_slot4_edge::<4, { 4 * 4 + 4 + 2 }>(base, p),
+            _ => self.sample_slot4_edge::<3, { 3 * 3 + 3 + 2 }>(base, p),
+        }
+    }
+
+    /// [`SlotAtlas::sample_slot4`] in slots of edge `E`; `W` is the window
+    /// of a sample's eight texels, `E² + E + 2`.
+    #[inline(always)]
+    fn sample_slot4_edge<const E: usize, const W: usize>(
+        &self,
+        base: usize,
+        p: [f32x4; 3],
+    ) -> [f32; 4] {
+        let last = f32x4::splat((E - 1) as f32 - 1.0 / 4096.0);
         let p = p.map(|v| v.fast_max(f32x4::ZERO).fast_min(last));
         let whole = p.map(round_down);
         let [fx, fy, fz] = [0, 1, 2].map(|a| p[a] - whole[a]);
-        let e = edge as f32;
+        let e = f32x4::splat(E as f32);
         // Whole numbers below 2²⁴: exact in floats.
-        let offset = ((whole[2] * f32x4::splat(e) + whole[1]) * f32x4::splat(e) + whole[0])
+        let offset = ((whole[2] * e + whole[1]) * e + whole[0])
             .fast_trunc_int()
             .to_array();
-        let (row, slice) = (edge, edge * edge);
-        let corners = [
-            0,
-            1,
-            row,
-            row + 1,
-            slice,
-            slice + 1,
-            slice + row,
-            slice + row + 1,
-        ];
-        let texels = &self.texels[base..base + slice * edge];
-        let at = |corner: usize| {
-            f32x4::from([0, 1, 2, 3].map(|j| texels[offset[j] as usize + corners[corner]]))
-        };
+        let windows: [&[f32; W]; 4] = offset.map(|o| {
+            let start = base + o as usize;
+            self.texels
+                .get(start..start + W)
+                .and_then(|w| w.try_into().ok())
+                .unwrap_or(&[0.0; W])
+        });
+        let (row, slice) = (E, E * E);
+        let at = |corner: usize| f32x4::from(windows.map(|w| w[corner]));
         let lerp = |a: f32x4, b: f32x4, t: f32x4| a + (b - a) * t;
         let c00 = lerp(at(0), at(1), fx);
-        let c10 = lerp(at(2), at(3), fx);
-        let c01 = lerp(at(4), at(5), fx);
-        let c11 = lerp(at(6), at(7), fx);
+        let c10 = lerp(at(row), at(row + 1), fx);
+        let c01 = lerp(at(slice), at(slice + 1), fx);
+        let c11 = lerp(at(slice + row), at(slice + row + 1), fx);
         lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array()
     }
+
+    /// `sample_slot(p + a) − sample_slot(p − a)` for the unit steps `a`
+    /// along x, y and z, in a slot of level 0, for `p` with a texel and a
+    /// half to spare on every side (`None` where it has not): both samples
+    /// of a pair blend with `p`'s weights, so their difference is that blend
+    /// of the texels' own differences, one trilinear blend for all three axes.
+    #[inline(always)]
+    pub fn central_differences(&self, base: usize, p: Vec3) -> Option<Vec3> {
+        const E: usize = LEVEL0_EDGE;
+        const ROW: usize = E;
+        const SLICE: usize = E * E;
+        // From the texel a slice before the first corner to the one a slice
+        // after the last.
+        const W: usize = 3 * SLICE + ROW + 2;
+        let (x, fx) = split(p.x);
+        let (y, fy) = split(p.y);
+        let (z, fz) = split(p.z);
+        let inside = |v: i32| (1..E as i32 - 2).contains(&v);
+        if !(inside(x) && inside(y) && inside(z)) {
+            return None;
+        }
+        let first = base + (z as usize * E + y as usize) * E + x as usize;
+        let w: &[f32; W] = self
+            .texels
+            .get(first - SLICE..first - SLICE + W)?
+            .try_into()
+            .ok()?;
+        let d = |c: usize| differences::<W, ROW, SLICE>(w, SLICE + c);
+        let lerp = |a: f32x4, b: f32x4, t: f32| a + (b - a) * f32x4::splat(t);
+        let c00 = lerp(d(0), d(1), fx);
+        let c10 = lerp(d(ROW), d(ROW + 1), fx);
+        let c01 = lerp(d(SLICE), d(SLICE + 1), fx);
+        let c11 = lerp(d(SLICE + ROW), d(SLICE + ROW + 1), fx);
+        let [dx, dy, dz, _] = lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array();
+        Some(Vec3::new(dx, dy, dz))
+    }
 }
+
+/// The texels' differences across texel `c` of `w` along x, y and z (rows
+/// `ROW` and slices `SLICE` apart).
+#[inline(always)]
+fn differences<const W: usize, const ROW: usize, const SLICE: usize>(
+    w: &[f32; W],
+    c: usize,
+) -> f32x4 {
+    f32x4::from([
+        w[c + 1] - w[c - 1],
+        w[c + ROW] - w[c - ROW],
+        w[c + SLICE] - w[c - SLICE],
+        0.0,
+    ])
+}
+
+/// The edge of a level-0 slot in texels.
+pub const LEVEL0_EDGE: usize = slot_edge(0) as usize;
 
 /// The apron's width, as a texel offset within a slot.
 pub const SLOT_APRON: f32 = APRON as f32;
