@@ -219,6 +219,10 @@ fn vtk_transfer_function(range: [f32; 2]) -> TransferFunction {
 pub fn peer(args: &BenchPeerArgs) -> anyhow::Result<()> {
     let python = vtk_python(args.python.as_deref())?;
     let backend = args.renderer.backend()?;
+    if let Some(dir) = &args.images {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--images: cannot create {}", dir.display()))?;
+    }
     for name in &args.datasets {
         let Some(peer) = DATASETS.iter().find(|d| d.name == name) else {
             let names: Vec<&str> = DATASETS.iter().map(|d| d.name).collect();

@@ -1,7 +1,12 @@
-//! CPU twin of `shaders/wgsl/shared/march.wgsl`, loop for loop: the ray march
-//! shared by the `raycast` and `reference` twins. Each twin supplies its voxel
-//! storage as a [`Storage`], the counterpart of the functions a WGSL stage
-//! defines (`locate`, `sample_at`, `sample_neighbour`, `light_at`, `empty_exit`).
+//! CPU twin of `shaders/wgsl/shared/march.wgsl`: the ray march shared by the
+//! `raycast` and `reference` twins, the shader's functions with its
+//! arithmetic. Each twin supplies its voxel storage as a [`Storage`], the
+//! counterpart of the functions a WGSL stage defines (`locate`, `sample_at`,
+//! `sample_neighbour`, `light_at`, `empty_exit`). Where the GPU looks each
+//! sample up, the CPU walks the block grid and takes the samples within a
+//! block (and a visible cell) as a run, four at a time
+//! ([`Storage::sample4_in`], [`classify4`]), composited in order by the
+//! shader's loop body (`Accumulator::add`).
 
 use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;

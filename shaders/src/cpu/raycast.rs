@@ -10,7 +10,7 @@ use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit,
 };
 use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON};
-use super::texture::floor3;
+use super::texture::{Texture3d, floor3};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::{FLAG_SKIP_EMPTY, RaycastParams};
 
@@ -195,9 +195,9 @@ impl Storage for PackedTexture {
     }
 
     fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> Vec3 {
-        if let Some([r, g, b]) = &self.light_cache {
+        if let Some(channels) = &self.light_cache {
             // shared/light_cache.wgsl: grid-shaped, read at tc.
-            return Vec3::new(r.sample_level(tc), g.sample_level(tc), b.sample_level(tc));
+            return Texture3d::sample_level3(channels, tc);
         }
         match &self.light {
             Some(light) => Vec3::splat(light.sample_texel(atlas_texel(&p.volume, tc, loc))),

@@ -100,6 +100,25 @@ impl Texture3d {
         self.sample_texel(tc * dims - 0.5)
     }
 
+    /// [`Texture3d::sample_level`] of three textures of one size at once
+    /// (the channels of a colour), the weights found once.
+    pub fn sample_level3(channels: &[Texture3d; 3], tc: Vec3) -> Vec3 {
+        let [r, g, b] = channels;
+        let [nx, ny, nz] = r.dims.map(|d| d as i32);
+        let p = tc * Vec3::new(nx as f32, ny as f32, nz as f32) - 0.5;
+        let base = floor3(p);
+        let (x, y, z) = (base.x as i32, base.y as i32, base.z as i32);
+        let same = g.dims == r.dims && b.dims == r.dims;
+        if same && x >= 0 && y >= 0 && z >= 0 && x + 1 < nx && y + 1 < ny && z + 1 < nz {
+            let (row, slice) = (nx as usize, (nx * ny) as usize);
+            let first = (z as usize * ny as usize + y as usize) * row + x as usize;
+            let f = p - base;
+            let blend = |t: &Texture3d| trilinear(&t.texels, first, row, slice, f);
+            return Vec3::new(blend(r), blend(g), blend(b));
+        }
+        Vec3::new(r.sample_level(tc), g.sample_level(tc), b.sample_level(tc))
+    }
+
     /// Trilinear sample at texel position `p` (texel centres at integers): the
     /// eight texels around it read straight from memory when all are inside,
     /// else through [`Texture3d::load`]'s clamp to the edge.
