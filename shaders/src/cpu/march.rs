@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use wide::{f32x4, i32x4};
 
 use super::hash::{pcg_hash, unit_from_hash};
-use super::texture::{floor, split};
+use super::texture::{floor, round_down, split};
 use crate::raycast::{
     FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP,
     RaycastParams, WORKGROUP_SIZE,
@@ -212,14 +212,6 @@ pub fn classify4(p: &RaycastParams, transfer_function: &[[f32; 4]], us: [f32; 4]
         let b = Vec4::from(transfer_function[upper[j] as usize]);
         a.lerp(b, fraction[j])
     })
-}
-
-/// Per lane, [`split`]'s whole number as a float: `floor(x)`, or one less
-/// where `x` is whole, for `|x| < 2²²`.
-#[inline(always)]
-pub fn round_down(x: f32x4) -> f32x4 {
-    const MAGIC: f32 = 12_582_912.0;
-    ((x - f32x4::splat(0.5)) + f32x4::splat(MAGIC)) - f32x4::splat(MAGIC)
 }
 
 /// Where `classify` reads a table of `tf_len` entries for `u`: it blends

@@ -106,10 +106,16 @@ impl PackedTexture {
         self.locate_block(block_of(g, tc))
     }
 
+    /// Where `block` (in the grid) is in the index and the per-block tables.
+    #[inline]
+    pub fn block_index(&self, block: [i32; 3]) -> usize {
+        let [gx, gy, _] = self.grid.map(|n| n as usize);
+        (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize
+    }
+
     /// The location of every sample in `block`: the index entry read.
     pub fn locate_block(&self, block: [i32; 3]) -> BlockLocation {
-        let [gx, gy, _] = self.grid.map(|n| n as usize);
-        let b = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
+        let b = self.block_index(block);
         let entry = self.index[b];
         let empty = entry[3] == EMPTY_LEVEL;
         let slot = self.atlas.slot_base(b);

@@ -46,7 +46,6 @@ impl Storage for PackedTexture {
         let t_delta = (edge / dir.abs()).min(Vec3::INFINITY);
         let (mut block, mut t_max) = (span.loc.block, span.t_max);
         let last = self.grid.map(|n| n as i32 - 1);
-        let [gx, gy, _] = self.grid.map(|n| n as usize);
         loop {
             let axis = if t_max.x <= t_max.y && t_max.x <= t_max.z {
                 0
@@ -75,8 +74,7 @@ impl Storage for PackedTexture {
             if t >= t_max.min_element() {
                 continue;
             }
-            let index = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
-            if !skipping || self.index[index][3] != EMPTY_LEVEL {
+            if !skipping || self.index[self.block_index(block)][3] != EMPTY_LEVEL {
                 let mut next = self.block_span(g, origin, dir, block, t_max, t);
                 if t < enter {
                     next.enter = enter;
@@ -228,12 +226,10 @@ impl PackedTexture {
         // `atlas_texel` unclamped, as a function of t.
         let local_at_zero = origin * dims - corner;
         let local_per_t = dir * dims;
-        let [gx, gy, _] = self.grid.map(|n| n as usize);
-        let index = (block[2] as usize * gy + block[1] as usize) * gx + block[0] as usize;
         let visible = self
             .visible_cells
             .as_ref()
-            .map_or(u64::MAX, |cells| cells[index]);
+            .map_or(u64::MAX, |cells| cells[self.block_index(block)]);
         Span {
             visible,
             loc,

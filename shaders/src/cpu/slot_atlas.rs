@@ -14,8 +14,7 @@ use blocks::store::LEVELS;
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::round_down;
-use super::texture::{floor3, split, trilinear};
+use super::texture::{floor3, round_down, split, trilinear};
 
 /// The atlas of one packing, slot by slot; see the module docs.
 #[derive(Debug, Clone)]
@@ -152,11 +151,7 @@ impl SlotAtlas {
     /// there, since every texel it touches is the slot's.
     #[inline(always)]
     pub fn sample_slot(&self, base: usize, edge: usize, p: Vec3) -> f32 {
-        // Kept a hair inside the last texel, so that the lower texel of each
-        // pair is at most the one before the last (the fraction there is
-        // 1 − 2⁻¹², where the GPU's filtering weights have 8 bits).
-        let last = (edge - 1) as f32 - 1.0 / 4096.0;
-        let p = p.clamp(Vec3::ZERO, Vec3::splat(last));
+        let p = p.clamp(Vec3::ZERO, Vec3::splat(last_position(edge)));
         let (x, fx) = split(p.x);
         let (y, fy) = split(p.y);
         let (z, fz) = split(p.z);
@@ -195,7 +190,7 @@ impl SlotAtlas {
         base: usize,
         p: [f32x4; 3],
     ) -> [f32; 4] {
-        let last = f32x4::splat((E - 1) as f32 - 1.0 / 4096.0);
+        let last = f32x4::splat(last_position(E));
         let p = p.map(|v| v.fast_max(f32x4::ZERO).fast_min(last));
         let whole = p.map(round_down);
         let [fx, fy, fz] = [0, 1, 2].map(|a| p[a] - whole[a]);
@@ -256,6 +251,15 @@ impl SlotAtlas {
         let [dx, dy, dz, _] = lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array();
         Some(Vec3::new(dx, dy, dz))
     }
+}
+
+/// The last position a sample in a slot of edge `edge` is kept at: a hair
+/// inside the last texel, so that the lower texel of each pair is at most the
+/// one before the last (the fraction there is 1 − 2⁻¹², where the GPU's
+/// filtering weights have 8 bits).
+#[inline(always)]
+fn last_position(edge: usize) -> f32 {
+    (edge - 1) as f32 - 1.0 / 4096.0
 }
 
 /// The texels' differences across texel `c` of `w` along x, y and z (rows

@@ -2,6 +2,7 @@
 //! linear filtering and clamp-to-edge addressing, for the CPU twins.
 
 use glam::Vec3;
+use wide::f32x4;
 
 /// `floor(x)` without a call into the C library (where the target has no
 /// rounding instruction, `f32::floor` is one, and it dominated sampling):
@@ -36,10 +37,20 @@ pub fn trilinear(texels: &[f32], first: usize, row: usize, slice: usize, f: Vec3
 /// four instructions where `floor` and a saturating `as` take a dozen.
 #[inline]
 pub fn split(x: f32) -> (i32, f32) {
-    const MAGIC: f32 = 12_582_912.0;
     let rounded = (x - 0.5) + MAGIC;
     let whole = rounded.to_bits() as i32 - MAGIC.to_bits() as i32;
     (whole, x - whole as f32)
+}
+
+/// 1.5·2²³: a float in `2²³..2²⁴` has no fraction bits, so adding it rounds
+/// to a whole number.
+const MAGIC: f32 = 12_582_912.0;
+
+/// Per lane, [`split`]'s whole number as a float: `floor(x)`, or one less
+/// where `x` is whole, for `|x| < 2²²`.
+#[inline(always)]
+pub fn round_down(x: f32x4) -> f32x4 {
+    ((x - f32x4::splat(0.5)) + f32x4::splat(MAGIC)) - f32x4::splat(MAGIC)
 }
 
 /// [`floor`] per component.
