@@ -5,7 +5,7 @@
 //! `sample_neighbour`, `light_at`, `empty_exit`). Where the GPU looks each
 //! sample up, the CPU walks the block grid and takes the samples within a
 //! block (and a visible cell) as a run, four at a time
-//! ([`Storage::sample4_in`], [`classify4`]), composited in order by the
+//! ([`Storage::sample4_in`], [`Classes4`]), composited in order by the
 //! shader's loop body (`Accumulator::add`).
 
 use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
@@ -194,24 +194,50 @@ pub fn classify_table(tf_len: u32, transfer_function: &[[f32; 4]], u: f32) -> Ve
     a.lerp(b, f)
 }
 
-/// [`classify`] of four values at once: the table positions side by side
-/// (the same arithmetic as [`table_position`], so the same classes).
-#[inline(always)]
-pub fn classify4(p: &RaycastParams, transfer_function: &[[f32; 4]], us: [f32; 4]) -> [Vec4; 4] {
-    let n = p.volume.tf_len;
-    let x = f32x4::from(us).fast_max(f32x4::ZERO).fast_min(f32x4::ONE) * f32x4::splat(n as f32)
-        - f32x4::splat(0.5);
-    let whole = round_down(x);
-    let fraction = (x - whole).to_array();
-    let last = i32x4::splat(n as i32 - 1);
-    let i0 = whole.fast_trunc_int();
-    let lower = i0.max(i32x4::ZERO).min(last).to_array();
-    let upper = (i0 + i32x4::ONE).max(i32x4::ZERO).min(last).to_array();
-    [0, 1, 2, 3].map(|j| {
-        let a = Vec4::from(transfer_function[lower[j] as usize]);
-        let b = Vec4::from(transfer_function[upper[j] as usize]);
-        a.lerp(b, fraction[j])
-    })
+/// Where [`classify`] reads the table for four values at once: the table
+/// positions side by side (the same arithmetic as [`table_position`], so
+/// the same classes), the opacities first and the whole class of a lane
+/// only where needed.
+#[derive(Debug, Clone, Copy)]
+pub struct Classes4 {
+    lower: [i32; 4],
+    upper: [i32; 4],
+    fraction: [f32; 4],
+}
+
+impl Classes4 {
+    /// The table positions of `us` in a table of `p.volume.tf_len` entries.
+    #[inline(always)]
+    pub fn new(p: &RaycastParams, us: [f32; 4]) -> Self {
+        let n = p.volume.tf_len;
+        let x = f32x4::from(us).fast_max(f32x4::ZERO).fast_min(f32x4::ONE) * f32x4::splat(n as f32)
+            - f32x4::splat(0.5);
+        let whole = round_down(x);
+        let last = i32x4::splat(n as i32 - 1);
+        let i0 = whole.fast_trunc_int();
+        Self {
+            lower: i0.max(i32x4::ZERO).min(last).to_array(),
+            upper: (i0 + i32x4::ONE).max(i32x4::ZERO).min(last).to_array(),
+            fraction: (x - whole).to_array(),
+        }
+    }
+
+    /// The four opacities, as [`Classes4::rgba`] has them (`Vec4::lerp`'s
+    /// arithmetic lane by lane).
+    #[inline(always)]
+    pub fn opacity(&self, transfer_function: &[[f32; 4]]) -> f32x4 {
+        let at = |i: [i32; 4]| f32x4::from(i.map(|i| transfer_function[i as usize][3]));
+        let s = f32x4::from(self.fraction);
+        at(self.lower) * (f32x4::ONE - s) + at(self.upper) * s
+    }
+
+    /// Lane `j`'s class.
+    #[inline(always)]
+    pub fn rgba(&self, transfer_function: &[[f32; 4]], j: usize) -> Vec4 {
+        let a = Vec4::from(transfer_function[self.lower[j] as usize]);
+        let b = Vec4::from(transfer_function[self.upper[j] as usize]);
+        a.lerp(b, self.fraction[j])
+    }
 }
 
 /// Where `classify` reads a table of `tf_len` entries for `u`: it blends
@@ -469,29 +495,41 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             }
             // The run of samples from `t` to `limit`, four at a time, the
             // first whatever `limit` says (a stretch never ends before its
-            // first sample).
+            // first sample); samples the transfer function hides are
+            // dropped before their class is looked up.
             let mut first_of_run = true;
             loop {
                 let ts = [0, 1, 2, 3].map(|j| first + (i + j) as f32 * p.step);
-                let values = s.sample4_in(p, &stretch, ts, tex_origin, tex_dir);
-                let us = values.map(|v| v * p.volume.value_scale + p.volume.value_offset);
-                let rgbas = classify4(p, tf, us);
-                for j in 0..4 {
-                    let t = ts[j];
-                    if !first_of_run && (t >= limit || t > span.y || k >= p.max_steps) {
-                        continue 'march;
+                let mut n = 0;
+                while n < 4 {
+                    let t = ts[n];
+                    if !first_of_run && (t >= limit || t > span.y || k + n as u32 >= p.max_steps) {
+                        break;
                     }
                     first_of_run = false;
+                    n += 1;
+                }
+                let values = s.sample4_in(p, &stretch, ts, tex_origin, tex_dir);
+                let us = values.map(|v| v * p.volume.value_scale + p.volume.value_offset);
+                let classes = Classes4::new(p, us);
+                let mut shown =
+                    classes.opacity(tf).simd_gt(f32x4::ZERO).to_bitmask() & ((1 << n) - 1);
+                while shown != 0 {
+                    let j = shown.trailing_zeros() as usize;
+                    shown &= shown - 1;
                     let sample = Sample {
-                        t,
+                        t: ts[j],
                         u: us[j],
-                        rgba: rgbas[j],
+                        rgba: classes.rgba(tf, j),
                     };
                     if acc.add(p, s, &stretch, sample, tex_origin, tex_dir, dir) {
                         break 'march;
                     }
-                    i += 1;
-                    k += 1;
+                }
+                i += n as u32;
+                k += n as u32;
+                if n < 4 {
+                    continue 'march;
                 }
             }
         }

@@ -105,18 +105,37 @@ fn block_cells(slot: &[f32], level: usize, any_visible: &dyn Fn(f32, f32) -> boo
 
 /// The cell holding the sample at `t` on a ray whose position in level-0
 /// voxels within the block is `local_at_zero + t·local_per_t`, given the
-/// block's visible-cell bits `visible`.
+/// block's visible-cell bits `visible`, and the cells after it the ray
+/// crosses in the block that are alike (all transparent or all possibly
+/// visible): the march jumps them, or samples them as one run, with one
+/// lookup.
 #[inline]
 pub fn cell_at(visible: u64, local_at_zero: Vec3, local_per_t: Vec3, t: f32) -> Cell {
     let last = (CELLS - 1) as i32;
     let local = local_at_zero + local_per_t * t;
     let index = |v: f32| split(v / CELL).0.clamp(0, last);
-    let c = [index(local.x), index(local.y), index(local.z)];
-    let bit = (c[2] as usize * CELLS + c[1] as usize) * CELLS + c[0] as usize;
+    let mut c = [index(local.x), index(local.y), index(local.z)];
+    let bit = |c: [i32; 3]| (c[2] as usize * CELLS + c[1] as usize) * CELLS + c[0] as usize;
+    let transparent = visible & (1 << bit(c)) == 0;
     let cell = Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
-    let crossing = far_face_crossing(cell, Vec3::splat(CELL), local_at_zero, local_per_t);
-    Cell {
-        transparent: visible & (1 << bit) == 0,
-        exit: crossing.min_element(),
+    let mut crossing = far_face_crossing(cell, Vec3::splat(CELL), local_at_zero, local_per_t);
+    loop {
+        let axis = if crossing.x <= crossing.y && crossing.x <= crossing.z {
+            0
+        } else if crossing.y <= crossing.z {
+            1
+        } else {
+            2
+        };
+        let exit = crossing[axis];
+        let ahead = local_per_t[axis] > 0.0;
+        c[axis] += if ahead { 1 } else { -1 };
+        if !(0..=last).contains(&c[axis]) || (visible & (1 << bit(c)) == 0) != transparent {
+            return Cell { transparent, exit };
+        }
+        // The far face of the next cell along the axis, as
+        // `far_face_crossing` finds it.
+        let face = (c[axis] + i32::from(ahead)) as f32 * CELL;
+        crossing[axis] = (face - local_at_zero[axis]) / local_per_t[axis];
     }
 }
