@@ -343,6 +343,7 @@ impl Atlas for CpuAtlas {
                 light: None,
                 light_cache: None,
                 visible_cells: None,
+                visible_texels: None,
             },
             layout: PackedLayout {
                 atlas_dims: dims,

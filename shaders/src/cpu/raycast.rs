@@ -113,19 +113,24 @@ impl Storage for PackedTexture {
     #[inline(always)]
     fn sample4_in(
         &self,
-        _p: &RaycastParams,
+        p: &RaycastParams,
         span: &Span<BlockLocation>,
         ts: [f32; 4],
         _origin: Vec3,
         _dir: Vec3,
-    ) -> [f32; 4] {
+    ) -> Option<[f32; 4]> {
         let t = f32x4::from(ts);
         let (a, b) = (span.texel_at_zero, span.texel_per_t);
         let axis = |a: f32, b: f32| f32x4::splat(a) + f32x4::splat(b) * t;
+        let visible = self
+            .visible_texels
+            .as_deref()
+            .filter(|_| p.flags & FLAG_SKIP_EMPTY != 0);
         self.atlas.sample_slot4(
             span.loc.slot,
             span.loc.slot_edge,
             [axis(a.x, b.x), axis(a.y, b.y), axis(a.z, b.z)],
+            visible,
         )
     }
 

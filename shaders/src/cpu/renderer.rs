@@ -17,7 +17,7 @@ use blocks::lod::LodSelection;
 use blocks::packing::Packing;
 use blocks::transfer_function::TABLE_LEN;
 
-use super::occupancy::visible_cells;
+use super::occupancy::{visible_cells, visible_texels};
 use super::{illuminate, raycast};
 use crate::extinction::ExtinctionSettings;
 use crate::illumination::Mode;
@@ -156,7 +156,7 @@ impl CpuRenderer {
         self.draw(request, stats)
     }
 
-    /// Finds the atlas's transparent cells for `tf` unless the shown blocks
+    /// Finds the atlas's transparent cells and texels for `tf` unless the shown blocks
     /// and the transfer function are those they were found for.
     fn update_cells(&mut self, tf: &TransferFunction) {
         let key = (self.residency.data_version(), tf.clone());
@@ -167,7 +167,9 @@ impl CpuRenderer {
             return;
         }
         let g = PackedVolume::new(&self.desc, atlas.layout, table.len() as u32);
-        atlas.texture.visible_cells = Some(visible_cells(&atlas.texture, &g, table));
+        let texture = &mut atlas.texture;
+        texture.visible_cells = Some(visible_cells(texture, &g, table));
+        texture.visible_texels = Some(visible_texels(&texture.atlas, &g, table));
         self.cells = Some(key);
     }
 

@@ -21,7 +21,9 @@ use super::texture::{floor3, round_down, split, trilinear};
 pub struct SlotAtlas {
     dims: [u32; 3],
     regions: [Region; LEVELS],
-    /// Where each level's region starts in `texels`.
+    /// Where each level's region starts in `texels`: at a multiple of 64,
+    /// so that bits per texel ([`super::occupancy::visible_texels`]) split
+    /// into whole words by region.
     region_base: [usize; LEVELS],
     /// Per block (block-statistics order), where its slot starts in `texels`
     /// (`usize::MAX` when the block is not stored).
@@ -35,6 +37,7 @@ impl SlotAtlas {
         let mut region_base = [0usize; LEVELS];
         let mut total = 0usize;
         for (level, region) in packing.regions.iter().enumerate() {
+            total = total.next_multiple_of(64);
             region_base[level] = total;
             let e = slot_edge(level) as usize;
             let slots = region.slots.iter().map(|&s| s as usize).product::<usize>();
@@ -70,6 +73,19 @@ impl SlotAtlas {
     fn slot_start(&self, level: usize, slot: u32) -> usize {
         let e = slot_edge(level) as usize;
         self.region_base[level] + slot as usize * e * e * e
+    }
+
+    /// Where level `level`'s slots lie in [`SlotAtlas::texels`] (slot after
+    /// slot, each `slot_edge(level)³` texels), starting at a multiple of 64.
+    pub fn region_texels(&self, level: usize) -> std::ops::Range<usize> {
+        let e = slot_edge(level) as usize;
+        let slots = self.regions[level]
+            .slots
+            .iter()
+            .map(|&s| s as usize)
+            .product::<usize>();
+        let start = self.region_base[level];
+        start..start + slots * e * e * e
     }
 
     /// Atlas size in texels, as the GPU texture's.
@@ -168,17 +184,25 @@ impl SlotAtlas {
 
     /// [`SlotAtlas::sample_slot`] at four positions at once, their
     /// coordinates along x, y and z side by side (the same arithmetic lane
-    /// by lane, so the same values).
+    /// by lane, so the same values). With `visible`, the texels' bits of
+    /// [`super::occupancy::visible_texels`]: `None` where none of the four
+    /// samples can be visible (they are not read).
     #[inline(always)]
-    pub fn sample_slot4(&self, base: usize, edge: usize, p: [f32x4; 3]) -> [f32; 4] {
+    pub fn sample_slot4(
+        &self,
+        base: usize,
+        edge: usize,
+        p: [f32x4; 3],
+        visible: Option<&[u64]>,
+    ) -> Option<[f32; 4]> {
         // The slot's edge as a constant: the eight texels a sample blends
         // at fixed offsets in a window of fixed size, one bounds check.
         match edge {
-            18 => self.sample_slot4_edge::<18, { 18 * 18 + 18 + 2 }>(base, p),
-            10 => self.sample_slot4_edge::<10, { 10 * 10 + 10 + 2 }>(base, p),
-            6 => self.sample_slot4_edge::<6, { 6 * 6 + 6 + 2 }>(base, p),
-            4 => self.sample_slot4_edge::<4, { 4 * 4 + 4 + 2 }>(base, p),
-            _ => self.sample_slot4_edge::<3, { 3 * 3 + 3 + 2 }>(base, p),
+            18 => self.sample_slot4_edge::<18, { 18 * 18 + 18 + 2 }>(base, p, visible),
+            10 => self.sample_slot4_edge::<10, { 10 * 10 + 10 + 2 }>(base, p, visible),
+            6 => self.sample_slot4_edge::<6, { 6 * 6 + 6 + 2 }>(base, p, visible),
+            4 => self.sample_slot4_edge::<4, { 4 * 4 + 4 + 2 }>(base, p, visible),
+            _ => self.sample_slot4_edge::<3, { 3 * 3 + 3 + 2 }>(base, p, visible),
         }
     }
 
@@ -189,16 +213,26 @@ impl SlotAtlas {
         &self,
         base: usize,
         p: [f32x4; 3],
-    ) -> [f32; 4] {
+        visible: Option<&[u64]>,
+    ) -> Option<[f32; 4]> {
         let last = f32x4::splat(last_position(E));
         let p = p.map(|v| v.fast_max(f32x4::ZERO).fast_min(last));
         let whole = p.map(round_down);
-        let [fx, fy, fz] = [0, 1, 2].map(|a| p[a] - whole[a]);
         let e = f32x4::splat(E as f32);
         // Whole numbers below 2²⁴: exact in floats.
         let offset = ((whole[2] * e + whole[1]) * e + whole[0])
             .fast_trunc_int()
             .to_array();
+        if let Some(bits) = visible {
+            let shown = |o: i32| {
+                let i = base + o as usize;
+                bits.get(i / 64).is_none_or(|w| w >> (i % 64) & 1 != 0)
+            };
+            if !offset.into_iter().any(shown) {
+                return None;
+            }
+        }
+        let [fx, fy, fz] = [0, 1, 2].map(|a| p[a] - whole[a]);
         let windows: [&[f32; W]; 4] = offset.map(|o| {
             let start = base + o as usize;
             self.texels
@@ -213,7 +247,7 @@ impl SlotAtlas {
         let c10 = lerp(at(row), at(row + 1), fx);
         let c01 = lerp(at(slice), at(slice + 1), fx);
         let c11 = lerp(at(slice + row), at(slice + row + 1), fx);
-        lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array()
+        Some(lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array())
     }
 
     /// `sample_slot(p + a) − sample_slot(p − a)` for the unit steps `a`
