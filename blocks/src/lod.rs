@@ -14,15 +14,21 @@
 //!    histograms. With the stored histograms it is a sum over bins: cheap, and
 //!    zero wherever the transfer function is flat over the values at stake.
 //! 3. **Selection under a budget.** Every non-empty block starts at level 4 (one
-//!    voxel). A refinement l → l − 1 removes error (times the block's voxels) and
-//!    adds voxels; refinements are taken most error removed per added voxel
-//!    first, each block's in order, and the first one that would exceed the
-//!    budget ends the selection. Because the order does not depend on the budget,
-//!    a larger budget only takes more of the same list: it never coarsens a block.
+//!    voxel). A refinement from level l to a finer one removes error (times the
+//!    block's voxels) and adds voxels; a block's refinements follow the upper
+//!    concave hull of its error removed against voxels added, so a step that
+//!    removes nothing alone (thin structure that two levels average away alike)
+//!    is taken together with the next that does, at their joint gain, instead
+//!    of stopping the block at level 4. Refinements are tried most error removed
+//!    per added voxel first, each block's in order; one that would exceed the
+//!    budget is passed over (with the block's later ones) and smaller ones after
+//!    it still fill the budget. The order does not depend on the budget, but a
+//!    larger budget may take a large refinement that a smaller one passed over
+//!    and then have no room for a small one the smaller budget took.
 //!
-//! The list is built by sorting all refinements once by their gain (made
-//! non-increasing along each block's sequence, so the sort keeps the sequence),
-//! which is faster than a priority queue for tens of thousands of blocks.
+//! The list is built by sorting all refinements once by their gain (which
+//! never increases along a block's hull, so the sort keeps the sequence), which
+//! is faster than a priority queue for tens of thousands of blocks.
 
 use rayon::prelude::*;
 
@@ -181,31 +187,69 @@ fn classify_blocks(
         .collect()
 }
 
-/// Every refinement of every non-empty block, in the order they are taken:
+/// A block's refinements as they are taken: per level `from`, the level it
+/// refines to (`from` itself where no refinement starts there).
+type Targets = [u8; LEVELS];
+
+/// The refinements of one block with level errors `e`: from level 4, each
+/// to the finer level that removes the most error per added voxel (the
+/// nearest on a tie), so that the gains along the sequence never increase
+/// (the upper concave hull of error removed against voxels added). A step
+/// that removes nothing on its own is thus taken together with the next
+/// one that does: a block whose level 3 shows no more than its level 4 (thin
+/// structure averaged away twice) still refines when its level 2 shows it.
+/// Returns the gains per starting level (0 where none starts) and the targets.
+fn block_refinements(e: &[f64; LEVELS]) -> ([f32; LEVELS], Targets) {
+    let mut gains = [0.0f32; LEVELS];
+    let mut targets: Targets = std::array::from_fn(|l| l as u8);
+    let mut from = LEVELS - 1;
+    while from > 0 {
+        let mut best = (f64::NEG_INFINITY, from - 1);
+        for to in (0..from).rev() {
+            let removed = e[from] - e[to];
+            let added = (block_voxels(to) - block_voxels(from)) as f64;
+            let gain = removed / added;
+            if gain > best.0 {
+                best = (gain, to);
+            }
+        }
+        gains[from] = best.0.max(0.0) as f32;
+        targets[from] = best.1 as u8;
+        from = best.1;
+    }
+    (gains, targets)
+}
+
+/// Every refinement of every non-empty block, in the order they are tried:
 /// keys (gain, step, block) whose ascending order gives descending gain, and
-/// for equal gains a block's coarser step first. Gains are made non-increasing
-/// along each block's steps, so the sort never puts a step before its
-/// predecessor. The block is the key's low 28 bits.
-fn refinement_order(per_block: &[Option<[f64; LEVELS]>]) -> Vec<u64> {
-    let mut steps: Vec<u64> = per_block
+/// for equal gains a block's coarser step first (the step is `LEVELS − 1 −
+/// from`), so the sort never puts a refinement before its predecessor. The
+/// block is the key's low 28 bits. Also each block's targets.
+fn refinement_order(per_block: &[Option<[f64; LEVELS]>]) -> (Vec<u64>, Vec<Targets>) {
+    let refinements: Vec<Option<([f32; LEVELS], Targets)>> = per_block
+        .par_iter()
+        .map(|e| e.as_ref().map(block_refinements))
+        .collect();
+    let mut steps: Vec<u64> = refinements
         .par_iter()
         .enumerate()
-        .filter_map(|(b, e)| e.map(|e| (b, e)))
-        .flat_map_iter(|(b, e)| {
-            let mut cap = f32::INFINITY;
-            (0..LEVELS - 1).map(move |step| {
-                let from = LEVELS - 1 - step;
-                let removed = e[from] - e[from - 1];
-                let added = (block_voxels(from - 1) - block_voxels(from)) as f64;
-                let gain = ((removed / added).max(0.0) as f32).min(cap);
-                cap = gain;
-                // Positive f32s order like their bits; inverted for a descending sort.
-                (u64::from(!gain.to_bits()) << 32) | ((step as u64) << 28) | b as u64
-            })
+        .filter_map(|(b, r)| r.map(|r| (b, r)))
+        .flat_map_iter(|(b, (gains, targets))| {
+            (1..LEVELS)
+                .filter(move |&from| usize::from(targets[from]) < from)
+                .map(move |from| {
+                    let step = (LEVELS - 1 - from) as u64;
+                    // Positive f32s order like their bits; inverted for a descending sort.
+                    (u64::from(!gains[from].to_bits()) << 32) | (step << 28) | b as u64
+                })
         })
         .collect();
     steps.par_sort_unstable();
-    steps
+    let targets = refinements
+        .into_iter()
+        .map(|r| r.map_or(std::array::from_fn(|l| l as u8), |(_, t)| t))
+        .collect();
+    (steps, targets)
 }
 
 /// Selects every block's level under `budget_voxels`; see the module docs.
@@ -232,22 +276,32 @@ pub fn select(
     let non_empty = lod.iter().filter(|&&l| l != EMPTY).count();
     let mut kept = non_empty as u64 * block_voxels(LEVELS - 1);
     let mut error: f64 = per_block.iter().flatten().map(|e| e[LEVELS - 1]).sum();
-    let steps = refinement_order(&per_block);
+    let (steps, targets) = refinement_order(&per_block);
 
     let over_budget = kept > budget_voxels;
     if !over_budget {
+        // The least any refinement adds: once less is left, nothing fits.
+        let least = block_voxels(LEVELS - 2) - block_voxels(LEVELS - 1);
         for key in steps {
-            let b = (key & 0x0fff_ffff) as usize;
-            let from = lod[b] as usize;
-            let added = block_voxels(from - 1) - block_voxels(from);
-            if kept + added > budget_voxels {
+            if budget_voxels - kept < least {
                 break;
+            }
+            let b = (key & 0x0fff_ffff) as usize;
+            let from = LEVELS - 1 - ((key >> 28) & 0xf) as usize;
+            // A block whose earlier refinement did not fit stays where it is.
+            if usize::from(lod[b]) != from {
+                continue;
+            }
+            let to = usize::from(targets[b][from]);
+            let added = block_voxels(to) - block_voxels(from);
+            if kept + added > budget_voxels {
+                continue;
             }
             kept += added;
             if let Some(e) = per_block[b] {
-                error += e[from - 1] - e[from];
+                error += e[to] - e[from];
             }
-            lod[b] = (from - 1) as u8;
+            lod[b] = to as u8;
         }
     }
     LodSelection {
@@ -331,36 +385,61 @@ mod tests {
     }
 
     #[test]
-    fn the_budget_is_respected_and_larger_budgets_never_coarsen() {
+    fn the_budget_is_respected_and_nothing_that_fits_is_left_out() {
         let s = stats();
         let tf = Preset::Generic.transfer_function([0.0, 255.0]);
-        let mut previous: Option<LodSelection> = None;
+        let per_block = classify_blocks(
+            &s,
+            ValueMap::IDENTITY,
+            &tf,
+            &bin_arc_lengths(&s, ValueMap::IDENTITY, &tf),
+        );
         for budget in [4, 40, 300, 600, 4200, 9000, 20_000] {
             let sel = select(&s, ValueMap::IDENTITY, &tf, 4 * 4096, budget);
             assert!(
                 sel.kept_voxels <= budget || sel.over_budget,
                 "{budget}: {sel:?}"
             );
-            if let Some(p) = &previous {
-                for (b, (&new, &old)) in sel.lod.iter().zip(&p.lod).enumerate() {
-                    if new != EMPTY {
-                        assert!(
-                            new <= old,
-                            "budget {budget}: block {b} went from level {old} to {new}"
-                        );
-                    }
+            for (b, e) in per_block.iter().enumerate() {
+                let Some(e) = e else { continue };
+                let from = usize::from(sel.lod[b]);
+                let to = usize::from(block_refinements(e).1[from]);
+                if to < from && !sel.over_budget {
+                    let added = block_voxels(to) - block_voxels(from);
+                    assert!(
+                        sel.kept_voxels + added > budget,
+                        "budget {budget}: block {b}'s refinement {from} → {to} still fits ({sel:?})"
+                    );
                 }
             }
-            previous = Some(sel);
         }
+    }
+
+    #[test]
+    fn a_step_that_removes_nothing_is_taken_with_the_next_that_does() {
+        // Level 3 shows no more than level 4; level 2 shows most of level 0.
+        let (gains, targets) = block_refinements(&[0.0, 10.0, 20.0, 100.0, 100.0]);
+        assert_eq!(
+            targets,
+            [0, 0, 1, 3, 2],
+            "4 → 2 → 1 → 0, nothing starts at 3"
+        );
+        assert!(
+            gains[4] > gains[2] && gains[2] > gains[1] && gains[1] > 0.0,
+            "{gains:?}"
+        );
+        // Errors that only grow with the level refine one level at a time.
+        let (_, targets) = block_refinements(&[0.0, 1.0, 3.0, 7.0, 15.0]);
+        assert_eq!(targets, [0, 0, 1, 2, 3]);
     }
 
     #[test]
     fn the_block_whose_classification_changes_most_refines_first() {
         let s = stats();
         let tf = Preset::Generic.transfer_function([0.0, 255.0]);
-        // Room for one step beyond level 4 everywhere, then a little more.
-        let sel = select(&s, ValueMap::IDENTITY, &tf, 4 * 4096, 3 + 4 * 7 + 56);
+        // Room for the edge block at level 0 (its levels 1 to 4 all read
+        // 100, so it refines straight there), then a little more.
+        let sel = select(&s, ValueMap::IDENTITY, &tf, 4 * 4096, 3 + 4095 + 56);
         // The sharp edge loses most when averaged; the uniform block loses nothing.
         assert!(sel.lod[1] < sel.lod[2], "{:?}", sel.lod);
     }
