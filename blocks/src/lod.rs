@@ -191,6 +191,9 @@ fn classify_blocks(
 /// refines to (`from` itself where no refinement starts there).
 type Targets = [u8; LEVELS];
 
+/// The targets of a block without refinements: every level stays.
+const STAY: Targets = [0, 1, 2, 3, 4];
+
 /// The refinements of one block with level errors `e`: from level 4, each
 /// to the finer level that removes the most error per added voxel (the
 /// nearest on a tie), so that the gains along the sequence never increase
@@ -201,7 +204,7 @@ type Targets = [u8; LEVELS];
 /// Returns the gains per starting level (0 where none starts) and the targets.
 fn block_refinements(e: &[f64; LEVELS]) -> ([f32; LEVELS], Targets) {
     let mut gains = [0.0f32; LEVELS];
-    let mut targets: Targets = std::array::from_fn(|l| l as u8);
+    let mut targets = STAY;
     let mut from = LEVELS - 1;
     while from > 0 {
         let mut best = (f64::NEG_INFINITY, from - 1);
@@ -247,7 +250,7 @@ fn refinement_order(per_block: &[Option<[f64; LEVELS]>]) -> (Vec<u64>, Vec<Targe
     steps.par_sort_unstable();
     let targets = refinements
         .into_iter()
-        .map(|r| r.map_or(std::array::from_fn(|l| l as u8), |(_, t)| t))
+        .map(|r| r.map_or(STAY, |(_, t)| t))
         .collect();
     (steps, targets)
 }

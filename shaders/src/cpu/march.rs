@@ -468,6 +468,9 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         let mut stretch = s.span(p, tex_origin, tex_dir, first);
         let mut visible_until = f32::NEG_INFINITY;
         let skipping = p.flags & FLAG_SKIP_EMPTY != 0;
+        // A jump from sample `i` to the first sample at or after `t` (at
+        // least the next); WGSL's f32 → u32 conversion saturates like Rust's `as`.
+        let jump = |i: u32, t: f32| (i + 1).max(-floor(-(t - first) / p.step) as u32);
         // Loop iterations, as the GPU counts them (a sample or a skip each).
         let mut k = 0u32;
         'march: while k < p.max_steps {
@@ -481,19 +484,17 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             if t < stretch.enter {
                 // In the empty blocks the walk jumped: on to the first
                 // sample in the stretch, as `empty_exit` jumps one block.
-                i = (i + 1).max(-floor(-(stretch.enter - first) / p.step) as u32);
+                i = jump(i, stretch.enter);
                 k += 1;
                 continue;
             }
             let loc = &stretch.loc;
             if S::is_empty(loc) {
-                let mut next = i + 1;
-                if skipping {
-                    let exit = s.empty_exit(p, tex_origin, tex_dir, loc);
-                    // WGSL's f32 → u32 conversion saturates like Rust's `as`.
-                    next = next.max(-floor(-(exit - first) / p.step) as u32);
-                }
-                i = next;
+                i = if skipping {
+                    jump(i, s.empty_exit(p, tex_origin, tex_dir, loc))
+                } else {
+                    i + 1
+                };
                 k += 1;
                 continue;
             }
@@ -508,7 +509,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                     && let Some(cell) = s.cell(p, &stretch, t, tex_origin, tex_dir)
                 {
                     if cell.transparent {
-                        i = (i + 1).max(-floor(-(cell.exit - first) / p.step) as u32);
+                        i = jump(i, cell.exit);
                         k += 1;
                         continue;
                     }

@@ -39,9 +39,7 @@ impl SlotAtlas {
         for (level, region) in packing.regions.iter().enumerate() {
             total = total.next_multiple_of(64);
             region_base[level] = total;
-            let e = slot_edge(level) as usize;
-            let slots = region.slots.iter().map(|&s| s as usize).product::<usize>();
-            total += slots * e * e * e;
+            total += region_len(level, region);
         }
         let mut atlas = SlotAtlas {
             dims: packing.atlas_dims,
@@ -78,14 +76,8 @@ impl SlotAtlas {
     /// Where level `level`'s slots lie in [`SlotAtlas::texels`] (slot after
     /// slot, each `slot_edge(level)³` texels), starting at a multiple of 64.
     pub fn region_texels(&self, level: usize) -> std::ops::Range<usize> {
-        let e = slot_edge(level) as usize;
-        let slots = self.regions[level]
-            .slots
-            .iter()
-            .map(|&s| s as usize)
-            .product::<usize>();
         let start = self.region_base[level];
-        start..start + slots * e * e * e
+        start..start + region_len(level, &self.regions[level])
     }
 
     /// Atlas size in texels, as the GPU texture's.
@@ -285,6 +277,12 @@ impl SlotAtlas {
         let [dx, dy, dz, _] = lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array();
         Some(Vec3::new(dx, dy, dz))
     }
+}
+
+/// Texels of level `level`'s `region`: its slots, `slot_edge(level)³` each.
+fn region_len(level: usize, region: &Region) -> usize {
+    let e = slot_edge(level) as usize;
+    region.slots.iter().map(|&s| s as usize).product::<usize>() * e * e * e
 }
 
 /// The last position a sample in a slot of edge `edge` is kept at: a hair
