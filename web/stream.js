@@ -9,9 +9,13 @@
 // answered in order by {type:'status', id, view_id, sent, acked, rendering,
 // waiting, converged} (tests use it); this client sends none and ignores
 // the replies. A server shutting down closes the socket with code 1001; the
-// client reconnects as after any close.
+// client reconnects as after any close, except after code 4408 (the session
+// was idle and closed to free its place): then it reconnects when the view
+// changes next.
 
 export const HEADER_LEN = 40;
+// The close code of a session closed for being idle (protocol.rs CLOSE_IDLE).
+const CLOSE_IDLE = 4408;
 const ENCODINGS = { 1: 'image/jpeg', 2: 'image/png', 3: 'image/webp' };
 
 // The header of a binary frame (see server/src/protocol.rs `FrameHeader`).
@@ -64,7 +68,12 @@ export class ViewStream {
       this.flush();
     };
     socket.onmessage = (event) => this.receive(event.data);
-    socket.onclose = () => {
+    socket.onclose = (event) => {
+      if (event.code === CLOSE_IDLE) {
+        socket.idleClosed = true;
+        this.fail('paused while idle: move the view to resume');
+        return;
+      }
       this.fail('connection to the server lost: reconnecting…');
       setTimeout(() => this.connect(), 1000);
     };
@@ -75,6 +84,10 @@ export class ViewStream {
   update(view, dpr) {
     this.view = { ...view };
     this.dpr = dpr;
+    if (this.socket.readyState === WebSocket.CLOSED && this.socket.idleClosed) {
+      this.connect();
+      return;
+    }
     this.flush();
   }
 

@@ -3,7 +3,8 @@
 //! | route | answer |
 //! |---|---|
 //! | `GET /` and other paths | the web client (`web/`) |
-//! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), `X-Pending-Blocks` (blocks still shown coarser: 0 unless reading them took too long), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
+//! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Queue-Ms` (waited for the render worker), `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), `X-Pending-Blocks` (blocks still shown coarser: 0 unless reading them took too long), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
+//! | `HEAD /api/render?…`, `HEAD /api/datasets/{id}/render?…` | the `GET`'s checks and content type; never renders |
 //! | `GET /api/stream` | a WebSocket view session: [`crate::protocol`], [`crate::stream`] |
 //! | `GET /api/settings` | every view setting (name, flag, group, kind, range or choices, unit, default, doc, what it takes), as JSON: the web client builds its controls from it |
 //! | `GET /api/datasets` | the datasets offered, as JSON, each with the `renderer` serving it (`{"kind":…,"device":…}`, kind `gpu` or `cpu`) |
@@ -11,13 +12,17 @@
 //! | `GET /api/datasets/{id}/render?…` | `GET /api/render` for that dataset (thumbnails, embedding) |
 //! | `GET /metrics` | OpenMetrics text: [`crate::metrics`] |
 //! | `GET /healthz` | `{"status":"ok","adapter":…}` |
+//!
+//! Every request's `Host` is checked first ([`crate::access`]: 421 for a
+//! name that is not the server's).
 
 use std::future::Future;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use axum::extract::rejection::QueryRejection;
-use axum::extract::{Path, Query, State};
+use axum::extract::{ConnectInfo, Path, Query, State};
 use axum::http::{HeaderValue, Uri, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
@@ -25,6 +30,7 @@ use axum::{Json, Router};
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 
+use crate::access::Access;
 use crate::dataset::DatasetInfo;
 use crate::metrics::{Format, FrameTimes, Metrics, Quality, Source};
 use crate::stream::{Sessions, StreamSettings};
@@ -46,6 +52,8 @@ pub struct AppState {
     pub shutdown: CancellationToken,
     /// What the server has done, for `GET /metrics`.
     pub metrics: Arc<Metrics>,
+    /// Who may reach the server, and how many connections it keeps.
+    pub access: Arc<Access>,
 }
 
 impl AppState {
@@ -66,30 +74,44 @@ impl AppState {
             datasets: datasets.into(),
             renderer,
             stream,
-            sessions: Sessions::new(stream.max_sessions),
+            sessions: Sessions::new(stream.max_sessions, stream.sessions_per_client),
             shutdown: CancellationToken::new(),
             metrics: Arc::new(metrics),
+            access: Arc::new(Access::default()),
         }
+    }
+
+    /// This state with `access` in place of the default (loopback names and
+    /// same-origin only, [`crate::listen::ConnectionLimits::DEFAULT`]).
+    pub fn with_access(mut self, access: Access) -> AppState {
+        self.access = Arc::new(access);
+        self
     }
 }
 
 /// The router over `state`.
 pub fn router(state: AppState) -> Router {
+    let host_guard = axum::middleware::from_fn_with_state(state.clone(), crate::access::host_guard);
     Router::new()
-        .route("/api/render", get(render))
+        .route("/api/render", get(render).head(render_head))
         .route("/api/stream", get(crate::stream::handler))
         .route("/api/settings", get(settings))
         .route("/api/datasets", get(datasets))
         .route("/api/datasets/{id}", get(dataset))
-        .route("/api/datasets/{id}/render", get(dataset_render))
+        .route(
+            "/api/datasets/{id}/render",
+            get(dataset_render).head(dataset_render_head),
+        )
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
         .fallback(get(static_file))
+        .layer(host_guard)
         .with_state(state)
 }
 
-/// Serves the application on `listener` until `shutdown` resolves, then
-/// finishes the requests in flight, closes the view sessions (cancelling
+/// Serves the application on `listener` under `state.access`'s connection
+/// limits ([`crate::listen`]) until `shutdown` resolves, then finishes the
+/// requests in flight, closes the view sessions (cancelling
 /// `state.shutdown`) and returns once every session has ended.
 pub async fn run(
     listener: TcpListener,
@@ -98,17 +120,20 @@ pub async fn run(
 ) -> std::io::Result<()> {
     let sessions = state.sessions.clone();
     let token = state.shutdown.clone();
-    let signal = async move {
+    let limits = state.access.connections;
+    let stop = CancellationToken::new();
+    let stopping = stop.clone();
+    tokio::spawn(async move {
         shutdown.await;
+        stopping.cancel();
         token.cancel();
-    };
-    axum::serve(listener, router(state))
-        .with_graceful_shutdown(signal)
-        .await?;
-    // Upgraded connections are no longer the server's: it does not wait for
-    // them, so wait for the sessions here.
+    });
+    let served = crate::listen::serve(listener, router(state), limits, stop.clone()).await;
+    stop.cancel();
+    // Upgraded connections are no longer the listener's: it does not wait
+    // for them, so wait for the sessions here.
     sessions.all_closed().await;
-    Ok(())
+    served
 }
 
 async fn static_file(uri: Uri) -> Result<Response, AppError> {
@@ -164,10 +189,33 @@ async fn dataset(
 /// the path (thumbnails, embedding).
 async fn dataset_render(
     State(state): State<AppState>,
+    ConnectInfo(client): ConnectInfo<SocketAddr>,
     Path(id): Path<String>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
-    find_dataset(&state, &id)?;
+    let pairs = dataset_pairs(&state, id, query)?;
+    render_pairs(&state, client.ip(), &pairs).await
+}
+
+/// `HEAD /api/datasets/{id}/render?…`: [`render_head`] with the dataset in
+/// the path.
+async fn dataset_render_head(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, AppError> {
+    let pairs = dataset_pairs(&state, id, query)?;
+    head_pairs(&state, &pairs)
+}
+
+/// The view parameters of `/api/datasets/{id}/render?…`: the query's, and
+/// the dataset `id` from the path.
+fn dataset_pairs(
+    state: &AppState,
+    id: String,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Vec<(String, String)>, AppError> {
+    find_dataset(state, &id)?;
     let Query(mut pairs) = query
         .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
     if pairs.iter().any(|(name, _)| name == "dataset") {
@@ -176,7 +224,7 @@ async fn dataset_render(
         )));
     }
     pairs.push(("dataset".into(), id));
-    render_pairs(&state, &pairs).await
+    Ok(pairs)
 }
 
 async fn metrics(State(state): State<AppState>) -> Response {
@@ -190,11 +238,46 @@ async fn metrics(State(state): State<AppState>) -> Response {
 
 async fn render(
     State(state): State<AppState>,
+    ConnectInfo(client): ConnectInfo<SocketAddr>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
     let Query(pairs) = query
         .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
-    render_pairs(&state, &pairs).await
+    render_pairs(&state, client.ip(), &pairs).await
+}
+
+/// `HEAD /api/render?…`: the headers of a PNG frame once the view parameters
+/// are checked (400 as for `GET`), without rendering it.
+async fn render_head(
+    State(state): State<AppState>,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, AppError> {
+    let Query(pairs) = query
+        .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
+    head_pairs(&state, &pairs)
+}
+
+/// The view `pairs` (query parameters) ask for, checked.
+fn checked_view<'s>(
+    state: &'s AppState,
+    pairs: &[(String, String)],
+) -> Result<(View, &'s Dataset), AppError> {
+    let view = View::from_query(pairs, &state.datasets)
+        .map_err(|e| AppError::BadRequest(e.to_string()))?;
+    let dataset = view
+        .dataset(&state.datasets)
+        .map_err(|e| AppError::BadRequest(e.to_string()))?;
+    Ok((view, dataset))
+}
+
+/// The answer to `HEAD` for the frame `pairs` ask for: its checks, no frame.
+fn head_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Response, AppError> {
+    checked_view(state, pairs)?;
+    let headers = [
+        (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
+        (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
+    ];
+    Ok(headers.into_response())
 }
 
 /// How many renders `GET /api/render` makes while blocks arrive before it
@@ -211,28 +294,36 @@ const PATIENCE: Duration = Duration::from_secs(30);
 /// arrive and renders again.
 async fn render_complete(
     state: &AppState,
+    client: IpAddr,
     dataset: &Dataset,
     request: &shaders::FrameRequest,
 ) -> Result<crate::render_service::RenderedFrame, AppError> {
-    let mut rendered = state.renderer.render(dataset, request.clone()).await?;
+    let mut rendered = state
+        .renderer
+        .render(client, dataset, request.clone())
+        .await?;
     for _ in 1..MAX_RENDERS {
         if rendered.stats.pending_blocks == 0 {
             break;
         }
         dataset.settle(rendered.arrivals, GATHER, PATIENCE).await;
-        rendered = state.renderer.render(dataset, request.clone()).await?;
+        rendered = state
+            .renderer
+            .render(client, dataset, request.clone())
+            .await?;
     }
     Ok(rendered)
 }
 
-/// Renders the frame `pairs` (query parameters) ask for, as a PNG response.
-async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Response, AppError> {
-    let view = View::from_query(pairs, &state.datasets)
-        .map_err(|e| AppError::BadRequest(e.to_string()))?;
-    let dataset = view
-        .dataset(&state.datasets)
-        .map_err(|e| AppError::BadRequest(e.to_string()))?;
-    let rendered = render_complete(state, dataset, &view.frame).await?;
+/// Renders the frame `pairs` (query parameters) ask for, for `client`, as a
+/// PNG response.
+async fn render_pairs(
+    state: &AppState,
+    client: IpAddr,
+    pairs: &[(String, String)],
+) -> Result<Response, AppError> {
+    let (view, dataset) = checked_view(state, pairs)?;
+    let rendered = render_complete(state, client, dataset, &view.frame).await?;
     let encode_start = Instant::now();
     let frame = rendered.frame;
     let png = tokio::task::spawn_blocking(move || encode::png(&frame))
@@ -260,6 +351,7 @@ async fn render_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Re
         headers.insert(header::HeaderName::from_static(name), value(text));
     };
     set("x-render-ms", format!("{:.1}", rendered.render_ms));
+    set("x-queue-ms", format!("{:.1}", rendered.queue_ms));
     set("x-encode-ms", format!("{encode_ms:.1}"));
     set("x-reduction", format!("{:.2}", stats.reduction));
     set("x-levels", format!("{:?}", stats.level_counts));

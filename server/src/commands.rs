@@ -113,6 +113,15 @@ pub fn say(line: &str) -> anyhow::Result<()> {
 
 /// `voxserve serve`: serves until Ctrl-C.
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
+    if !args.addr.ip().is_loopback() && !args.insecure_allow_anonymous {
+        anyhow::bail!(
+            "--addr {}: not a loopback address, and voxserve has no authentication configured: \
+             anyone who reaches the port would see every dataset. Expected a loopback address \
+             (127.0.0.1, ::1), or --insecure-allow-anonymous behind a proxy that authenticates \
+             every request",
+            args.addr
+        );
+    }
     let mut datasets = Vec::new();
     for name in &args.datasets {
         datasets.push(load_dataset(name, &args.data)?);
@@ -154,7 +163,8 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         names.join(", "),
         renderer.adapter()
     ))?;
-    let state = AppState::new(datasets, renderer, args.stream.settings());
+    let state =
+        AppState::new(datasets, renderer, args.stream.settings()).with_access(args.access.access());
     let shutdown = async {
         if let Err(e) = tokio::signal::ctrl_c().await {
             tracing::error!("cannot listen for Ctrl-C: {e}");

@@ -17,6 +17,10 @@ pub enum AppError {
     /// The server is at capacity; the client may retry. Answered with 503.
     #[error("{0}")]
     Busy(String),
+    /// The client holds as much as one client may; it may retry once it has
+    /// let some go. Answered with 429.
+    #[error("{0}")]
+    TooMany(String),
     /// The volume data the view needs cannot be read: a file of the store is
     /// missing or damaged. Logged; answered with 500 and the reason, naming the
     /// file, so the client shows it (never an image with the data left out).
@@ -46,6 +50,7 @@ impl IntoResponse for AppError {
             AppError::BadRequest(m) => (StatusCode::BAD_REQUEST, m),
             AppError::NotFound(m) => (StatusCode::NOT_FOUND, m),
             AppError::Busy(m) => (StatusCode::SERVICE_UNAVAILABLE, m),
+            AppError::TooMany(m) => (StatusCode::TOO_MANY_REQUESTS, m),
             e @ AppError::DataUnreadable(_) => {
                 let message = e.logged().to_string();
                 (StatusCode::INTERNAL_SERVER_ERROR, message)

@@ -5,6 +5,10 @@
 //! - [`app`]: the axum router, [`AppState`], and [`run`](app::run), which serves on
 //!   a listener until a shutdown future resolves, then closes the view sessions
 //!   and returns when they have ended (tests use port 0).
+//! - [`access`]: [`access::Access`], who may reach the server: the `Host`
+//!   names it answers to, the web origins that may open view sessions.
+//! - [`listen`]: the accept loop: connection caps (overall and per client,
+//!   the quietest connection closed to make room), header and idle timeouts.
 //! - [`error`]: [`AppError`]: client errors become 4xx with a message naming the
 //!   field; internal errors become a generic 500 and are logged once.
 //! - [`view`]: [`View`], what a client asks to see (a dataset and a frame
@@ -31,12 +35,14 @@
 //! The benchmarks (`voxserve bench`) are in the binary's module tree
 //! (`server/src/bench/`), not in this library.
 
+pub mod access;
 pub mod app;
 pub mod cli;
 pub mod commands;
 pub mod dataset;
 pub mod encode;
 pub mod error;
+pub mod listen;
 pub mod metrics;
 pub mod protocol;
 pub mod render_service;

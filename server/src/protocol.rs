@@ -57,12 +57,32 @@
 //! | 36 | f32 | milliseconds the render waited for the GPU behind other sessions |
 //!
 //! When the server shuts down it closes every session with code 1001 (going
-//! away).
+//! away). A session without a message from the client for
+//! [`crate::stream::StreamSettings::session_idle_s`] is closed with
+//! [`CLOSE_IDLE`] (the client reconnects when the user acts again); one
+//! whose peer has not answered a ping for [`PEER_PATIENCE`] seconds is
+//! dropped. A message longer than [`MAX_MESSAGE_BYTES`], or a socket that
+//! breaks the protocol, closes the session with 1009 (too big) or 1002
+//! (protocol error) and the reason.
 
 use serde_json::{Map, Value};
 
 /// The protocol's version, sent in `hello`.
 pub const PROTOCOL: u32 = 1;
+/// The longest message a client may send, in bytes: views, acknowledgements
+/// and status requests are far shorter.
+pub const MAX_MESSAGE_BYTES: usize = 64 << 10;
+
+/// The close code of a session closed for want of messages from the client
+/// (an application code: 4000 + HTTP's 408, request timeout).
+pub const CLOSE_IDLE: u16 = 4408;
+
+/// Seconds between the server's pings; a peer that has sent nothing (a pong
+/// included) for [`PEER_PATIENCE`] seconds is gone.
+pub const PING_INTERVAL: u64 = 20;
+/// See [`PING_INTERVAL`].
+pub const PEER_PATIENCE: u64 = 3 * PING_INTERVAL;
+
 /// Bytes of a [`FrameHeader`].
 pub const HEADER_LEN: usize = 40;
 /// The first four bytes of every frame.

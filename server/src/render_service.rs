@@ -10,20 +10,38 @@
 //!
 //! Rendering is blocking (GPU: submit, then wait for the queue; CPU: every
 //! core busy until the frame is done), so it runs on its own thread rather
-//! than on the async runtime. Jobs are served in arrival order; when
-//! the queue is full a request is refused at once (503) instead of waiting behind
-//! work that will be stale by the time it runs.
+//! than on the async runtime.
+//!
+//! **Fair by cost.** Each job belongs to a client (its address) and costs its
+//! pixels. The worker serves the clients with jobs waiting in turn, by deficit
+//! round robin ([`Queue::next`]): each turn credits a client [`QUANTUM`]
+//! pixels, and its next job runs once its credit covers the job. A client
+//! asking for huge frames thus waits several turns for each, while the
+//! others' small frames go by: it slows itself, not them. A job whose
+//! requester has gone (a closed connection, a dropped session) is dropped
+//! when its turn comes, not rendered. `GET /api/render` is refused at once
+//! when [`QUEUE_CAPACITY`] jobs wait (503) or its client has
+//! [`PER_CLIENT_QUEUE`] waiting (429), instead of waiting behind work that
+//! will be stale by the time it runs; view sessions have one job each at
+//! most and always queue.
 
-use std::sync::Arc;
+use std::collections::VecDeque;
+use std::net::IpAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
 use shaders::{AnyRenderer, Backend, Frame, FrameRequest, GpuError, RenderStats};
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::oneshot;
 
 use crate::{AppError, Dataset};
 
-/// Jobs that may wait for the worker; more are refused.
+/// `GET /api/render` jobs that may wait for the worker; more are refused.
 pub const QUEUE_CAPACITY: usize = 8;
+/// `GET /api/render` jobs of one client that may wait; more are refused.
+pub const PER_CLIENT_QUEUE: usize = 2;
+/// The credit, in pixels, a client gets per turn: one 512² frame.
+pub const QUANTUM: u64 = 512 * 512;
 
 /// A rendered frame and how long the GPU took.
 #[derive(Debug)]
@@ -49,25 +67,144 @@ struct Job {
     reply: oneshot::Sender<Result<RenderedFrame, GpuError>>,
 }
 
+impl Job {
+    /// What the job costs: its pixels.
+    fn cost(&self) -> u64 {
+        u64::from(self.request.width) * u64::from(self.request.height)
+    }
+}
+
+/// A client's waiting jobs and its credit.
+#[derive(Debug)]
+struct Waiting {
+    client: IpAddr,
+    jobs: VecDeque<Job>,
+    credit: u64,
+}
+
+/// The jobs waiting for the worker, by client, in turn order.
+#[derive(Debug, Default)]
+struct Queue {
+    turns: VecDeque<Waiting>,
+    /// `GET /api/render` jobs waiting.
+    http_jobs: usize,
+    /// Set when the last [`RenderService`] handle is gone: the worker ends.
+    closed: bool,
+}
+
+impl Queue {
+    fn push(&mut self, client: IpAddr, job: Job) {
+        match self.turns.iter_mut().find(|w| w.client == client) {
+            Some(waiting) => waiting.jobs.push_back(job),
+            None => self.turns.push_back(Waiting {
+                client,
+                jobs: VecDeque::from([job]),
+                credit: 0,
+            }),
+        }
+    }
+
+    /// The next job by deficit round robin: the client whose turn it is is
+    /// credited [`QUANTUM`]; if that covers its first job, the job is taken
+    /// (and the client keeps its turn while credit remains), else the turn
+    /// passes with the credit kept. A client with no jobs left leaves the
+    /// rotation and its credit lapses.
+    fn next(&mut self) -> Option<Job> {
+        loop {
+            let waiting = self.turns.front_mut()?;
+            let cost = waiting.jobs.front().map_or(0, Job::cost);
+            if waiting.credit < cost {
+                waiting.credit += QUANTUM;
+                if waiting.credit < cost {
+                    self.turns.rotate_left(1);
+                    continue;
+                }
+            }
+            waiting.credit -= cost;
+            let job = waiting.jobs.pop_front();
+            if waiting.jobs.is_empty() {
+                self.turns.pop_front();
+            } else if waiting.credit < waiting.jobs.front().map_or(0, Job::cost) {
+                self.turns.rotate_left(1);
+            }
+            return job;
+        }
+    }
+
+    fn waiting_of(&self, client: IpAddr) -> usize {
+        self.turns
+            .iter()
+            .find(|w| w.client == client)
+            .map_or(0, |w| w.jobs.len())
+    }
+}
+
+/// An HTTP job counted in [`Queue::http_jobs`] until it is answered or its
+/// requester goes.
+#[derive(Debug)]
+struct HttpJob<'a>(&'a Shared);
+
+impl Drop for HttpJob<'_> {
+    fn drop(&mut self) {
+        self.0.lock().http_jobs -= 1;
+    }
+}
+
+/// What the handles and the worker share.
+#[derive(Debug, Default)]
+struct Shared {
+    queue: Mutex<Queue>,
+    ready: Condvar,
+    abandoned: AtomicU64,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, Queue> {
+        // Every change to the queue is one step: nothing half done to see.
+        self.queue.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The next job, waiting for one; `None` once closed.
+    fn take(&self) -> Option<Job> {
+        let mut queue = self.lock();
+        loop {
+            if queue.closed {
+                return None;
+            }
+            if let Some(job) = queue.next() {
+                return Some(job);
+            }
+            queue = self
+                .ready
+                .wait(queue)
+                .unwrap_or_else(PoisonError::into_inner);
+        }
+    }
+}
+
 /// A handle to the render worker; cloning shares the worker.
 #[derive(Debug, Clone)]
 pub struct RenderService {
-    // Dropped before `_worker`: when the last handle goes, the queue closes
-    // first, so the worker's loop ends and the join below returns.
-    jobs: mpsc::Sender<Job>,
+    shared: Arc<Shared>,
     adapter: Arc<str>,
     kind: &'static str,
     _worker: Arc<WorkerThread>,
 }
 
-/// The worker thread, joined when the last handle is dropped, so the GPU
-/// device is released before the process exits rather than racing its exit.
+/// The worker thread: when the last handle is dropped the queue closes and
+/// the thread is joined, so the GPU device is released before the process
+/// exits rather than racing its exit.
 #[derive(Debug)]
-struct WorkerThread(Option<std::thread::JoinHandle<()>>);
+struct WorkerThread {
+    shared: Arc<Shared>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
 
 impl Drop for WorkerThread {
     fn drop(&mut self) {
-        if let Some(handle) = self.0.take()
+        self.shared.lock().closed = true;
+        self.shared.ready.notify_all();
+        if let Some(handle) = self.handle.take()
             && handle.join().is_err()
         {
             tracing::error!("the render worker panicked");
@@ -150,12 +287,18 @@ impl RenderService {
             capacity: resident_datasets.max(1),
             by_use: Vec::new(),
         };
-        let (jobs, mut queue) = mpsc::channel::<Job>(QUEUE_CAPACITY);
+        let shared = Arc::new(Shared::default());
+        let queue = shared.clone();
         let handle = std::thread::Builder::new()
             .name("render-worker".into())
             .spawn(move || {
-                // Ends when every sender (every RenderService clone) is gone.
-                while let Some(job) = queue.blocking_recv() {
+                // Ends when the last RenderService handle is gone.
+                while let Some(job) = queue.take() {
+                    if job.reply.is_closed() {
+                        // The requester has gone: nobody would see the frame.
+                        queue.abandoned.fetch_add(1, Ordering::Relaxed);
+                        continue;
+                    }
                     let start = Instant::now();
                     let queue_ms = (start - job.queued).as_secs_f64() * 1e3;
                     // Never waits for storage: blocks still being read are
@@ -184,11 +327,19 @@ impl RenderService {
                 reason: e.to_string(),
             })?;
         Ok(RenderService {
-            jobs,
+            shared: shared.clone(),
             adapter,
             kind,
-            _worker: Arc::new(WorkerThread(Some(handle))),
+            _worker: Arc::new(WorkerThread {
+                shared,
+                handle: Some(handle),
+            }),
         })
+    }
+
+    /// Jobs dropped unrendered because their requester had gone, so far.
+    pub fn abandoned(&self) -> u64 {
+        self.shared.abandoned.load(Ordering::Relaxed)
     }
 
     /// What the worker renders on, in words: the adapter, or the CPU.
@@ -206,38 +357,49 @@ impl RenderService {
         serde_json::json!({ "kind": self.kind, "device": &*self.adapter })
     }
 
-    /// Renders `request`, or refuses at once when the queue is full (single
-    /// HTTP frames: a client retries rather than waiting behind stale work).
+    /// Renders `request` for `client`, or refuses at once when
+    /// [`QUEUE_CAPACITY`] HTTP jobs wait (503) or the client has
+    /// [`PER_CLIENT_QUEUE`] waiting (429): single HTTP frames, whose client
+    /// retries rather than waiting behind stale work.
     pub async fn render(
         &self,
+        client: IpAddr,
         dataset: &Dataset,
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
         let (job, answer) = Job::new(dataset, request);
-        self.jobs.try_send(job).map_err(|e| match e {
-            mpsc::error::TrySendError::Full(_) => AppError::Busy(format!(
-                "the renderer has {QUEUE_CAPACITY} frames waiting: retry shortly"
-            )),
-            mpsc::error::TrySendError::Closed(_) => {
-                AppError::Internal("the render worker has stopped".into())
+        {
+            let mut queue = self.shared.lock();
+            if queue.http_jobs >= QUEUE_CAPACITY {
+                return Err(AppError::Busy(format!(
+                    "the renderer has {QUEUE_CAPACITY} frames waiting: retry shortly"
+                )));
             }
-        })?;
+            if queue.waiting_of(client) >= PER_CLIENT_QUEUE {
+                return Err(AppError::TooMany(format!(
+                    "{PER_CLIENT_QUEUE} frames of {client} are waiting for the renderer, the \
+                     most one client may have: retry once they are done"
+                )));
+            }
+            queue.http_jobs += 1;
+            queue.push(client, job);
+        }
+        let _counted = HttpJob(&self.shared);
+        self.shared.ready.notify_one();
         Self::answer(answer).await
     }
 
-    /// Renders `request`, waiting for room in the queue. View sessions use
-    /// this: each has at most one job queued, so the worker, taking jobs in
-    /// arrival order, serves the sessions in turn.
+    /// Renders `request` for `client`, always queued. View sessions use
+    /// this: each has at most one job queued.
     pub async fn render_waiting(
         &self,
+        client: IpAddr,
         dataset: &Dataset,
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
         let (job, answer) = Job::new(dataset, request);
-        self.jobs
-            .send(job)
-            .await
-            .map_err(|_| AppError::Internal("the render worker has stopped".into()))?;
+        self.shared.lock().push(client, job);
+        self.shared.ready.notify_one();
         Self::answer(answer).await
     }
 
@@ -255,5 +417,56 @@ impl RenderService {
             GpuError::Data(e) => AppError::DataUnreadable(e.to_string()),
             other => AppError::Internal(other.to_string()),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `count` jobs of `width` × `height` pixels.
+    fn jobs(dataset: &Dataset, (width, height): (u32, u32), count: usize) -> Vec<Job> {
+        (0..count)
+            .map(|_| {
+                let request = FrameRequest {
+                    width,
+                    height,
+                    ..FrameRequest::default()
+                };
+                Job::new(dataset, request).0
+            })
+            .collect()
+    }
+
+    /// The widths of the jobs `queue` gives, in order, until it is empty.
+    fn widths(queue: &mut Queue) -> Vec<u32> {
+        std::iter::from_fn(|| queue.next())
+            .map(|job| job.request.width)
+            .collect()
+    }
+
+    #[test]
+    fn clients_take_turns_by_cost() {
+        let dataset = Dataset::phantom(16, 1 << 20).expect("phantom");
+        let (a, b): (IpAddr, IpAddr) = ([127, 0, 0, 2].into(), [127, 0, 0, 3].into());
+        // Frames of equal cost alternate (a's are 512 wide, b's 256).
+        let mut queue = Queue::default();
+        for job in jobs(&dataset, (512, 512), 3) {
+            queue.push(a, job);
+        }
+        for job in jobs(&dataset, (256, 1024), 3) {
+            queue.push(b, job);
+        }
+        assert_eq!(widths(&mut queue), [512, 256, 512, 256, 512, 256]);
+        // Big frames of one client wait while another's small ones go by,
+        // though they came first.
+        for job in jobs(&dataset, (1024, 1024), 2) {
+            queue.push(a, job);
+        }
+        for job in jobs(&dataset, (64, 64), 3) {
+            queue.push(b, job);
+        }
+        assert_eq!(widths(&mut queue), [64, 64, 64, 1024, 1024]);
+        assert!(queue.turns.is_empty());
     }
 }

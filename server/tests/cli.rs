@@ -109,6 +109,22 @@ fn bad_flags_are_refused_with_the_flag_named() {
         (vec!["render", "--background", "white"], "--background"),
         (vec!["render", "--renderer", "quantum"], "--renderer"),
         (vec!["serve", "--addr", "localhost"], "--addr"),
+        // Anyone who reaches a non-loopback port would see every dataset.
+        (
+            vec!["serve", "--addr", "0.0.0.0:0"],
+            "--insecure-allow-anonymous",
+        ),
+        (vec!["serve", "--host-name", "evil/x"], "--host-name"),
+        (
+            vec!["serve", "--allow-origin", "evil.example"],
+            "--allow-origin",
+        ),
+        (vec!["serve", "--max-connections", "0"], "--max-connections"),
+        (
+            vec!["serve", "--sessions-per-client", "0"],
+            "--sessions-per-client",
+        ),
+        (vec!["serve", "--session-idle-s", "0"], "--session-idle-s"),
         (
             vec!["serve", "--data", "/no/such/folder"],
             "--data /no/such/folder",

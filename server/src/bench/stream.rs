@@ -150,7 +150,9 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
     let full_size = StreamSettings {
         interactive_scale: 1.0,
         interactive_reduction: 1.0,
+        // Every session comes from this process's one address.
         max_sessions: 4096,
+        sessions_per_client: 4096,
         ..StreamSettings::default()
     };
     // JPEG from a server that never counts the view as still; lossless frames

@@ -247,12 +247,104 @@ pub struct ServeArgs {
     /// Address and port to listen on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: SocketAddr,
+    /// Listen on an address other than loopback although voxserve has no
+    /// authentication configured: anyone who reaches the port sees every
+    /// dataset. Only behind a proxy that authenticates every request.
+    #[arg(long)]
+    pub insecure_allow_anonymous: bool,
+    #[command(flatten)]
+    pub access: AccessArgs,
     #[command(flatten)]
     pub stream: StreamArgs,
     #[command(flatten)]
     pub renderer: RendererArgs,
     #[command(flatten)]
     pub data: DataArgs,
+}
+
+/// The connection limits' defaults, as `serve`'s flags show them.
+const DEFAULT_LIMITS: crate::listen::ConnectionLimits = crate::listen::ConnectionLimits::DEFAULT;
+
+/// Who may reach the server, and how many connections it keeps.
+#[derive(Debug, Clone, Args)]
+pub struct AccessArgs {
+    /// A host name the server answers to (requests naming another host are
+    /// refused, against DNS rebinding); IP addresses and `localhost` always
+    /// work. Repeat for more.
+    #[arg(long = "host-name", value_name = "NAME", value_parser = host_name)]
+    pub host_names: Vec<String>,
+    /// A web origin (`https://viewer.example.org`) whose pages may open view
+    /// sessions besides the server's own. Repeat for more.
+    #[arg(long = "allow-origin", value_name = "ORIGIN", value_parser = origin)]
+    pub allowed_origins: Vec<String>,
+    /// Connections open at most; beyond it the quietest is closed. Keep it
+    /// below the open-file limit (`ulimit -n`).
+    #[arg(long, default_value_t = DEFAULT_LIMITS.max_connections as u64, value_parser = clap::value_parser!(u64).range(16..=1_000_000))]
+    pub max_connections: u64,
+    /// Connections of one client address open at most; beyond it the
+    /// client's quietest is closed.
+    #[arg(long, default_value_t = DEFAULT_LIMITS.per_client as u64, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub connections_per_client: u64,
+    /// Seconds a request's headers may take to arrive.
+    #[arg(long, default_value_t = DEFAULT_LIMITS.header_timeout.as_secs(), value_parser = clap::value_parser!(u64).range(1..=600))]
+    pub header_timeout_s: u64,
+    /// Seconds a connection may stay without reading or writing before it is
+    /// closed.
+    #[arg(long, default_value_t = DEFAULT_LIMITS.idle_timeout.as_secs(), value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    pub idle_timeout_s: u64,
+}
+
+impl AccessArgs {
+    /// The access these flags give.
+    pub fn access(&self) -> crate::access::Access {
+        crate::access::Access {
+            host_names: self.host_names.clone(),
+            allowed_origins: self.allowed_origins.clone(),
+            connections: crate::listen::ConnectionLimits {
+                max_connections: usize::try_from(self.max_connections).unwrap_or(usize::MAX),
+                per_client: usize::try_from(self.connections_per_client).unwrap_or(usize::MAX),
+                header_timeout: std::time::Duration::from_secs(self.header_timeout_s),
+                idle_timeout: std::time::Duration::from_secs(self.idle_timeout_s),
+            },
+        }
+    }
+}
+
+/// `--host-name`: a DNS name (letters, digits, `-` and `.`), lower-cased.
+fn host_name(text: &str) -> Result<String, String> {
+    let valid = !text.is_empty()
+        && text.len() <= 253
+        && text
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '.');
+    if valid {
+        Ok(text.to_ascii_lowercase())
+    } else {
+        Err(format!(
+            "{text:?}: expected a host name of letters, digits, '-' and '.' (no port, no scheme)"
+        ))
+    }
+}
+
+/// `--allow-origin`: `http://` or `https://` and a host (and port), no path;
+/// lower-cased.
+fn origin(text: &str) -> Result<String, String> {
+    let lower = text.trim_end_matches('/').to_ascii_lowercase();
+    let authority = lower
+        .strip_prefix("https://")
+        .or_else(|| lower.strip_prefix("http://"));
+    let valid = authority.is_some_and(|a| {
+        !a.is_empty()
+            && a.chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-.:[]".contains(c))
+    });
+    if valid {
+        Ok(lower)
+    } else {
+        Err(format!(
+            "{text:?}: expected an origin such as https://viewer.example.org (scheme, host, optional port; no path)"
+        ))
+    }
 }
 
 /// The stream settings' defaults, as `serve`'s flags show them.
@@ -287,6 +379,15 @@ pub struct StreamArgs {
     /// View sessions open at most; more are refused (HTTP 503).
     #[arg(long, default_value_t = DEFAULT_STREAM.max_sessions as u64, value_parser = clap::value_parser!(u64).range(1..=4096))]
     pub max_sessions: u64,
+    /// View sessions of one client address open at most; more are refused
+    /// (HTTP 429).
+    #[arg(long, default_value_t = DEFAULT_STREAM.sessions_per_client as u64, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    pub sessions_per_client: u64,
+    /// Seconds without a message from a viewer (it sends one whenever the
+    /// user acts) after which its session is closed, freeing its place; the
+    /// viewer reconnects when the user acts again.
+    #[arg(long, default_value_t = DEFAULT_STREAM.session_idle_s, value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    pub session_idle_s: u64,
 }
 
 impl StreamArgs {
@@ -300,6 +401,8 @@ impl StreamArgs {
             lossless: self.lossless,
             frames_in_flight: self.frames_in_flight,
             max_sessions: usize::try_from(self.max_sessions).unwrap_or(usize::MAX),
+            sessions_per_client: usize::try_from(self.sessions_per_client).unwrap_or(usize::MAX),
+            session_idle_s: self.session_idle_s,
         }
     }
 }

@@ -23,9 +23,15 @@
 //! ([`crate::RenderService::render_waiting`]): each has at most one job
 //! queued, so the worker serves them in turn. A session's view is its own.
 //! [`Sessions`] caps them at [`StreamSettings::max_sessions`] (a semaphore;
-//! 503 beyond it); a session ends, and frees its place, when the client
-//! closes the socket, the socket breaks, or the server shuts down
-//! (`AppState::shutdown`): then it sends a close with code 1001 (going away).
+//! 503 beyond it) and at [`StreamSettings::sessions_per_client`] per client
+//! address (429); a browser page of another site is refused (403,
+//! [`crate::access`]). A session ends, and frees its place, when the client
+//! closes the socket, the socket breaks, the client sent nothing for
+//! [`StreamSettings::session_idle_s`] (close [`protocol::CLOSE_IDLE`]), the
+//! peer answered no ping for [`protocol::PEER_PATIENCE`] seconds, a message
+//! exceeded [`protocol::MAX_MESSAGE_BYTES`] (close 1009), or the server
+//! shuts down (`AppState::shutdown`): then it sends a close with code 1001
+//! (going away).
 //! A place is freed before the close handshake completes, so a client that
 //! has seen its session close can open another at once.
 //!
@@ -40,17 +46,20 @@
 pub mod session;
 mod socket;
 
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::net::{IpAddr, SocketAddr};
+use std::sync::{Arc, Mutex, PoisonError};
 
-use axum::extract::State;
 use axum::extract::ws::WebSocketUpgrade;
-use axum::response::Response;
+use axum::extract::{ConnectInfo, State};
+use axum::http::HeaderMap;
+use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 pub use session::{Action, Session};
 
-use crate::{AppError, AppState, encode};
+use crate::{AppError, AppState, encode, protocol};
 
 /// How view sessions trade quality for speed; see the module docs.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -70,6 +79,14 @@ pub struct StreamSettings {
     pub frames_in_flight: u32,
     /// Open sessions at most; more are refused with 503.
     pub max_sessions: usize,
+    /// Open sessions of one client address at most; more are refused with
+    /// 429.
+    pub sessions_per_client: usize,
+    /// Seconds without a message from the client (a view change, an
+    /// acknowledgement, a status request) after which its session is closed
+    /// (code [`protocol::CLOSE_IDLE`]), so that viewers left open do not
+    /// hold places.
+    pub session_idle_s: u64,
 }
 
 impl StreamSettings {
@@ -84,6 +101,8 @@ impl StreamSettings {
         lossless: encode::Lossless::Webp,
         frames_in_flight: 1,
         max_sessions: 16,
+        sessions_per_client: 4,
+        session_idle_s: 600,
     };
 }
 
@@ -94,20 +113,60 @@ impl Default for StreamSettings {
 }
 
 /// The open sessions' places: a semaphore of [`StreamSettings::max_sessions`]
-/// permits, one held by each session until it ends.
+/// permits, one held by each session until it ends, and the count of each
+/// client address's sessions (at most [`StreamSettings::sessions_per_client`]).
 #[derive(Debug, Clone)]
 pub struct Sessions {
     places: Arc<Semaphore>,
     max: u32,
+    per_client: usize,
+    by_client: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+impl Place {
+    /// The client address holding the place.
+    pub fn client(&self) -> IpAddr {
+        self.client
+    }
+}
+
+/// A session's place: freed when dropped.
+#[derive(Debug)]
+pub struct Place {
+    _permit: OwnedSemaphorePermit,
+    client: IpAddr,
+    by_client: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+impl Drop for Place {
+    fn drop(&mut self) {
+        let mut by_client = lock(&self.by_client);
+        if let Some(count) = by_client.get_mut(&self.client) {
+            *count -= 1;
+            if *count == 0 {
+                by_client.remove(&self.client);
+            }
+        }
+    }
+}
+
+/// The counts, whatever a panic elsewhere left: each change is one step.
+fn lock(
+    by_client: &Mutex<HashMap<IpAddr, usize>>,
+) -> std::sync::MutexGuard<'_, HashMap<IpAddr, usize>> {
+    by_client.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
 impl Sessions {
-    /// Places for `max` sessions at once.
-    pub fn new(max: usize) -> Sessions {
+    /// Places for `max` sessions at once, at most `per_client` of one client
+    /// address.
+    pub fn new(max: usize, per_client: usize) -> Sessions {
         let max = u32::try_from(max).unwrap_or(u32::MAX);
         Sessions {
             places: Arc::new(Semaphore::new(max as usize)),
             max,
+            per_client,
+            by_client: Arc::default(),
         }
     }
 
@@ -116,9 +175,29 @@ impl Sessions {
         (self.max as usize).saturating_sub(self.places.available_permits())
     }
 
-    /// A place for one more session, if there is one.
-    fn try_open(&self) -> Option<OwnedSemaphorePermit> {
-        self.places.clone().try_acquire_owned().ok()
+    /// A place for one more session of `client`, or why there is none.
+    fn try_open(&self, client: IpAddr) -> Result<Place, AppError> {
+        let mut by_client = lock(&self.by_client);
+        let count = by_client.entry(client).or_insert(0);
+        if *count >= self.per_client {
+            return Err(AppError::TooMany(format!(
+                "{} view sessions from {client} are open, the most this server allows one \
+                 client: close one, or retry later",
+                self.per_client
+            )));
+        }
+        let permit = self.places.clone().try_acquire_owned().map_err(|_| {
+            AppError::Busy(format!(
+                "{} view sessions are open, the most this server allows: retry later",
+                self.max
+            ))
+        })?;
+        *count += 1;
+        Ok(Place {
+            _permit: permit,
+            client,
+            by_client: self.by_client.clone(),
+        })
     }
 
     /// Resolves when every session has ended; no session opens after.
@@ -129,20 +208,29 @@ impl Sessions {
     }
 }
 
-/// `GET /api/stream`: upgrades to a view session, or answers 503 when
-/// [`StreamSettings::max_sessions`] are open.
+/// `GET /api/stream`: upgrades to a view session, or answers 403 to a page
+/// of another site ([`crate::access`]), 429 when the client has
+/// [`StreamSettings::sessions_per_client`] open and 503 when
+/// [`StreamSettings::max_sessions`] are.
 pub async fn handler(
     ws: WebSocketUpgrade,
     State(state): State<AppState>,
-) -> Result<Response, AppError> {
-    let place = state.sessions.try_open().ok_or_else(|| {
-        AppError::Busy(format!(
-            "{} view sessions are open, the most this server allows: retry later",
-            state.stream.max_sessions
-        ))
-    })?;
-    Ok(ws.on_upgrade(move |socket| async move {
-        let (sink, stream) = socket.split();
-        socket::run(sink, stream, &state, place).await;
-    }))
+    ConnectInfo(client): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+) -> Result<Response, Response> {
+    state
+        .access
+        .check_origin(&headers)
+        .map_err(IntoResponse::into_response)?;
+    let place = state
+        .sessions
+        .try_open(client.ip())
+        .map_err(IntoResponse::into_response)?;
+    Ok(ws
+        .max_message_size(protocol::MAX_MESSAGE_BYTES)
+        .max_frame_size(protocol::MAX_MESSAGE_BYTES)
+        .on_upgrade(move |socket| async move {
+            let (sink, stream) = socket.split();
+            socket::run(sink, stream, &state, place).await;
+        }))
 }

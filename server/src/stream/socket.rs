@@ -8,14 +8,15 @@
 //! WebSocket.
 
 use std::future::Future;
+use std::net::IpAddr;
 use std::pin::Pin;
 use std::time::Duration;
 
 use axum::extract::ws::{CloseFrame, Message, close_code};
 use futures_util::{Sink, SinkExt, Stream, StreamExt};
-use tokio::sync::OwnedSemaphorePermit;
 use tokio::time::Instant;
 
+use super::Place;
 use super::session::{Action, Quality, Render, Session};
 use crate::protocol::{self, Encoding, FrameHeader, Reply};
 use crate::{AppState, Dataset, encode, metrics};
@@ -42,7 +43,7 @@ const BLOCKS_GATHER: Duration = Duration::from_millis(250);
 const BLOCKS_PATIENCE: Duration = Duration::from_secs(5);
 
 /// How a session ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 enum End {
     /// The client sent a close: the reply completes the handshake.
     Client,
@@ -50,6 +51,14 @@ enum End {
     Gone,
     /// The server is shutting down: a close (1001) goes out.
     Shutdown,
+    /// The client sent nothing for `session_idle_s`: a close
+    /// ([`protocol::CLOSE_IDLE`]) goes out.
+    Idle,
+    /// The client broke the protocol (a message too long, a bad frame): a
+    /// close with the code and reason goes out.
+    Broken(u16, String),
+    /// The peer answered no ping for [`protocol::PEER_PATIENCE`] seconds.
+    Silent,
 }
 
 /// What woke the loop.
@@ -60,27 +69,67 @@ enum Event {
     BlocksArrived,
     Received(Message),
     Gone,
+    Broken(String),
     Still,
+    Timer,
 }
+
+/// When the session last heard from its client, and when it pings next.
+#[derive(Debug)]
+struct Liveness {
+    /// The last text message (view, acknowledgement, status).
+    message: Instant,
+    /// The last message of any kind, pongs included.
+    heard: Instant,
+    /// The next ping.
+    ping: Instant,
+    idle: Duration,
+}
+
+impl Liveness {
+    fn new(now: Instant, idle: Duration) -> Liveness {
+        Liveness {
+            message: now,
+            heard: now,
+            ping: now + PING_INTERVAL,
+            // A year is never; the clamp keeps instants from overflowing.
+            idle: idle.min(Duration::from_secs(365 * 86_400)),
+        }
+    }
+
+    /// The next instant something is due.
+    fn due(&self) -> Instant {
+        self.ping
+            .min(self.message + self.idle)
+            .min(self.heard + PEER_PATIENCE)
+    }
+
+    fn on_received(&mut self, now: Instant, message: &Message) {
+        self.heard = now;
+        if matches!(message, Message::Text(_)) {
+            self.message = now;
+        }
+    }
+}
+
+const PING_INTERVAL: Duration = Duration::from_secs(protocol::PING_INTERVAL);
+const PEER_PATIENCE: Duration = Duration::from_secs(protocol::PEER_PATIENCE);
 
 /// Runs one session on a socket's halves until the client closes it, it
 /// breaks, or the server shuts down; `place` (the session's place under the
 /// cap) is freed as it ends.
-pub(super) async fn run<S, R, E>(
-    mut sink: S,
-    mut stream: R,
-    state: &AppState,
-    place: OwnedSemaphorePermit,
-) where
+pub(super) async fn run<S, R, E>(mut sink: S, mut stream: R, state: &AppState, place: Place)
+where
     S: Sink<Message> + Unpin,
     R: Stream<Item = Result<Message, E>> + Unpin,
+    E: std::fmt::Display,
 {
     if sink.send(Message::Text(hello(state).into())).await.is_err() {
         return;
     }
     state.metrics.session_opened();
     let mut session = Session::new(state.datasets.clone(), state.stream);
-    let end = drive(&mut sink, &mut stream, &mut session, state).await;
+    let end = drive(&mut sink, &mut stream, &mut session, state, place.client()).await;
     // Freed before the close handshake completes, so a client that has seen
     // it can open another session at once.
     drop(place);
@@ -89,8 +138,19 @@ pub(super) async fn run<S, R, E>(
         End::Client => {
             let _ = sink.close().await;
         }
-        End::Shutdown => going_away(&mut sink, &mut stream).await,
-        End::Gone => {}
+        End::Shutdown => {
+            let close = (close_code::AWAY, "the server is shutting down".to_owned());
+            closing(&mut sink, &mut stream, close).await;
+        }
+        End::Idle => {
+            let reason = format!(
+                "idle: no message for {} s; reconnect to go on",
+                state.stream.session_idle_s
+            );
+            closing(&mut sink, &mut stream, (protocol::CLOSE_IDLE, reason)).await;
+        }
+        End::Broken(code, reason) => closing(&mut sink, &mut stream, (code, reason)).await,
+        End::Gone | End::Silent => {}
     }
 }
 
@@ -112,17 +172,21 @@ async fn drive<S, R, E>(
     stream: &mut R,
     session: &mut Session,
     state: &AppState,
+    client: IpAddr,
 ) -> End
 where
     S: Sink<Message> + Unpin,
     R: Stream<Item = Result<Message, E>> + Unpin,
+    E: std::fmt::Display,
 {
     let mut job: Option<Job> = None;
+    let idle = Duration::from_secs(state.stream.session_idle_s);
+    let mut liveness = Liveness::new(Instant::now(), idle);
     loop {
         let mut blocks = None;
         let still_at = match session.next_action(Instant::now()) {
             Action::Render(render) => {
-                job = Some(render_job(state, *render));
+                job = Some(render_job(state, client, *render));
                 continue;
             }
             Action::WaitForBlocks { dataset, seen } => {
@@ -145,11 +209,35 @@ where
             done = rendered(&mut job), if job.is_some() => Event::Rendered(done),
             incoming = stream.next() => match incoming {
                 Some(Ok(message)) => Event::Received(message),
-                Some(Err(_)) | None => Event::Gone,
+                Some(Err(e)) => Event::Broken(e.to_string()),
+                None => Event::Gone,
             },
             () = sleep_until(still_at), if still_at.is_some() => Event::Still,
             () = settle(blocks.as_ref()), if blocks.is_some() => Event::BlocksArrived,
+            // Not while a frame renders: nothing is due that cannot wait
+            // for it, and tests on tokio's paused clock would race ahead.
+            () = tokio::time::sleep_until(liveness.due()), if job.is_none() => Event::Timer,
         };
+        let now = Instant::now();
+        match &event {
+            Event::Received(message) => liveness.on_received(now, message),
+            Event::Timer => {
+                if now >= liveness.heard + PEER_PATIENCE {
+                    return End::Silent;
+                }
+                if now >= liveness.message + liveness.idle {
+                    return End::Idle;
+                }
+                if now >= liveness.ping {
+                    liveness.ping = now + PING_INTERVAL;
+                    if sink.send(Message::Ping(Vec::new().into())).await.is_err() {
+                        return End::Gone;
+                    }
+                }
+                continue;
+            }
+            _ => {}
+        }
         if let Some(end) = handle(event, sink, session, state).await {
             return end;
         }
@@ -174,6 +262,8 @@ where
         }
         Event::Still | Event::Received(Message::Ping(_) | Message::Pong(_)) => None,
         Event::Gone => return Some(End::Gone),
+        Event::Timer => None,
+        Event::Broken(error) => return Some(broken(&error)),
         Event::Received(Message::Close(_)) => return Some(End::Client),
         Event::Received(Message::Text(text)) => session.on_text(Instant::now(), text.as_str()),
         Event::Received(Message::Binary(_)) => {
@@ -238,17 +328,40 @@ async fn sleep_until(at: Option<Instant>) {
     }
 }
 
-/// Closes the session with 1001 (going away) and waits, a while, for the
-/// client's close: dropping a connection with its messages unread would
+/// How a session whose socket failed with `error` ends: a message too long
+/// is closed with 1009 (too big), any other failure with 1002 (protocol
+/// error), each with the reason (at most 120 bytes, as a close allows).
+fn broken(error: &str) -> End {
+    // The socket's errors are known only by their text here (the loop is
+    // generic over the stream); tungstenite's for a message over the limit
+    // says "Space limit exceeded".
+    let code = if error.contains("Space limit exceeded") {
+        close_code::SIZE
+    } else {
+        close_code::PROTOCOL
+    };
+    let mut reason = String::new();
+    for c in error.chars() {
+        if reason.len() + c.len_utf8() > 120 {
+            break;
+        }
+        reason.push(c);
+    }
+    End::Broken(code, reason)
+}
+
+/// Closes the session with `close` (code and reason) and waits, a while, for
+/// the client's close: dropping a connection with its messages unread would
 /// reset it, and the client might never read the close.
-async fn going_away<S, R, E>(sink: &mut S, stream: &mut R)
+async fn closing<S, R, E>(sink: &mut S, stream: &mut R, close: (u16, String))
 where
     S: Sink<Message> + Unpin,
     R: Stream<Item = Result<Message, E>> + Unpin,
 {
+    let (code, reason) = close;
     let close = CloseFrame {
-        code: close_code::AWAY,
-        reason: "the server is shutting down".into(),
+        code,
+        reason: reason.into(),
     };
     if sink.send(Message::Close(Some(close))).await.is_err() {
         return;
@@ -284,8 +397,8 @@ fn record_frame(state: &AppState, header: &FrameHeader) {
     );
 }
 
-/// Renders and encodes one frame.
-fn render_job(state: &AppState, render: Render) -> Job {
+/// Renders and encodes one frame for `client`.
+fn render_job(state: &AppState, client: IpAddr, render: Render) -> Job {
     let renderer = state.renderer.clone();
     let jpeg_quality = state.stream.jpeg_quality;
     let lossless = state.stream.lossless;
@@ -298,7 +411,7 @@ fn render_job(state: &AppState, render: Render) -> Job {
     } = render;
     Box::pin(async move {
         let rendered = renderer
-            .render_waiting(&dataset, request)
+            .render_waiting(client, &dataset, request)
             .await
             .map_err(|e| e.logged().to_string())?;
         let converged = rendered.stats.converged();
@@ -367,10 +480,23 @@ mod tests {
 
         async fn next(&mut self) -> Message {
             let patience = Duration::from_secs(60);
-            tokio::time::timeout(patience, self.from_session.recv())
+            tokio::time::timeout(patience, self.next_untimed())
                 .await
                 .expect("a message within the patience")
-                .expect("the loop is running")
+        }
+
+        /// The next message but pings, which are answered as a WebSocket
+        /// client does; without a timeout (see [`Watchdog`]).
+        async fn next_untimed(&mut self) -> Message {
+            loop {
+                match self.from_session.recv().await.expect("the loop is running") {
+                    Message::Ping(payload) => {
+                        let pong = Message::Pong(payload);
+                        self.to_session.send(pong).await.expect("the loop reads");
+                    }
+                    message => return message,
+                }
+            }
         }
 
         async fn next_json(&mut self) -> serde_json::Value {
@@ -393,7 +519,10 @@ mod tests {
             from_test,
             |mut rx| async move { rx.recv().await.map(|m| (Ok::<_, Infallible>(m), rx)) },
         ));
-        let place = state.sessions.try_open().expect("a place");
+        let place = state
+            .sessions
+            .try_open([127, 0, 0, 1].into())
+            .expect("a place");
         let state = state.clone();
         let running = tokio::spawn(async move { run(sink, stream, &state, place).await });
         let channels = Channels {
@@ -429,15 +558,6 @@ mod tests {
         }
     }
 
-    /// The next message, without a timeout (see [`Watchdog`]).
-    async fn next_untimed(client: &mut Channels) -> Message {
-        client
-            .from_session
-            .recv()
-            .await
-            .expect("the loop is running")
-    }
-
     #[tokio::test(start_paused = true)]
     async fn the_full_frame_follows_idle_ms_of_tokio_s_clock() {
         let test = "the_full_frame_follows_idle_ms_of_tokio_s_clock";
@@ -453,11 +573,14 @@ mod tests {
         let idle = Duration::from_secs(3600);
         let settings = StreamSettings {
             idle_ms: idle.as_millis() as u64,
+            // Not closed for want of messages while it waits; pings are
+            // answered (`next_untimed`), so the peer is never silent.
+            session_idle_s: 2 * idle.as_secs(),
             ..StreamSettings::default()
         };
         let state = AppState::new(vec![phantom], renderer, settings);
         let (mut client, running) = start(&state);
-        let Message::Text(hello) = next_untimed(&mut client).await else {
+        let Message::Text(hello) = client.next_untimed().await else {
             panic!("expected the hello");
         };
         assert!(hello.as_str().contains("\"hello\""), "{hello}");
@@ -467,8 +590,9 @@ mod tests {
             .await;
         let mut headers = Vec::new();
         while headers.len() < 2 {
-            let Message::Binary(bytes) = next_untimed(&mut client).await else {
-                panic!("expected a frame");
+            let bytes = match client.next_untimed().await {
+                Message::Binary(bytes) => bytes,
+                other => panic!("expected a frame, got {other:?}"),
             };
             let header = FrameHeader::parse(&bytes).expect("a header");
             headers.push((header, changed.elapsed()));
@@ -480,7 +604,7 @@ mod tests {
                 client
                     .send(serde_json::json!({"type": "status", "id": 2}))
                     .await;
-                let Message::Text(status) = next_untimed(&mut client).await else {
+                let Message::Text(status) = client.next_untimed().await else {
                     panic!("expected the status");
                 };
                 assert!(

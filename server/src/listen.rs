@@ -1,0 +1,416 @@
+//! The listener: accepts TCP connections under [`ConnectionLimits`] and serves
+//! each with hyper (HTTP/1.1 with upgrades to WebSocket, or HTTP/2).
+//!
+//! - **Caps**: at most [`ConnectionLimits::max_connections`] open, and at most
+//!   [`ConnectionLimits::per_client`] from one client address. A connection
+//!   beyond a cap does not wait and is not refused: the one of the same client
+//!   (per-client cap) or of all (overall cap) that has been quiet the longest
+//!   is closed to make room. Idle connections thus never lock anyone out, and
+//!   a client that opens many only closes its own.
+//! - **Timeouts**: a request's headers must arrive within
+//!   [`ConnectionLimits::header_timeout`] (slow-header connections end), and a
+//!   connection on which nothing was read or written for
+//!   [`ConnectionLimits::idle_timeout`] is closed.
+//! - **Descriptors**: when `accept` fails for want of file descriptors, the
+//!   quietest connection is closed and accepting resumes shortly.
+//!
+//! Each request carries the client's address as axum's `ConnectInfo`. An
+//! upgraded connection (a view session) leaves these counts once upgraded:
+//! view sessions have caps and timeouts of their own ([`crate::stream`]).
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::io;
+use std::net::IpAddr;
+use std::pin::{Pin, pin};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::task::{Context, Poll};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::extract::ConnectInfo;
+use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+use hyper_util::server::conn::auto::Builder;
+use hyper_util::service::TowerToHyperService;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::net::{TcpListener, TcpStream};
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+use tower::ServiceExt;
+
+/// How many connections the server keeps, and for how long.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct ConnectionLimits {
+    /// Connections open at once, at most.
+    pub max_connections: usize,
+    /// Connections open at once from one client address, at most.
+    pub per_client: usize,
+    /// The longest a request's headers may take to arrive.
+    pub header_timeout: Duration,
+    /// A connection on which nothing was read or written this long is closed.
+    pub idle_timeout: Duration,
+}
+
+impl ConnectionLimits {
+    /// The defaults, also `serve`'s flags' defaults: below the usual limit of
+    /// 1 024 open files, with room for the stores' files.
+    pub const DEFAULT: ConnectionLimits = ConnectionLimits {
+        max_connections: 512,
+        per_client: 64,
+        header_timeout: Duration::from_secs(10),
+        idle_timeout: Duration::from_secs(120),
+    };
+}
+
+impl Default for ConnectionLimits {
+    fn default() -> ConnectionLimits {
+        ConnectionLimits::DEFAULT
+    }
+}
+
+/// How long accepting pauses after it failed (out of file descriptors).
+const ACCEPT_BACKOFF: Duration = Duration::from_millis(20);
+/// HTTP/2 streams at once on one connection.
+const MAX_STREAMS: u32 = 32;
+
+/// An open connection: its client and when it was last active.
+#[derive(Debug)]
+struct Open {
+    client: IpAddr,
+    activity: Arc<Activity>,
+    close: CancellationToken,
+}
+
+/// When a connection last read or wrote: milliseconds since the registry's
+/// epoch.
+#[derive(Debug)]
+struct Activity {
+    epoch: Instant,
+    last_ms: AtomicU64,
+}
+
+impl Activity {
+    fn new(epoch: Instant) -> Activity {
+        let activity = Activity {
+            epoch,
+            last_ms: AtomicU64::new(0),
+        };
+        activity.touch();
+        activity
+    }
+
+    fn touch(&self) {
+        let ms = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
+        self.last_ms.store(ms, Ordering::Relaxed);
+    }
+
+    /// The instant of the last read or write.
+    fn last(&self) -> Instant {
+        self.epoch + Duration::from_millis(self.last_ms.load(Ordering::Relaxed))
+    }
+}
+
+/// The open connections.
+#[derive(Debug)]
+struct Registry {
+    epoch: Instant,
+    next_id: u64,
+    open: HashMap<u64, Open>,
+}
+
+impl Registry {
+    /// Registers a connection of `client`, first closing the quietest one of
+    /// the same client, or of all, when a cap of `limits` is reached.
+    fn admit(
+        &mut self,
+        client: IpAddr,
+        limits: &ConnectionLimits,
+    ) -> (u64, Arc<Activity>, CancellationToken) {
+        let same = self.open.values().filter(|o| o.client == client).count();
+        if same >= limits.per_client {
+            self.close_quietest(|o| o.client == client);
+        } else if self.open.len() >= limits.max_connections {
+            self.close_quietest(|_| true);
+        }
+        let id = self.next_id;
+        self.next_id += 1;
+        let activity = Arc::new(Activity::new(self.epoch));
+        let close = CancellationToken::new();
+        let open = Open {
+            client,
+            activity: activity.clone(),
+            close: close.clone(),
+        };
+        self.open.insert(id, open);
+        (id, activity, close)
+    }
+
+    /// Closes the connection among those `which` selects that was active
+    /// least recently; whether there was one.
+    fn close_quietest(&mut self, which: impl Fn(&Open) -> bool) -> bool {
+        let quietest = self
+            .open
+            .iter()
+            .filter(|(_, o)| which(o))
+            .min_by_key(|(_, o)| o.activity.last_ms.load(Ordering::Relaxed))
+            .map(|(id, _)| *id);
+        let Some(open) = quietest.and_then(|id| self.open.remove(&id)) else {
+            return false;
+        };
+        tracing::debug!("closing the quietest connection, of {}", open.client);
+        open.close.cancel();
+        true
+    }
+}
+
+/// A shared [`Registry`].
+#[derive(Debug, Clone)]
+struct Connections(Arc<Mutex<Registry>>);
+
+impl Connections {
+    fn new() -> Connections {
+        Connections(Arc::new(Mutex::new(Registry {
+            epoch: Instant::now(),
+            next_id: 0,
+            open: HashMap::new(),
+        })))
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Registry> {
+        // The registry holds no invariant a panic could break halfway.
+        self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+/// A TCP stream that notes when it last read or wrote.
+#[derive(Debug)]
+struct Tracked {
+    stream: TcpStream,
+    activity: Arc<Activity>,
+}
+
+impl AsyncRead for Tracked {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let before = buf.filled().len();
+        let polled = Pin::new(&mut self.stream).poll_read(cx, buf);
+        if buf.filled().len() > before {
+            self.activity.touch();
+        }
+        polled
+    }
+}
+
+impl AsyncWrite for Tracked {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        data: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        let polled = Pin::new(&mut self.stream).poll_write(cx, data);
+        if matches!(polled, Poll::Ready(Ok(n)) if n > 0) {
+            self.activity.touch();
+        }
+        polled
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        data: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        let polled = Pin::new(&mut self.stream).poll_write_vectored(cx, data);
+        if matches!(polled, Poll::Ready(Ok(n)) if n > 0) {
+            self.activity.touch();
+        }
+        polled
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.stream.is_write_vectored()
+    }
+}
+
+/// Serves `router` on `listener` under `limits` until `stop` is cancelled,
+/// then lets every connection finish its requests in flight and returns when
+/// they have (upgraded connections are not waited for).
+pub async fn serve(
+    listener: TcpListener,
+    router: Router,
+    limits: ConnectionLimits,
+    stop: CancellationToken,
+) -> io::Result<()> {
+    let connections = Connections::new();
+    let tasks = TaskTracker::new();
+    let mut builder = Builder::new(TokioExecutor::new());
+    builder
+        .http1()
+        .timer(TokioTimer::new())
+        .header_read_timeout(limits.header_timeout);
+    builder
+        .http2()
+        .timer(TokioTimer::new())
+        .max_concurrent_streams(MAX_STREAMS)
+        .enable_connect_protocol();
+    let builder = Arc::new(builder);
+    loop {
+        let accepted = tokio::select! {
+            () = stop.cancelled() => break,
+            accepted = listener.accept() => accepted,
+        };
+        let (stream, client) = match accepted {
+            Ok(accepted) => accepted,
+            Err(e) => {
+                accept_failed(&e, &connections).await;
+                continue;
+            }
+        };
+        let (id, activity, close) = connections.lock().admit(client.ip(), &limits);
+        let io = TokioIo::new(Tracked {
+            stream,
+            activity: activity.clone(),
+        });
+        let service = TowerToHyperService::new(router.clone().map_request(
+            move |mut request: axum::extract::Request<hyper::body::Incoming>| {
+                request.extensions_mut().insert(ConnectInfo(client));
+                request
+            },
+        ));
+        let builder = builder.clone();
+        let connections = connections.clone();
+        let stop = stop.clone();
+        tasks.spawn(async move {
+            let connection = pin!(builder.serve_connection_with_upgrades(io, service));
+            let ended = watch(connection, &activity, limits.idle_timeout, &close, &stop).await;
+            if let Err(e) = ended {
+                tracing::debug!("connection of {client}: {e}");
+            }
+            connections.lock().open.remove(&id);
+        });
+    }
+    tasks.close();
+    tasks.wait().await;
+    Ok(())
+}
+
+/// A connection being served: it resolves when it ends, and can be told to
+/// finish its requests in flight and end.
+trait Serving: Future<Output = Result<(), Box<dyn std::error::Error + Send + Sync>>> {
+    fn finish(self: Pin<&mut Self>);
+}
+
+impl<I, S, E, B> Serving for hyper_util::server::conn::auto::UpgradeableConnection<'_, I, S, E>
+where
+    Self: Future<Output = Result<(), Box<dyn std::error::Error + Send + Sync>>>,
+    S: hyper::service::HttpService<hyper::body::Incoming, ResBody = B>,
+    S::Error: Into<Box<dyn std::error::Error + Send + Sync>>,
+    I: hyper::rt::Read + hyper::rt::Write + Unpin,
+    B: hyper::body::Body + 'static,
+    B::Error: Into<Box<dyn std::error::Error + Send + Sync>>,
+    E: hyper_util::server::conn::auto::HttpServerConnExec<S::Future, B>,
+{
+    fn finish(self: Pin<&mut Self>) {
+        self.graceful_shutdown();
+    }
+}
+
+/// Runs `connection` until it ends, it was `close`d (to make room), nothing
+/// was read or written for `idle_timeout`, or, after `stop`, it has finished
+/// its requests in flight.
+async fn watch(
+    mut connection: Pin<&mut impl Serving>,
+    activity: &Activity,
+    idle_timeout: Duration,
+    close: &CancellationToken,
+    stop: &CancellationToken,
+) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+    let mut stopping = false;
+    loop {
+        let idle_at = activity.last() + idle_timeout;
+        tokio::select! {
+            served = connection.as_mut() => return served,
+            () = close.cancelled() => return Ok(()),
+            () = stop.cancelled(), if !stopping => {
+                stopping = true;
+                connection.as_mut().finish();
+            }
+            () = tokio::time::sleep_until(idle_at.into()) => {
+                if activity.last() + idle_timeout <= Instant::now() {
+                    return Ok(());
+                }
+            }
+        }
+    }
+}
+
+/// After `accept` failed: when for want of file descriptors, closes the
+/// quietest connection; pauses briefly either way (the error may repeat at
+/// once).
+async fn accept_failed(error: &io::Error, connections: &Connections) {
+    let out_of_files = matches!(error.raw_os_error(), Some(23 | 24));
+    if out_of_files {
+        let closed = connections.lock().close_quietest(|_| true);
+        tracing::warn!(
+            "cannot accept a connection: {error}; {} the quietest connection",
+            if closed { "closed" } else { "found no" }
+        );
+    } else {
+        tracing::debug!("cannot accept a connection: {error}");
+    }
+    tokio::time::sleep(ACCEPT_BACKOFF).await;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn limits(max_connections: usize, per_client: usize) -> ConnectionLimits {
+        ConnectionLimits {
+            max_connections,
+            per_client,
+            ..ConnectionLimits::DEFAULT
+        }
+    }
+
+    #[test]
+    fn a_cap_closes_the_quietest_connection_of_the_client_or_of_all() {
+        let registry = Connections::new();
+        let mut registry = registry.lock();
+        let a: IpAddr = [127, 0, 0, 2].into();
+        let b: IpAddr = [127, 0, 0, 3].into();
+        let limits = limits(3, 2);
+        let (_, first_a, close_first_a) = registry.admit(a, &limits);
+        let (_, second_a, close_second_a) = registry.admit(a, &limits);
+        // The first is the quieter one (earlier activity).
+        first_a.last_ms.store(1, Ordering::Relaxed);
+        second_a.last_ms.store(5, Ordering::Relaxed);
+        let (_, third_a, close_third_a) = registry.admit(a, &limits);
+        third_a.last_ms.store(9, Ordering::Relaxed);
+        assert!(close_first_a.is_cancelled(), "a's quietest made room");
+        assert!(!close_second_a.is_cancelled() && !close_third_a.is_cancelled());
+        assert_eq!(registry.open.len(), 2);
+        // Another client fills the overall cap, then the quietest of all goes.
+        let (_, first_b, close_first_b) = registry.admit(b, &limits);
+        first_b.last_ms.store(7, Ordering::Relaxed);
+        assert_eq!(registry.open.len(), 3);
+        let (_, _, close_second_b) = registry.admit(b, &limits);
+        assert!(
+            close_second_a.is_cancelled(),
+            "the quietest of all made room"
+        );
+        assert!(!close_first_b.is_cancelled() && !close_second_b.is_cancelled());
+        assert_eq!(registry.open.len(), 3);
+    }
+}
