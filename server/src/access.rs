@@ -17,7 +17,7 @@
 use std::net::IpAddr;
 
 use axum::extract::{Request, State};
-use axum::http::{HeaderMap, StatusCode, header};
+use axum::http::{HeaderMap, StatusCode, Uri, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
@@ -78,14 +78,12 @@ fn quoted(text: &str) -> String {
 }
 
 impl Access {
-    /// The authority (`host[:port]`) a request went to: HTTP/2's
-    /// `:authority`, else the `Host` header.
-    fn authority(request: &Request) -> Option<&str> {
-        request
-            .uri()
-            .authority()
+    /// The authority (`host[:port]`) a request with `uri` and `headers`
+    /// went to: HTTP/2's `:authority`, else the `Host` header.
+    pub fn authority<'a>(uri: &'a Uri, headers: &'a HeaderMap) -> Option<&'a str> {
+        uri.authority()
             .map(axum::http::uri::Authority::as_str)
-            .or_else(|| request.headers().get(header::HOST)?.to_str().ok())
+            .or_else(|| headers.get(header::HOST)?.to_str().ok())
     }
 
     /// Whether `request` names a host of this server.
@@ -93,7 +91,7 @@ impl Access {
     /// # Errors
     /// [`Refused::Host`], naming the host and what was expected.
     pub fn check_host(&self, request: &Request) -> Result<(), Refused> {
-        let Some(authority) = Access::authority(request) else {
+        let Some(authority) = Access::authority(request.uri(), request.headers()) else {
             return Err(Refused::Host(
                 "the request names no host (Host header): expected this server's name".into(),
             ));
@@ -112,21 +110,18 @@ impl Access {
         )))
     }
 
-    /// Whether a WebSocket handshake with `headers` to `authority` may open
-    /// a view session.
+    /// Whether a WebSocket handshake with `uri` and `headers` may open a
+    /// view session.
     ///
     /// # Errors
     /// [`Refused::Origin`], naming the origin and what was expected.
-    pub fn check_origin(&self, headers: &HeaderMap) -> Result<(), Refused> {
+    pub fn check_origin(&self, uri: &Uri, headers: &HeaderMap) -> Result<(), Refused> {
         let Some(origin) = headers.get(header::ORIGIN) else {
             return Ok(());
         };
         let origin = origin.to_str().unwrap_or("").trim_end_matches('/');
         let lower = origin.to_ascii_lowercase();
-        let authority = headers
-            .get(header::HOST)
-            .and_then(|h| h.to_str().ok())
-            .map(str::to_ascii_lowercase);
+        let authority = Access::authority(uri, headers).map(str::to_ascii_lowercase);
         let own = lower
             .split_once("://")
             .map(|(_, rest)| rest)
@@ -221,7 +216,12 @@ mod tests {
             Some("https://pacs.example.org"),
             Some("HTTPS://PACS.example.org/"),
         ] {
-            assert_eq!(access.check_origin(&headers(origin)), Ok(()), "{origin:?}");
+            let uri = Uri::from_static("/api/stream");
+            assert_eq!(
+                access.check_origin(&uri, &headers(origin)),
+                Ok(()),
+                "{origin:?}"
+            );
         }
         for origin in [
             "https://evil.example",
@@ -229,8 +229,9 @@ mod tests {
             "null",
             "https://pacs.example.org.evil",
         ] {
+            let uri = Uri::from_static("/api/stream");
             let refused = access
-                .check_origin(&headers(Some(origin)))
+                .check_origin(&uri, &headers(Some(origin)))
                 .expect_err(origin);
             assert!(refused.to_string().contains("may not open"), "{refused}");
         }

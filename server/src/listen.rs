@@ -359,6 +359,7 @@ async fn watch(
 /// quietest connection; pauses briefly either way (the error may repeat at
 /// once).
 async fn accept_failed(error: &io::Error, connections: &Connections) {
+    // ENFILE and EMFILE (Linux): no kind of std's names them.
     let out_of_files = matches!(error.raw_os_error(), Some(23 | 24));
     if out_of_files {
         let closed = connections.lock().close_quietest(|_| true);

@@ -52,7 +52,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use axum::extract::ws::WebSocketUpgrade;
 use axum::extract::{ConnectInfo, State};
-use axum::http::HeaderMap;
+use axum::http::{HeaderMap, Uri};
 use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
@@ -123,13 +123,6 @@ pub struct Sessions {
     by_client: Arc<Mutex<HashMap<IpAddr, usize>>>,
 }
 
-impl Place {
-    /// The client address holding the place.
-    pub fn client(&self) -> IpAddr {
-        self.client
-    }
-}
-
 /// A session's place: freed when dropped.
 #[derive(Debug)]
 pub struct Place {
@@ -147,6 +140,13 @@ impl Drop for Place {
                 by_client.remove(&self.client);
             }
         }
+    }
+}
+
+impl Place {
+    /// The client address holding the place.
+    pub fn client(&self) -> IpAddr {
+        self.client
     }
 }
 
@@ -216,11 +216,12 @@ pub async fn handler(
     ws: WebSocketUpgrade,
     State(state): State<AppState>,
     ConnectInfo(client): ConnectInfo<SocketAddr>,
+    uri: Uri,
     headers: HeaderMap,
 ) -> Result<Response, Response> {
     state
         .access
-        .check_origin(&headers)
+        .check_origin(&uri, &headers)
         .map_err(IntoResponse::into_response)?;
     let place = state
         .sessions
