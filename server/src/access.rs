@@ -13,11 +13,19 @@
 //!   browser: scripts, the benchmarks), when its `Origin` names the host the
 //!   request went to (the server's own pages), or when it is one of
 //!   [`Access::allowed_origins`]; else 403.
+//! - **Response headers** (every response, [`security_headers`]): a
+//!   Content-Security-Policy that lets the web client load only its own
+//!   scripts, styles and images and talk only to this server and the
+//!   OpenID issuer, with `frame-ancestors` from
+//!   [`Access::frame_ancestors`] (`'none'` unless configured, for
+//!   embedding in a record system); `X-Content-Type-Options: nosniff`;
+//!   `Referrer-Policy: no-referrer` (a launch URL's token never leaves in a
+//!   `Referer`); and over TLS, `Strict-Transport-Security`.
 
 use std::net::IpAddr;
 
 use axum::extract::{Request, State};
-use axum::http::{HeaderMap, StatusCode, Uri, header};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, Uri, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
@@ -35,6 +43,13 @@ pub struct Access {
     pub allowed_origins: Vec<String>,
     /// How many connections the server keeps, and for how long.
     pub connections: ConnectionLimits,
+    /// Sources that may embed the web client in a frame
+    /// (`https://emr.example.org`); none: it may not be framed.
+    pub frame_ancestors: Vec<String>,
+    /// Origins of the OpenID issuer's endpoints the web client talks to.
+    pub issuer_origins: Vec<String>,
+    /// Whether the server is served over TLS (HSTS is sent).
+    pub tls: bool,
 }
 
 /// Why a request was not let in.
@@ -142,6 +157,58 @@ impl Access {
     }
 }
 
+impl Access {
+    /// The Content-Security-Policy of every response.
+    pub fn content_security_policy(&self) -> String {
+        let issuer = self
+            .issuer_origins
+            .iter()
+            .map(|o| format!(" {o}"))
+            .collect::<String>();
+        let ancestors = if self.frame_ancestors.is_empty() {
+            "'none'".to_owned()
+        } else {
+            self.frame_ancestors.join(" ")
+        };
+        format!(
+            "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' blob: data:; \
+             connect-src 'self'{issuer}; form-action 'self'{issuer}; base-uri 'none'; \
+             frame-ancestors {ancestors}"
+        )
+    }
+}
+
+/// How long browsers keep to TLS once told (`Strict-Transport-Security`).
+const HSTS: &str = "max-age=31536000";
+
+/// Middleware: the security headers of the module docs on every response.
+pub async fn security_headers(
+    State(state): State<AppState>,
+    request: Request,
+    next: Next,
+) -> Response {
+    let mut response = next.run(request).await;
+    let headers = response.headers_mut();
+    if let Ok(csp) = HeaderValue::from_str(&state.access.content_security_policy()) {
+        headers.insert(header::CONTENT_SECURITY_POLICY, csp);
+    }
+    headers.insert(
+        header::X_CONTENT_TYPE_OPTIONS,
+        HeaderValue::from_static("nosniff"),
+    );
+    headers.insert(
+        header::REFERRER_POLICY,
+        HeaderValue::from_static("no-referrer"),
+    );
+    if state.access.tls {
+        headers.insert(
+            header::STRICT_TRANSPORT_SECURITY,
+            HeaderValue::from_static(HSTS),
+        );
+    }
+    response
+}
+
 /// Middleware: refuses requests whose `Host` is not a name of this server.
 pub async fn host_guard(State(state): State<AppState>, request: Request, next: Next) -> Response {
     match state.access.check_host(&request) {
@@ -152,8 +219,6 @@ pub async fn host_guard(State(state): State<AppState>, request: Request, next: N
 
 #[cfg(test)]
 mod tests {
-    use axum::http::HeaderValue;
-
     use super::*;
 
     fn request(host: &str) -> Request {

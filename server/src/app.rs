@@ -11,16 +11,25 @@
 //! | `GET /api/datasets/{id}` | one dataset's description; 404 for an unknown id |
 //! | `GET /api/datasets/{id}/render?…` | `GET /api/render` for that dataset (thumbnails, embedding) |
 //! | `GET /metrics` | OpenMetrics text: [`crate::metrics`] |
-//! | `GET /healthz` | `{"status":"ok","adapter":…}` |
+//! | `GET /healthz` | `{"status":"ok"}` (and the `adapter` when the server has no authentication) |
+//! | `GET /api/auth` | how to log in: `{"required":…,"oidc":{"issuer","client_id","scopes","authorization_endpoint","token_endpoint"}|null,"api_tokens":…}` |
 //!
 //! Every request's `Host` is checked first ([`crate::access`]: 421 for a
-//! name that is not the server's).
+//! name that is not the server's), and every response has the security
+//! headers of [`crate::access`]. The API routes (`/api/…` but `/api/auth`,
+//! and `/metrics`) need a token when the server has authentication
+//! ([`crate::auth`]: 401 without a valid one); the web client's files,
+//! `/healthz` and `/api/auth` do not. Lists show only the datasets the
+//! caller may see; another dataset answers 403, or 404 when the policy
+//! hides denied ones. `/metrics` needs a metrics role. Each access is
+//! recorded in the audit trail ([`crate::audit`]).
 
 use std::future::Future;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use axum::Extension;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{ConnectInfo, Path, Query, State};
 use axum::http::{HeaderValue, Uri, header};
@@ -31,6 +40,8 @@ use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 
 use crate::access::Access;
+use crate::audit::{Audit, Event, Outcome};
+use crate::auth::{Auth, Principal};
 use crate::dataset::DatasetInfo;
 use crate::metrics::{Format, FrameTimes, Metrics, Quality, Source};
 use crate::stream::{Sessions, StreamSettings};
@@ -54,6 +65,12 @@ pub struct AppState {
     pub metrics: Arc<Metrics>,
     /// Who may reach the server, and how many connections it keeps.
     pub access: Arc<Access>,
+    /// Who is asking, and what they may see.
+    pub auth: Arc<Auth>,
+    /// Where access events are recorded.
+    pub audit: Arc<Audit>,
+    /// The certificate when served over TLS.
+    pub tls: Option<Arc<crate::tls::Tls>>,
 }
 
 impl AppState {
@@ -78,7 +95,67 @@ impl AppState {
             shutdown: CancellationToken::new(),
             metrics: Arc::new(metrics),
             access: Arc::new(Access::default()),
+            auth: Arc::new(Auth::default()),
+            audit: Arc::new(Audit::default()),
+            tls: None,
         }
+    }
+
+    /// This state served over `tls` (and sending HSTS).
+    pub fn with_tls(mut self, tls: Arc<crate::tls::Tls>) -> AppState {
+        Arc::make_mut(&mut self.access).tls = true;
+        self.tls = Some(tls);
+        self
+    }
+
+    /// This state with `auth` in place of none (everyone anonymous) and
+    /// events recorded to `audit`.
+    pub fn with_auth(mut self, auth: Auth, audit: Audit) -> AppState {
+        self.auth = Arc::new(auth);
+        self.audit = Arc::new(audit);
+        self
+    }
+
+    /// The datasets `principal` may see, in order.
+    pub fn visible(&self, principal: &Principal) -> Arc<[Dataset]> {
+        if !self.auth.required() {
+            return self.datasets.clone();
+        }
+        self.datasets
+            .iter()
+            .filter(|d| self.auth.may_see(principal, &d.id))
+            .cloned()
+            .collect()
+    }
+
+    /// The dataset `id` if `principal` may see it.
+    ///
+    /// # Errors
+    /// 404 for an unknown id (naming the ones the principal may see); 403
+    /// for a denied one, or the same 404 when the policy hides denied
+    /// datasets.
+    pub fn find_dataset(&self, principal: &Principal, id: &str) -> Result<&Dataset, AppError> {
+        let found = self.datasets.iter().find(|d| d.id == id);
+        match found {
+            Some(dataset) if self.auth.may_see(principal, id) => Ok(dataset),
+            Some(_) if !self.auth.hides_denied() => Err(AppError::Forbidden(format!(
+                "dataset '{id}': {} may not see it",
+                principal.user
+            ))),
+            _ => {
+                let visible = self.visible(principal);
+                let known: Vec<&str> = visible.iter().map(|d| d.id.as_str()).collect();
+                Err(AppError::NotFound(format!(
+                    "dataset '{id}': expected one of {}",
+                    known.join(", ")
+                )))
+            }
+        }
+    }
+
+    /// Records `event` in the audit trail.
+    pub fn audit(&self, event: &Event) {
+        self.audit.record(event);
     }
 
     /// This state with `access` in place of the default (loopback names and
@@ -92,9 +169,16 @@ impl AppState {
 /// The router over `state`.
 pub fn router(state: AppState) -> Router {
     let host_guard = axum::middleware::from_fn_with_state(state.clone(), crate::access::host_guard);
-    Router::new()
+    let headers =
+        axum::middleware::from_fn_with_state(state.clone(), crate::access::security_headers);
+    let authenticated = axum::middleware::from_fn_with_state(state.clone(), crate::auth::require);
+    let api = Router::new()
         .route("/api/render", get(render).head(render_head))
-        .route("/api/stream", get(crate::stream::handler))
+        // HTTP/2 opens WebSockets with CONNECT (RFC 8441).
+        .route(
+            "/api/stream",
+            get(crate::stream::handler).connect(crate::stream::handler),
+        )
         .route("/api/settings", get(settings))
         .route("/api/datasets", get(datasets))
         .route("/api/datasets/{id}", get(dataset))
@@ -102,10 +186,15 @@ pub fn router(state: AppState) -> Router {
             "/api/datasets/{id}/render",
             get(dataset_render).head(dataset_render_head),
         )
-        .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
+        .layer(authenticated);
+    Router::new()
+        .merge(api)
+        .route("/api/auth", get(auth_config))
+        .route("/healthz", get(healthz))
         .fallback(get(static_file))
         .layer(host_guard)
+        .layer(headers)
         .with_state(state)
 }
 
@@ -121,6 +210,7 @@ pub async fn run(
     let sessions = state.sessions.clone();
     let token = state.shutdown.clone();
     let limits = state.access.connections;
+    let tls = state.tls.clone();
     let stop = CancellationToken::new();
     let stopping = stop.clone();
     tokio::spawn(async move {
@@ -128,7 +218,7 @@ pub async fn run(
         stopping.cancel();
         token.cancel();
     });
-    let served = crate::listen::serve(listener, router(state), limits, stop.clone()).await;
+    let served = crate::listen::serve(listener, router(state), limits, tls, stop.clone()).await;
     stop.cancel();
     // Upgraded connections are no longer the listener's: it does not wait
     // for them, so wait for the sessions here.
@@ -141,17 +231,45 @@ async fn static_file(uri: Uri) -> Result<Response, AppError> {
 }
 
 async fn healthz(State(state): State<AppState>) -> Json<serde_json::Value> {
-    Json(serde_json::json!({ "status": "ok", "adapter": state.renderer.adapter() }))
+    if state.auth.required() {
+        Json(serde_json::json!({ "status": "ok" }))
+    } else {
+        Json(serde_json::json!({ "status": "ok", "adapter": state.renderer.adapter() }))
+    }
 }
 
-async fn settings(State(state): State<AppState>) -> Json<serde_json::Value> {
-    Json(crate::view::describe(&state.datasets))
+async fn auth_config(State(state): State<AppState>) -> Json<serde_json::Value> {
+    Json(state.auth.describe())
 }
 
-async fn datasets(State(state): State<AppState>) -> Json<Vec<serde_json::Value>> {
+async fn settings(
+    State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
+) -> Json<serde_json::Value> {
+    Json(crate::view::describe(&state.visible(&principal)))
+}
+
+async fn datasets(
+    State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
+    ConnectInfo(client): ConnectInfo<SocketAddr>,
+) -> Json<Vec<serde_json::Value>> {
+    let visible = state.visible(&principal);
+    state.audit(
+        &Event::new(
+            "list",
+            Some(&principal),
+            Some(client.ip()),
+            Outcome::Success,
+        )
+        .detail(format!(
+            "{} of {} datasets",
+            visible.len(),
+            state.datasets.len()
+        )),
+    );
     Json(
-        state
-            .datasets
+        visible
             .iter()
             .map(|d| with_renderer(&state, d.info()))
             .collect(),
@@ -167,55 +285,96 @@ fn with_renderer(state: &AppState, info: DatasetInfo) -> serde_json::Value {
     value
 }
 
-/// The dataset `id`, or a 404 naming the ones there are.
-fn find_dataset<'a>(state: &'a AppState, id: &str) -> Result<&'a Dataset, AppError> {
-    state.datasets.iter().find(|d| d.id == id).ok_or_else(|| {
-        let known: Vec<&str> = state.datasets.iter().map(|d| d.id.as_str()).collect();
-        AppError::NotFound(format!(
-            "dataset '{id}': expected one of {}",
-            known.join(", ")
-        ))
-    })
+/// Records an access to `dataset` by `principal` from `client` that ended
+/// in `result`.
+fn audit_access<T>(
+    state: &AppState,
+    event: &'static str,
+    principal: &Principal,
+    client: IpAddr,
+    dataset: Option<&str>,
+    result: &Result<T, AppError>,
+) {
+    let (outcome, detail) = match result {
+        Ok(_) => (Outcome::Success, None),
+        Err(e @ (AppError::Forbidden(_) | AppError::NotFound(_))) => {
+            (Outcome::Denied, Some(e.to_string()))
+        }
+        Err(e) => (Outcome::Failure, Some(e.to_string())),
+    };
+    let mut line = Event::new(event, Some(principal), Some(client), outcome);
+    if let Some(id) = dataset {
+        line = line.dataset(id);
+    }
+    if let Some(detail) = detail {
+        line = line.detail(detail);
+    }
+    state.audit(&line);
 }
 
 async fn dataset(
     State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
+    ConnectInfo(client): ConnectInfo<SocketAddr>,
     Path(id): Path<String>,
 ) -> Result<Json<DatasetInfo>, AppError> {
-    Ok(Json(find_dataset(&state, &id)?.info()))
+    let found = state.find_dataset(&principal, &id).map(Dataset::info);
+    audit_access(
+        &state,
+        "describe",
+        &principal,
+        client.ip(),
+        Some(&id),
+        &found,
+    );
+    found.map(Json)
 }
 
 /// `GET /api/datasets/{id}/render?…`: `GET /api/render` with the dataset in
 /// the path (thumbnails, embedding).
 async fn dataset_render(
     State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
     ConnectInfo(client): ConnectInfo<SocketAddr>,
     Path(id): Path<String>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
-    let pairs = dataset_pairs(&state, id, query)?;
-    render_pairs(&state, client.ip(), &pairs).await
+    let rendered = match dataset_pairs(&state, &principal, id.clone(), query) {
+        Ok(pairs) => render_pairs(&state, &principal, client.ip(), &pairs).await,
+        Err(e) => Err(e),
+    };
+    audit_access(
+        &state,
+        "render",
+        &principal,
+        client.ip(),
+        Some(&id),
+        &rendered,
+    );
+    rendered
 }
 
 /// `HEAD /api/datasets/{id}/render?…`: [`render_head`] with the dataset in
 /// the path.
 async fn dataset_render_head(
     State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
     Path(id): Path<String>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
-    let pairs = dataset_pairs(&state, id, query)?;
-    head_pairs(&state, &pairs)
+    let pairs = dataset_pairs(&state, &principal, id, query)?;
+    head_pairs(&state, &principal, &pairs)
 }
 
 /// The view parameters of `/api/datasets/{id}/render?…`: the query's, and
 /// the dataset `id` from the path.
 fn dataset_pairs(
     state: &AppState,
+    principal: &Principal,
     id: String,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Vec<(String, String)>, AppError> {
-    find_dataset(state, &id)?;
+    state.find_dataset(principal, &id)?;
     let Query(mut pairs) = query
         .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
     if pairs.iter().any(|(name, _)| name == "dataset") {
@@ -227,52 +386,114 @@ fn dataset_pairs(
     Ok(pairs)
 }
 
-async fn metrics(State(state): State<AppState>) -> Response {
+async fn metrics(
+    State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
+    ConnectInfo(client): ConnectInfo<SocketAddr>,
+) -> Result<Response, AppError> {
+    let allowed = if state.auth.may_read_metrics(&principal) {
+        Ok(())
+    } else {
+        Err(AppError::Forbidden(format!(
+            "/metrics: {} has no metrics role (the policy file's metrics_roles)",
+            principal.user
+        )))
+    };
+    audit_access(&state, "metrics", &principal, client.ip(), None, &allowed);
+    allowed?;
     let text = state.metrics.encode(
         state.sessions.open(),
         state.datasets.iter().map(|d| &*d.cache),
     );
     let content_type = "application/openmetrics-text; version=1.0.0; charset=utf-8";
-    ([(header::CONTENT_TYPE, content_type)], text).into_response()
+    Ok(([(header::CONTENT_TYPE, content_type)], text).into_response())
 }
 
 async fn render(
     State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
     ConnectInfo(client): ConnectInfo<SocketAddr>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
-    let Query(pairs) = query
-        .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
-    render_pairs(&state, client.ip(), &pairs).await
+    let rendered = match query {
+        Ok(Query(pairs)) => {
+            let rendered = render_pairs(&state, &principal, client.ip(), &pairs).await;
+            let named = named_dataset(&pairs).map(str::to_owned);
+            let id = named.or_else(|| state.visible(&principal).first().map(|d| d.id.clone()));
+            audit_access(
+                &state,
+                "render",
+                &principal,
+                client.ip(),
+                id.as_deref(),
+                &rendered,
+            );
+            return rendered;
+        }
+        Err(e) => Err(AppError::BadRequest(format!(
+            "malformed query string: {}",
+            e.body_text()
+        ))),
+    };
+    audit_access(&state, "render", &principal, client.ip(), None, &rendered);
+    rendered
 }
 
 /// `HEAD /api/render?…`: the headers of a PNG frame once the view parameters
 /// are checked (400 as for `GET`), without rendering it.
 async fn render_head(
     State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
     let Query(pairs) = query
         .map_err(|e| AppError::BadRequest(format!("malformed query string: {}", e.body_text())))?;
-    head_pairs(&state, &pairs)
+    head_pairs(&state, &principal, &pairs)
 }
 
-/// The view `pairs` (query parameters) ask for, checked.
-fn checked_view<'s>(
-    state: &'s AppState,
+/// The dataset a query names, if it names one.
+fn named_dataset(pairs: &[(String, String)]) -> Option<&str> {
+    pairs
+        .iter()
+        .find(|(name, _)| name == "dataset")
+        .map(|(_, id)| id.as_str())
+}
+
+/// The view `pairs` (query parameters) ask for, checked: a dataset they name
+/// must be one `principal` may see (403, or 404).
+fn checked_view(
+    state: &AppState,
+    principal: &Principal,
     pairs: &[(String, String)],
-) -> Result<(View, &'s Dataset), AppError> {
-    let view = View::from_query(pairs, &state.datasets)
-        .map_err(|e| AppError::BadRequest(e.to_string()))?;
+) -> Result<(View, Dataset), AppError> {
+    if let Some(id) = named_dataset(pairs)
+        && state.datasets.iter().any(|d| d.id == id)
+    {
+        state.find_dataset(principal, id)?;
+    }
+    let visible = state.visible(principal);
+    if visible.is_empty() {
+        return Err(AppError::Forbidden(format!(
+            "{} may see no dataset",
+            principal.user
+        )));
+    }
+    let view =
+        View::from_query(pairs, &visible).map_err(|e| AppError::BadRequest(e.to_string()))?;
     let dataset = view
-        .dataset(&state.datasets)
-        .map_err(|e| AppError::BadRequest(e.to_string()))?;
+        .dataset(&visible)
+        .map_err(|e| AppError::BadRequest(e.to_string()))?
+        .clone();
     Ok((view, dataset))
 }
 
 /// The answer to `HEAD` for the frame `pairs` ask for: its checks, no frame.
-fn head_pairs(state: &AppState, pairs: &[(String, String)]) -> Result<Response, AppError> {
-    checked_view(state, pairs)?;
+fn head_pairs(
+    state: &AppState,
+    principal: &Principal,
+    pairs: &[(String, String)],
+) -> Result<Response, AppError> {
+    checked_view(state, principal, pairs)?;
     let headers = [
         (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
         (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
@@ -319,11 +540,12 @@ async fn render_complete(
 /// PNG response.
 async fn render_pairs(
     state: &AppState,
+    principal: &Principal,
     client: IpAddr,
     pairs: &[(String, String)],
 ) -> Result<Response, AppError> {
-    let (view, dataset) = checked_view(state, pairs)?;
-    let rendered = render_complete(state, client, dataset, &view.frame).await?;
+    let (view, dataset) = checked_view(state, principal, pairs)?;
+    let rendered = render_complete(state, client, &dataset, &view.frame).await?;
     let encode_start = Instant::now();
     let frame = rendered.frame;
     let png = tokio::task::spawn_blocking(move || encode::png(&frame))

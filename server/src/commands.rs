@@ -12,7 +12,8 @@ use blocks::ingest::{self, VolumeInfo, VolumeSource, VolumeStats};
 use tokio::net::TcpListener;
 
 use crate::cli::{
-    Command, DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs, SettingsArgs, VerifyArgs,
+    AuthArgs, Command, DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs, SettingsArgs,
+    TokenArgs, VerifyArgs,
 };
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
@@ -22,13 +23,112 @@ pub fn run(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Serve(args) => tokio::runtime::Runtime::new()
             .map_err(anyhow::Error::from)
-            .and_then(|rt| rt.block_on(serve(args))),
+            .and_then(|rt| rt.block_on(serve(*args))),
         Command::Render(args) => render(*args),
         Command::Info(args) => info(&args),
         Command::Ingest(args) => ingest(&args),
         Command::Verify(args) => verify(&args),
         Command::Settings(args) => settings(&args),
+        Command::Token(args) => token(args),
     }
+}
+
+/// `voxserve token`: a new API token on standard output, its entry for the
+/// tokens file on standard error.
+pub fn token(args: TokenArgs) -> anyhow::Result<()> {
+    let (token, entry) = crate::auth::tokens::generate(&args.name, args.roles)
+        .map_err(|e| anyhow::anyhow!("no randomness for a token: {e}"))?;
+    let mut err = std::io::stderr().lock();
+    writeln!(
+        err,
+        "add this entry to the \"tokens\" list of the file serve --api-tokens reads:\n{}",
+        serde_json::to_string(&entry)?
+    )?;
+    say(&token)
+}
+
+/// What `serve`'s authentication flags set up: how tokens are checked, who
+/// may see what, where accesses are recorded.
+async fn auth_of(args: &AuthArgs) -> anyhow::Result<(crate::auth::Auth, crate::audit::Audit)> {
+    use crate::auth::oidc::{JwksSource, OidcConfig};
+    let oidc = match (&args.oidc_issuer, &args.oidc_audience) {
+        (Some(issuer), Some(audience)) => {
+            let jwks = match &args.oidc_jwks {
+                None => JwksSource::Discovery,
+                Some(url) if url.starts_with("https://") || url.starts_with("http://") => {
+                    JwksSource::Url(url.clone())
+                }
+                Some(file) => JwksSource::File(PathBuf::from(file)),
+            };
+            let config = OidcConfig {
+                issuer: issuer.clone(),
+                audience: audience.clone(),
+                jwks,
+                client_id: args.oidc_client_id.clone(),
+                scopes: args.oidc_scopes.clone(),
+            };
+            let oidc = crate::auth::Oidc::connect(config)
+                .await
+                .with_context(|| format!("--oidc-issuer {issuer}"))?;
+            Some(oidc)
+        }
+        _ => None,
+    };
+    let tokens = args
+        .api_tokens
+        .as_deref()
+        .map(crate::auth::ApiTokens::load)
+        .transpose()?;
+    let policy = args
+        .policy
+        .as_deref()
+        .map(crate::auth::Policy::load)
+        .transpose()?;
+    let auth = crate::auth::Auth {
+        oidc,
+        tokens,
+        policy,
+    };
+    if auth.policy.is_some() && !auth.required() {
+        anyhow::bail!(
+            "--policy: the server has no authentication, so everyone would be anonymous; \
+             expected --oidc-issuer or --api-tokens with it"
+        );
+    }
+    let audit = match &args.audit_log {
+        Some(path) => crate::audit::Audit::open(path).with_context(|| {
+            format!("--audit-log {}: cannot open for appending", path.display())
+        })?,
+        None => crate::audit::Audit::default(),
+    };
+    Ok((auth, audit))
+}
+
+/// On `SIGHUP`: reads the TLS certificate again and reopens the audit log.
+#[cfg(unix)]
+fn reload_on_hangup(state: &AppState) -> anyhow::Result<()> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut hangups = signal(SignalKind::hangup()).context("cannot listen for SIGHUP")?;
+    let (tls, audit) = (state.tls.clone(), state.audit.clone());
+    tokio::spawn(async move {
+        while hangups.recv().await.is_some() {
+            if let Some(tls) = &tls {
+                match tls.reload() {
+                    Ok(()) => tracing::info!("SIGHUP: read the TLS certificate again"),
+                    Err(e) => tracing::error!("SIGHUP: keeping the TLS certificate: {e:#}"),
+                }
+            }
+            if let Err(e) = audit.reopen() {
+                tracing::error!("SIGHUP: cannot reopen the audit log: {e}");
+            }
+        }
+    });
+    Ok(())
+}
+
+#[cfg(not(unix))]
+fn reload_on_hangup(_state: &AppState) -> anyhow::Result<()> {
+    Ok(())
 }
 
 /// `voxserve settings`: every view setting, as Markdown tables or JSON.
@@ -113,15 +213,20 @@ pub fn say(line: &str) -> anyhow::Result<()> {
 
 /// `voxserve serve`: serves until Ctrl-C.
 pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
-    if !args.addr.ip().is_loopback() && !args.insecure_allow_anonymous {
+    let (auth, audit) = auth_of(&args.auth).await?;
+    if !args.addr.ip().is_loopback() && !auth.required() && !args.insecure_allow_anonymous {
         anyhow::bail!(
             "--addr {}: not a loopback address, and voxserve has no authentication configured: \
              anyone who reaches the port would see every dataset. Expected a loopback address \
-             (127.0.0.1, ::1), or --insecure-allow-anonymous behind a proxy that authenticates \
-             every request",
+             (127.0.0.1, ::1), --oidc-issuer or --api-tokens, or --insecure-allow-anonymous \
+             behind a proxy that authenticates every request",
             args.addr
         );
     }
+    let tls = match (&args.auth.tls_cert, &args.auth.tls_key) {
+        (Some(cert), Some(key)) => Some(std::sync::Arc::new(crate::tls::Tls::load(cert, key)?)),
+        _ => None,
+    };
     let mut datasets = Vec::new();
     for name in &args.datasets {
         datasets.push(load_dataset(name, &args.data)?);
@@ -158,13 +263,26 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .iter()
         .map(|d| format!("the {} ({:?} voxels)", d.name(), d.dims()))
         .collect();
+    let scheme = if tls.is_some() { "https" } else { "http" };
+    let mut access = args.access.access();
+    access.frame_ancestors = args.auth.frame_ancestors.clone();
+    access.issuer_origins = auth
+        .oidc
+        .as_ref()
+        .map(crate::auth::Oidc::endpoint_origins)
+        .unwrap_or_default();
+    let mut state = AppState::new(datasets, renderer, args.stream.settings())
+        .with_access(access)
+        .with_auth(auth, audit);
+    if let Some(tls) = tls {
+        state = state.with_tls(tls);
+    }
+    reload_on_hangup(&state)?;
     say(&format!(
-        "voxserve: serving {} on {} at http://{addr}/",
+        "voxserve: serving {} on {} at {scheme}://{addr}/",
         names.join(", "),
-        renderer.adapter()
+        state.renderer.adapter()
     ))?;
-    let state =
-        AppState::new(datasets, renderer, args.stream.settings()).with_access(args.access.access());
     let shutdown = async {
         if let Err(e) = tokio::signal::ctrl_c().await {
             tracing::error!("cannot listen for Ctrl-C: {e}");

@@ -11,6 +11,9 @@ pub enum AppError {
     /// what was expected. Answered with 400 and not logged.
     #[error("{0}")]
     BadRequest(String),
+    /// The caller may not see the named thing. Answered with 403.
+    #[error("{0}")]
+    Forbidden(String),
     /// The named thing does not exist. Answered with 404.
     #[error("{0}")]
     NotFound(String),
@@ -48,6 +51,7 @@ impl IntoResponse for AppError {
     fn into_response(self) -> Response {
         let (status, message) = match self {
             AppError::BadRequest(m) => (StatusCode::BAD_REQUEST, m),
+            AppError::Forbidden(m) => (StatusCode::FORBIDDEN, m),
             AppError::NotFound(m) => (StatusCode::NOT_FOUND, m),
             AppError::Busy(m) => (StatusCode::SERVICE_UNAVAILABLE, m),
             AppError::TooMany(m) => (StatusCode::TOO_MANY_REQUESTS, m),

@@ -7,8 +7,12 @@
 //!   and returns when they have ended (tests use port 0).
 //! - [`access`]: [`access::Access`], who may reach the server: the `Host`
 //!   names it answers to, the web origins that may open view sessions.
+//! - [`auth`]: [`auth::Auth`], who is asking (OpenID Connect access tokens,
+//!   static API tokens) and which datasets they may see (a policy file);
+//!   [`audit`]: one JSON line per access event.
 //! - [`listen`]: the accept loop: connection caps (overall and per client,
 //!   the quietest connection closed to make room), header and idle timeouts.
+//! - [`tls`]: [`tls::Tls`], the certificate and key, read again on `SIGHUP`.
 //! - [`error`]: [`AppError`]: client errors become 4xx with a message naming the
 //!   field; internal errors become a generic 500 and are logged once.
 //! - [`view`]: [`View`], what a client asks to see (a dataset and a frame
@@ -37,6 +41,8 @@
 
 pub mod access;
 pub mod app;
+pub mod audit;
+pub mod auth;
 pub mod cli;
 pub mod commands;
 pub mod dataset;
@@ -47,6 +53,7 @@ pub mod metrics;
 pub mod protocol;
 pub mod render_service;
 pub mod stream;
+pub mod tls;
 pub mod view;
 pub mod web;
 

@@ -14,6 +14,9 @@
 //! - **Descriptors**: when `accept` fails for want of file descriptors, the
 //!   quietest connection is closed and accepting resumes shortly.
 //!
+//! - **TLS** ([`crate::tls`]): when configured, the handshake must end
+//!   within the header timeout.
+//!
 //! Each request carries the client's address as axum's `ConnectInfo`. An
 //! upgraded connection (a view session) leaves these counts once upgraded:
 //! view sessions have caps and timeouts of their own ([`crate::stream`]).
@@ -250,6 +253,7 @@ pub async fn serve(
     listener: TcpListener,
     router: Router,
     limits: ConnectionLimits,
+    tls: Option<Arc<crate::tls::Tls>>,
     stop: CancellationToken,
 ) -> io::Result<()> {
     let connections = Connections::new();
@@ -278,10 +282,10 @@ pub async fn serve(
             }
         };
         let (id, activity, close) = connections.lock().admit(client.ip(), &limits);
-        let io = TokioIo::new(Tracked {
+        let tracked = Tracked {
             stream,
             activity: activity.clone(),
-        });
+        };
         let service = TowerToHyperService::new(router.clone().map_request(
             move |mut request: axum::extract::Request<hyper::body::Incoming>| {
                 request.extensions_mut().insert(ConnectInfo(client));
@@ -291,9 +295,31 @@ pub async fn serve(
         let builder = builder.clone();
         let connections = connections.clone();
         let stop = stop.clone();
+        let acceptor = tls.as_ref().map(|tls| tls.acceptor());
         tasks.spawn(async move {
-            let connection = pin!(builder.serve_connection_with_upgrades(io, service));
-            let ended = watch(connection, &activity, limits.idle_timeout, &close, &stop).await;
+            let ended = match acceptor {
+                None => {
+                    let connection = pin!(
+                        builder.serve_connection_with_upgrades(TokioIo::new(tracked), service)
+                    );
+                    watch(connection, &activity, limits.idle_timeout, &close, &stop).await
+                }
+                // The handshake counts as the headers: it must be done in time.
+                Some(acceptor) => {
+                    match tokio::time::timeout(limits.header_timeout, acceptor.accept(tracked))
+                        .await
+                    {
+                        Ok(Ok(stream)) => {
+                            let io = TokioIo::new(stream);
+                            let connection =
+                                pin!(builder.serve_connection_with_upgrades(io, service));
+                            watch(connection, &activity, limits.idle_timeout, &close, &stop).await
+                        }
+                        Ok(Err(e)) => Err(format!("TLS handshake failed: {e}").into()),
+                        Err(_) => Err("TLS handshake not done within the header timeout".into()),
+                    }
+                }
+            };
             if let Err(e) = ended {
                 tracing::debug!("connection of {client}: {e}");
             }

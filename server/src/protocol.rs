@@ -61,7 +61,8 @@
 //! [`crate::stream::StreamSettings::session_idle_s`] is closed with
 //! [`CLOSE_IDLE`] (the client reconnects when the user acts again); one
 //! whose peer has not answered a ping for [`PEER_PATIENCE`] seconds is
-//! dropped. A message longer than [`MAX_MESSAGE_BYTES`], or a socket that
+//! dropped. A session authenticated by a token that expires is closed then
+//! with [`CLOSE_EXPIRED`]. A message longer than [`MAX_MESSAGE_BYTES`], or a socket that
 //! breaks the protocol, closes the session with 1009 (too big) or 1002
 //! (protocol error) and the reason.
 
@@ -76,6 +77,10 @@ pub const MAX_MESSAGE_BYTES: usize = 64 << 10;
 /// The close code of a session closed for want of messages from the client
 /// (an application code: 4000 + HTTP's 408, request timeout).
 pub const CLOSE_IDLE: u16 = 4408;
+
+/// The close code of a session whose access token has expired (4000 +
+/// HTTP's 401): the client reconnects with a fresh token.
+pub const CLOSE_EXPIRED: u16 = 4401;
 
 /// Seconds between the server's pings; a peer that has sent nothing (a pong
 /// included) for [`PEER_PATIENCE`] seconds is gone.

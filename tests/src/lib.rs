@@ -16,6 +16,8 @@
 //! - [`checks`]: facts that show a volume is really in an image (coverage,
 //!   left–right symmetry, centroid).
 //! - [`server`]: a real server on port 0 for end-to-end tests.
+//! - [`issuer`]: an OpenID Connect issuer on port 0 that signs real tokens
+//!   (RS256, ES256), rotates keys, and logs browsers in (PKCE).
 //! - [`malformed`]: a generated corpus of malformed and hostile volume files,
 //!   as a table of cases with the words each error must contain.
 
@@ -23,6 +25,7 @@ pub mod checks;
 pub mod data;
 pub mod gpu;
 pub mod image_compare;
+pub mod issuer;
 pub mod malformed;
 pub mod phantom;
 #[path = "../../server/src/bench/reference_data.rs"]

@@ -22,7 +22,7 @@ use crate::dataset::PHANTOM_ID;
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Serve the web client and the render API, and print the URL to open.
-    Serve(ServeArgs),
+    Serve(Box<ServeArgs>),
     /// Render one frame to a PNG file.
     Render(Box<RenderArgs>),
     /// Read a volume file or DICOM folder and print what it holds.
@@ -37,6 +37,30 @@ pub enum Command {
     /// List every view setting: name, flag, what it takes and its default
     /// (`--json`: as `GET /api/settings` gives them).
     Settings(SettingsArgs),
+    /// Make a static API token for scripts: prints the token (give it to the
+    /// script; it is shown once) and, on standard error, the entry to add to
+    /// the file `serve --api-tokens` reads (it holds only the token's hash).
+    Token(TokenArgs),
+}
+
+/// `voxserve token`.
+#[derive(Debug, Args)]
+pub struct TokenArgs {
+    /// Who the token is for (the user in the audit log).
+    #[arg(long, value_parser = token_name)]
+    pub name: String,
+    /// A role of the token, as the policy file names roles. Repeat for more.
+    #[arg(long = "role", value_name = "ROLE", value_parser = token_name)]
+    pub roles: Vec<String>,
+}
+
+/// A token's name or role: 1 to 128 printable characters.
+fn token_name(text: &str) -> Result<String, String> {
+    if !text.is_empty() && text.len() <= 128 && text.chars().all(|c| !c.is_control()) {
+        Ok(text.to_owned())
+    } else {
+        Err(format!("{text:?}: expected 1 to 128 printable characters"))
+    }
 }
 
 /// `voxserve settings`.
@@ -248,10 +272,13 @@ pub struct ServeArgs {
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: SocketAddr,
     /// Listen on an address other than loopback although voxserve has no
-    /// authentication configured: anyone who reaches the port sees every
-    /// dataset. Only behind a proxy that authenticates every request.
+    /// authentication configured (--oidc-issuer, --api-tokens): anyone who
+    /// reaches the port sees every dataset. Only behind a proxy that
+    /// authenticates every request.
     #[arg(long)]
     pub insecure_allow_anonymous: bool,
+    #[command(flatten)]
+    pub auth: AuthArgs,
     #[command(flatten)]
     pub access: AccessArgs,
     #[command(flatten)]
@@ -260,6 +287,75 @@ pub struct ServeArgs {
     pub renderer: RendererArgs,
     #[command(flatten)]
     pub data: DataArgs,
+}
+
+/// Who may ask, what they may see, and where accesses are recorded.
+#[derive(Debug, Clone, Args)]
+pub struct AuthArgs {
+    /// Accept OpenID Connect access tokens of this issuer (its `iss`, an
+    /// https:// URL; http:// only on loopback); its discovery document gives
+    /// the keys and the web client's login endpoints.
+    #[arg(long, value_name = "URL", value_parser = issuer_url, requires = "oidc_audience")]
+    pub oidc_issuer: Option<String>,
+    /// The audience (`aud`) the issuer's tokens must name.
+    #[arg(long, value_name = "AUD", requires = "oidc_issuer")]
+    pub oidc_audience: Option<String>,
+    /// The issuer's keys (JWKS) from this URL or file instead of its
+    /// discovery document.
+    #[arg(long, value_name = "URL|FILE", requires = "oidc_issuer")]
+    pub oidc_jwks: Option<String>,
+    /// The web client's OAuth client id at the issuer (a public client,
+    /// authorization code with PKCE, redirect URI: this server's URL).
+    #[arg(long, value_name = "ID", requires = "oidc_issuer")]
+    pub oidc_client_id: Option<String>,
+    /// The scopes the web client asks for.
+    #[arg(
+        long,
+        value_name = "SCOPES",
+        default_value = "openid profile",
+        requires = "oidc_issuer"
+    )]
+    pub oidc_scopes: String,
+    /// Accept the static API tokens listed (hashed) in this JSON file
+    /// (`voxserve token` makes them).
+    #[arg(long, value_name = "FILE")]
+    pub api_tokens: Option<PathBuf>,
+    /// Who may see which dataset: a JSON policy file (roles → dataset ids
+    /// or patterns; see ARCHITECTURE.md). Without one, every authenticated
+    /// user sees every dataset.
+    #[arg(long, value_name = "FILE")]
+    pub policy: Option<PathBuf>,
+    /// Append one JSON line per access event to this file (opened again on
+    /// SIGHUP, for rotation) instead of the log.
+    #[arg(long, value_name = "FILE")]
+    pub audit_log: Option<PathBuf>,
+    /// Serve over TLS with this certificate chain (PEM; read again on SIGHUP).
+    #[arg(long, value_name = "FILE", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The TLS certificate's private key (PEM).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// A source that may show the web client in a frame (a record system:
+    /// `https://emr.example.org`); by default no page may. Repeat for more.
+    #[arg(long = "frame-ancestor", value_name = "ORIGIN", value_parser = origin)]
+    pub frame_ancestors: Vec<String>,
+}
+
+/// `--oidc-issuer`: an https:// URL, or http:// on a loopback host.
+fn issuer_url(text: &str) -> Result<String, String> {
+    let loopback = ["http://127.0.0.1", "http://localhost", "http://[::1]"];
+    let ok = text.starts_with("https://")
+        || loopback.iter().any(|p| {
+            text.strip_prefix(p)
+                .is_some_and(|rest| rest.is_empty() || rest.starts_with([':', '/']))
+        });
+    if ok && text.len() <= 2048 {
+        Ok(text.to_owned())
+    } else {
+        Err(format!(
+            "{text:?}: expected the issuer's https:// URL (http:// only on 127.0.0.1, ::1 or localhost)"
+        ))
+    }
 }
 
 /// The connection limits' defaults, as `serve`'s flags show them.
@@ -306,6 +402,7 @@ impl AccessArgs {
                 header_timeout: std::time::Duration::from_secs(self.header_timeout_s),
                 idle_timeout: std::time::Duration::from_secs(self.idle_timeout_s),
             },
+            ..crate::access::Access::default()
         }
     }
 }

@@ -50,6 +50,7 @@ use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, PoisonError};
 
+use axum::Extension;
 use axum::extract::ws::WebSocketUpgrade;
 use axum::extract::{ConnectInfo, State};
 use axum::http::{HeaderMap, Uri};
@@ -59,6 +60,7 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 pub use session::{Action, Session};
 
+use crate::auth::Principal;
 use crate::{AppError, AppState, encode, protocol};
 
 /// How view sessions trade quality for speed; see the module docs.
@@ -216,6 +218,7 @@ pub async fn handler(
     ws: WebSocketUpgrade,
     State(state): State<AppState>,
     ConnectInfo(client): ConnectInfo<SocketAddr>,
+    Extension(principal): Extension<Principal>,
     uri: Uri,
     headers: HeaderMap,
 ) -> Result<Response, Response> {
@@ -227,11 +230,16 @@ pub async fn handler(
         .sessions
         .try_open(client.ip())
         .map_err(IntoResponse::into_response)?;
+    let caller = socket::Caller {
+        datasets: state.visible(&principal),
+        principal,
+    };
     Ok(ws
+        .protocols([crate::auth::SUBPROTOCOL])
         .max_message_size(protocol::MAX_MESSAGE_BYTES)
         .max_frame_size(protocol::MAX_MESSAGE_BYTES)
         .on_upgrade(move |socket| async move {
             let (sink, stream) = socket.split();
-            socket::run(sink, stream, &state, place).await;
+            socket::run(sink, stream, &state, place, caller).await;
         }))
 }

@@ -18,6 +18,7 @@ use tokio::time::Instant;
 
 use super::Place;
 use super::session::{Action, Quality, Render, Session};
+use crate::audit::{Event as Audited, Outcome};
 use crate::protocol::{self, Encoding, FrameHeader, Reply};
 use crate::{AppState, Dataset, encode, metrics};
 
@@ -59,6 +60,31 @@ enum End {
     Broken(u16, String),
     /// The peer answered no ping for [`protocol::PEER_PATIENCE`] seconds.
     Silent,
+    /// The access token expired: a close ([`protocol::CLOSE_EXPIRED`]) goes
+    /// out.
+    Expired,
+}
+
+impl End {
+    /// Why the session ended, for the audit trail.
+    fn reason(&self) -> String {
+        match self {
+            End::Client => "closed by the client".into(),
+            End::Gone => "the connection ended".into(),
+            End::Shutdown => "the server shut down".into(),
+            End::Idle => "idle".into(),
+            End::Broken(code, reason) => format!("protocol error {code}: {reason}"),
+            End::Silent => "the client stopped answering pings".into(),
+            End::Expired => "the access token expired".into(),
+        }
+    }
+}
+
+/// Who opened a session, and the datasets it may see.
+#[derive(Debug)]
+pub(super) struct Caller {
+    pub principal: crate::auth::Principal,
+    pub datasets: std::sync::Arc<[Dataset]>,
 }
 
 /// What woke the loop.
@@ -84,24 +110,36 @@ struct Liveness {
     /// The next ping.
     ping: Instant,
     idle: Duration,
+    /// When the access token expires.
+    expires: Option<Instant>,
 }
 
 impl Liveness {
-    fn new(now: Instant, idle: Duration) -> Liveness {
+    fn new(now: Instant, idle: Duration, expires: Option<std::time::SystemTime>) -> Liveness {
+        // A year is never; the clamp keeps instants from overflowing.
+        let year = Duration::from_secs(365 * 86_400);
+        let expires = expires.map(|at| {
+            let left = at
+                .duration_since(std::time::SystemTime::now())
+                .unwrap_or(Duration::ZERO);
+            now + left.min(year)
+        });
         Liveness {
             message: now,
             heard: now,
             ping: now + PING_INTERVAL,
-            // A year is never; the clamp keeps instants from overflowing.
-            idle: idle.min(Duration::from_secs(365 * 86_400)),
+            idle: idle.min(year),
+            expires,
         }
     }
 
     /// The next instant something is due.
     fn due(&self) -> Instant {
-        self.ping
+        let due = self
+            .ping
             .min(self.message + self.idle)
-            .min(self.heard + PEER_PATIENCE)
+            .min(self.heard + PEER_PATIENCE);
+        self.expires.map_or(due, |at| due.min(at))
     }
 
     fn on_received(&mut self, now: Instant, message: &Message) {
@@ -118,21 +156,34 @@ const PEER_PATIENCE: Duration = Duration::from_secs(protocol::PEER_PATIENCE);
 /// Runs one session on a socket's halves until the client closes it, it
 /// breaks, or the server shuts down; `place` (the session's place under the
 /// cap) is freed as it ends.
-pub(super) async fn run<S, R, E>(mut sink: S, mut stream: R, state: &AppState, place: Place)
-where
+pub(super) async fn run<S, R, E>(
+    mut sink: S,
+    mut stream: R,
+    state: &AppState,
+    place: Place,
+    caller: Caller,
+) where
     S: Sink<Message> + Unpin,
     R: Stream<Item = Result<Message, E>> + Unpin,
     E: std::fmt::Display,
 {
-    if sink.send(Message::Text(hello(state).into())).await.is_err() {
+    let client = place.client();
+    let event = |name, outcome| Audited::new(name, Some(&caller.principal), Some(client), outcome);
+    if sink
+        .send(Message::Text(hello(state, &caller.datasets).into()))
+        .await
+        .is_err()
+    {
         return;
     }
     state.metrics.session_opened();
-    let mut session = Session::new(state.datasets.clone(), state.stream);
-    let end = drive(&mut sink, &mut stream, &mut session, state, place.client()).await;
+    state.audit(&event("session-open", Outcome::Success));
+    let mut session = Session::new(caller.datasets.clone(), state.stream);
+    let end = drive(&mut sink, &mut stream, &mut session, state, &caller, client).await;
     // Freed before the close handshake completes, so a client that has seen
     // it can open another session at once.
     drop(place);
+    state.audit(&event("session-close", Outcome::Success).detail(end.reason()));
     match end {
         // Sends the close reply tungstenite has queued.
         End::Client => {
@@ -150,16 +201,20 @@ where
             closing(&mut sink, &mut stream, (protocol::CLOSE_IDLE, reason)).await;
         }
         End::Broken(code, reason) => closing(&mut sink, &mut stream, (code, reason)).await,
+        End::Expired => {
+            let reason = "the access token expired; reconnect with a fresh one".to_owned();
+            closing(&mut sink, &mut stream, (protocol::CLOSE_EXPIRED, reason)).await;
+        }
         End::Gone | End::Silent => {}
     }
 }
 
 /// The first message: protocol version, datasets and stream settings.
-fn hello(state: &AppState) -> String {
+fn hello(state: &AppState, datasets: &[Dataset]) -> String {
     serde_json::json!({
         "type": "hello",
         "protocol": protocol::PROTOCOL,
-        "datasets": state.datasets.iter().map(Dataset::info).collect::<Vec<_>>(),
+        "datasets": datasets.iter().map(Dataset::info).collect::<Vec<_>>(),
         "renderer": state.renderer.describe(),
         "settings": state.stream,
     })
@@ -172,6 +227,7 @@ async fn drive<S, R, E>(
     stream: &mut R,
     session: &mut Session,
     state: &AppState,
+    caller: &Caller,
     client: IpAddr,
 ) -> End
 where
@@ -181,11 +237,24 @@ where
 {
     let mut job: Option<Job> = None;
     let idle = Duration::from_secs(state.stream.session_idle_s);
-    let mut liveness = Liveness::new(Instant::now(), idle);
+    let mut liveness = Liveness::new(Instant::now(), idle, caller.principal.expires);
+    // The dataset last recorded as viewed in the audit trail.
+    let mut viewed: Option<String> = None;
     loop {
         let mut blocks = None;
         let still_at = match session.next_action(Instant::now()) {
             Action::Render(render) => {
+                if viewed.as_deref() != Some(render.dataset.id.as_str()) {
+                    viewed = Some(render.dataset.id.clone());
+                    let line = Audited::new(
+                        "view",
+                        Some(&caller.principal),
+                        Some(client),
+                        Outcome::Success,
+                    )
+                    .dataset(&render.dataset.id);
+                    state.audit(&line);
+                }
                 job = Some(render_job(state, client, *render));
                 continue;
             }
@@ -222,6 +291,9 @@ where
         match &event {
             Event::Received(message) => liveness.on_received(now, message),
             Event::Timer => {
+                if liveness.expires.is_some_and(|at| now >= at) {
+                    return End::Expired;
+                }
                 if now >= liveness.heard + PEER_PATIENCE {
                     return End::Silent;
                 }
@@ -524,7 +596,11 @@ mod tests {
             .try_open([127, 0, 0, 1].into())
             .expect("a place");
         let state = state.clone();
-        let running = tokio::spawn(async move { run(sink, stream, &state, place).await });
+        let caller = Caller {
+            principal: crate::auth::Principal::anonymous(),
+            datasets: state.datasets.clone(),
+        };
+        let running = tokio::spawn(async move { run(sink, stream, &state, place, caller).await });
         let channels = Channels {
             to_session,
             from_session,

@@ -1,0 +1,210 @@
+//! Who may see which dataset: [`Policy`], read from a JSON file.
+//!
+//! ```json
+//! {
+//!   "rules": [
+//!     {"roles": ["radiology"], "datasets": ["ct-*", "phantom"]},
+//!     {"roles": ["admin"], "datasets": ["*"]}
+//!   ],
+//!   "hide_denied": true,
+//!   "metrics_roles": ["monitoring"]
+//! }
+//! ```
+//!
+//! A principal may see a dataset when a rule names one of its roles (or
+//! `*`: any authenticated principal) and a pattern (`*` and `?` wildcards)
+//! matching the dataset's id. Nothing else is allowed. With `hide_denied`, a
+//! denied dataset answers 404 as an unknown one does (its existence is
+//! itself sensitive), else 403. `metrics_roles` may read `/metrics`
+//! (default: `metrics`).
+
+use std::path::Path;
+
+use globset::{Glob, GlobSet, GlobSetBuilder};
+use serde::Deserialize;
+
+/// The role that may read `/metrics` without a policy file.
+const METRICS_ROLE: &str = "metrics";
+/// The largest policy file read, bytes, and the most rules, roles and
+/// patterns it may hold.
+const MAX_FILE_BYTES: u64 = 4 << 20;
+const MAX_RULES: usize = 10_000;
+const MAX_ITEMS: usize = 1_000;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    rules: Vec<RuleFile>,
+    #[serde(default)]
+    hide_denied: bool,
+    #[serde(default = "default_metrics_roles")]
+    metrics_roles: Vec<String>,
+}
+
+fn default_metrics_roles() -> Vec<String> {
+    vec![METRICS_ROLE.to_owned()]
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RuleFile {
+    roles: Vec<String>,
+    datasets: Vec<String>,
+}
+
+/// One rule: these roles may see these datasets.
+#[derive(Debug, Clone)]
+struct Rule {
+    roles: Vec<String>,
+    datasets: GlobSet,
+}
+
+/// Who may see which dataset; see the module docs.
+#[derive(Debug, Clone)]
+pub struct Policy {
+    rules: Vec<Rule>,
+    /// Whether a denied dataset answers 404 rather than 403.
+    pub hide_denied: bool,
+    /// The roles that may read `/metrics`.
+    pub metrics_roles: Vec<String>,
+}
+
+/// Why a policy file cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[error("policy file {path}: {message}")]
+pub struct PolicyFileError {
+    path: String,
+    message: String,
+}
+
+impl Policy {
+    /// Reads the policy file at `path`.
+    ///
+    /// # Errors
+    /// [`PolicyFileError`], naming the rule and field.
+    pub fn load(path: &Path) -> Result<Policy, PolicyFileError> {
+        let error = |message: String| PolicyFileError {
+            path: path.display().to_string(),
+            message,
+        };
+        let text = super::tokens::read_bounded(path, MAX_FILE_BYTES).map_err(error)?;
+        Policy::parse(&text).map_err(error)
+    }
+
+    /// The policy of a file's `text`.
+    ///
+    /// # Errors
+    /// Which rule and field is wrong, and what was expected.
+    pub fn parse(text: &str) -> Result<Policy, String> {
+        let file: File = serde_json::from_str(text).map_err(|e| {
+            format!(
+                "{e}: expected {{\"rules\": [{{\"roles\": […], \"datasets\": […]}}], \"hide_denied\": false, \"metrics_roles\": […]}}"
+            )
+        })?;
+        if file.rules.len() > MAX_RULES {
+            return Err(format!("rules: expected at most {MAX_RULES}"));
+        }
+        let mut rules = Vec::with_capacity(file.rules.len());
+        for (i, rule) in file.rules.into_iter().enumerate() {
+            if rule.roles.is_empty() || rule.roles.len() > MAX_ITEMS {
+                return Err(format!(
+                    "rules[{i}].roles: expected 1 to {MAX_ITEMS} roles (\"*\": any authenticated user)"
+                ));
+            }
+            if rule.datasets.is_empty() || rule.datasets.len() > MAX_ITEMS {
+                return Err(format!(
+                    "rules[{i}].datasets: expected 1 to {MAX_ITEMS} dataset ids or patterns"
+                ));
+            }
+            let mut set = GlobSetBuilder::new();
+            for (j, pattern) in rule.datasets.iter().enumerate() {
+                let glob = Glob::new(pattern).map_err(|e| {
+                    format!("rules[{i}].datasets[{j}] {pattern:?}: {e}; expected an id, * and ? as wildcards")
+                })?;
+                set.add(glob);
+            }
+            let datasets = set
+                .build()
+                .map_err(|e| format!("rules[{i}].datasets: {e}"))?;
+            rules.push(Rule {
+                roles: rule.roles,
+                datasets,
+            });
+        }
+        Ok(Policy {
+            rules,
+            hide_denied: file.hide_denied,
+            metrics_roles: file.metrics_roles,
+        })
+    }
+
+    /// Whether a principal with `roles` may see the dataset `id`.
+    pub fn allows(&self, roles: &[String], id: &str) -> bool {
+        self.rules.iter().any(|rule| {
+            rule.roles
+                .iter()
+                .any(|r| r == "*" || roles.iter().any(|have| have == r))
+                && rule.datasets.is_match(id)
+        })
+    }
+}
+
+/// The roles that may read `/metrics` without a policy file.
+pub fn metrics_roles(policy: Option<&Policy>) -> Vec<String> {
+    policy.map_or_else(default_metrics_roles, |p| p.metrics_roles.clone())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn roles(names: &[&str]) -> Vec<String> {
+        names.iter().map(|&n| n.to_owned()).collect()
+    }
+
+    #[test]
+    fn a_rule_allows_its_roles_the_datasets_it_names() {
+        let policy = Policy::parse(
+            r#"{"rules": [
+                {"roles": ["radiology"], "datasets": ["ct-*", "phantom"]},
+                {"roles": ["*"], "datasets": ["public?"]}
+            ], "hide_denied": true}"#,
+        )
+        .expect("valid");
+        assert!(policy.hide_denied);
+        assert_eq!(policy.metrics_roles, ["metrics"]);
+        let radiology = roles(&["staff", "radiology"]);
+        assert!(policy.allows(&radiology, "ct-head"));
+        assert!(policy.allows(&radiology, "phantom"));
+        assert!(!policy.allows(&radiology, "mr-knee"));
+        assert!(!policy.allows(&roles(&["staff"]), "ct-head"));
+        assert!(policy.allows(&roles(&[]), "public1"));
+        assert!(!policy.allows(&roles(&[]), "public12"));
+    }
+
+    #[test]
+    fn a_bad_policy_names_the_rule_and_field() {
+        for (text, expected) in [
+            (
+                r#"{"rules": [{"roles": [], "datasets": ["a"]}]}"#,
+                "rules[0].roles",
+            ),
+            (
+                r#"{"rules": [{"roles": ["a"], "datasets": []}]}"#,
+                "rules[0].datasets",
+            ),
+            (
+                r#"{"rules": [{"roles": ["a"], "datasets": ["[a"]}]}"#,
+                "rules[0].datasets[0]",
+            ),
+            (r#"{"rules": [], "hide": true}"#, "unknown field `hide`"),
+            (
+                r#"{"rules": [{"roles": ["a"], "dataset": ["x"]}]}"#,
+                "unknown field `dataset`",
+            ),
+        ] {
+            let error = Policy::parse(text).expect_err(text);
+            assert!(error.contains(expected), "{text}: {error}");
+        }
+    }
+}
