@@ -3,6 +3,7 @@
 // choices and doc come from the server (GET /api/settings, settings.js): the
 // client only lays out controls and composes them into view settings.
 
+import { authFetch, logIn } from './auth.js';
 import { OrbitCamera, attachGestures } from './camera.js';
 import { Schema, control } from './settings.js';
 import { ViewStream } from './stream.js';
@@ -428,7 +429,13 @@ async function start() {
   resizeCanvas();
   let datasets;
   try {
-    const [loaded, response] = await Promise.all([Schema.load(), fetch('/api/datasets')]);
+    await logIn();
+  } catch (e) {
+    showError(`cannot log in: ${e.message}`);
+    return;
+  }
+  try {
+    const [loaded, response] = await Promise.all([Schema.load(), authFetch('/api/datasets')]);
     schema = loaded;
     datasets = await response.json();
   } catch (e) {

@@ -4,6 +4,8 @@
 // sends values typed as the schema says (numbers as numbers, switches as
 // booleans, choices and text forms as strings).
 
+import { authFetch } from './auth.js';
+
 export class Schema {
   // `description` is the JSON of GET /api/settings.
   constructor(description) {
@@ -12,7 +14,7 @@ export class Schema {
   }
 
   static async load() {
-    const response = await fetch('/api/settings');
+    const response = await authFetch('/api/settings');
     if (!response.ok) throw new Error(`GET /api/settings answered ${response.status}`);
     return new Schema(await response.json());
   }

@@ -11,11 +11,16 @@
 // the replies. A server shutting down closes the socket with code 1001; the
 // client reconnects as after any close, except after code 4408 (the session
 // was idle and closed to free its place): then it reconnects when the view
-// changes next.
+// changes next; and after code 4401 (the access token expired): then it logs
+// in again (auth.js). The token rides as the subprotocol `bearer.TOKEN`.
+
+import { logInAgain, socketProtocols } from './auth.js';
 
 export const HEADER_LEN = 40;
 // The close code of a session closed for being idle (protocol.rs CLOSE_IDLE).
 const CLOSE_IDLE = 4408;
+// The close code of a session whose access token expired (CLOSE_EXPIRED).
+const CLOSE_EXPIRED = 4401;
 const ENCODINGS = { 1: 'image/jpeg', 2: 'image/png', 3: 'image/webp' };
 
 // The header of a binary frame (see server/src/protocol.rs `FrameHeader`).
@@ -59,7 +64,7 @@ export class ViewStream {
 
   connect() {
     const scheme = location.protocol === 'https:' ? 'wss://' : 'ws://';
-    const socket = new WebSocket(`${scheme}${location.host}/api/stream`);
+    const socket = new WebSocket(`${scheme}${location.host}/api/stream`, socketProtocols());
     socket.binaryType = 'arraybuffer';
     socket.onopen = () => {
       // A new session knows nothing: send the whole view.
@@ -69,6 +74,11 @@ export class ViewStream {
     };
     socket.onmessage = (event) => this.receive(event.data);
     socket.onclose = (event) => {
+      if (event.code === CLOSE_EXPIRED) {
+        this.fail('the login has expired: logging in again…');
+        logInAgain();
+        return;
+      }
       if (event.code === CLOSE_IDLE) {
         socket.idleClosed = true;
         this.fail('paused while idle: move the view to resume');

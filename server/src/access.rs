@@ -46,8 +46,6 @@ pub struct Access {
     /// Sources that may embed the web client in a frame
     /// (`https://emr.example.org`); none: it may not be framed.
     pub frame_ancestors: Vec<String>,
-    /// Origins of the OpenID issuer's endpoints the web client talks to.
-    pub issuer_origins: Vec<String>,
     /// Whether the server is served over TLS (HSTS is sent).
     pub tls: bool,
 }
@@ -158,10 +156,10 @@ impl Access {
 }
 
 impl Access {
-    /// The Content-Security-Policy of every response.
-    pub fn content_security_policy(&self) -> String {
-        let issuer = self
-            .issuer_origins
+    /// The Content-Security-Policy of every response, the web client
+    /// talking to the OpenID issuer at `issuer_origins`.
+    pub fn content_security_policy(&self, issuer_origins: &[String]) -> String {
+        let issuer = issuer_origins
             .iter()
             .map(|o| format!(" {o}"))
             .collect::<String>();
@@ -189,7 +187,13 @@ pub async fn security_headers(
 ) -> Response {
     let mut response = next.run(request).await;
     let headers = response.headers_mut();
-    if let Ok(csp) = HeaderValue::from_str(&state.access.content_security_policy()) {
+    let issuer = state
+        .auth
+        .oidc
+        .as_ref()
+        .map(crate::auth::Oidc::endpoint_origins)
+        .unwrap_or_default();
+    if let Ok(csp) = HeaderValue::from_str(&state.access.content_security_policy(&issuer)) {
         headers.insert(header::CONTENT_SECURITY_POLICY, csp);
     }
     headers.insert(

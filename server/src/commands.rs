@@ -266,11 +266,6 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let scheme = if tls.is_some() { "https" } else { "http" };
     let mut access = args.access.access();
     access.frame_ancestors = args.auth.frame_ancestors.clone();
-    access.issuer_origins = auth
-        .oidc
-        .as_ref()
-        .map(crate::auth::Oidc::endpoint_origins)
-        .unwrap_or_default();
     let mut state = AppState::new(datasets, renderer, args.stream.settings())
         .with_access(access)
         .with_auth(auth, audit);

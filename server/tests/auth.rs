@@ -18,11 +18,10 @@ use server::auth::oidc::{JwksSource, OidcConfig};
 use server::auth::{ApiTokens, Auth, Oidc, Policy};
 use server::stream::StreamSettings;
 use server::{AppState, Dataset, RenderService};
-use tokio::net::TcpListener;
-use tokio::sync::oneshot;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::{self, Message};
 use voxserve_tests::issuer::{AUDIENCE, CLIENT_ID, Issuer, now_s};
+use voxserve_tests::server::TestServer;
 
 /// The policy of these tests: anyone authenticated sees the phantom,
 /// radiology also `ct-secret`, monitoring reads `/metrics`.
@@ -39,7 +38,7 @@ struct Secured {
     base: String,
     audit: PathBuf,
     _dir: tempfile::TempDir,
-    _stop: oneshot::Sender<()>,
+    _server: TestServer,
 }
 
 /// Two datasets: `phantom` and `ct-secret` (the same volume).
@@ -69,21 +68,15 @@ async fn start(auth: Auth, tls: Option<Arc<server::tls::Tls>>) -> Secured {
     let renderer = RenderService::start(shaders::Backend::Cpu, 64 << 20, 1).expect("renderer");
     let mut state = AppState::new(datasets(), renderer, StreamSettings::default())
         .with_auth(auth, Audit::open(&audit).expect("audit log"));
-    let scheme = if tls.is_some() { "https" } else { "http" };
     if let Some(tls) = tls {
         state = state.with_tls(tls);
     }
-    let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
-    let addr = listener.local_addr().expect("address");
-    let (stop, stopped) = oneshot::channel::<()>();
-    tokio::spawn(server::run(listener, state, async {
-        let _ = stopped.await;
-    }));
+    let server = TestServer::serving(state).await;
     Secured {
-        base: format!("{scheme}://{addr}"),
+        base: server.base_url.clone(),
         audit,
         _dir: dir,
-        _stop: stop,
+        _server: server,
     }
 }
 

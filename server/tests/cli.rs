@@ -157,6 +157,49 @@ fn bad_flags_are_refused_with_the_flag_named() {
             "--svr-scales",
         ),
         (vec!["bench", "light", "--segments", "64"], "--segments"),
+        // Tokens of an issuer reached over plain HTTP could be read on the way.
+        (
+            vec![
+                "serve",
+                "--oidc-issuer",
+                "http://id.example.org",
+                "--oidc-audience",
+                "a",
+            ],
+            "--oidc-issuer",
+        ),
+        (
+            vec!["serve", "--oidc-issuer", "https://id.example.org"],
+            "--oidc-audience",
+        ),
+        (
+            vec!["serve", "--policy", "/no/such/policy.json"],
+            "--policy",
+        ),
+        (
+            vec!["serve", "--api-tokens", "/no/such/tokens.json"],
+            "--api-tokens /no/such/tokens.json",
+        ),
+        (vec!["serve", "--tls-cert", "/no/cert.pem"], "--tls-key"),
+        (
+            vec![
+                "serve",
+                "--tls-cert",
+                "/no/cert.pem",
+                "--tls-key",
+                "/no/key.pem",
+            ],
+            "--tls-cert /no/cert.pem",
+        ),
+        (
+            vec!["serve", "--audit-log", "/no/such/folder/audit.jsonl"],
+            "--audit-log",
+        ),
+        (
+            vec!["serve", "--frame-ancestor", "emr.example.org"],
+            "--frame-ancestor",
+        ),
+        (vec!["token", "--name", ""], "--name"),
     ] {
         let out = voxserve(&args);
         assert!(!out.status.success(), "{args:?} should fail");
@@ -336,6 +379,137 @@ impl Drop for Server {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
+}
+
+/// A GET of `url` with `token` (if any) by `client`: status and body.
+async fn get_with(client: &reqwest::Client, url: &str, token: Option<&str>) -> (u16, String) {
+    let mut request = client.get(url);
+    if let Some(token) = token {
+        request = request.bearer_auth(token);
+    }
+    let response = request.send().await.expect("an answer");
+    (
+        response.status().as_u16(),
+        response.text().await.expect("a body"),
+    )
+}
+
+#[tokio::test]
+async fn token_then_serve_over_tls_with_api_tokens_a_policy_and_an_audit_log() {
+    let dir = tempfile::tempdir().expect("temp");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_owned();
+    let made = voxserve(&["token", "--name", "ci-script", "--role", "radiology"]);
+    assert!(made.status.success(), "{}", text(&made.stderr));
+    let token = text(&made.stdout).trim().to_owned();
+    let entry = text(&made.stderr)
+        .lines()
+        .last()
+        .expect("the entry")
+        .to_owned();
+    assert!(
+        token.starts_with("vxs_") && !entry.contains(&token[4..]),
+        "{entry}"
+    );
+    std::fs::write(path("tokens.json"), format!("{{\"tokens\": [{entry}]}}")).expect("write");
+    std::fs::write(
+        path("policy.json"),
+        r#"{"rules": [{"roles": ["radiology"], "datasets": ["phantom"]}]}"#,
+    )
+    .expect("write");
+    let certified =
+        rcgen::generate_simple_self_signed(vec!["127.0.0.1".to_owned()]).expect("a certificate");
+    std::fs::write(path("cert.pem"), certified.cert.pem()).expect("write");
+    std::fs::write(path("key.pem"), certified.signing_key.serialize_pem()).expect("write");
+    let (tokens, policy, audit, cert, key) = (
+        path("tokens.json"),
+        path("policy.json"),
+        path("audit.jsonl"),
+        path("cert.pem"),
+        path("key.pem"),
+    );
+    let args = [
+        "serve",
+        "--addr",
+        "127.0.0.1:0",
+        "--phantom-size",
+        "32",
+        "--renderer",
+        "cpu",
+        "--api-tokens",
+        &tokens,
+        "--policy",
+        &policy,
+        "--audit-log",
+        &audit,
+        "--tls-cert",
+        &cert,
+        "--tls-key",
+        &key,
+    ];
+    let server = voxserve_tests::server::Spawned::start(VOXSERVE, &args)
+        .await
+        .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    assert!(
+        server.url.starts_with("https://127.0.0.1:"),
+        "{}",
+        server.line
+    );
+    let client = reqwest::Client::builder()
+        .tls_certs_only([
+            reqwest::Certificate::from_pem(certified.cert.pem().as_bytes()).expect("PEM"),
+        ])
+        .build()
+        .expect("a client");
+    let list = format!("{}/api/datasets", server.url);
+    assert_eq!(get_with(&client, &list, None).await.0, 401);
+    let (status, body) = get_with(&client, &list, Some(&token)).await;
+    assert_eq!(status, 200, "{body}");
+    assert!(body.contains("\"phantom\""), "{body}");
+    // Rotating the audit log: moved away, SIGHUP, the next event goes to a new file.
+    std::fs::rename(&audit, path("audit.1")).expect("rotate");
+    let hup = Command::new("kill")
+        .args(["-HUP", &server.pid().to_string()])
+        .status()
+        .expect("kill -HUP");
+    assert!(hup.success());
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while std::fs::metadata(&audit).is_err() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no new audit log after SIGHUP"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let (status, _) = get_with(
+        &client,
+        &format!("{}/api/datasets/phantom", server.url),
+        Some(&token),
+    )
+    .await;
+    assert_eq!(status, 200);
+    let stderr = server.stop();
+    let old = std::fs::read_to_string(path("audit.1")).expect("the rotated log");
+    let new = std::fs::read_to_string(&audit).expect("the new log");
+    let events = |text: &str| -> Vec<(String, String)> {
+        text.lines()
+            .map(|l| {
+                let line: serde_json::Value = serde_json::from_str(l).expect("JSON");
+                let field = |name: &str| line[name].as_str().unwrap_or("").to_owned();
+                (field("event"), field("user"))
+            })
+            .collect()
+    };
+    let pair = |e: &str, u: &str| (e.to_owned(), u.to_owned());
+    assert_eq!(
+        events(&old),
+        [pair("authenticate", ""), pair("list", "ci-script")],
+        "{stderr}"
+    );
+    assert_eq!(events(&new), [pair("describe", "ci-script")], "{stderr}");
+    assert!(
+        !old.contains(&token) && !stderr.contains(&token),
+        "a token in a log"
+    );
 }
 
 #[tokio::test]

@@ -10,7 +10,7 @@ use tokio::task::JoinHandle;
 /// A running server.
 #[derive(Debug)]
 pub struct TestServer {
-    /// `http://127.0.0.1:PORT`.
+    /// `http://127.0.0.1:PORT` (`https://` over TLS).
     pub base_url: String,
     stop: Option<oneshot::Sender<()>>,
     /// The task running [`server::run`].
@@ -66,6 +66,14 @@ impl TestServer {
         stream: StreamSettings,
     ) -> TestServer {
         let renderer = RenderService::start(backend, 512 << 20, resident).expect("render worker");
+        TestServer::serving(AppState::new(datasets, renderer, stream)).await
+    }
+
+    /// A server of `state` (its access, authentication, TLS).
+    ///
+    /// # Panics
+    /// When the server cannot start.
+    pub async fn serving(state: AppState) -> TestServer {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind port 0");
         let addr = listener.local_addr().expect("local address");
         let (stop, stopped) = oneshot::channel::<()>();
@@ -73,10 +81,10 @@ impl TestServer {
             // A dropped sender stops the server as well.
             let _ = stopped.await;
         };
-        let state = AppState::new(datasets, renderer, stream);
+        let scheme = if state.tls.is_some() { "https" } else { "http" };
         let running = tokio::spawn(server::run(listener, state, shutdown));
         TestServer {
-            base_url: format!("http://{addr}"),
+            base_url: format!("{scheme}://{addr}"),
             stop: Some(stop),
             running: Some(running),
         }
@@ -116,5 +124,96 @@ impl Drop for TestServer {
         if let Some(stop) = self.stop.take() {
             let _ = stop.send(());
         }
+    }
+}
+
+/// `voxserve serve` run as a process, killed when dropped: its URL (from
+/// the line it prints) and, once it has ended, what it wrote to stderr.
+#[derive(Debug)]
+pub struct Spawned {
+    /// The URL it printed, without the trailing `/`.
+    pub url: String,
+    /// The first line it printed.
+    pub line: String,
+    child: std::process::Child,
+    stderr: Option<std::thread::JoinHandle<String>>,
+}
+
+impl Spawned {
+    /// Runs `binary` with `args` (`serve …`) and waits up to a minute for
+    /// the line naming its URL.
+    ///
+    /// # Errors
+    /// What it wrote to stderr when it exited without printing a URL.
+    ///
+    /// # Panics
+    /// When it cannot be started or prints nothing within a minute.
+    pub async fn start(binary: &str, args: &[&str]) -> Result<Spawned, String> {
+        use std::io::{BufRead, BufReader, Read};
+        let mut child = std::process::Command::new(binary)
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("start voxserve serve");
+        let stdout = child.stdout.take().expect("stdout");
+        let mut err = child.stderr.take().expect("stderr");
+        // Drained so the server never blocks on a full pipe.
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = err.read_to_string(&mut text);
+            text
+        });
+        let line = tokio::task::spawn_blocking(move || {
+            let mut line = String::new();
+            BufReader::new(stdout).read_line(&mut line).map(|_| line)
+        });
+        let mut spawned = Spawned {
+            url: String::new(),
+            line: String::new(),
+            child,
+            stderr: Some(stderr),
+        };
+        let line = tokio::time::timeout(std::time::Duration::from_secs(60), line)
+            .await
+            .expect("the server printed nothing within 60 s")
+            .expect("reader task")
+            .expect("reading stdout");
+        let Some(url) = line
+            .split_whitespace()
+            .find(|w| w.starts_with("http://") || w.starts_with("https://"))
+        else {
+            let _ = spawned.child.wait();
+            return Err(spawned.stderr_text());
+        };
+        spawned.url = url.trim_end_matches('/').to_owned();
+        spawned.line = line;
+        Ok(spawned)
+    }
+
+    /// The process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Stops the server and returns what it wrote to stderr.
+    pub fn stop(mut self) -> String {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        self.stderr_text()
+    }
+
+    fn stderr_text(&mut self) -> String {
+        self.stderr
+            .take()
+            .and_then(|t| t.join().ok())
+            .unwrap_or_default()
+    }
+}
+
+impl Drop for Spawned {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 }

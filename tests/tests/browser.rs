@@ -7,6 +7,12 @@
 //! own with nothing wider than the screen. On failure a screenshot is written
 //! to `target/tmp/TEST.png`.
 //!
+//! A login test serves with OpenID Connect authentication against the test
+//! issuer ([`voxserve_tests::issuer`]): the page goes to the issuer's login,
+//! comes back with a code, exchanges it with its PKCE verifier, and draws a
+//! frame; a launch URL with `access_token=` draws one too and leaves no token
+//! in the address bar.
+//!
 //! A second test serves from the CPU renderer (`--renderer cpu`) and counts
 //! the frames a 2-second drag brings: at least 5.
 //!
@@ -22,8 +28,10 @@ use std::time::{Duration, Instant};
 
 use fantoccini::actions::{InputSource, MouseActions, PointerAction};
 use fantoccini::{Client, ClientBuilder, Locator};
+use server::stream::StreamSettings;
 use voxserve_tests::gpu::report_skip;
 use voxserve_tests::gpu_or_skip;
+use voxserve_tests::issuer::{self, Issuer};
 use voxserve_tests::server::TestServer;
 
 /// How long the page may take to show each expected change.
@@ -344,6 +352,85 @@ async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium
     finish(test, client, result).await;
 }
 
+#[tokio::test]
+async fn chromium_logs_in_through_the_issuer_and_sees_a_frame() {
+    // No GPU needed: the server renders on the CPU.
+    let test = "chromium_logs_in_through_the_issuer_and_sees_a_frame";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let issuer = Issuer::start().await;
+    let oidc = server::auth::Oidc::connect(server::auth::OidcConfig {
+        issuer: issuer.url.clone(),
+        audience: issuer::AUDIENCE.into(),
+        jwks: server::auth::oidc::JwksSource::Discovery,
+        client_id: Some(issuer::CLIENT_ID.into()),
+        scopes: "openid profile".into(),
+    })
+    .await
+    .expect("the issuer");
+    let auth = server::auth::Auth {
+        oidc: Some(oidc),
+        policy: Some(
+            server::auth::Policy::parse(
+                r#"{"rules": [{"roles": ["radiology"], "datasets": ["*"]}]}"#,
+            )
+            .expect("policy"),
+        ),
+        ..server::auth::Auth::default()
+    };
+    let dataset = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let renderer =
+        server::RenderService::start(shaders::Backend::Cpu, 64 << 20, 1).expect("renderer");
+    let state = server::AppState::new(vec![dataset], renderer, StreamSettings::default())
+        .with_auth(auth, server::audit::Audit::default());
+    let server = TestServer::serving(state).await;
+    issuer.log_in_as("dr.chromium", &["radiology"]);
+    let result = async {
+        client
+            .goto(&server.url("/"))
+            .await
+            .map_err(|e| format!("opening the page: {e}"))?;
+        wait_for(&client, "a frame after logging in", FRAMES, |n| n >= 1.0).await?;
+        if issuer.issued() != 1 {
+            return Err(format!(
+                "the issuer issued {} tokens, expected 1",
+                issuer.issued()
+            ));
+        }
+        let address = client.current_url().await.map_err(|e| e.to_string())?;
+        if address.query().is_some() {
+            return Err(format!(
+                "the address bar keeps the login's query: {address}"
+            ));
+        }
+        // A launch URL, in a fresh tab state: the token is taken and removed.
+        client
+            .execute("sessionStorage.clear(); return 0;", vec![])
+            .await
+            .map_err(|e| e.to_string())?;
+        let token = issuer.sign(
+            jsonwebtoken::Algorithm::RS256,
+            &issuer.claims("dr.launch", &["radiology"]),
+        );
+        client
+            .goto(&server.url(&format!("/?access_token={token}")))
+            .await
+            .map_err(|e| format!("opening the launch URL: {e}"))?;
+        wait_for(&client, "a frame after a launch", FRAMES, |n| n >= 1.0).await?;
+        let address = client.current_url().await.map_err(|e| e.to_string())?;
+        if address.as_str().contains(&token) {
+            return Err("the address bar keeps the launch token".into());
+        }
+        if issuer.issued() != 1 {
+            return Err("the launch URL went through the login again".into());
+        }
+        Ok(())
+    }
+    .await;
+    finish(test, client, result).await;
+}
+
 /// Frames drawn during a drag of `seconds` across the canvas.
 async fn frames_during_drag(client: &Client, seconds: f64) -> Result<f64, String> {
     let step_time = Duration::from_millis(50);
@@ -366,7 +453,7 @@ async fn on_the_cpu_renderer_a_two_second_drag_shows_at_least_five_frames_in_chr
         shaders::Backend::Cpu,
         vec![dataset],
         1,
-        server::stream::StreamSettings::default(),
+        StreamSettings::default(),
     )
     .await;
     let result = async {

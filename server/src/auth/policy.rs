@@ -71,7 +71,7 @@ pub struct Policy {
 
 /// Why a policy file cannot be used.
 #[derive(Debug, thiserror::Error)]
-#[error("policy file {path}: {message}")]
+#[error("--policy {path}: {message}")]
 pub struct PolicyFileError {
     path: String,
     message: String,

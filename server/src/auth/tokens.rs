@@ -55,7 +55,7 @@ pub struct ApiTokens {
 
 /// Why a tokens file cannot be used.
 #[derive(Debug, thiserror::Error)]
-#[error("API tokens file {path}: {message}")]
+#[error("--api-tokens {path}: {message}")]
 pub struct TokensFileError {
     path: String,
     message: String,
