@@ -46,8 +46,6 @@ pub struct Access {
     /// Sources that may embed the web client in a frame
     /// (`https://emr.example.org`); none: it may not be framed.
     pub frame_ancestors: Vec<String>,
-    /// Whether the server is served over TLS (HSTS is sent).
-    pub tls: bool,
 }
 
 /// Why a request was not let in.
@@ -204,7 +202,7 @@ pub async fn security_headers(
         header::REFERRER_POLICY,
         HeaderValue::from_static("no-referrer"),
     );
-    if state.access.tls {
+    if state.tls.is_some() {
         headers.insert(
             header::STRICT_TRANSPORT_SECURITY,
             HeaderValue::from_static(HSTS),

@@ -103,7 +103,6 @@ impl AppState {
 
     /// This state served over `tls` (and sending HSTS).
     pub fn with_tls(mut self, tls: Arc<crate::tls::Tls>) -> AppState {
-        Arc::make_mut(&mut self.access).tls = true;
         self.tls = Some(tls);
         self
     }
