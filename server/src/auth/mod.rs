@@ -208,6 +208,47 @@ impl Auth {
     }
 }
 
+/// A file `serve` reads (API tokens, policy) that cannot be used: the flag
+/// naming it, the file, and what is wrong, down to the entry and field.
+#[derive(Debug, thiserror::Error)]
+#[error("{flag} {path}: {message}")]
+pub struct FileError {
+    flag: &'static str,
+    path: String,
+    message: String,
+}
+
+/// `parse` of the text of the file at `path` (which `flag` names), read
+/// only if it is at most `limit` bytes.
+fn load_file<T>(
+    flag: &'static str,
+    path: &std::path::Path,
+    limit: u64,
+    parse: impl FnOnce(&str) -> Result<T, String>,
+) -> Result<T, FileError> {
+    read_bounded(path, limit)
+        .and_then(|text| parse(&text))
+        .map_err(|message| FileError {
+            flag,
+            path: path.display().to_string(),
+            message,
+        })
+}
+
+/// The text of the file at `path`, if it is at most `limit` bytes of UTF-8.
+fn read_bounded(path: &std::path::Path, limit: u64) -> Result<String, String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).map_err(|e| format!("cannot open: {e}"))?;
+    let mut text = String::new();
+    file.take(limit + 1)
+        .read_to_string(&mut text)
+        .map_err(|e| format!("cannot read as UTF-8 text: {e}"))?;
+    if text.len() as u64 > limit {
+        return Err(format!("larger than {limit} bytes"));
+    }
+    Ok(text)
+}
+
 /// The token a request carries: `Authorization: Bearer`, else a
 /// `bearer.TOKEN` subprotocol.
 fn bearer_token(headers: &HeaderMap) -> Result<String, AuthError> {

@@ -16,7 +16,7 @@
 //!   `realm_access.roles`.
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, UNIX_EPOCH};
 
 use jsonwebtoken::errors::ErrorKind;
 use jsonwebtoken::jwk::{Jwk, JwkSet};
@@ -249,7 +249,7 @@ impl Oidc {
     async fn read_keys(&self) -> anyhow::Result<JwkSet> {
         let (bytes, from) = match &self.config.jwks {
             JwksSource::File(path) => {
-                let text = super::tokens::read_bounded(path, MAX_DOCUMENT_BYTES as u64)
+                let text = super::read_bounded(path, MAX_DOCUMENT_BYTES as u64)
                     .map_err(|e| anyhow::anyhow!("JWKS file {}: {e}", path.display()))?;
                 (text.into_bytes(), path.display().to_string())
             }
@@ -346,7 +346,7 @@ fn principal(claims: &serde_json::Value) -> Result<Principal, AuthError> {
         user: user.chars().take(MAX_ROLE_LEN).collect(),
         proof: Proof::Oidc,
         roles,
-        expires: expires.filter(|&t| t > SystemTime::UNIX_EPOCH),
+        expires,
     })
 }
 

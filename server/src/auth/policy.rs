@@ -69,26 +69,13 @@ pub struct Policy {
     pub metrics_roles: Vec<String>,
 }
 
-/// Why a policy file cannot be used.
-#[derive(Debug, thiserror::Error)]
-#[error("--policy {path}: {message}")]
-pub struct PolicyFileError {
-    path: String,
-    message: String,
-}
-
 impl Policy {
-    /// Reads the policy file at `path`.
+    /// Reads the policy file at `path` (`--policy`).
     ///
     /// # Errors
-    /// [`PolicyFileError`], naming the rule and field.
-    pub fn load(path: &Path) -> Result<Policy, PolicyFileError> {
-        let error = |message: String| PolicyFileError {
-            path: path.display().to_string(),
-            message,
-        };
-        let text = super::tokens::read_bounded(path, MAX_FILE_BYTES).map_err(error)?;
-        Policy::parse(&text).map_err(error)
+    /// [`super::FileError`], naming the file, the rule and the field.
+    pub fn load(path: &Path) -> Result<Policy, super::FileError> {
+        super::load_file("--policy", path, MAX_FILE_BYTES, Policy::parse)
     }
 
     /// The policy of a file's `text`.

@@ -15,7 +15,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::{AuthError, Principal, Proof};
+use super::{AuthError, FileError, Principal, Proof};
 
 /// What every API token starts with.
 pub const PREFIX: &str = "vxs_";
@@ -53,31 +53,20 @@ pub struct ApiTokens {
     by_hash: HashMap<[u8; 32], Entry>,
 }
 
-/// Why a tokens file cannot be used.
-#[derive(Debug, thiserror::Error)]
-#[error("--api-tokens {path}: {message}")]
-pub struct TokensFileError {
-    path: String,
-    message: String,
-}
-
 impl ApiTokens {
-    /// Reads the tokens file at `path`.
+    /// Reads the tokens file at `path` (`--api-tokens`).
     ///
     /// # Errors
-    /// [`TokensFileError`], naming the file, the entry and the field.
-    pub fn load(path: &Path) -> Result<ApiTokens, TokensFileError> {
-        let error = |message: String| TokensFileError {
-            path: path.display().to_string(),
-            message,
-        };
-        let text = read_bounded(path, MAX_FILE_BYTES).map_err(error)?;
-        let file: File = serde_json::from_str(&text).map_err(|e| {
-            error(format!(
-                "{e}: expected {{\"tokens\": [{{\"name\": …, \"sha256\": …, \"roles\": […]}}]}}"
-            ))
-        })?;
-        ApiTokens::new(file.tokens).map_err(error)
+    /// [`FileError`], naming the file, the entry and the field.
+    pub fn load(path: &Path) -> Result<ApiTokens, FileError> {
+        super::load_file("--api-tokens", path, MAX_FILE_BYTES, |text| {
+            let file: File = serde_json::from_str(text).map_err(|e| {
+                format!(
+                    "{e}: expected {{\"tokens\": [{{\"name\": …, \"sha256\": …, \"roles\": […]}}]}}"
+                )
+            })?;
+            ApiTokens::new(file.tokens)
+        })
     }
 
     /// The tokens of `entries`, checked.
@@ -168,20 +157,6 @@ fn parse_hash(text: &str) -> Option<[u8; 32]> {
         *byte = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).ok()?;
     }
     Some(hash)
-}
-
-/// The text of the file at `path`, if it is at most `limit` bytes of UTF-8.
-pub(crate) fn read_bounded(path: &Path, limit: u64) -> Result<String, String> {
-    use std::io::Read;
-    let file = std::fs::File::open(path).map_err(|e| format!("cannot open: {e}"))?;
-    let mut text = String::new();
-    file.take(limit + 1)
-        .read_to_string(&mut text)
-        .map_err(|e| format!("cannot read as UTF-8 text: {e}"))?;
-    if text.len() as u64 > limit {
-        return Err(format!("larger than {limit} bytes"));
-    }
-    Ok(text)
 }
 
 #[cfg(test)]
