@@ -14,13 +14,12 @@ use base64::engine::general_purpose::URL_SAFE_NO_PAD;
 use futures_util::StreamExt;
 use jsonwebtoken::Algorithm;
 use server::audit::Audit;
-use server::auth::oidc::{JwksSource, OidcConfig};
 use server::auth::{ApiTokens, Auth, Oidc, Policy};
 use server::stream::StreamSettings;
 use server::{AppState, Dataset, RenderService};
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::{self, Message};
-use voxserve_tests::issuer::{AUDIENCE, CLIENT_ID, Issuer, now_s};
+use voxserve_tests::issuer::{CLIENT_ID, Issuer, now_s};
 use voxserve_tests::server::TestServer;
 
 /// The policy of these tests: anyone authenticated sees the phantom,
@@ -49,16 +48,19 @@ fn datasets() -> Vec<Dataset> {
     vec![phantom, secret]
 }
 
-async fn oidc(issuer: &Issuer) -> Oidc {
-    Oidc::connect(OidcConfig {
-        issuer: issuer.url.clone(),
-        audience: AUDIENCE.into(),
-        jwks: JwksSource::Discovery,
-        client_id: Some(CLIENT_ID.into()),
-        scopes: "openid".into(),
-    })
-    .await
-    .expect("the issuer's discovery document and keys")
+/// An issuer, and a server accepting its tokens under `policy`.
+async fn with_issuer(policy: Option<&str>) -> (Issuer, Secured) {
+    let issuer = Issuer::start().await;
+    let oidc = Oidc::connect(issuer.config())
+        .await
+        .expect("the issuer's discovery document and keys");
+    let auth = Auth {
+        oidc: Some(oidc),
+        policy: policy.map(|text| Policy::parse(text).expect("policy")),
+        ..Auth::default()
+    };
+    let server = start(auth, None).await;
+    (issuer, server)
 }
 
 /// Starts a server with `auth`, auditing to a file, over `tls` if given.
@@ -128,13 +130,7 @@ fn audit_lines(path: &Path) -> Vec<serde_json::Value> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn tokens_are_checked_and_datasets_shown_by_role() {
-    let issuer = Issuer::start().await;
-    let auth = Auth {
-        oidc: Some(oidc(&issuer).await),
-        policy: Some(Policy::parse(POLICY).expect("policy")),
-        ..Auth::default()
-    };
-    let server = start(auth, None).await;
+    let (issuer, server) = with_issuer(Some(POLICY)).await;
     let base = &server.base;
     let good = issuer.claims("dr.house", &["radiology"]);
     let with = |changes: serde_json::Value| {
@@ -296,12 +292,7 @@ async fn tokens_are_checked_and_datasets_shown_by_role() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_rotated_key_is_picked_up_and_the_old_one_dropped() {
-    let issuer = Issuer::start().await;
-    let auth = Auth {
-        oidc: Some(oidc(&issuer).await),
-        ..Auth::default()
-    };
-    let server = start(auth, None).await;
+    let (issuer, server) = with_issuer(None).await;
     let claims = issuer.claims("dr.rota", &[]);
     let old = issuer.sign(Algorithm::RS256, &claims);
     assert_eq!(get(&server.base, "/api/datasets", Some(&old)).await.0, 200);
@@ -446,13 +437,7 @@ async fn next_json(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_view_session_is_authenticated_at_the_upgrade_and_ends_with_its_token() {
-    let issuer = Issuer::start().await;
-    let auth = Auth {
-        oidc: Some(oidc(&issuer).await),
-        policy: Some(Policy::parse(POLICY).expect("policy")),
-        ..Auth::default()
-    };
-    let server = start(auth, None).await;
+    let (issuer, server) = with_issuer(Some(POLICY)).await;
     match open_session(&server.base, Some("voxserve")).await {
         Err(tungstenite::Error::Http(response)) => assert_eq!(response.status(), 401),
         other => panic!("expected 401 without a token, got {other:?}"),

@@ -1,9 +1,8 @@
 //! The `voxserve` binary as a user runs it: `--help`, `render` to a file, bad
 //! flags, and `serve` printing its URL and answering `GET /api/render`.
 
-use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output};
 use std::time::Duration;
 
 use voxserve_tests::Tolerance;
@@ -26,8 +25,13 @@ fn text(bytes: &[u8]) -> String {
 
 /// True when the run failed only because there is no GPU, and that is allowed.
 fn skipped_for_lack_of_gpu(test: &str, out: &Output) -> bool {
-    let stderr = text(&out.stderr);
-    if out.status.success() || !stderr.contains("no GPU adapter found") {
+    !out.status.success() && failed_for_lack_of_gpu(test, &text(&out.stderr))
+}
+
+/// True when a failed run's `stderr` says only that there is no GPU, and
+/// that is allowed.
+fn failed_for_lack_of_gpu(test: &str, stderr: &str) -> bool {
+    if !stderr.contains("no GPU adapter found") {
         return false;
     }
     assert!(
@@ -371,16 +375,6 @@ fn render_refuses_an_output_it_cannot_write_before_rendering() {
     );
 }
 
-/// Kills the server when the test ends, even on panic.
-struct Server(Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// A GET of `url` with `token` (if any) by `client`: status and body.
 async fn get_with(client: &reqwest::Client, url: &str, token: Option<&str>) -> (u16, String) {
     let mut request = client.get(url);
@@ -542,57 +536,26 @@ async fn serve_prints_its_url_and_renders_the_phantom() {
     let _ = { dead }.wait();
     let leftover = data.join(format!(".scan.zarr.old-{dead_pid}"));
     std::fs::rename(data.join("leftover.zarr"), &leftover).expect("rename");
-    let mut child = Command::new(VOXSERVE)
-        .args([
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--phantom-size",
-            "64",
-            "--data",
-        ])
-        .arg(&data)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start voxserve serve");
-    let stdout = child.stdout.take().expect("stdout");
-    let stderr = child.stderr.take().expect("stderr");
-    // Drain stderr so the server never blocks on a full pipe; keep it for messages.
-    let stderr = std::thread::spawn(move || {
-        let mut text = String::new();
-        let _ = std::io::Read::read_to_string(&mut BufReader::new(stderr), &mut text);
-        text
-    });
-    let mut server = Server(child);
-    // The first stdout line names the URL; read it off the async runtime.
-    let line = tokio::task::spawn_blocking(move || {
-        let mut line = String::new();
-        BufReader::new(stdout).read_line(&mut line).map(|_| line)
-    });
-    let line = tokio::time::timeout(Duration::from_secs(60), line)
-        .await
-        .expect("the server printed nothing within 60 s")
-        .expect("reader task")
-        .expect("reading stdout");
-    if line.is_empty() {
-        // stdout closed without a URL: the server exited.
-        let out = Output {
-            status: server.0.wait().expect("exit status"),
-            stdout: Vec::new(),
-            stderr: stderr.join().unwrap_or_default().into_bytes(),
-        };
-        if skipped_for_lack_of_gpu("serve_prints_its_url_and_renders_the_phantom", &out) {
-            return;
+    let data_arg = data.to_str().expect("utf-8");
+    let args = [
+        "serve",
+        "--addr",
+        "127.0.0.1:0",
+        "--phantom-size",
+        "64",
+        "--data",
+        data_arg,
+    ];
+    let server = match voxserve_tests::server::Spawned::start(VOXSERVE, &args).await {
+        Ok(server) => server,
+        Err(stderr) => {
+            if failed_for_lack_of_gpu("serve_prints_its_url_and_renders_the_phantom", &stderr) {
+                return;
+            }
+            panic!("serve exited: {stderr}");
         }
-        panic!("serve exited: {}", text(&out.stderr));
-    }
-    let url = line
-        .split_whitespace()
-        .find(|w| w.starts_with("http://"))
-        .unwrap_or_else(|| panic!("no URL in {line:?}"))
-        .trim_end_matches('/')
-        .to_owned();
+    };
+    let (url, line) = (server.url.clone(), server.line.clone());
     let response = reqwest::get(format!("{url}/api/render?w=128&h=128&shading=unshaded"))
         .await
         .expect("GET /api/render");
@@ -635,8 +598,7 @@ async fn serve_prints_its_url_and_renders_the_phantom() {
         .expect("PNG")
         .to_rgba8();
     assert_eq!(img.dimensions(), (32, 24));
-    drop(server);
-    let log = stderr.join().expect("stderr");
+    let log = server.stop();
     assert!(
         log.contains("not serving")
             && log.contains(&format!("{}: missing", broken_shard.display())),

@@ -7,7 +7,6 @@
 //! pictures.
 
 use std::net::{IpAddr, SocketAddr};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
@@ -20,6 +19,7 @@ use tokio::net::{TcpListener, TcpSocket, TcpStream};
 use tokio::sync::oneshot;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::{self, Message};
+use voxserve_tests::server::Spawned;
 
 const VOXSERVE: &str = env!("CARGO_BIN_EXE_voxserve");
 
@@ -374,45 +374,21 @@ async fn an_oversized_message_closes_the_session_with_a_short_reason() {
     next_message(&mut next, Duration::from_secs(10)).await;
 }
 
-/// The `voxserve serve` child, killed when the test ends.
-struct Serving(Child);
-
-impl Drop for Serving {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[tokio::test]
 async fn eleven_hundred_idle_connections_leave_healthz_answering() {
     // The server as deployed: its own process, with the usual limit of
     // 1 024 open files.
-    let mut child = Command::new("bash")
-        .arg("-c")
-        .arg(format!(
-            "ulimit -n 1024 && exec {VOXSERVE} serve --renderer cpu --phantom-size 32 --addr 127.0.0.1:0"
-        ))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("start voxserve serve");
-    let stdout = child.stdout.take().expect("stdout");
-    let _server = Serving(child);
-    let line = tokio::task::spawn_blocking(move || {
-        let mut line = String::new();
-        std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line).map(|_| line)
-    });
-    let line = tokio::time::timeout(Duration::from_secs(60), line)
+    let command = format!(
+        "ulimit -n 1024 && exec {VOXSERVE} serve --renderer cpu --phantom-size 32 --addr 127.0.0.1:0"
+    );
+    let server = Spawned::start("bash", &["-c", &command])
         .await
-        .expect("the server printed its URL within 60 s")
-        .expect("reader")
-        .expect("stdout");
-    let addr: SocketAddr = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("http://"))
-        .and_then(|w| w.trim_end_matches('/').parse().ok())
-        .unwrap_or_else(|| panic!("no URL in {line:?}"));
+        .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    let addr: SocketAddr = server
+        .url
+        .strip_prefix("http://")
+        .and_then(|a| a.parse().ok())
+        .unwrap_or_else(|| panic!("no address in {}", server.url));
     // 1 100 connections that never send a byte, from 20 addresses (so the
     // per-client cap alone cannot save the server).
     let mut idle = Vec::new();

@@ -208,6 +208,18 @@ impl Issuer {
         jsonwebtoken::encode(&header, claims, &stranger.encoding).expect("signed")
     }
 
+    /// How a server checks this issuer's tokens: keys from its discovery
+    /// document, the [`AUDIENCE`], the web client as [`CLIENT_ID`].
+    pub fn config(&self) -> server::auth::OidcConfig {
+        server::auth::OidcConfig {
+            issuer: self.url.clone(),
+            audience: AUDIENCE.into(),
+            jwks: server::auth::oidc::JwksSource::Discovery,
+            client_id: Some(CLIENT_ID.into()),
+            scopes: "openid profile".into(),
+        }
+    }
+
     /// Who `/authorize` logs in from now on.
     pub fn log_in_as(&self, user: &str, roles: &[&str]) {
         self.lock().login = (

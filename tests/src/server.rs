@@ -147,7 +147,8 @@ impl Spawned {
     /// What it wrote to stderr when it exited without printing a URL.
     ///
     /// # Panics
-    /// When it cannot be started or prints nothing within a minute.
+    /// When it cannot be started, prints nothing within a minute, or prints
+    /// a line without a URL.
     pub async fn start(binary: &str, args: &[&str]) -> Result<Spawned, String> {
         use std::io::{BufRead, BufReader, Read};
         let mut child = std::process::Command::new(binary)
@@ -179,13 +180,15 @@ impl Spawned {
             .expect("the server printed nothing within 60 s")
             .expect("reader task")
             .expect("reading stdout");
-        let Some(url) = line
-            .split_whitespace()
-            .find(|w| w.starts_with("http://") || w.starts_with("https://"))
-        else {
+        if line.is_empty() {
+            // stdout closed without a URL: the server exited.
             let _ = spawned.child.wait();
             return Err(spawned.stderr_text());
-        };
+        }
+        let url = line
+            .split_whitespace()
+            .find(|w| w.starts_with("http://") || w.starts_with("https://"))
+            .unwrap_or_else(|| panic!("no URL in {line:?}"));
         spawned.url = url.trim_end_matches('/').to_owned();
         spawned.line = line;
         Ok(spawned)

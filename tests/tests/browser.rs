@@ -31,7 +31,7 @@ use fantoccini::{Client, ClientBuilder, Locator};
 use server::stream::StreamSettings;
 use voxserve_tests::gpu::report_skip;
 use voxserve_tests::gpu_or_skip;
-use voxserve_tests::issuer::{self, Issuer};
+use voxserve_tests::issuer::Issuer;
 use voxserve_tests::server::TestServer;
 
 /// How long the page may take to show each expected change.
@@ -360,15 +360,9 @@ async fn chromium_logs_in_through_the_issuer_and_sees_a_frame() {
         return;
     };
     let issuer = Issuer::start().await;
-    let oidc = server::auth::Oidc::connect(server::auth::OidcConfig {
-        issuer: issuer.url.clone(),
-        audience: issuer::AUDIENCE.into(),
-        jwks: server::auth::oidc::JwksSource::Discovery,
-        client_id: Some(issuer::CLIENT_ID.into()),
-        scopes: "openid profile".into(),
-    })
-    .await
-    .expect("the issuer");
+    let oidc = server::auth::Oidc::connect(issuer.config())
+        .await
+        .expect("the issuer");
     let auth = server::auth::Auth {
         oidc: Some(oidc),
         policy: Some(
