@@ -131,6 +131,29 @@ macro_rules! display_choice {
 
 display_choice!(Shading, Compositing, crate::Projection);
 
+/// A band of an image's rows: `count` rows from row `first` (0 at the top).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rows {
+    /// The band's top row in the image.
+    pub first: u32,
+    /// Rows in the band.
+    pub count: u32,
+}
+
+impl Rows {
+    /// Splits an image of `height` rows into bands of at most `per_band`
+    /// rows, top to bottom.
+    pub fn bands(height: u32, per_band: u32) -> impl Iterator<Item = Rows> {
+        let per_band = per_band.max(1);
+        (0..height)
+            .step_by(per_band as usize)
+            .map(move |first| Rows {
+                first,
+                count: per_band.min(height - first),
+            })
+    }
+}
+
 /// An axis-aligned clip box in the volume's index space, as fractions of its
 /// extent along x, y, z (0..1 keeps everything).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -272,6 +295,9 @@ crate::settings! {
     plain {
         /// Jump over empty blocks (turned off only to measure what skipping saves).
         pub skip_empty: bool = true,
+        /// Draw only these rows of the image (a big frame is drawn band by
+        /// band, so other frames can go between); all when `None`.
+        pub rows: Option<Rows> = None,
     }
 }
 
@@ -311,6 +337,24 @@ impl FrameRequest {
     /// The transfer function to classify `volume` with.
     pub fn volume_transfer_function(&self, volume: &blocks::Volume) -> TransferFunction {
         self.transfer_function(volume.value_range, volume.modality.as_deref())
+    }
+
+    /// The rows drawn: [`FrameRequest::rows`] within the image, else all.
+    pub fn drawn_rows(&self) -> Rows {
+        let height = self.height.max(1);
+        match self.rows {
+            Some(rows) => {
+                let first = rows.first.min(height - 1);
+                Rows {
+                    first,
+                    count: rows.count.clamp(1, height - first),
+                }
+            }
+            None => Rows {
+                first: 0,
+                count: height,
+            },
+        }
     }
 
     /// Checks every setting, and what no single setting can: a transfer

@@ -182,8 +182,8 @@ fn every_mirrored_struct_matches_its_wgsl_twin_field_by_field() {
         mode,
         max_steps,
         light_offset,
-        _pad0,
-        _pad1,
+        first_row,
+        image_height,
     });
     for source in [
         crate::wgsl::RAYCAST,

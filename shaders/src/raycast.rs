@@ -8,6 +8,7 @@
 //! volume's geometry by [`RaycastParams::new`]; GPU stages and CPU twins read
 //! exactly that struct, so they differ only in arithmetic.
 
+use blocks::Geometry;
 use glam::{Mat3, Mat4, Vec3, Vec4};
 
 use crate::illumination::Mode;
@@ -79,7 +80,8 @@ pub struct RaycastParams {
     pub phong: [f32; 4],
     /// Image width in pixels.
     pub width: u32,
-    /// Image height in pixels.
+    /// Rows this dispatch draws: the image's height, or a band's
+    /// ([`FrameRequest::rows`]).
     pub height: u32,
     /// `FLAG_*` bits.
     pub flags: u32,
@@ -91,10 +93,10 @@ pub struct RaycastParams {
     /// extinction-based illumination, so a surface reads the light just outside
     /// it rather than a blend with the shadowed cells behind it; 0 otherwise.
     pub light_offset: f32,
-    /// Padding to a multiple of 16 bytes.
-    pub _pad0: u32,
-    /// Padding to a multiple of 16 bytes.
-    pub _pad1: u32,
+    /// The image row this dispatch's first row is (0 unless a band).
+    pub first_row: u32,
+    /// The image's height in rows, which places the rays.
+    pub image_height: u32,
 }
 
 /// Where the volume sits in model space: the linear map from texture offsets
@@ -109,8 +111,13 @@ pub struct VolumePlacement {
 impl VolumePlacement {
     /// The placement of a volume stored as `texture`.
     pub fn of(texture: &VolumeTexture) -> VolumePlacement {
-        let extent = texture.geometry.extent_mm_f32();
-        let direction = texture.geometry.direction_f32();
+        VolumePlacement::of_geometry(&texture.geometry)
+    }
+
+    /// The placement of a volume of `geometry`.
+    pub fn of_geometry(geometry: &Geometry) -> VolumePlacement {
+        let extent = geometry.extent_mm_f32();
+        let direction = geometry.direction_f32();
         let column = |i: usize| Vec3::from(direction[i]) * extent[i];
         VolumePlacement {
             model_from_texture: Mat3::from_cols(column(0), column(1), column(2)),
@@ -127,6 +134,19 @@ impl VolumePlacement {
         }
         radius
     }
+}
+
+/// The most samples a ray takes through a volume within `radius` mm of its
+/// centre at `step` mm: the bound of the march's loop.
+fn max_samples_per_ray(radius: f32, step: f32) -> u32 {
+    (2.0 * radius / step).ceil() as u32 + 2
+}
+
+/// The most samples one pixel of `request` costs over a volume of
+/// `geometry`: what the render worker prices a frame by (pixels × this).
+pub fn samples_per_ray(geometry: &Geometry, request: &FrameRequest) -> u32 {
+    let radius = VolumePlacement::of_geometry(geometry).radius();
+    max_samples_per_ray(radius, request.step_voxels * geometry.min_spacing_f32())
 }
 
 impl RaycastParams {
@@ -151,13 +171,14 @@ impl RaycastParams {
         // tc = M p + ½, so ∂f/∂p = Mᵀ ∂f/∂tc.
         let gradient_from_texture = Mat4::from_mat3(texture_from_model_linear.transpose());
         let aspect = request.width as f32 / request.height as f32;
+        let rows = request.drawn_rows();
         let inv_view_proj: Mat4 = request.camera.view_proj(radius, aspect).inverse();
         let basis = request.camera.basis(radius);
         let light = LIGHT_IN_VIEW.x * basis.right + LIGHT_IN_VIEW.y * basis.up
             - LIGHT_IN_VIEW.z * basis.forward;
         let min_spacing = texture.geometry.min_spacing_f32();
         let step = request.step_voxels * min_spacing;
-        let max_steps = (2.0 * radius / step).ceil() as u32 + 2;
+        let max_steps = max_samples_per_ray(radius, step);
         let mut flags = FLAG_JITTER;
         if request.shading == Shading::Gradient {
             flags |= FLAG_SHADED;
@@ -198,13 +219,13 @@ impl RaycastParams {
             light: lit,
             phong: PHONG,
             width: request.width,
-            height: request.height,
+            height: rows.count,
             flags,
             mode,
             max_steps,
             light_offset,
-            _pad0: 0,
-            _pad1: 0,
+            first_row: rows.first,
+            image_height: request.height,
         }
     }
 
@@ -366,9 +387,9 @@ mod tests {
     #[test]
     fn texture_from_model_undoes_the_placement() {
         let texture = VolumeTexture {
-            geometry: blocks::Geometry {
+            geometry: Geometry {
                 direction: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
-                ..blocks::Geometry::new([10, 20, 5], [1.0, 0.5, 2.0])
+                ..Geometry::new([10, 20, 5], [1.0, 0.5, 2.0])
             },
             format: crate::volume_texture::TexelFormat::R8Unorm,
             voxel_type: blocks::VoxelType::U8,

@@ -21,7 +21,7 @@ use blocks::{TransferFunction, Volume};
 
 use crate::extinction::{Extinction, ExtinctionTimings};
 use crate::global_light::{GlobalLight, LightTimings};
-use crate::illumination::{Illumination, Inputs, Mode, Timings};
+use crate::illumination::{Illumination, Inputs, Mode, Refine, Timings};
 use crate::packed::{Atlas, GpuAtlas};
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
@@ -407,7 +407,15 @@ impl Renderer {
                 .update_complete(&self.gpu, &self.desc, &tf, budget, complete)?,
         );
         if let Some(mode) = Mode::of(request.shading) {
-            stats.illumination = Some(self.update_illumination(mode, request, &tf, converge)?);
+            let refine = if converge {
+                Refine::Converge
+            } else if request.drawn_rows().first > 0 {
+                // A later band shows the light the frame's first band did.
+                Refine::Hold
+            } else {
+                Refine::Step
+            };
+            stats.illumination = Some(self.update_illumination(mode, request, &tf, refine)?);
         }
         self.draw(request, stats)
     }
@@ -419,7 +427,7 @@ impl Renderer {
         mode: Mode,
         request: &FrameRequest,
         tf: &TransferFunction,
-        converge: bool,
+        refine: Refine,
     ) -> Result<Timings, GpuError> {
         if !self.lit.iter().any(|l| l.mode == mode) {
             self.lit.push(LitMode {
@@ -442,7 +450,7 @@ impl Renderer {
             tf,
             data_version: self.residency.data_version(),
         };
-        lit.state.update(&self.gpu, inputs, request, converge)
+        lit.state.update(&self.gpu, inputs, request, refine)
     }
 
     /// Renders the frame of `request` from what is resident.

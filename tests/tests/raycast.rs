@@ -14,10 +14,15 @@
 
 use blocks::{Preset, Volume, VoxelData};
 use server::Dataset;
-use shaders::{Camera, ClipBox, Frame, FrameRequest, GpuError, Projection, Shading};
+use shaders::{
+    Backend, Camera, ClipBox, Frame, FrameRequest, GpuError, LightSettings, Projection, Rows,
+    Shading,
+};
 use voxserve_tests::image_compare::assert_similar;
 use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
-use voxserve_tests::render::{cpu_packed, cpu_reference, dataset_of, gpu_reference, gpu_renderer};
+use voxserve_tests::render::{
+    TEST_GPU_BUDGET_BYTES, cpu_packed, cpu_reference, dataset_of, gpu_reference, gpu_renderer,
+};
 use voxserve_tests::{Tolerance, gpu_or_skip};
 
 const TWIN_TOLERANCE: Tolerance = Tolerance {
@@ -271,4 +276,97 @@ fn image_sizes_outside_1_to_4096_are_refused_before_rendering() {
     // The largest size is accepted (checked on the request only: a 4096² software
     // frame belongs in a benchmark).
     assert!(FrameRequest::new(4096, 4096, tf).validate().is_ok());
+}
+
+/// `frames`, bands of one image top to bottom, as one frame.
+fn stitched(frames: Vec<Frame>) -> Frame {
+    let width = frames[0].width;
+    let height = frames.iter().map(|f| f.height).sum();
+    let rgba = frames.into_iter().flat_map(|f| f.rgba).collect();
+    Frame {
+        width,
+        height,
+        rgba,
+    }
+}
+
+/// `request` drawn in bands of `per_band` rows by `render`, stitched.
+fn in_bands(
+    request: &FrameRequest,
+    per_band: u32,
+    mut render: impl FnMut(&FrameRequest) -> Frame,
+) -> Frame {
+    stitched(
+        Rows::bands(request.height, per_band)
+            .map(|rows| {
+                let band = render(&FrameRequest {
+                    rows: Some(rows),
+                    ..request.clone()
+                });
+                assert_eq!((band.width, band.height), (request.width, rows.count));
+                band
+            })
+            .collect(),
+    )
+}
+
+/// The render worker draws a big frame band by band so that other clients'
+/// frames go between: the bands, put together, are the frame drawn whole
+/// (same rays, same jitter), on the CPU and on the GPU; with global light
+/// the later bands show the light the first did (no refinement between).
+#[test]
+fn a_frame_drawn_band_by_band_is_the_frame_drawn_whole() {
+    let dataset = phantom_64_dataset();
+    let gpu = gpu_or_skip("a_frame_drawn_band_by_band_is_the_frame_drawn_whole");
+    let mut renderer = gpu.map(|g| gpu_renderer(g, dataset));
+    for (name, request) in phantom_requests() {
+        for per_band in [1, 7, 32] {
+            assert_eq!(
+                in_bands(&request, per_band, |r| cpu_packed(gpu, dataset, r)),
+                cpu_packed(gpu, dataset, &request),
+                "{name}: the CPU twin's bands of {per_band} rows"
+            );
+        }
+        if let Some(r) = renderer.as_mut() {
+            let whole = r.render(&request).expect("GPU render");
+            let bands = in_bands(&request, 13, |b| r.render(b).expect("GPU band"));
+            assert_eq!(bands, whole, "{name}: the GPU's bands of 13 rows");
+        }
+    }
+    // Interactive global light refines one step per frame: a banded frame
+    // refines once, in its first band.
+    let lit = FrameRequest {
+        light: LightSettings {
+            svr_scale: 4,
+            ..LightSettings::default()
+        },
+        ..phantom_request(
+            Preset::CtSoftTissue,
+            Shading::GlobalLight,
+            Camera::default(),
+            (64, 64),
+        )
+    };
+    for backend in gpu
+        .map(|g| Backend::Gpu(g.clone()))
+        .into_iter()
+        .chain([Backend::Cpu])
+    {
+        let renderer = || {
+            backend
+                .renderer(dataset.cache.clone(), TEST_GPU_BUDGET_BYTES)
+                .expect("renderer")
+        };
+        let (mut whole, mut banded) = (renderer(), renderer());
+        for frame in 0..3 {
+            let expected = whole.render_now(&lit).expect("whole frame");
+            let bands = in_bands(&lit, 10, |b| banded.render_now(b).expect("band"));
+            assert_eq!(
+                bands,
+                expected,
+                "{}: lit frame {frame} in bands of 10 rows",
+                backend.kind()
+            );
+        }
+    }
 }

@@ -436,10 +436,12 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
     if gid[0] >= p.width || gid[1] >= p.height {
         return None;
     }
-    let pixel = Vec2::new(gid[0] as f32 + 0.5, gid[1] as f32 + 0.5);
+    // Rows count in the whole image: a band is drawn as that part of it.
+    let row = gid[1] + p.first_row;
+    let pixel = Vec2::new(gid[0] as f32 + 0.5, row as f32 + 0.5);
     let ndc = Vec2::new(
         pixel.x / p.width as f32 * 2.0 - 1.0,
-        1.0 - pixel.y / p.height as f32 * 2.0,
+        1.0 - pixel.y / p.image_height as f32 * 2.0,
     );
     let inv_view_proj = p.inv_view_proj;
     let near = inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
@@ -460,7 +462,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
     if span.x < span.y {
         let mut jitter = 0.0;
         if p.flags & FLAG_JITTER != 0 {
-            jitter = unit_from_hash(pcg_hash(gid[1] * p.width + gid[0]));
+            jitter = unit_from_hash(pcg_hash(row * p.width + gid[0]));
         }
         acc.exponent = p.step / p.volume.reference_step;
         let first = span.x + jitter * p.step;

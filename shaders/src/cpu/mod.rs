@@ -147,11 +147,11 @@ pub fn render_reference(
         .volume_transfer_function(volume)
         .table(desc.tf_domain, TABLE_LEN)?;
     let params = RaycastParams::new(&desc, request, table.len() as u32, PackedLayout::default());
-    let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
+    let mut rgba = vec![0u8; params.width as usize * params.height as usize * 4];
     reference(&params, &texture, &table, &mut rgba);
     Ok(Frame {
-        width: request.width,
-        height: request.height,
+        width: params.width,
+        height: params.height,
         rgba,
     })
 }

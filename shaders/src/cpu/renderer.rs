@@ -207,15 +207,15 @@ impl CpuRenderer {
         };
         let params = RaycastParams::new(&self.desc, request, table.len() as u32, atlas.layout);
         let start = Instant::now();
-        let mut rgba = vec![0u8; request.width as usize * request.height as usize * 4];
+        let mut rgba = vec![0u8; params.width as usize * params.height as usize * 4];
         raycast(&params, &atlas.texture, table, &mut rgba);
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.reduction = selection.reduction();
         stats.level_counts = selection.level_counts();
         self.last = stats;
         Ok(Frame {
-            width: request.width,
-            height: request.height,
+            width: params.width,
+            height: params.height,
             rgba,
         })
     }

@@ -13,7 +13,7 @@ use super::{
     AoMethod, ExtinctionParams, ExtinctionPipelines, ExtinctionSettings, ExtinctionVolumes,
     ShadowMethod, Stage, near_cells_mask, scan_workgroups,
 };
-use crate::illumination::{Illumination, Inputs, StageCache, Timings, workgroups};
+use crate::illumination::{Illumination, Inputs, Refine, StageCache, Timings, workgroups};
 use crate::pipeline::run;
 use crate::{FrameRequest, GpuContext, GpuError};
 
@@ -281,7 +281,7 @@ impl Illumination for Extinction {
         gpu: &GpuContext,
         inputs: Inputs<'_>,
         request: &FrameRequest,
-        _converge: bool,
+        _refine: Refine,
     ) -> Result<Timings, GpuError> {
         self.update_cache(gpu, inputs, &request.extinction)
             .map(Timings::Extinction)

@@ -12,7 +12,7 @@ use super::{
     Stage,
 };
 use crate::illumination::{
-    Illumination, Inputs, StageCache, Timings, near_blocks, slot_blocks, workgroups,
+    Illumination, Inputs, Refine, StageCache, Timings, near_blocks, slot_blocks, workgroups,
 };
 use crate::pipeline::run;
 use crate::settings::Settings;
@@ -119,14 +119,14 @@ impl GlobalLight {
     }
 
     /// Brings the light up to date for one frame: from the first stale stage
-    /// on, else one more in-scattering direction; with `converge`, every
-    /// direction left.
+    /// on, else (with [`Refine::Step`]) one more in-scattering direction;
+    /// with [`Refine::Converge`], every direction left.
     pub fn update_light(
         &mut self,
         gpu: &GpuContext,
         inputs: Inputs<'_>,
         settings: &LightSettings,
-        converge: bool,
+        refine: Refine,
     ) -> Result<LightTimings, GpuError> {
         settings.validate_fields()?;
         let start = Instant::now();
@@ -145,10 +145,10 @@ impl GlobalLight {
             }
             self.cache.computed(first, keys);
             timings.recomputed = true;
-        } else if self.refined < self.directions.len() {
+        } else if refine == Refine::Step && self.refined < self.directions.len() {
             timings.in_scatter_ms += self.scatter_step(gpu, inputs)?;
         }
-        while converge && self.refined < self.directions.len() {
+        while refine == Refine::Converge && self.refined < self.directions.len() {
             timings.in_scatter_ms += self.scatter_step(gpu, inputs)?;
         }
         timings.total_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -330,9 +330,9 @@ impl Illumination for GlobalLight {
         gpu: &GpuContext,
         inputs: Inputs<'_>,
         request: &FrameRequest,
-        converge: bool,
+        refine: Refine,
     ) -> Result<Timings, GpuError> {
-        self.update_light(gpu, inputs, &request.light, converge)
+        self.update_light(gpu, inputs, &request.light, refine)
             .map(Timings::GlobalLight)
     }
 

@@ -199,17 +199,28 @@ impl Timings {
     }
 }
 
+/// How far one frame refines a mode's light once its stages are up to date.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refine {
+    /// Not at all: a later band of a frame shows the light its first band did.
+    Hold,
+    /// One refinement step (an interactive frame).
+    Step,
+    /// Every step left (a still image, a test).
+    Converge,
+}
+
 /// What the renderer asks of a mode's GPU state.
 pub trait Illumination: fmt::Debug + Send {
     /// Brings the mode's stages up to date for `request`: from the first stage
-    /// whose inputs changed on, or (for a mode that refines) one refinement
-    /// step, or (with `converge`) every step left; nothing for a camera move.
+    /// whose inputs changed on, then (for a mode that refines) as far as
+    /// `refine` says; nothing for a camera move.
     fn update(
         &mut self,
         gpu: &GpuContext,
         inputs: Inputs<'_>,
         request: &FrameRequest,
-        converge: bool,
+        refine: Refine,
     ) -> Result<Timings, GpuError>;
 
     /// The texture the ray caster reads, once computed.

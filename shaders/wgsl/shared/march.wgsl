@@ -47,10 +47,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     // The pixel's ray: through the pixel centre, from the near plane to the far
     // plane (right for perspective and orthographic projections alike).
-    let pixel = vec2<f32>(f32(gid.x) + 0.5, f32(gid.y) + 0.5);
+    // Rows count in the whole image: a band is drawn as that part of it.
+    let row = gid.y + params.first_row;
+    let pixel = vec2<f32>(f32(gid.x) + 0.5, f32(row) + 0.5);
     let ndc = vec2<f32>(
         pixel.x / f32(params.width) * 2.0 - 1.0,
-        1.0 - pixel.y / f32(params.height) * 2.0,
+        1.0 - pixel.y / f32(params.image_height) * 2.0,
     );
     let near = params.inv_view_proj * vec4<f32>(ndc, 0.0, 1.0);
     let far = params.inv_view_proj * vec4<f32>(ndc, 1.0, 1.0);
@@ -70,7 +72,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if span.x < span.y {
         var jitter = 0.0;
         if (params.flags & FLAG_JITTER) != 0u {
-            jitter = unit_from_hash(pcg_hash(gid.y * params.width + gid.x));
+            jitter = unit_from_hash(pcg_hash(row * params.width + gid.x));
         }
         let exponent = params.step / params.volume.reference_step;
         let first = span.x + jitter * params.step;

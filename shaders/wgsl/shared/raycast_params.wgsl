@@ -35,7 +35,8 @@ struct RaycastParams {
     light: vec4<f32>,
     // Blinn–Phong: ambient, diffuse, specular, shininess.
     phong: vec4<f32>,
-    // Image size, FLAG_* bits and MODE_*.
+    // The size of what this dispatch draws (a band of the image's rows, or all
+    // of them), FLAG_* bits and MODE_*.
     width: u32,
     height: u32,
     flags: u32,
@@ -43,11 +44,12 @@ struct RaycastParams {
     // The upper bound on samples per ray; how far towards the eye (mm) the
     // light is read (one light-cache cell for extinction-based illumination, so
     // a surface reads the light just outside it, not a blend with the shadowed
-    // cells behind it; else 0); padding.
+    // cells behind it; else 0); the image row this dispatch's first row is and
+    // the image's height in rows (a big image is drawn band by band).
     max_steps: u32,
     light_offset: f32,
-    _pad0: u32,
-    _pad1: u32,
+    first_row: u32,
+    image_height: u32,
 }
 
 // Offset each ray's first sample by a per-pixel fraction of a step (hides wood-grain banding).
