@@ -46,6 +46,8 @@ pub struct Access {
     /// Sources that may embed the web client in a frame
     /// (`https://emr.example.org`); none: it may not be framed.
     pub frame_ancestors: Vec<String>,
+    /// How often one client may call the API.
+    pub requests: crate::client::RequestRate,
 }
 
 /// Why a request was not let in.

@@ -42,6 +42,7 @@ use tokio_util::sync::CancellationToken;
 use crate::access::Access;
 use crate::audit::{Audit, Event, Outcome};
 use crate::auth::{Auth, Principal};
+use crate::client::{Client, RequestRates};
 use crate::dataset::DatasetInfo;
 use crate::metrics::{Format, FrameTimes, Metrics, Quality, Source};
 use crate::stream::{Sessions, StreamSettings};
@@ -71,6 +72,8 @@ pub struct AppState {
     pub audit: Arc<Audit>,
     /// The certificate when served over TLS.
     pub tls: Option<Arc<crate::tls::Tls>>,
+    /// Each client's API requests a second (at most `access.requests`).
+    pub rates: Arc<RequestRates>,
 }
 
 impl AppState {
@@ -98,6 +101,7 @@ impl AppState {
             auth: Arc::new(Auth::default()),
             audit: Arc::new(Audit::default()),
             tls: None,
+            rates: Arc::new(RequestRates::new(Access::default().requests)),
         }
     }
 
@@ -160,6 +164,7 @@ impl AppState {
     /// This state with `access` in place of the default (loopback names and
     /// same-origin only, [`crate::listen::ConnectionLimits::DEFAULT`]).
     pub fn with_access(mut self, access: Access) -> AppState {
+        self.rates = Arc::new(RequestRates::new(access.requests));
         self.access = Arc::new(access);
         self
     }
@@ -171,6 +176,8 @@ pub fn router(state: AppState) -> Router {
     let headers =
         axum::middleware::from_fn_with_state(state.clone(), crate::access::security_headers);
     let authenticated = axum::middleware::from_fn_with_state(state.clone(), crate::auth::require);
+    let rate_limited =
+        axum::middleware::from_fn_with_state(state.clone(), crate::client::limit_rate);
     let api = Router::new()
         .route("/api/render", get(render).head(render_head))
         // HTTP/2 opens WebSockets with CONNECT (RFC 8441).
@@ -186,6 +193,8 @@ pub fn router(state: AppState) -> Router {
             get(dataset_render).head(dataset_render_head),
         )
         .route("/metrics", get(metrics))
+        // Authenticated first: the rate is the user's.
+        .layer(rate_limited)
         .layer(authenticated);
     Router::new()
         .merge(api)
@@ -334,12 +343,13 @@ async fn dataset(
 async fn dataset_render(
     State(state): State<AppState>,
     Extension(principal): Extension<Principal>,
+    Extension(asker): Extension<Client>,
     ConnectInfo(client): ConnectInfo<SocketAddr>,
     Path(id): Path<String>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
     let rendered = match dataset_pairs(&state, &principal, id.clone(), query) {
-        Ok(pairs) => render_pairs(&state, &principal, client.ip(), &pairs).await,
+        Ok(pairs) => render_pairs(&state, &principal, &asker, &pairs).await,
         Err(e) => Err(e),
     };
     audit_access(
@@ -402,6 +412,7 @@ async fn metrics(
     allowed?;
     let text = state.metrics.encode(
         state.sessions.open(),
+        &state.renderer,
         state.datasets.iter().map(|d| &*d.cache),
     );
     let content_type = "application/openmetrics-text; version=1.0.0; charset=utf-8";
@@ -411,12 +422,13 @@ async fn metrics(
 async fn render(
     State(state): State<AppState>,
     Extension(principal): Extension<Principal>,
+    Extension(asker): Extension<Client>,
     ConnectInfo(client): ConnectInfo<SocketAddr>,
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
     let rendered = match query {
         Ok(Query(pairs)) => {
-            let rendered = render_pairs(&state, &principal, client.ip(), &pairs).await;
+            let rendered = render_pairs(&state, &principal, &asker, &pairs).await;
             let named = named_dataset(&pairs).map(str::to_owned);
             let id = named.or_else(|| state.visible(&principal).first().map(|d| d.id.clone()));
             audit_access(
@@ -514,7 +526,7 @@ const PATIENCE: Duration = Duration::from_secs(30);
 /// arrive and renders again.
 async fn render_complete(
     state: &AppState,
-    client: IpAddr,
+    client: &Client,
     dataset: &Dataset,
     request: &shaders::FrameRequest,
 ) -> Result<crate::render_service::RenderedFrame, AppError> {
@@ -527,9 +539,10 @@ async fn render_complete(
             break;
         }
         dataset.settle(rendered.arrivals, GATHER, PATIENCE).await;
+        // Admitted already: not refused for the client's other frames waiting.
         rendered = state
             .renderer
-            .render(client, dataset, request.clone())
+            .render_waiting(client, dataset, request.clone())
             .await?;
     }
     Ok(rendered)
@@ -540,7 +553,7 @@ async fn render_complete(
 async fn render_pairs(
     state: &AppState,
     principal: &Principal,
-    client: IpAddr,
+    client: &Client,
     pairs: &[(String, String)],
 ) -> Result<Response, AppError> {
     let (view, dataset) = checked_view(state, principal, pairs)?;
@@ -573,6 +586,11 @@ async fn render_pairs(
     };
     set("x-render-ms", format!("{:.1}", rendered.render_ms));
     set("x-queue-ms", format!("{:.1}", rendered.queue_ms));
+    set("x-render-bands", rendered.bands.to_string());
+    set(
+        "x-render-band-ms",
+        format!("{:.1}", rendered.longest_band_ms),
+    );
     set("x-encode-ms", format!("{encode_ms:.1}"));
     set("x-reduction", format!("{:.2}", stats.reduction));
     set("x-levels", format!("{:?}", stats.level_counts));

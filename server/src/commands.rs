@@ -252,6 +252,7 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let backend = args.renderer.backend()?;
     let resident = usize::try_from(args.resident_datasets).unwrap_or(usize::MAX);
     let renderer = RenderService::start(backend, args.data.gpu_budget_bytes(), resident)?;
+    renderer.set_max_frame_cost(args.max_frame_cost);
     let listener = TcpListener::bind(args.addr)
         .await
         .with_context(|| format!("cannot listen on {}", args.addr))?;

@@ -44,6 +44,7 @@ pub mod app;
 pub mod audit;
 pub mod auth;
 pub mod cli;
+pub mod client;
 pub mod commands;
 pub mod dataset;
 pub mod encode;

@@ -11,6 +11,8 @@
 //! | `voxserve_queue_seconds` | time a frame waited for the render worker (histogram) |
 //! | `voxserve_block_cache_hits` / `_misses` | decoded-block reads served from memory / read from the store, so far |
 //! | `voxserve_block_cache_bytes` | decoded blocks held in memory under the cache budget |
+//! | `voxserve_render_abandoned` | frames dropped unrendered (or partly rendered) because their requester had gone, so far |
+//! | `voxserve_render_bands` | bands drawn of frames too costly for one turn of the render worker, so far |
 
 use std::sync::atomic::AtomicU64;
 
@@ -93,6 +95,8 @@ pub struct Metrics {
     cache_hits: Gauge<u64, AtomicU64>,
     cache_misses: Gauge<u64, AtomicU64>,
     cache_bytes: Gauge<u64, AtomicU64>,
+    render_abandoned: Gauge<u64, AtomicU64>,
+    render_bands: Gauge<u64, AtomicU64>,
 }
 
 impl Default for Metrics {
@@ -112,6 +116,8 @@ impl Default for Metrics {
             cache_hits: Gauge::default(),
             cache_misses: Gauge::default(),
             cache_bytes: Gauge::default(),
+            render_abandoned: Gauge::default(),
+            render_bands: Gauge::default(),
         };
         let r = &mut m.registry;
         r.register(
@@ -151,6 +157,16 @@ impl Default for Metrics {
             "Decoded blocks held in memory under the cache budget",
             m.cache_bytes.clone(),
         );
+        r.register(
+            "render_abandoned",
+            "Frames dropped unrendered or partly rendered because their requester had gone, so far",
+            m.render_abandoned.clone(),
+        );
+        r.register(
+            "render_bands",
+            "Bands drawn of frames too costly for one turn of the render worker, so far",
+            m.render_bands.clone(),
+        );
         m
     }
 }
@@ -188,12 +204,16 @@ impl Metrics {
     }
 
     /// The OpenMetrics text, with the gauges read now: `sessions_open`
-    /// sessions and the block caches' counts, summed over `caches`.
+    /// sessions, the render worker's counts and the block caches' counts,
+    /// summed over `caches`.
     pub fn encode<'a>(
         &self,
         sessions_open: usize,
+        renderer: &crate::RenderService,
         caches: impl Iterator<Item = &'a blocks::cache::BlockCache>,
     ) -> String {
+        self.render_abandoned.set(renderer.abandoned());
+        self.render_bands.set(renderer.bands());
         self.sessions_open
             .set(i64::try_from(sessions_open).unwrap_or(i64::MAX));
         let (mut hits, mut misses, mut bytes) = (0, 0, 0);

@@ -12,36 +12,50 @@
 //! core busy until the frame is done), so it runs on its own thread rather
 //! than on the async runtime.
 //!
-//! **Fair by cost.** Each job belongs to a client (its address) and costs its
-//! pixels. The worker serves the clients with jobs waiting in turn, by deficit
-//! round robin ([`Queue::next`]): each turn credits a client [`QUANTUM`]
-//! pixels, and its next job runs once its credit covers the job. A client
-//! asking for huge frames thus waits several turns for each, while the
-//! others' small frames go by: it slows itself, not them. A job whose
-//! requester has gone (a closed connection, a dropped session) is dropped
-//! when its turn comes, not rendered. `GET /api/render` is refused at once
+//! **Fair by cost.** Each job belongs to a [`Client`] (a signed-in user, else
+//! an address) and costs its
+//! pixels times the samples a ray may take ([`shaders::raycast::samples_per_ray`]):
+//! pixel-samples. A frame costing more than [`TURN_COST`] is drawn in bands of
+//! rows, one band per turn, so no turn holds the worker longer than a
+//! [`TURN_COST`] frame does. The worker serves the clients with work waiting in
+//! turn, by deficit round robin ([`Queue::next`]): each turn credits a client
+//! [`QUANTUM`], and its next band runs once its credit covers it. A client
+//! asking for huge frames thus gets one band per round while the others' small
+//! frames go by: it slows itself, not them. A frame whose requester has gone
+//! (a closed connection, a dropped session) is dropped when its next turn
+//! comes, before any band or between two. A frame costing more than the
+//! service's limit ([`RenderService::set_max_frame_cost`]) is refused before it
+//! queues. `GET /api/render` is refused at once
 //! when [`QUEUE_CAPACITY`] jobs wait (503) or its client has
 //! [`PER_CLIENT_QUEUE`] waiting (429), instead of waiting behind work that
 //! will be stale by the time it runs; view sessions have one job each at
 //! most and always queue.
 
 use std::collections::VecDeque;
-use std::net::IpAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
-use shaders::{AnyRenderer, Backend, Frame, FrameRequest, GpuError, RenderStats};
+use shaders::raycast::samples_per_ray;
+use shaders::{AnyRenderer, Backend, Frame, FrameRequest, GpuError, RenderStats, Rows};
 use tokio::sync::oneshot;
 
+use crate::client::Client;
 use crate::{AppError, Dataset};
 
 /// `GET /api/render` jobs that may wait for the worker; more are refused.
 pub const QUEUE_CAPACITY: usize = 8;
 /// `GET /api/render` jobs of one client that may wait; more are refused.
 pub const PER_CLIENT_QUEUE: usize = 2;
-/// The credit, in pixels, a client gets per turn: one 512² frame.
-pub const QUANTUM: u64 = 512 * 512;
+/// The pixel-samples one turn draws at most: a 512² frame of up to 1024
+/// samples a ray (a 512³ volume's diagonal at a step of 0.9 voxels). A frame
+/// costing more is drawn in bands of rows, one per turn.
+pub const TURN_COST: u64 = 512 * 512 * 1024;
+/// The credit, in pixel-samples, a client gets per turn: one turn's cost.
+pub const QUANTUM: u64 = TURN_COST;
+/// The pixel-samples one frame may cost by default: a 4096² frame of up to
+/// 2048 samples a ray (a 512³ volume's diagonal at a step of 0.45 voxels).
+pub const MAX_FRAME_COST: u64 = 4096 * 4096 * 2048;
 
 /// A rendered frame and how long the GPU took.
 #[derive(Debug)]
@@ -54,6 +68,12 @@ pub struct RenderedFrame {
     pub stats: RenderStats,
     /// Milliseconds the job waited in the queue before the worker took it.
     pub queue_ms: f64,
+    /// Bands of rows it was drawn in: 1 unless it cost more than a turn
+    /// ([`TURN_COST`]).
+    pub bands: u32,
+    /// Milliseconds the longest band took (`render_ms` for one band): the
+    /// longest another client's frame waited for this one at a time.
+    pub longest_band_ms: f64,
     /// The dataset's chunk arrivals when the frame was planned: a frame with
     /// pending blocks can wait for arrivals after these
     /// ([`Dataset::settle`]).
@@ -64,20 +84,63 @@ struct Job {
     dataset: Dataset,
     request: FrameRequest,
     queued: Instant,
-    reply: oneshot::Sender<Result<RenderedFrame, GpuError>>,
+    reply: Reply,
+    /// Samples a ray may take ([`samples_per_ray`]).
+    samples: u64,
+    /// Rows drawn per turn: the whole frame unless it costs more than
+    /// [`TURN_COST`].
+    rows_per_turn: u32,
+    /// The bands drawn so far.
+    drawn: Option<Drawn>,
+}
+
+/// The bands of a frame drawn so far, and what drawing them took.
+#[derive(Debug)]
+struct Drawn {
+    rgba: Vec<u8>,
+    rows: u32,
+    render_ms: f64,
+    queue_ms: f64,
+    bands: u32,
+    longest_band_ms: f64,
+    stats: RenderStats,
+    arrivals: u64,
 }
 
 impl Job {
-    /// What the job costs: its pixels.
+    /// The frame's cost in pixel-samples.
+    fn frame_cost(request: &FrameRequest, samples: u64) -> u64 {
+        u64::from(request.width) * u64::from(request.height) * samples
+    }
+
+    /// The rows one turn draws of `request` at `samples` a ray: as many as
+    /// [`TURN_COST`] covers, at least one however wide.
+    fn rows_per_turn(request: &FrameRequest, samples: u64) -> u32 {
+        let row_cost = u64::from(request.width) * samples;
+        u32::try_from((TURN_COST / row_cost.max(1)).max(1))
+            .unwrap_or(u32::MAX)
+            .min(request.height.max(1))
+    }
+
+    /// The rows its next band draws.
+    fn next_rows(&self) -> Rows {
+        let first = self.drawn.as_ref().map_or(0, |d| d.rows);
+        Rows {
+            first,
+            count: self.rows_per_turn.min(self.request.height - first),
+        }
+    }
+
+    /// What its next turn costs: the next band's pixel-samples.
     fn cost(&self) -> u64 {
-        u64::from(self.request.width) * u64::from(self.request.height)
+        u64::from(self.request.width) * u64::from(self.next_rows().count) * self.samples
     }
 }
 
 /// A client's waiting jobs and its credit.
 #[derive(Debug)]
 struct Waiting {
-    client: IpAddr,
+    client: Client,
     jobs: VecDeque<Job>,
     credit: u64,
 }
@@ -93,7 +156,7 @@ struct Queue {
 }
 
 impl Queue {
-    fn push(&mut self, client: IpAddr, job: Job) {
+    fn push(&mut self, client: Client, job: Job) {
         match self.turns.iter_mut().find(|w| w.client == client) {
             Some(waiting) => waiting.jobs.push_back(job),
             None => self.turns.push_back(Waiting {
@@ -104,37 +167,55 @@ impl Queue {
         }
     }
 
+    /// Puts a frame with bands left back before its client's other jobs (the
+    /// client joins the rotation at its end if it had left it).
+    fn resume(&mut self, client: Client, job: Job) {
+        match self.turns.iter_mut().find(|w| w.client == client) {
+            Some(waiting) => waiting.jobs.push_front(job),
+            None => self.turns.push_back(Waiting {
+                client,
+                jobs: VecDeque::from([job]),
+                credit: 0,
+            }),
+        }
+    }
+
     /// The next job by deficit round robin: the client whose turn it is is
-    /// credited [`QUANTUM`]; if that covers its first job, the job is taken
-    /// (and the client keeps its turn while credit remains), else the turn
-    /// passes with the credit kept. A client with no jobs left leaves the
-    /// rotation and its credit lapses.
-    fn next(&mut self) -> Option<Job> {
+    /// credited [`QUANTUM`] (holding at most a quantum, or its next band's
+    /// cost if more); if that covers its first job's next band, the job is
+    /// taken (and the client keeps its turn while credit remains), else the
+    /// turn passes with the credit kept. A client with no jobs left
+    /// leaves the rotation and its credit lapses.
+    fn next(&mut self) -> Option<(Client, Job)> {
         loop {
             let waiting = self.turns.front_mut()?;
             let cost = waiting.jobs.front().map_or(0, Job::cost);
             if waiting.credit < cost {
-                waiting.credit += QUANTUM;
+                // Credit beyond a quantum (or the job, if it costs more) is
+                // not kept: a turn draws a band at most, however long the
+                // client waited.
+                waiting.credit = (waiting.credit + QUANTUM).min(QUANTUM.max(cost));
                 if waiting.credit < cost {
                     self.turns.rotate_left(1);
                     continue;
                 }
             }
             waiting.credit -= cost;
+            let client = waiting.client.clone();
             let job = waiting.jobs.pop_front();
             if waiting.jobs.is_empty() {
                 self.turns.pop_front();
             } else if waiting.credit < waiting.jobs.front().map_or(0, Job::cost) {
                 self.turns.rotate_left(1);
             }
-            return job;
+            return job.map(|job| (client, job));
         }
     }
 
-    fn waiting_of(&self, client: IpAddr) -> usize {
+    fn waiting_of(&self, client: &Client) -> usize {
         self.turns
             .iter()
-            .find(|w| w.client == client)
+            .find(|w| w.client == *client)
             .map_or(0, |w| w.jobs.len())
     }
 }
@@ -151,11 +232,27 @@ impl Drop for HttpJob<'_> {
 }
 
 /// What the handles and the worker share.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Shared {
     queue: Mutex<Queue>,
     ready: Condvar,
     abandoned: AtomicU64,
+    /// Bands drawn of frames drawn in more than one.
+    bands: AtomicU64,
+    /// The most pixel-samples a frame may cost.
+    max_frame_cost: AtomicU64,
+}
+
+impl Default for Shared {
+    fn default() -> Shared {
+        Shared {
+            queue: Mutex::default(),
+            ready: Condvar::new(),
+            abandoned: AtomicU64::new(0),
+            bands: AtomicU64::new(0),
+            max_frame_cost: AtomicU64::new(MAX_FRAME_COST),
+        }
+    }
 }
 
 impl Shared {
@@ -165,7 +262,7 @@ impl Shared {
     }
 
     /// The next job, waiting for one; `None` once closed.
-    fn take(&self) -> Option<Job> {
+    fn take(&self) -> Option<(Client, Job)> {
         let mut queue = self.lock();
         loop {
             if queue.closed {
@@ -213,20 +310,129 @@ impl Drop for WorkerThread {
 }
 
 impl Job {
-    /// A job queued now, and where its frame will come.
+    /// A job queued now, and where its frame will come; refused when the
+    /// frame costs more than `max_cost` pixel-samples.
     fn new(
         dataset: &Dataset,
         request: FrameRequest,
-    ) -> (Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>) {
+        max_cost: u64,
+    ) -> Result<(Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>), AppError> {
+        let samples = u64::from(samples_per_ray(
+            &dataset.cache.store().meta().geometry,
+            &request,
+        ));
+        let cost = Job::frame_cost(&request, samples);
+        if cost > max_cost {
+            return Err(AppError::BadRequest(format!(
+                "a {}x{} frame at step {} voxels of '{}' costs up to {cost} pixel-samples \
+                 ({samples} samples a ray), more than this server's limit of {max_cost}: ask \
+                 for fewer pixels (w, h) or a larger step",
+                request.width, request.height, request.step_voxels, dataset.id
+            )));
+        }
+        let rows_per_turn = Job::rows_per_turn(&request, samples);
         let (reply, answer) = oneshot::channel();
         let job = Job {
             dataset: dataset.clone(),
             request,
             queued: Instant::now(),
             reply,
+            samples,
+            rows_per_turn,
+            drawn: None,
         };
-        (job, answer)
+        Ok((job, answer))
     }
+
+    /// Draws the job's next band: the frame when it was the last (or the
+    /// only) one, else the job with the band added.
+    fn draw_band(mut self, renderers: &mut Renderers) -> Result<Turn, (Reply, GpuError)> {
+        let start = Instant::now();
+        let rows = self.next_rows();
+        let whole = rows.count == self.request.height;
+        let request = if whole {
+            self.request.clone()
+        } else {
+            FrameRequest {
+                rows: Some(rows),
+                ..self.request.clone()
+            }
+        };
+        // Never waits for storage: blocks still being read are shown
+        // coarser and later frames refine them.
+        let arrivals = self.dataset.cache.arrivals();
+        let drawn_band = renderers.get(&self.dataset).and_then(|renderer| {
+            let band = renderer.render_now(&request)?;
+            Ok((band, renderer.last_stats().clone()))
+        });
+        let (band, stats) = match drawn_band {
+            Ok(drawn) => drawn,
+            Err(e) => return Err((self.reply, e)),
+        };
+        let render_ms = start.elapsed().as_secs_f64() * 1e3;
+        let drawn = match self.drawn.take() {
+            Some(mut drawn) => {
+                drawn.rgba.extend_from_slice(&band.rgba);
+                drawn.rows += rows.count;
+                drawn.render_ms += render_ms;
+                drawn.bands += 1;
+                drawn.longest_band_ms = drawn.longest_band_ms.max(render_ms);
+                drawn.stats.draw_ms += stats.draw_ms;
+                drawn
+            }
+            None => {
+                let mut rgba = band.rgba;
+                if !whole {
+                    rgba.reserve_exact(
+                        self.request.width as usize * self.request.height as usize * 4 - rgba.len(),
+                    );
+                }
+                Drawn {
+                    rgba,
+                    rows: rows.count,
+                    render_ms,
+                    queue_ms: (start - self.queued).as_secs_f64() * 1e3,
+                    bands: 1,
+                    longest_band_ms: render_ms,
+                    stats,
+                    arrivals,
+                }
+            }
+        };
+        if drawn.rows < self.request.height {
+            self.drawn = Some(drawn);
+            return Ok(Turn::More(self));
+        }
+        let frame = RenderedFrame {
+            frame: Frame {
+                width: self.request.width,
+                height: self.request.height,
+                rgba: drawn.rgba,
+            },
+            render_ms: drawn.render_ms,
+            stats: drawn.stats,
+            queue_ms: drawn.queue_ms,
+            bands: drawn.bands,
+            longest_band_ms: drawn.longest_band_ms,
+            arrivals: drawn.arrivals,
+        };
+        Ok(Turn::Done(self.reply, frame))
+    }
+}
+
+/// Where a job's frame goes.
+type Reply = oneshot::Sender<Result<RenderedFrame, GpuError>>;
+
+/// What a turn of the worker left.
+#[expect(
+    clippy::large_enum_variant,
+    reason = "one at a time, moved once on the worker's stack"
+)]
+enum Turn {
+    /// The frame, for the requester.
+    Done(Reply, RenderedFrame),
+    /// A frame with bands left.
+    More(Job),
 }
 
 /// The worker's renderers, least recently used first.
@@ -293,33 +499,30 @@ impl RenderService {
             .name("render-worker".into())
             .spawn(move || {
                 // Ends when the last RenderService handle is gone.
-                while let Some(job) = queue.take() {
+                while let Some((client, job)) = queue.take() {
                     if job.reply.is_closed() {
-                        // The requester has gone: nobody would see the frame.
+                        // The requester has gone: nobody would see the frame
+                        // (or the rest of it).
                         queue.abandoned.fetch_add(1, Ordering::Relaxed);
                         continue;
                     }
-                    let start = Instant::now();
-                    let queue_ms = (start - job.queued).as_secs_f64() * 1e3;
-                    // Never waits for storage: blocks still being read are
-                    // shown coarser and later frames refine them.
-                    let arrivals = job.dataset.cache.arrivals();
-                    let result = renderers.get(&job.dataset).and_then(|renderer| {
-                        renderer
-                            .render_now(&job.request)
-                            .map(|frame| RenderedFrame {
-                                frame,
-                                render_ms: start.elapsed().as_secs_f64() * 1e3,
-                                stats: renderer.last_stats().clone(),
-                                queue_ms,
-                                arrivals,
-                            })
-                    });
-                    if let Err(e) = &result {
-                        tracing::warn!("render failed: {e}");
+                    if job.rows_per_turn < job.request.height {
+                        queue.bands.fetch_add(1, Ordering::Relaxed);
                     }
+                    // Keeps the error's reply when drawing fails.
+                    let (reply, result) = match job.draw_band(&mut renderers) {
+                        Ok(Turn::Done(reply, frame)) => (reply, Ok(frame)),
+                        Ok(Turn::More(job)) => {
+                            queue.lock().resume(client, job);
+                            continue;
+                        }
+                        Err((reply, e)) => {
+                            tracing::warn!("render failed: {e}");
+                            (reply, Err(e))
+                        }
+                    };
                     // The requester may have gone away; nothing to do then.
-                    let _ = job.reply.send(result);
+                    let _ = reply.send(result);
                 }
             })
             .map_err(|e| GpuError::Wait {
@@ -340,6 +543,24 @@ impl RenderService {
     /// Jobs dropped unrendered because their requester had gone, so far.
     pub fn abandoned(&self) -> u64 {
         self.shared.abandoned.load(Ordering::Relaxed)
+    }
+
+    /// Bands drawn so far of frames too costly for one turn ([`TURN_COST`]).
+    pub fn bands(&self) -> u64 {
+        self.shared.bands.load(Ordering::Relaxed)
+    }
+
+    /// The most pixel-samples a frame may cost ([`MAX_FRAME_COST`] unless
+    /// set); a costlier one is refused before it queues.
+    pub fn max_frame_cost(&self) -> u64 {
+        self.shared.max_frame_cost.load(Ordering::Relaxed)
+    }
+
+    /// Sets [`RenderService::max_frame_cost`] (at least [`TURN_COST`]).
+    pub fn set_max_frame_cost(&self, pixel_samples: u64) {
+        self.shared
+            .max_frame_cost
+            .store(pixel_samples.max(TURN_COST), Ordering::Relaxed);
     }
 
     /// What the worker renders on, in words: the adapter, or the CPU.
@@ -363,11 +584,11 @@ impl RenderService {
     /// retries rather than waiting behind stale work.
     pub async fn render(
         &self,
-        client: IpAddr,
+        client: &Client,
         dataset: &Dataset,
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
-        let (job, answer) = Job::new(dataset, request);
+        let (job, answer) = Job::new(dataset, request, self.max_frame_cost())?;
         {
             let mut queue = self.shared.lock();
             if queue.http_jobs >= QUEUE_CAPACITY {
@@ -382,7 +603,7 @@ impl RenderService {
                 )));
             }
             queue.http_jobs += 1;
-            queue.push(client, job);
+            queue.push(client.clone(), job);
         }
         let _counted = HttpJob(&self.shared);
         self.shared.ready.notify_one();
@@ -393,12 +614,12 @@ impl RenderService {
     /// this: each has at most one job queued.
     pub async fn render_waiting(
         &self,
-        client: IpAddr,
+        client: &Client,
         dataset: &Dataset,
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
-        let (job, answer) = Job::new(dataset, request);
-        self.shared.lock().push(client, job);
+        let (job, answer) = Job::new(dataset, request, self.max_frame_cost())?;
+        self.shared.lock().push(client.clone(), job);
         self.shared.ready.notify_one();
         Self::answer(answer).await
     }
@@ -424,7 +645,8 @@ impl RenderService {
 mod tests {
     use super::*;
 
-    /// `count` jobs of `width` × `height` pixels.
+    /// `count` jobs of `width` × `height` pixels at 1024 samples a ray, so
+    /// that a 512² frame costs one turn.
     fn jobs(dataset: &Dataset, (width, height): (u32, u32), count: usize) -> Vec<Job> {
         (0..count)
             .map(|_| {
@@ -433,40 +655,74 @@ mod tests {
                     height,
                     ..FrameRequest::default()
                 };
-                Job::new(dataset, request).0
+                let mut job = Job::new(dataset, request, u64::MAX).expect("a job").0;
+                job.samples = 1024;
+                job.rows_per_turn = Job::rows_per_turn(&job.request, job.samples);
+                job
             })
             .collect()
     }
 
-    /// The widths of the jobs `queue` gives, in order, until it is empty.
-    fn widths(queue: &mut Queue) -> Vec<u32> {
-        std::iter::from_fn(|| queue.next())
-            .map(|job| job.request.width)
-            .collect()
+    /// The turns `queue` gives until it is empty, as the worker takes them
+    /// (a frame with bands left goes back), each as the frame's width and
+    /// the band's first row; the bands are counted as drawn, not drawn.
+    fn turns(queue: &mut Queue) -> Vec<(u32, u32)> {
+        let mut turns = Vec::new();
+        while let Some((client, mut job)) = queue.next() {
+            let rows = job.next_rows();
+            turns.push((job.request.width, rows.first));
+            if rows.first + rows.count < job.request.height {
+                job.drawn = Some(Drawn {
+                    rgba: Vec::new(),
+                    rows: rows.first + rows.count,
+                    render_ms: 0.0,
+                    queue_ms: 0.0,
+                    bands: 1,
+                    longest_band_ms: 0.0,
+                    stats: RenderStats::default(),
+                    arrivals: 0,
+                });
+                queue.resume(client, job);
+            }
+        }
+        turns
     }
 
     #[test]
     fn clients_take_turns_by_cost() {
         let dataset = Dataset::phantom(16, 1 << 20).expect("phantom");
-        let (a, b): (IpAddr, IpAddr) = ([127, 0, 0, 2].into(), [127, 0, 0, 3].into());
+        let a = Client::Address([127, 0, 0, 2].into());
+        let b = Client::User("user b".into());
         // Frames of equal cost alternate (a's are 512 wide, b's 256).
         let mut queue = Queue::default();
         for job in jobs(&dataset, (512, 512), 3) {
-            queue.push(a, job);
+            queue.push(a.clone(), job);
         }
         for job in jobs(&dataset, (256, 1024), 3) {
-            queue.push(b, job);
+            queue.push(b.clone(), job);
         }
-        assert_eq!(widths(&mut queue), [512, 256, 512, 256, 512, 256]);
-        // Big frames of one client wait while another's small ones go by,
-        // though they came first.
+        assert_eq!(
+            turns(&mut queue),
+            [(512, 0), (256, 0), (512, 0), (256, 0), (512, 0), (256, 0)]
+        );
+        // A frame costing four turns is drawn in four bands; another
+        // client's small frames go by after its first, though they came
+        // later, and its next frame waits for it.
         for job in jobs(&dataset, (1024, 1024), 2) {
-            queue.push(a, job);
+            queue.push(a.clone(), job);
         }
         for job in jobs(&dataset, (64, 64), 3) {
-            queue.push(b, job);
+            queue.push(b.clone(), job);
         }
-        assert_eq!(widths(&mut queue), [64, 64, 64, 1024, 1024]);
+        let big = |rows: &[u32]| rows.iter().map(|&r| (1024, r)).collect::<Vec<_>>();
+        let expected = [
+            big(&[0]),
+            vec![(64, 0); 3],
+            big(&[256, 512, 768]),
+            big(&[0, 256, 512, 768]),
+        ]
+        .concat();
+        assert_eq!(turns(&mut queue), expected);
         assert!(queue.turns.is_empty());
     }
 }

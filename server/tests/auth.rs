@@ -631,3 +631,30 @@ async fn every_response_has_the_security_headers() {
         );
     }
 }
+
+/// Behind a reverse proxy every viewer has one address: signed in, each
+/// user's sessions count against a share of their own.
+#[tokio::test]
+async fn signed_in_users_have_session_shares_of_their_own_on_one_address() {
+    let (issuer, server) = with_issuer(Some(POLICY)).await;
+    let per_client = StreamSettings::default().sessions_per_client;
+    let nurse = issuer.sign(Algorithm::ES256, &issuer.claims("nurse", &["ward"]));
+    let mut open = Vec::new();
+    for _ in 0..per_client {
+        let (mut socket, _) =
+            open_session(&server.base, Some(&format!("voxserve, bearer.{nurse}")))
+                .await
+                .expect("a session within the nurse's share");
+        next_json(&mut socket).await.expect("hello");
+        open.push(socket);
+    }
+    match open_session(&server.base, Some(&format!("voxserve, bearer.{nurse}"))).await {
+        Err(tungstenite::Error::Http(response)) => assert_eq!(response.status(), 429),
+        other => panic!("expected 429 beyond the nurse's share, got {other:?}"),
+    }
+    let doctor = issuer.sign(Algorithm::RS256, &issuer.claims("dr.who", &["radiology"]));
+    let (mut socket, _) = open_session(&server.base, Some(&format!("voxserve, bearer.{doctor}")))
+        .await
+        .expect("another user from the same address gets in");
+    next_json(&mut socket).await.expect("hello");
+}

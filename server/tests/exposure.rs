@@ -6,6 +6,8 @@
 //! The servers render on the CPU (no GPU needed): nothing here is about
 //! pictures.
 
+#![expect(clippy::print_stdout, reason = "tests report what they measured")]
+
 use std::net::{IpAddr, SocketAddr};
 use std::time::{Duration, Instant};
 
@@ -22,6 +24,10 @@ use tokio_tungstenite::tungstenite::{self, Message};
 use voxserve_tests::server::Spawned;
 
 const VOXSERVE: &str = env!("CARGO_BIN_EXE_voxserve");
+
+/// Held by the tests that keep the CPU renderer busy, so that their timings
+/// are not another test's frames (the renderers share rayon's threads).
+static BUSY_RENDERER: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 /// A server on a loopback port, stopped when dropped.
 struct Running {
@@ -58,6 +64,16 @@ async fn connect_from(from: IpAddr, to: SocketAddr) -> std::io::Result<TcpStream
 /// Sends `request` (raw HTTP/1.1) from `from` and returns the response's
 /// head and body as text.
 async fn raw_http(from: IpAddr, to: SocketAddr, request: &str) -> String {
+    raw_http_within(from, to, request, Duration::from_secs(30)).await
+}
+
+/// [`raw_http`] waiting up to `patience` for the answer.
+async fn raw_http_within(
+    from: IpAddr,
+    to: SocketAddr,
+    request: &str,
+    patience: Duration,
+) -> String {
     let mut stream = connect_from(from, to).await.expect("connect");
     stream
         .write_all(request.as_bytes())
@@ -65,9 +81,9 @@ async fn raw_http(from: IpAddr, to: SocketAddr, request: &str) -> String {
         .expect("send the request");
     let mut response = Vec::new();
     let read = stream.read_to_end(&mut response);
-    tokio::time::timeout(Duration::from_secs(30), read)
+    tokio::time::timeout(patience, read)
         .await
-        .expect("an answer within 30 s")
+        .unwrap_or_else(|_| panic!("an answer within {patience:?}"))
         .expect("read the answer");
     String::from_utf8_lossy(&response).into_owned()
 }
@@ -431,23 +447,37 @@ fn header_ms(response: &str, name: &str) -> f64 {
 }
 
 fn get_render(edge: u32) -> String {
+    get_render_at(edge, 0.5)
+}
+
+fn get_render_at(edge: u32, step: f32) -> String {
     format!(
-        "GET /api/render?w={edge}&h={edge} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
+        "GET /api/render?w={edge}&h={edge}&step={step} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
     )
 }
 
 #[tokio::test]
 async fn a_client_s_big_frames_do_not_hold_up_another_s_small_frame() {
+    let _alone = BUSY_RENDERER.lock().await;
     let server = start(StreamSettings::default(), Access::default()).await;
     let (hog, viewer): (IpAddr, IpAddr) = ([127, 0, 0, 2].into(), [127, 0, 0, 3].into());
-    // The hog keeps one 1536² frame rendering and two waiting (its share),
-    // asking again whenever it is refused for having that many.
+    // The hog asks for a 4096² frame, and keeps two more waiting (its
+    // share), asking again whenever it is refused for having that many.
+    let addr = server.addr;
+    let first = tokio::spawn(async move {
+        raw_http_within(hog, addr, &get_render(4096), Duration::from_secs(300)).await
+    });
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while server.state.renderer.bands() < 1 && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
     let mut hogging = Vec::new();
-    for _ in 0..3 {
+    for _ in 0..2 {
         let addr = server.addr;
         hogging.push(tokio::spawn(async move {
             loop {
-                let answer = raw_http(hog, addr, &get_render(1536)).await;
+                let answer =
+                    raw_http_within(hog, addr, &get_render(4096), Duration::from_secs(300)).await;
                 if !answer.starts_with("HTTP/1.1 429") {
                     return answer;
                 }
@@ -455,27 +485,107 @@ async fn a_client_s_big_frames_do_not_hold_up_another_s_small_frame() {
             }
         }));
     }
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let small = raw_http(viewer, server.addr, &get_render(64)).await;
-    assert!(small.starts_with("HTTP/1.1 200"), "{small:.300}");
-    let waited = header_ms(&small, "x-queue-ms");
-    let mut hog_frames = Vec::new();
-    for answer in hogging {
-        let answer = answer.await.expect("the hog's request");
-        assert!(answer.starts_with("HTTP/1.1 200"), "{answer:.300}");
-        hog_frames.push(header_ms(&answer, "x-render-ms"));
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    // The viewer's small frames, one after another while the hog's render.
+    let mut waits = Vec::new();
+    for _ in 0..3 {
+        let small = raw_http(viewer, server.addr, &get_render(64)).await;
+        assert!(small.starts_with("HTTP/1.1 200"), "{small:.300}");
+        waits.push(header_ms(&small, "x-queue-ms"));
     }
-    // In arrival order the small frame would wait for all three; in turn, for
-    // the one rendering when it came at most.
-    let longest = hog_frames.iter().copied().fold(0.0, f64::max);
+    let first = first.await.expect("the hog's first request");
+    assert!(first.starts_with("HTTP/1.1 200"), "{first:.900}");
+    let bands = header_ms(&first, "x-render-bands");
     assert!(
-        waited <= longest * 1.2 + 50.0,
-        "the 64² frame waited {waited:.0} ms behind 1536² frames of {hog_frames:?} ms"
+        bands >= 4.0,
+        "a 4096² frame costs several turns: {bands} bands"
+    );
+    let frame_ms = header_ms(&first, "x-render-ms");
+    let band_ms = header_ms(&first, "x-render-band-ms");
+    // The others are dropped (their connections close, their frames are
+    // abandoned).
+    for task in hogging {
+        task.abort();
+    }
+    // In arrival order a small frame would wait for whole 4096² frames; in
+    // turn, for one round at most: the rest of the band rendering when it
+    // came and the hog's next band (a band costs one turn, the cost budget:
+    // 512² pixels × 1024 samples).
+    for waited in &waits {
+        assert!(
+            *waited <= band_ms * 2.0 + 100.0,
+            "a 64² frame waited {waited:.0} ms behind 4096² frames of {frame_ms:.0} ms in \
+             {bands} bands of at most {band_ms:.0} ms"
+        );
+    }
+    println!(
+        "64² frames waited {waits:?} ms beside 4096² frames of {bands} bands, the longest {band_ms:.0} ms"
+    );
+}
+
+#[tokio::test]
+async fn a_frame_costing_more_than_the_limit_is_refused_before_it_renders() {
+    let _alone = BUSY_RENDERER.lock().await;
+    let server = start(StreamSettings::default(), Access::default()).await;
+    server.state.renderer.set_max_frame_cost(1 << 30);
+    let answer = raw_http(LOCAL, server.addr, &get_render_at(4096, 0.05)).await;
+    assert!(answer.starts_with("HTTP/1.1 400"), "{answer:.300}");
+    assert!(
+        answer.contains("pixel-samples") && answer.contains("4096x4096"),
+        "{answer:.600}"
+    );
+    assert_eq!(server.state.renderer.bands(), 0, "nothing was drawn");
+    // Within the limit, the same frame size renders.
+    let answer = raw_http(LOCAL, server.addr, &get_render_at(1024, 0.5)).await;
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer:.300}");
+}
+
+#[tokio::test]
+async fn a_frame_abandoned_partway_stops_rendering() {
+    let _alone = BUSY_RENDERER.lock().await;
+    let server = start(StreamSettings::default(), Access::default()).await;
+    // 4096² at a step of 0.05 voxels: dozens of turns of the worker.
+    let mut stream = connect_from(LOCAL, server.addr).await.expect("connect");
+    stream
+        .write_all(get_render_at(4096, 0.05).as_bytes())
+        .await
+        .expect("send");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while server.state.renderer.bands() < 2 && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(
+        server.state.renderer.bands() >= 2,
+        "the frame is being drawn"
+    );
+    drop(stream);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while server.state.renderer.abandoned() < 1 && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert_eq!(
+        server.state.renderer.abandoned(),
+        1,
+        "the frame was dropped"
+    );
+    let bands = server.state.renderer.bands();
+    assert!(
+        bands < 20,
+        "{bands} bands drawn of a frame of dozens: it stopped within a band of its client going"
+    );
+    // The worker is free again.
+    let small = raw_http(LOCAL, server.addr, &get_render(64)).await;
+    assert!(small.starts_with("HTTP/1.1 200"), "{small:.300}");
+    assert_eq!(
+        server.state.renderer.bands(),
+        bands,
+        "nothing more drawn of it"
     );
 }
 
 #[tokio::test]
 async fn abandoned_requests_are_not_rendered() {
+    let _alone = BUSY_RENDERER.lock().await;
     let server = start(StreamSettings::default(), Access::default()).await;
     // Four big frames asked for (by four clients, each within its share),
     // and the connections closed before they are done: those still waiting
@@ -502,4 +612,43 @@ async fn abandoned_requests_are_not_rendered() {
     }
     let abandoned = server.state.renderer.abandoned();
     assert!((3..=4).contains(&abandoned), "{abandoned} abandoned");
+}
+
+#[tokio::test]
+async fn a_client_asking_too_often_waits_and_others_do_not() {
+    let access = Access {
+        requests: server::client::RequestRate {
+            per_second: 1,
+            burst: 5,
+        },
+        ..Access::default()
+    };
+    let server = start(StreamSettings::default(), access).await;
+    let (eager, other): (IpAddr, IpAddr) = ([127, 0, 0, 2].into(), [127, 0, 0, 3].into());
+    let list = "GET /api/datasets HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n";
+    for _ in 0..5 {
+        let answer = raw_http(eager, server.addr, list).await;
+        assert!(answer.starts_with("HTTP/1.1 200"), "{answer:.300}");
+    }
+    let refused = raw_http(eager, server.addr, list).await;
+    assert!(refused.starts_with("HTTP/1.1 429"), "{refused:.300}");
+    let retry = header_ms(&refused, "retry-after");
+    assert!((1.0..=2.0).contains(&retry), "Retry-After: {retry}");
+    assert!(
+        refused.contains("127.0.0.2 is over its rate of 1 API requests a second"),
+        "{refused:.400}"
+    );
+    let answer = raw_http(other, server.addr, list).await;
+    assert!(
+        answer.starts_with("HTTP/1.1 200"),
+        "another client: {answer:.300}"
+    );
+    // The health check is not an API call: never limited.
+    let health = raw_http(
+        eager,
+        server.addr,
+        "GET /healthz HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n",
+    )
+    .await;
+    assert!(health.starts_with("HTTP/1.1 200"), "{health:.300}");
 }

@@ -268,6 +268,14 @@ pub struct ServeArgs {
     /// recently is released when another is needed.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]
     pub resident_datasets: u64,
+    /// The most a frame may cost, in pixel-samples (width × height × the
+    /// samples a ray may take at the frame's step); a costlier request is
+    /// refused before it renders. Frames costing more than one turn of the
+    /// render worker (512² × 1024) are drawn band by band, other clients'
+    /// frames between the bands.
+    #[arg(long, default_value_t = crate::render_service::MAX_FRAME_COST,
+          value_parser = clap::value_parser!(u64).range(crate::render_service::TURN_COST..=1 << 40))]
+    pub max_frame_cost: u64,
     /// Address and port to listen on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub addr: SocketAddr,
@@ -388,6 +396,14 @@ pub struct AccessArgs {
     /// closed.
     #[arg(long, default_value_t = DEFAULT_LIMITS.idle_timeout.as_secs(), value_parser = clap::value_parser!(u64).range(1..=86_400))]
     pub idle_timeout_s: u64,
+    /// API requests a second one client (a signed-in user, else an
+    /// address) may make, sustained; beyond it (and the burst) 429 with
+    /// Retry-After.
+    #[arg(long, default_value_t = crate::client::RequestRate::DEFAULT.per_second, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub requests_per_second: u32,
+    /// API requests one client may make at once above that rate.
+    #[arg(long, default_value_t = crate::client::RequestRate::DEFAULT.burst, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub request_burst: u32,
 }
 
 impl AccessArgs {
@@ -401,6 +417,10 @@ impl AccessArgs {
                 per_client: usize::try_from(self.connections_per_client).unwrap_or(usize::MAX),
                 header_timeout: std::time::Duration::from_secs(self.header_timeout_s),
                 idle_timeout: std::time::Duration::from_secs(self.idle_timeout_s),
+            },
+            requests: crate::client::RequestRate {
+                per_second: self.requests_per_second,
+                burst: self.request_burst,
             },
             ..crate::access::Access::default()
         }

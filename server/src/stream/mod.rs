@@ -61,6 +61,7 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 pub use session::{Action, Session};
 
 use crate::auth::Principal;
+use crate::client::Client;
 use crate::{AppError, AppState, encode, protocol};
 
 /// How view sessions trade quality for speed; see the module docs.
@@ -81,8 +82,8 @@ pub struct StreamSettings {
     pub frames_in_flight: u32,
     /// Open sessions at most; more are refused with 503.
     pub max_sessions: usize,
-    /// Open sessions of one client address at most; more are refused with
-    /// 429.
+    /// Open sessions of one client (a signed-in user, else an address) at
+    /// most; more are refused with 429.
     pub sessions_per_client: usize,
     /// Seconds without a message from the client (a view change, an
     /// acknowledgement, a status request) after which its session is closed
@@ -116,21 +117,23 @@ impl Default for StreamSettings {
 
 /// The open sessions' places: a semaphore of [`StreamSettings::max_sessions`]
 /// permits, one held by each session until it ends, and the count of each
-/// client address's sessions (at most [`StreamSettings::sessions_per_client`]).
+/// client's sessions (at most [`StreamSettings::sessions_per_client`]; a
+/// [`Client`] is a signed-in user, else an address).
 #[derive(Debug, Clone)]
 pub struct Sessions {
     places: Arc<Semaphore>,
     max: u32,
     per_client: usize,
-    by_client: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    by_client: Arc<Mutex<HashMap<Client, usize>>>,
 }
 
 /// A session's place: freed when dropped.
 #[derive(Debug)]
 pub struct Place {
     _permit: OwnedSemaphorePermit,
-    client: IpAddr,
-    by_client: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    client: Client,
+    address: IpAddr,
+    by_client: Arc<Mutex<HashMap<Client, usize>>>,
 }
 
 impl Drop for Place {
@@ -146,16 +149,21 @@ impl Drop for Place {
 }
 
 impl Place {
-    /// The client address holding the place.
-    pub fn client(&self) -> IpAddr {
-        self.client
+    /// The client holding the place.
+    pub fn client(&self) -> &Client {
+        &self.client
+    }
+
+    /// The address the session comes from.
+    pub fn address(&self) -> IpAddr {
+        self.address
     }
 }
 
 /// The counts, whatever a panic elsewhere left: each change is one step.
 fn lock(
-    by_client: &Mutex<HashMap<IpAddr, usize>>,
-) -> std::sync::MutexGuard<'_, HashMap<IpAddr, usize>> {
+    by_client: &Mutex<HashMap<Client, usize>>,
+) -> std::sync::MutexGuard<'_, HashMap<Client, usize>> {
     by_client.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
@@ -178,9 +186,9 @@ impl Sessions {
     }
 
     /// A place for one more session of `client`, or why there is none.
-    fn try_open(&self, client: IpAddr) -> Result<Place, AppError> {
+    fn try_open(&self, client: Client, address: IpAddr) -> Result<Place, AppError> {
         let mut by_client = lock(&self.by_client);
-        let count = by_client.entry(client).or_insert(0);
+        let count = by_client.entry(client.clone()).or_insert(0);
         if *count >= self.per_client {
             return Err(AppError::TooMany(format!(
                 "{} view sessions from {client} are open, the most this server allows one \
@@ -198,6 +206,7 @@ impl Sessions {
         Ok(Place {
             _permit: permit,
             client,
+            address,
             by_client: self.by_client.clone(),
         })
     }
@@ -217,8 +226,9 @@ impl Sessions {
 pub async fn handler(
     ws: WebSocketUpgrade,
     State(state): State<AppState>,
-    ConnectInfo(client): ConnectInfo<SocketAddr>,
+    ConnectInfo(address): ConnectInfo<SocketAddr>,
     Extension(principal): Extension<Principal>,
+    Extension(client): Extension<Client>,
     uri: Uri,
     headers: HeaderMap,
 ) -> Result<Response, Response> {
@@ -228,7 +238,7 @@ pub async fn handler(
         .map_err(IntoResponse::into_response)?;
     let place = state
         .sessions
-        .try_open(client.ip())
+        .try_open(client, address.ip())
         .map_err(IntoResponse::into_response)?;
     let caller = socket::Caller {
         datasets: state.visible(&principal),

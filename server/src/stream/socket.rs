@@ -8,7 +8,6 @@
 //! WebSocket.
 
 use std::future::Future;
-use std::net::IpAddr;
 use std::pin::Pin;
 use std::time::Duration;
 
@@ -19,6 +18,7 @@ use tokio::time::Instant;
 use super::Place;
 use super::session::{Action, Quality, Render, Session};
 use crate::audit::{Event as Audited, Outcome};
+use crate::client::Client;
 use crate::protocol::{self, Encoding, FrameHeader, Reply};
 use crate::{AppState, Dataset, encode, metrics};
 
@@ -167,8 +167,8 @@ pub(super) async fn run<S, R, E>(
     R: Stream<Item = Result<Message, E>> + Unpin,
     E: std::fmt::Display,
 {
-    let client = place.client();
-    let event = |name, outcome| Audited::new(name, Some(&caller.principal), Some(client), outcome);
+    let address = place.address();
+    let event = |name, outcome| Audited::new(name, Some(&caller.principal), Some(address), outcome);
     if sink
         .send(Message::Text(hello(state, &caller.datasets).into()))
         .await
@@ -179,7 +179,7 @@ pub(super) async fn run<S, R, E>(
     state.metrics.session_opened();
     state.audit(&event("session-open", Outcome::Success));
     let mut session = Session::new(caller.datasets.clone(), state.stream);
-    let end = drive(&mut sink, &mut stream, &mut session, state, &caller, client).await;
+    let end = drive(&mut sink, &mut stream, &mut session, state, &caller, &place).await;
     // Freed before the close handshake completes, so a client that has seen
     // it can open another session at once.
     drop(place);
@@ -228,7 +228,7 @@ async fn drive<S, R, E>(
     session: &mut Session,
     state: &AppState,
     caller: &Caller,
-    client: IpAddr,
+    place: &Place,
 ) -> End
 where
     S: Sink<Message> + Unpin,
@@ -249,13 +249,13 @@ where
                     let line = Audited::new(
                         "view",
                         Some(&caller.principal),
-                        Some(client),
+                        Some(place.address()),
                         Outcome::Success,
                     )
                     .dataset(&render.dataset.id);
                     state.audit(&line);
                 }
-                job = Some(render_job(state, client, *render));
+                job = Some(render_job(state, place.client().clone(), *render));
                 continue;
             }
             Action::WaitForBlocks { dataset, seen } => {
@@ -470,7 +470,7 @@ fn record_frame(state: &AppState, header: &FrameHeader) {
 }
 
 /// Renders and encodes one frame for `client`.
-fn render_job(state: &AppState, client: IpAddr, render: Render) -> Job {
+fn render_job(state: &AppState, client: Client, render: Render) -> Job {
     let renderer = state.renderer.clone();
     let jpeg_quality = state.stream.jpeg_quality;
     let lossless = state.stream.lossless;
@@ -483,7 +483,7 @@ fn render_job(state: &AppState, client: IpAddr, render: Render) -> Job {
     } = render;
     Box::pin(async move {
         let rendered = renderer
-            .render_waiting(client, &dataset, request)
+            .render_waiting(&client, &dataset, request)
             .await
             .map_err(|e| e.logged().to_string())?;
         let converged = rendered.stats.converged();
@@ -531,6 +531,7 @@ fn render_job(state: &AppState, client: IpAddr, render: Render) -> Job {
 #[cfg(test)]
 mod tests {
     use std::convert::Infallible;
+    use std::net::IpAddr;
 
     use tokio::sync::mpsc;
 
@@ -593,7 +594,7 @@ mod tests {
         ));
         let place = state
             .sessions
-            .try_open([127, 0, 0, 1].into())
+            .try_open(IpAddr::from([127, 0, 0, 1]).into(), [127, 0, 0, 1].into())
             .expect("a place");
         let state = state.clone();
         let caller = Caller {
