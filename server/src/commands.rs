@@ -67,7 +67,8 @@ async fn auth_of(args: &AuthArgs) -> anyhow::Result<(crate::auth::Auth, crate::a
                 client_id: args.oidc_client_id.clone(),
                 scopes: args.oidc_scopes.clone(),
             };
-            let oidc = crate::auth::Oidc::connect(config)
+            let patience = std::time::Duration::from_secs(args.oidc_wait_s);
+            let oidc = crate::auth::Oidc::connect_waiting(config, patience)
                 .await
                 .with_context(|| format!("--oidc-issuer {issuer}"))?;
             Some(oidc)

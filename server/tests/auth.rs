@@ -658,3 +658,47 @@ async fn signed_in_users_have_session_shares_of_their_own_on_one_address() {
         .expect("another user from the same address gets in");
     next_json(&mut socket).await.expect("hello");
 }
+
+/// A server may start before its identity provider: it keeps trying while
+/// the issuer cannot be reached, and fails at once on a wrong answer.
+#[tokio::test]
+async fn the_issuer_is_waited_for_at_start_and_a_wrong_one_fails_at_once() {
+    // A port nobody listens on yet.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port();
+    let mut config = {
+        let issuer = Issuer::start().await;
+        issuer.config()
+    };
+    config.issuer = format!("http://127.0.0.1:{port}");
+    let waiting = tokio::spawn(Oidc::connect_waiting(
+        config.clone(),
+        Duration::from_secs(30),
+    ));
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert!(!waiting.is_finished(), "still trying while nothing listens");
+    let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
+        .await
+        .expect("the port");
+    let issuer = Issuer::start_on(listener).await;
+    let oidc = waiting
+        .await
+        .expect("the task")
+        .expect("connected once the issuer is up");
+    let token = issuer.sign(Algorithm::RS256, &issuer.claims("dr.late", &["radiology"]));
+    assert_eq!(
+        oidc.verify(&token).await.expect("a valid token").user,
+        "dr.late"
+    );
+    // An issuer that answers with another name is a wrong configuration.
+    let mut wrong = config;
+    wrong.issuer = format!("{}/", issuer.url);
+    let started = Instant::now();
+    let error = Oidc::connect_waiting(wrong, Duration::from_secs(30))
+        .await
+        .expect_err("a different issuer name");
+    assert!(started.elapsed() < Duration::from_secs(5), "failed at once");
+    assert!(format!("{error:#}").contains("expected"), "{error:#}");
+}

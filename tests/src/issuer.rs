@@ -121,7 +121,11 @@ pub fn now_s() -> u64 {
 impl Issuer {
     /// Starts an issuer with an RS256 and an ES256 key.
     pub async fn start() -> Issuer {
-        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        Issuer::start_on(TcpListener::bind("127.0.0.1:0").await.expect("bind")).await
+    }
+
+    /// [`Issuer::start`] serving on `listener`.
+    pub async fn start_on(listener: TcpListener) -> Issuer {
         let url = format!("http://{}", listener.local_addr().expect("address"));
         let shared = Arc::new(Mutex::new(Shared {
             keys: vec![

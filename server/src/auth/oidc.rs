@@ -94,7 +94,37 @@ pub struct Oidc {
     client: reqwest::Client,
 }
 
+/// The issuer could not be reached, or answered that it cannot serve now
+/// (5xx, 429): worth trying again, unlike a wrong answer.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Unreachable(String);
+
 impl Oidc {
+    /// [`Oidc::connect`], trying again (after ¼ s, doubling to 5 s) while
+    /// the issuer cannot be reached, for up to `patience`: a server may
+    /// start before its identity provider. A wrong answer fails at once.
+    ///
+    /// # Errors
+    /// As [`Oidc::connect`]; the last one when the issuer stayed unreachable.
+    pub async fn connect_waiting(config: OidcConfig, patience: Duration) -> anyhow::Result<Oidc> {
+        let deadline = Instant::now() + patience;
+        let mut pause = Duration::from_millis(250);
+        loop {
+            match Oidc::connect(config.clone()).await {
+                Err(e) if e.is::<Unreachable>() && Instant::now() + pause < deadline => {
+                    tracing::warn!(
+                        "the OpenID Connect issuer cannot be reached yet ({e:#}): trying again in \
+                         {pause:?}"
+                    );
+                    tokio::time::sleep(pause).await;
+                    pause = (pause * 2).min(Duration::from_secs(5));
+                }
+                other => return other,
+            }
+        }
+    }
+
     /// Reads the issuer's discovery document (unless the keys come from a
     /// file and the web client does not log in) and its keys.
     ///
@@ -364,9 +394,13 @@ async fn fetch(client: &reqwest::Client, url: &str) -> anyhow::Result<Vec<u8>> {
         .header("accept", "application/json")
         .send()
         .await
-        .map_err(|e| anyhow::anyhow!("{url}: {e}"))?;
-    if !response.status().is_success() {
-        anyhow::bail!("{url}: HTTP {}", response.status());
+        .map_err(|e| Unreachable(format!("{url}: {e}")))?;
+    let status = response.status();
+    if status.is_server_error() || status == reqwest::StatusCode::TOO_MANY_REQUESTS {
+        return Err(Unreachable(format!("{url}: HTTP {status}")).into());
+    }
+    if !status.is_success() {
+        anyhow::bail!("{url}: HTTP {status}");
     }
     let mut body = Vec::new();
     while let Some(chunk) = response

@@ -324,6 +324,10 @@ pub struct AuthArgs {
         requires = "oidc_issuer"
     )]
     pub oidc_scopes: String,
+    /// Seconds `serve` keeps trying to reach the issuer at start (it may
+    /// start before its identity provider); a wrong answer fails at once.
+    #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(0..=3600), requires = "oidc_issuer")]
+    pub oidc_wait_s: u64,
     /// Accept the static API tokens listed (hashed) in this JSON file
     /// (`voxserve token` makes them).
     #[arg(long, value_name = "FILE")]
