@@ -378,6 +378,9 @@ impl Job {
                 drawn.bands += 1;
                 drawn.longest_band_ms = drawn.longest_band_ms.max(render_ms);
                 drawn.stats.draw_ms += stats.draw_ms;
+                // Blocks still read while any band was drawn: the frame is
+                // drawn again once they are in.
+                drawn.stats.pending_blocks = drawn.stats.pending_blocks.max(stats.pending_blocks);
                 drawn
             }
             None => {

@@ -165,6 +165,10 @@ pub struct BenchStreamArgs {
     #[arg(long, value_delimiter = ',', default_values_t = [1u32, 4, 16],
           value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub sessions: Vec<u32>,
+    /// Sessions measured alone and beside a hostile client (`stream-hostile`);
+    /// 0 skips it.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(0..=4096))]
+    pub hostile_sessions: u32,
     /// Image edge of the frame-rate measurements.
     #[arg(long, default_value_t = 256,
           value_parser = setting_value::<u32>("w"))]

@@ -13,6 +13,12 @@
 //!   its camera again as soon as its frame arrives, for `--seconds`; frames per
 //!   second in all and per session (slowest ÷ fastest shows fairness), errors,
 //!   and the process's resident memory before, ten times during, and after.
+//! - `stream-hostile`: `--hostile-sessions` sessions (each from a loopback
+//!   address of its own, as viewers on different machines) measured alone and
+//!   beside a hostile client from another address (a session asking for 4096²
+//!   frames that never acknowledges, and `GET /api/render` of 4096² frames
+//!   kept waiting as many as it may), twice each, interleaved: their frame
+//!   rates and the ratio beside ÷ alone.
 //! - `stream-cold-change`: one session (A) changes the transfer function of a
 //!   brick store on disk to one whose blocks are not in memory while another
 //!   session (B) moves its camera on the benchmark's dataset; B's
@@ -73,6 +79,40 @@ async fn connect(url: &str) -> anyhow::Result<Socket> {
         .await
         .with_context(|| format!("connecting to {url}"))?;
     // The hello.
+    next_frame(&mut socket, None).await?;
+    Ok(socket)
+}
+
+/// The loopback address of viewer `n` (127.0.0.10 on): each a client of its
+/// own, as viewers on different machines are.
+fn viewer_address(n: u32) -> std::net::IpAddr {
+    let [_, _, hi, lo] = (10 + n).to_be_bytes();
+    std::net::IpAddr::from([127, 0, hi, lo])
+}
+
+/// A TCP connection to `addr` from the loopback address `from`.
+async fn tcp_from(from: std::net::IpAddr, addr: &str) -> anyhow::Result<tokio::net::TcpStream> {
+    let socket = tokio::net::TcpSocket::new_v4()?;
+    socket.bind(std::net::SocketAddr::new(from, 0))?;
+    let to: std::net::SocketAddr = addr.parse()?;
+    socket
+        .connect(to)
+        .await
+        .with_context(|| format!("connecting to {to} from {from}"))
+}
+
+/// [`connect`] from the loopback address `from`.
+async fn connect_from(url: &str, from: std::net::IpAddr) -> anyhow::Result<Socket> {
+    let host = url
+        .trim_start_matches("ws://")
+        .split('/')
+        .next()
+        .unwrap_or_default();
+    let stream = tcp_from(from, host).await?;
+    let (mut socket, _) =
+        tokio_tungstenite::client_async(url, tokio_tungstenite::MaybeTlsStream::Plain(stream))
+            .await
+            .with_context(|| format!("connecting to {url} from {from}"))?;
     next_frame(&mut socket, None).await?;
     Ok(socket)
 }
@@ -175,6 +215,9 @@ async fn run(args: &BenchStreamArgs) -> anyhow::Result<()> {
             for &n in &args.sessions {
                 sessions(&url, n, args, &adapter, &dataset).await?;
             }
+            if args.hostile_sessions > 0 {
+                hostile(&url, args, &adapter, &dataset).await?;
+            }
         }
         drop(stop);
     }
@@ -226,22 +269,126 @@ async fn latency(
     .to_string())
 }
 
-/// `n` sessions moving their cameras as fast as frames come, for `--seconds`.
-async fn sessions(
+/// `--hostile-sessions` sessions measured as `stream-sessions` does, alone
+/// and beside a hostile client (from an address of its own: a session asking
+/// for 4096² frames that never acknowledges one, and `GET /api/render` of
+/// 4096² frames kept waiting as many as it may, asked again when refused),
+/// twice each, interleaved: the `stream-hostile` line.
+async fn hostile(
     url: &str,
-    n: u32,
     args: &BenchStreamArgs,
     adapter: &str,
     dataset: &Dataset,
 ) -> anyhow::Result<()> {
+    let n = args.hostile_sessions;
+    let mut alone = Vec::new();
+    let mut beside = Vec::new();
+    let mut hostile_frames = 0u64;
+    for _ in 0..2 {
+        alone.push(session_rates(url, n, args).await?);
+        let attacker = viewer_address(n + 100);
+        let stop = tokio_util::sync::CancellationToken::new();
+        let mut attack = Vec::new();
+        {
+            // Never acknowledged: the server sends one frame and waits.
+            let mut socket = connect_from(url, attacker).await?;
+            send_view(&mut socket, 1, serde_json::json!({"w": 4096, "h": 4096})).await?;
+            let stop = stop.clone();
+            attack.push(tokio::spawn(async move {
+                stop.cancelled().await;
+                drop(socket);
+                0u64
+            }));
+        }
+        let host = url
+            .trim_start_matches("ws://")
+            .split('/')
+            .next()
+            .unwrap_or_default()
+            .to_owned();
+        for _ in 0..3 {
+            let (stop, host) = (stop.clone(), host.clone());
+            attack.push(tokio::spawn(async move {
+                let mut rendered = 0u64;
+                let request = "GET /api/render?w=4096&h=4096 HTTP/1.1\r\nHost: localhost\r\n\
+                               Connection: close\r\n\r\n";
+                while !stop.is_cancelled() {
+                    let Ok(mut stream) = tcp_from(attacker, &host).await else {
+                        break;
+                    };
+                    if tokio::io::AsyncWriteExt::write_all(&mut stream, request.as_bytes())
+                        .await
+                        .is_err()
+                    {
+                        break;
+                    }
+                    let mut answer = Vec::new();
+                    tokio::select! {
+                        _ = stop.cancelled() => break,
+                        read = tokio::io::AsyncReadExt::read_to_end(&mut stream, &mut answer) => {
+                            if read.is_err() {
+                                break;
+                            }
+                        }
+                    }
+                    if answer.starts_with(b"HTTP/1.1 200") {
+                        rendered += 1;
+                    } else {
+                        tokio::time::sleep(Duration::from_millis(20)).await;
+                    }
+                }
+                rendered
+            }));
+        }
+        beside.push(session_rates(url, n, args).await?);
+        stop.cancel();
+        for task in attack {
+            hostile_frames += task.await.unwrap_or(0);
+        }
+    }
+    let mean = |runs: &[Rates]| runs.iter().map(|r| r.total).sum::<f64>() / runs.len() as f64;
+    let min = |runs: &[Rates]| runs.iter().map(|r| r.slowest).fold(f64::INFINITY, f64::min);
+    let errors: usize = alone.iter().chain(&beside).map(|r| r.errors.len()).sum();
+    say(&serde_json::json!({
+        "bench": "stream-hostile",
+        "adapter": adapter,
+        "dataset": dataset.name(),
+        "format": "jpeg",
+        "sessions": n,
+        "width": args.session_size,
+        "height": args.session_size,
+        "seconds": args.seconds,
+        "runs": 2,
+        "frames_per_s_alone": alone.iter().map(|r| r.total).collect::<Vec<_>>(),
+        "frames_per_s_beside_hostile": beside.iter().map(|r| r.total).collect::<Vec<_>>(),
+        "beside_over_alone": mean(&beside) / mean(&alone),
+        "per_session_fps_min_alone": min(&alone),
+        "per_session_fps_min_beside_hostile": min(&beside),
+        "hostile_4096_frames_rendered": hostile_frames,
+        "errors": errors,
+    })
+    .to_string())
+}
+
+/// What `n` sessions moving their cameras as fast as frames come did over
+/// `--seconds`.
+struct Rates {
+    total: f64,
+    slowest: f64,
+    fastest: f64,
+    errors: Vec<String>,
+}
+
+/// `n` sessions, each from an address of its own, moving their cameras as
+/// fast as frames come, for `--seconds`.
+async fn session_rates(url: &str, n: u32, args: &BenchStreamArgs) -> anyhow::Result<Rates> {
     let edge = args.session_size;
-    let rss_before = rss_mib();
     let run_for = Duration::from_secs_f32(args.seconds);
     let tasks: Vec<_> = (0..n)
         .map(|s| {
             let url = url.to_owned();
             tokio::spawn(async move {
-                let mut socket = connect(&url).await?;
+                let mut socket = connect_from(&url, viewer_address(s)).await?;
                 send_view(&mut socket, 1, serde_json::json!({"w": edge, "h": edge})).await?;
                 next_frame(&mut socket, Some(1)).await?;
                 let start = Instant::now();
@@ -258,15 +405,6 @@ async fn sessions(
             })
         })
         .collect();
-    // Resident memory ten times over the run: flat after warm-up, or growing.
-    let sampler = tokio::spawn(async move {
-        let mut samples = Vec::new();
-        for _ in 0..10 {
-            tokio::time::sleep(run_for / 10).await;
-            samples.push(rss_mib());
-        }
-        samples
-    });
     let mut rates = Vec::new();
     let mut errors = Vec::new();
     for task in tasks {
@@ -276,9 +414,35 @@ async fn sessions(
             Err(e) => errors.push(e.to_string()),
         }
     }
-    let total: f64 = rates.iter().sum();
-    let slowest = rates.iter().copied().fold(f64::INFINITY, f64::min);
-    let fastest = rates.iter().copied().fold(0.0, f64::max);
+    Ok(Rates {
+        total: rates.iter().sum(),
+        slowest: rates.iter().copied().fold(f64::INFINITY, f64::min),
+        fastest: rates.iter().copied().fold(0.0, f64::max),
+        errors,
+    })
+}
+
+/// `n` sessions moving their cameras as fast as frames come, for `--seconds`.
+async fn sessions(
+    url: &str,
+    n: u32,
+    args: &BenchStreamArgs,
+    adapter: &str,
+    dataset: &Dataset,
+) -> anyhow::Result<()> {
+    let edge = args.session_size;
+    let rss_before = rss_mib();
+    let run_for = Duration::from_secs_f32(args.seconds);
+    // Resident memory ten times over the run: flat after warm-up, or growing.
+    let sampler = tokio::spawn(async move {
+        let mut samples = Vec::new();
+        for _ in 0..10 {
+            tokio::time::sleep(run_for / 10).await;
+            samples.push(rss_mib());
+        }
+        samples
+    });
+    let rates = session_rates(url, n, args).await?;
     say(&serde_json::json!({
         "bench": "stream-sessions",
         "adapter": adapter,
@@ -288,12 +452,12 @@ async fn sessions(
         "width": edge,
         "height": edge,
         "seconds": args.seconds,
-        "frames_per_s": total,
-        "per_session_fps_min": slowest,
-        "per_session_fps_max": fastest,
-        "slowest_over_fastest": slowest / fastest,
-        "errors": errors.len(),
-        "first_error": errors.first(),
+        "frames_per_s": rates.total,
+        "per_session_fps_min": rates.slowest,
+        "per_session_fps_max": rates.fastest,
+        "slowest_over_fastest": rates.slowest / rates.fastest,
+        "errors": rates.errors.len(),
+        "first_error": rates.errors.first(),
         "rss_mib_before": rss_before,
         "rss_mib_after": rss_mib(),
         "rss_mib_during": sampler.await.unwrap_or_default(),
