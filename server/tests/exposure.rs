@@ -510,7 +510,7 @@ async fn a_client_s_big_frames_do_not_hold_up_another_s_small_frame() {
     // In arrival order a small frame would wait for whole 4096² frames; in
     // turn, for one round at most: the rest of the band rendering when it
     // came and the hog's next band (a band costs one turn, the cost budget:
-    // 512² pixels × 1024 samples).
+    // 512² pixels × 256 samples).
     for waited in &waits {
         assert!(
             *waited <= band_ms * 2.0 + 100.0,

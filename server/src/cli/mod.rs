@@ -271,7 +271,7 @@ pub struct ServeArgs {
     /// The most a frame may cost, in pixel-samples (width × height × the
     /// samples a ray may take at the frame's step); a costlier request is
     /// refused before it renders. Frames costing more than one turn of the
-    /// render worker (512² × 1024) are drawn band by band, other clients'
+    /// render worker (512² × 256) are drawn band by band, other clients'
     /// frames between the bands.
     #[arg(long, default_value_t = crate::render_service::MAX_FRAME_COST,
           value_parser = clap::value_parser!(u64).range(crate::render_service::TURN_COST..=1 << 40))]
