@@ -390,9 +390,9 @@ impl Job {
             None => {
                 let mut rgba = band.rgba;
                 if !whole {
-                    rgba.reserve_exact(
-                        self.request.width as usize * self.request.height as usize * 4 - rgba.len(),
-                    );
+                    let frame_bytes =
+                        self.request.width as usize * self.request.height as usize * 4;
+                    rgba.reserve_exact(frame_bytes.saturating_sub(rgba.len()));
                 }
                 Drawn {
                     rgba,
