@@ -75,8 +75,14 @@ function drawFrame(bitmap, info) {
   // Blocks still being read are shown coarser; more detail follows.
   const loading = info.pendingBlocks ? ` · loading ${info.pendingBlocks} blocks` : '';
   const latency = Number.isNaN(info.latencyMs) ? '' : ` · latency ${info.latencyMs.toFixed(0)} ms`;
+  // The reduction is among the blocks the transfer function shows (the
+  // Detail chosen); the empty share is skipped at every detail.
+  const asked = Number(reductionSelect.value);
+  const limited = info.memoryLimited ? ` (memory holds no more than this; ${asked}:1 asked)` : '';
+  const empty = ` · ${(info.emptyShare * 100).toFixed(0)} % empty`;
   fidelity.textContent =
-    `${info.width}×${info.height} ${quality} · reduction ${info.reduction.toFixed(1)}:1${light}${loading} · ` +
+    `${info.width}×${info.height} ${quality} · reduction ${info.reduction.toFixed(1)}:1${limited}${empty}` +
+    `${light}${loading} · ` +
     `render ${info.renderMs.toFixed(0)} ms · encode ${info.encodeMs.toFixed(0)} ms${latency}`;
   canvas.dataset.frames = String(Number(canvas.dataset.frames || 0) + 1);
 }

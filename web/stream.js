@@ -1,7 +1,7 @@
 // A view session over WebSocket (GET /api/stream). The protocol is documented
 // in server/src/protocol.rs (keep in sync): JSON `view` messages carry only
 // the settings that changed, each with a rising id; binary frames come back
-// with a 40-byte little-endian header; every drawn frame is acknowledged, and
+// with a 44-byte little-endian header; every drawn frame is acknowledged, and
 // the server sends nothing more until it is, so a slow link drops frames
 // instead of building lag. The server decides the quality: small JPEG frames
 // while views keep coming, then the lossless full frame, then light
@@ -16,7 +16,7 @@
 
 import { logInAgain, socketProtocols } from './auth.js';
 
-export const HEADER_LEN = 40;
+export const HEADER_LEN = 44;
 // The close code of a session closed for being idle (protocol.rs CLOSE_IDLE).
 const CLOSE_IDLE = 4408;
 // The close code of a session whose access token expired (CLOSE_EXPIRED).
@@ -32,6 +32,7 @@ export function parseHeader(buffer) {
     encoding: v.getUint8(4),
     lossless: (v.getUint8(5) & 1) !== 0,
     converged: (v.getUint8(5) & 2) !== 0,
+    memoryLimited: (v.getUint8(5) & 4) !== 0,
     width: v.getUint16(6, true),
     height: v.getUint16(8, true),
     refined: v.getUint16(10, true),
@@ -43,6 +44,7 @@ export function parseHeader(buffer) {
     encodeMs: v.getFloat32(28, true),
     reduction: v.getFloat32(32, true),
     queueMs: v.getFloat32(36, true),
+    emptyShare: v.getFloat32(40, true),
   };
 }
 

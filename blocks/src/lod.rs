@@ -42,6 +42,40 @@ pub const EMPTY: u8 = u8::MAX;
 /// Samples per histogram bin when measuring the transfer function's arc length.
 const ARC_SAMPLES: usize = 8;
 
+/// How many voxels a selection may keep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Budget {
+    /// The data reduction asked for among the blocks the transfer function
+    /// shows: their voxels at full resolution per voxel kept (1 or more).
+    pub reduction: f64,
+    /// At most this many voxels, whatever the reduction (what the device holds).
+    pub cap_voxels: u64,
+}
+
+impl Budget {
+    /// A data reduction among the non-empty blocks, with no cap.
+    pub fn reduction(reduction: f64) -> Budget {
+        Budget {
+            reduction,
+            cap_voxels: u64::MAX,
+        }
+    }
+
+    /// At most `voxels` voxels, whatever the blocks.
+    pub fn voxels(voxels: u64) -> Budget {
+        Budget {
+            reduction: 1.0,
+            cap_voxels: voxels,
+        }
+    }
+
+    /// The voxels this budget allows when `non_empty` blocks are shown.
+    fn voxels_for(&self, non_empty: usize) -> u64 {
+        let asked = (non_empty as f64 * block_voxels(0) as f64 / self.reduction.max(1.0)).ceil();
+        (asked as u64).min(self.cap_voxels)
+    }
+}
+
 /// The level of every block and what it costs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LodSelection {
@@ -49,8 +83,11 @@ pub struct LodSelection {
     pub lod: Vec<u8>,
     /// Voxels of the selected blocks (a level-l block counts (16 / 2^l)³).
     pub kept_voxels: u64,
-    /// The budget it was selected under.
+    /// The voxels its budget allowed.
     pub budget_voxels: u64,
+    /// The budget's cap, not its reduction, set those voxels: the device
+    /// cannot hold the detail asked for.
+    pub capped: bool,
     /// Voxels of the full-resolution volume.
     pub full_voxels: u64,
     /// Blocks with a level.
@@ -63,9 +100,24 @@ pub struct LodSelection {
 }
 
 impl LodSelection {
-    /// Full-volume voxels per kept voxel: the paper's "data reduction".
+    /// The data reduction among the blocks the transfer function shows:
+    /// their voxels at full resolution per voxel kept (1 when none is shown).
+    /// Empty blocks are left out, so this is the detail chosen, not the
+    /// empty space skipped ([`LodSelection::empty_share`]).
     pub fn reduction(&self) -> f64 {
-        self.full_voxels as f64 / self.kept_voxels.max(1) as f64
+        if self.kept_voxels == 0 {
+            return 1.0;
+        }
+        self.non_empty as f64 * block_voxels(0) as f64 / self.kept_voxels as f64
+    }
+
+    /// The share of the volume's blocks that the transfer function leaves
+    /// empty (0 to 1): they take no memory and no samples at any detail.
+    pub fn empty_share(&self) -> f64 {
+        if self.lod.is_empty() {
+            return 0.0;
+        }
+        1.0 - self.non_empty as f64 / self.lod.len() as f64
     }
 
     /// This selection with the levels `lod` instead (a renderer showing some
@@ -255,13 +307,13 @@ fn refinement_order(per_block: &[Option<[f64; LEVELS]>]) -> (Vec<u64>, Vec<Targe
     (steps, targets)
 }
 
-/// Selects every block's level under `budget_voxels`; see the module docs.
+/// Selects every block's level under `budget`; see the module docs.
 pub fn select(
     stats: &BlockStats,
     value_map: ValueMap,
     tf: &TransferFunction,
     full_voxels: u64,
-    budget_voxels: u64,
+    budget: Budget,
 ) -> LodSelection {
     let arc = bin_arc_lengths(stats, value_map, tf);
     let per_block = classify_blocks(stats, value_map, tf, &arc);
@@ -277,6 +329,8 @@ pub fn select(
         })
         .collect();
     let non_empty = lod.iter().filter(|&&l| l != EMPTY).count();
+    let budget_voxels = budget.voxels_for(non_empty);
+    let capped = budget_voxels < Budget::reduction(budget.reduction).voxels_for(non_empty);
     let mut kept = non_empty as u64 * block_voxels(LEVELS - 1);
     let mut error: f64 = per_block.iter().flatten().map(|e| e[LEVELS - 1]).sum();
     let (steps, targets) = refinement_order(&per_block);
@@ -311,6 +365,7 @@ pub fn select(
         lod,
         kept_voxels: kept,
         budget_voxels,
+        capped,
         full_voxels,
         non_empty,
         over_budget,
@@ -375,7 +430,13 @@ mod tests {
 
     #[test]
     fn blocks_transparent_over_their_range_are_empty() {
-        let sel = select(&stats(), ValueMap::IDENTITY, &bone(), 4 * 4096, u64::MAX);
+        let sel = select(
+            &stats(),
+            ValueMap::IDENTITY,
+            &bone(),
+            4 * 4096,
+            Budget::reduction(1.0),
+        );
         // Air and the uniform 100 block and the 64..127 ramp are clear under a 150+ TF.
         assert_eq!(sel.lod[0], EMPTY);
         assert_eq!(sel.lod[2], EMPTY);
@@ -398,7 +459,13 @@ mod tests {
             &bin_arc_lengths(&s, ValueMap::IDENTITY, &tf),
         );
         for budget in [4, 40, 300, 600, 4200, 9000, 20_000] {
-            let sel = select(&s, ValueMap::IDENTITY, &tf, 4 * 4096, budget);
+            let sel = select(
+                &s,
+                ValueMap::IDENTITY,
+                &tf,
+                4 * 4096,
+                Budget::voxels(budget),
+            );
             assert!(
                 sel.kept_voxels <= budget || sel.over_budget,
                 "{budget}: {sel:?}"
@@ -442,8 +509,53 @@ mod tests {
         let tf = Preset::Generic.transfer_function([0.0, 255.0]);
         // Room for the edge block at level 0 (its levels 1 to 4 all read
         // 100, so it refines straight there), then a little more.
-        let sel = select(&s, ValueMap::IDENTITY, &tf, 4 * 4096, 3 + 4095 + 56);
+        let sel = select(
+            &s,
+            ValueMap::IDENTITY,
+            &tf,
+            4 * 4096,
+            Budget::voxels(3 + 4095 + 56),
+        );
         // The sharp edge loses most when averaged; the uniform block loses nothing.
         assert!(sel.lod[1] < sel.lod[2], "{:?}", sel.lod);
+    }
+
+    #[test]
+    fn the_reduction_counts_only_the_blocks_the_transfer_function_shows() {
+        // Under the bone TF one block of four shows: 4:1 of it keeps 1 024
+        // voxels, not the 4 096 that 4:1 of the whole volume would allow.
+        let sel = select(
+            &stats(),
+            ValueMap::IDENTITY,
+            &bone(),
+            4 * 4096,
+            Budget::reduction(4.0),
+        );
+        assert_eq!(sel.non_empty, 1);
+        assert_eq!(sel.budget_voxels, 1024);
+        assert!(sel.kept_voxels <= 1024 && !sel.capped, "{sel:?}");
+        assert!(sel.reduction() >= 4.0, "{}", sel.reduction());
+        assert!((sel.empty_share() - 0.75).abs() < 1e-9);
+        // At 1:1 the block is whole: reduction 1 although three quarters are empty.
+        let full = select(
+            &stats(),
+            ValueMap::IDENTITY,
+            &bone(),
+            4 * 4096,
+            Budget::reduction(1.0),
+        );
+        assert_eq!((full.lod[1], full.reduction()), (0, 1.0));
+        // A cap below what the reduction allows binds and says so.
+        let capped = select(
+            &stats(),
+            ValueMap::IDENTITY,
+            &bone(),
+            4 * 4096,
+            Budget {
+                reduction: 1.0,
+                cap_voxels: 600,
+            },
+        );
+        assert!(capped.capped && capped.kept_voxels <= 600, "{capped:?}");
     }
 }

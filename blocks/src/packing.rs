@@ -288,6 +288,7 @@ mod tests {
         LodSelection {
             kept_voxels: 0,
             budget_voxels: 0,
+            capped: false,
             full_voxels: 0,
             non_empty: lod.iter().filter(|&&l| l != EMPTY).count(),
             over_budget: false,

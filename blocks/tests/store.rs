@@ -8,6 +8,7 @@ use std::sync::Arc;
 
 use blocks::cache::BlockCache;
 use blocks::ingest;
+use blocks::lod::Budget;
 use blocks::store::{self, BLOCK, IngestOptions, LEVELS, Store, level_dims};
 use blocks::{Error, Geometry, Preset, VoxelData, VoxelType};
 
@@ -397,14 +398,14 @@ fn lod_selection_on_stored_statistics_respects_budgets_and_skips_empty_blocks() 
     let tf = Preset::CtBone.transfer_function(store.meta().value_range().map(|v| v as f32));
     let full = u64::from(n).pow(3);
     let map = store.meta().value_map;
-    let sel = blocks::lod::select(store.stats(), map, &tf, full, u64::MAX);
+    let sel = blocks::lod::select(store.stats(), map, &tf, full, Budget::reduction(1.0));
     // Blocks of pure air are empty; blocks touching the sphere are not.
     let air = store.stats().block_index([0, 0, 0]);
     let centre = store.stats().block_index([2, 2, 2]);
     assert_eq!(sel.lod[air], blocks::lod::EMPTY);
     assert_eq!(sel.lod[centre], 0, "unlimited budget: full resolution");
     for budget in [sel.non_empty as u64, full / 35, full / 9, full] {
-        let s = blocks::lod::select(store.stats(), map, &tf, full, budget);
+        let s = blocks::lod::select(store.stats(), map, &tf, full, Budget::voxels(budget));
         assert!(s.kept_voxels <= budget, "{budget}: {}", s.kept_voxels);
         assert_eq!(s.lod[air], blocks::lod::EMPTY);
     }

@@ -593,6 +593,10 @@ async fn render_pairs(
     );
     set("x-encode-ms", format!("{encode_ms:.1}"));
     set("x-reduction", format!("{:.2}", stats.reduction));
+    set("x-empty-share", format!("{:.3}", stats.empty_share));
+    if stats.memory_limited {
+        set("x-memory-limited", "1".to_owned());
+    }
     set("x-levels", format!("{:?}", stats.level_counts));
     set("x-pending-blocks", stats.pending_blocks.to_string());
     if let Some(light) = stats.light() {

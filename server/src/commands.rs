@@ -323,11 +323,20 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         );
     }
     let (reduction, levels, device) = (stats.reduction, stats.level_counts, backend.describe());
+    let empty = stats.empty_share * 100.0;
+    let limited = if stats.memory_limited {
+        format!(
+            " (memory-limited: {request_reduction}:1 does not fit the atlas budget)",
+            request_reduction = request.reduction
+        )
+    } else {
+        String::new()
+    };
     let ms = start.elapsed().as_secs_f64() * 1e3;
     let out = output.write(&encode::png(&frame)?)?;
     say(&format!(
-        "wrote {} ({}x{}, {classification}, {}; reduction {reduction:.1}:1, blocks per level \
-         {levels:?}) in {ms:.0} ms on {device}",
+        "wrote {} ({}x{}, {classification}, {}; reduction {reduction:.1}:1{limited} of the \
+         shown blocks, {empty:.0} % empty; blocks per level {levels:?}) in {ms:.0} ms on {device}",
         out.display(),
         frame.width,
         frame.height,

@@ -15,7 +15,7 @@
 //!
 //! # Server → client
 //!
-//! JSON text: `{"type":"hello","protocol":1,"datasets":[…],"renderer":{"kind":…,"device":…},"settings":{…}}` once
+//! JSON text: `{"type":"hello","protocol":2,"datasets":[…],"renderer":{"kind":…,"device":…},"settings":{…}}` once
 //! at the start (the datasets' descriptions as `GET /api/datasets` gives them,
 //! and the stream settings), `{"type":"error","id":N,"message":"…"}` for a
 //! refused message (`id`: the message's, when it had one) or a view that
@@ -43,7 +43,7 @@
 //! |---|---|---|
 //! | 0 | 4 bytes | magic `VXF1` |
 //! | 4 | u8 | encoding: 1 JPEG, 2 PNG, 3 WebP (lossless) |
-//! | 5 | u8 | flags: 1 lossless full resolution, 2 converged (nothing more will come for this view: every block at its level, the light complete) |
+//! | 5 | u8 | flags: 1 lossless full resolution, 2 converged (nothing more will come for this view: every block at its level, the light complete), 4 memory-limited (the renderer's memory cannot hold the detail asked for: the reduction is coarser) |
 //! | 6 | u16 | width, pixels |
 //! | 8 | u16 | height, pixels |
 //! | 10 | u16 | refinement step j (in-scattering directions in; 0 without global light) |
@@ -53,8 +53,9 @@
 //! | 20 | u32 | id of the last view message this frame reflects |
 //! | 24 | f32 | render milliseconds |
 //! | 28 | f32 | encode milliseconds |
-//! | 32 | f32 | data reduction rendered at |
+//! | 32 | f32 | data reduction rendered at, among the blocks the transfer function shows (their full-resolution voxels per voxel kept) |
 //! | 36 | f32 | milliseconds the render waited for the GPU behind other sessions |
+//! | 40 | f32 | share of the volume's blocks the transfer function leaves empty (0 to 1; skipped, not counted in the reduction) |
 //!
 //! When the server shuts down it closes every session with code 1001 (going
 //! away). A session without a message from the client for
@@ -69,7 +70,7 @@
 use serde_json::{Map, Value};
 
 /// The protocol's version, sent in `hello`.
-pub const PROTOCOL: u32 = 1;
+pub const PROTOCOL: u32 = 2;
 /// The longest message a client may send, in bytes: views, acknowledgements
 /// and status requests are far shorter.
 pub const MAX_MESSAGE_BYTES: usize = 64 << 10;
@@ -89,7 +90,7 @@ pub const PING_INTERVAL: u64 = 20;
 pub const PEER_PATIENCE: u64 = 3 * PING_INTERVAL;
 
 /// Bytes of a [`FrameHeader`].
-pub const HEADER_LEN: usize = 40;
+pub const HEADER_LEN: usize = 44;
 /// The first four bytes of every frame.
 pub const MAGIC: [u8; 4] = *b"VXF1";
 /// Device pixel ratios accepted.
@@ -115,6 +116,8 @@ pub struct FrameHeader {
     pub lossless: bool,
     /// Nothing more will be sent for this view.
     pub converged: bool,
+    /// The renderer's memory cannot hold the detail asked for.
+    pub memory_limited: bool,
     /// Blocks shown coarser than selected while their data is read.
     pub pending_blocks: u16,
     /// Image width.
@@ -133,10 +136,13 @@ pub struct FrameHeader {
     pub render_ms: f32,
     /// Encode milliseconds.
     pub encode_ms: f32,
-    /// The data reduction rendered at.
+    /// The data reduction rendered at, among the blocks the transfer
+    /// function shows.
     pub reduction: f32,
     /// Milliseconds the job waited for the render worker.
     pub queue_ms: f32,
+    /// The share of blocks the transfer function leaves empty (0 to 1).
+    pub empty_share: f32,
 }
 
 /// A frame header [`FrameHeader::parse`] refuses.
@@ -159,7 +165,9 @@ impl FrameHeader {
         let mut b = [0u8; HEADER_LEN];
         b[0..4].copy_from_slice(&MAGIC);
         b[4] = self.encoding as u8;
-        b[5] = u8::from(self.lossless) | (u8::from(self.converged) << 1);
+        b[5] = u8::from(self.lossless)
+            | (u8::from(self.converged) << 1)
+            | (u8::from(self.memory_limited) << 2);
         b[6..8].copy_from_slice(&self.width.to_le_bytes());
         b[8..10].copy_from_slice(&self.height.to_le_bytes());
         b[10..12].copy_from_slice(&self.refined.to_le_bytes());
@@ -171,6 +179,7 @@ impl FrameHeader {
         b[28..32].copy_from_slice(&self.encode_ms.to_le_bytes());
         b[32..36].copy_from_slice(&self.reduction.to_le_bytes());
         b[36..40].copy_from_slice(&self.queue_ms.to_le_bytes());
+        b[40..44].copy_from_slice(&self.empty_share.to_le_bytes());
         b
     }
 
@@ -199,6 +208,7 @@ impl FrameHeader {
             encoding,
             lossless: bytes[5] & 1 != 0,
             converged: bytes[5] & 2 != 0,
+            memory_limited: bytes[5] & 4 != 0,
             pending_blocks: u16_at(14),
             width: u16_at(6),
             height: u16_at(8),
@@ -210,6 +220,7 @@ impl FrameHeader {
             encode_ms: f32_at(28),
             reduction: f32_at(32),
             queue_ms: f32_at(36),
+            empty_share: f32_at(40),
         })
     }
 }
@@ -458,6 +469,7 @@ mod tests {
             encoding: Encoding::Jpeg,
             lossless: false,
             converged: true,
+            memory_limited: true,
             pending_blocks: 12,
             width: 640,
             height: 480,
@@ -469,6 +481,7 @@ mod tests {
             encode_ms: 3.25,
             reduction: 8.9,
             queue_ms: 0.5,
+            empty_share: 0.625,
         };
         let mut bytes = header.to_bytes().to_vec();
         bytes.extend_from_slice(b"image");

@@ -275,9 +275,10 @@ crate::settings! {
         /// Distance between samples along a ray, in voxels of the smallest
         /// spacing; smaller is finer.
         pub step_voxels: f32 = 0.5, "step", number(0.05, 4.0, "a number of voxels", "voxels");
-        /// Data reduction: full-volume voxels per voxel kept on the GPU; the
-        /// transfer function chooses the blocks' levels of detail to meet it
-        /// (the device budget may force more).
+        /// Data reduction among the blocks the transfer function shows: their
+        /// voxels at full resolution per voxel kept; the transfer function
+        /// chooses the blocks' levels of detail to meet it (the memory budget
+        /// may force more). Blocks it leaves empty are skipped at any detail.
         pub reduction: f32 = 1.0, "reduction",
             number(1.0, MAX_REDUCTION, "a data reduction ratio", ":1"), group Detail;
         /// Show only this box of the volume: six fractions of its extent

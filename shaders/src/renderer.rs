@@ -25,7 +25,7 @@ use crate::illumination::{Illumination, Inputs, Mode, Refine, Timings};
 use crate::packed::{Atlas, GpuAtlas};
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
-use crate::residency::{Residency, ResidencyStats, budget_voxels};
+use crate::residency::{Residency, ResidencyStats};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
@@ -196,8 +196,15 @@ impl FrameResources {
 /// What the last frame of a [`Renderer`] took and showed.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RenderStats {
-    /// Full-volume voxels per voxel kept on the GPU.
+    /// The data reduction among the blocks the transfer function shows:
+    /// their voxels at full resolution per voxel kept (the detail chosen).
     pub reduction: f64,
+    /// The share of blocks the transfer function leaves empty (0 to 1): skipped
+    /// at every detail, so not counted in `reduction`.
+    pub empty_share: f64,
+    /// The device could not hold the detail asked for: `reduction` is
+    /// coarser than the request's because memory ran out.
+    pub memory_limited: bool,
     /// Blocks per level on the GPU (levels 0 to 4).
     pub level_counts: [usize; LEVELS],
     /// Blocks uploaded for this frame (0 when only the camera moved).
@@ -271,7 +278,6 @@ pub struct Renderer {
     pipeline: MarchPipeline,
     cache: Arc<BlockCache>,
     desc: VolumeTexture,
-    full_voxels: u64,
     residency: Residency<GpuAtlas>,
     /// The illumination modes used so far: each one's GPU state and the
     /// ray-caster variant that reads its light.
@@ -303,7 +309,6 @@ impl Renderer {
             VolumeDescription::of_store(store.meta(), store.voxel_type()),
             gpu.device.features(),
         );
-        let full_voxels = store.meta().geometry.voxel_count();
         let pipeline = MarchPipeline::new(&gpu, Stage::Raycast)?;
         let frame = FrameResources::new(&gpu)?;
         Ok(Renderer {
@@ -312,7 +317,6 @@ impl Renderer {
             residency: Residency::new(Arc::clone(&cache), budget_bytes),
             cache,
             desc,
-            full_voxels,
             lit: Vec::new(),
             frame,
             last: RenderStats::default(),
@@ -401,11 +405,13 @@ impl Renderer {
     ) -> Result<Frame, GpuError> {
         let tf = request.store_transfer_function(self.cache.store().meta());
         self.frame.prepare(&self.gpu, request, &tf, &self.desc)?;
-        let budget = budget_voxels(self.full_voxels, request.reduction);
-        let mut stats = RenderStats::from(
-            self.residency
-                .update_complete(&self.gpu, &self.desc, &tf, budget, complete)?,
-        );
+        let mut stats = RenderStats::from(self.residency.update_complete(
+            &self.gpu,
+            &self.desc,
+            &tf,
+            request.reduction,
+            complete,
+        )?);
         if let Some(mode) = Mode::of(request.shading) {
             let refine = if converge {
                 Refine::Converge
@@ -479,6 +485,8 @@ impl Renderer {
         )?;
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.reduction = selection.reduction();
+        stats.empty_share = selection.empty_share();
+        stats.memory_limited = selection.capped;
         stats.level_counts = selection.level_counts();
         self.last = stats;
         Ok(frame)

@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use blocks::TransferFunction;
 use blocks::cache::{BlockCache, Pinned};
-use blocks::lod::{self, EMPTY, LodSelection};
+use blocks::lod::{self, Budget, EMPTY, LodSelection};
 use blocks::packing::{APRON, Packing};
 use blocks::store::{LEVELS, Store};
 use rayon::prelude::*;
@@ -53,7 +53,7 @@ pub struct ResidencyStats {
 #[derive(Debug)]
 struct Target {
     tf: TransferFunction,
-    budget_voxels: u64,
+    reduction: f32,
     selection: LodSelection,
 }
 
@@ -124,28 +124,29 @@ impl<A: Atlas> Residency<A> {
         self.pending
     }
 
-    /// Brings the atlas towards the selection for `tf` under `budget` voxels,
-    /// never reading storage on this thread: see the module docs.
+    /// Brings the atlas towards the selection for `tf` at data reduction
+    /// `reduction` (among the blocks `tf` shows), never reading storage on
+    /// this thread: see the module docs.
     pub fn update(
         &mut self,
         device: &A::Device,
         desc: &VolumeTexture,
         tf: &TransferFunction,
-        budget: u64,
+        reduction: f32,
     ) -> Result<ResidencyStats, GpuError> {
         let mut stats = ResidencyStats::default();
         let retarget = !self
             .target
             .as_ref()
-            .is_some_and(|t| t.tf == *tf && t.budget_voxels == budget);
+            .is_some_and(|t| t.tf == *tf && t.reduction == reduction);
         if retarget {
             let start = std::time::Instant::now();
             let device_budget = self.device_budget(device, desc);
-            let (selection, _) = select_levels(self.cache.store(), tf, budget, device_budget)?;
+            let (selection, _) = select_levels(self.cache.store(), tf, reduction, device_budget)?;
             stats.select_ms = start.elapsed().as_secs_f64() * 1e3;
             self.target = Some(Target {
                 tf: tf.clone(),
-                budget_voxels: budget,
+                reduction,
                 selection,
             });
         } else if self.pending == 0 {
@@ -167,16 +168,16 @@ impl<A: Atlas> Residency<A> {
         device: &A::Device,
         desc: &VolumeTexture,
         tf: &TransferFunction,
-        budget: u64,
+        reduction: f32,
         complete: bool,
     ) -> Result<ResidencyStats, GpuError> {
-        let mut stats = self.update(device, desc, tf, budget)?;
+        let mut stats = self.update(device, desc, tf, reduction)?;
         while complete && stats.pending_blocks > 0 {
             let seen = self.cache.arrivals();
             if self.cache.loading() > 0 {
                 self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
             }
-            let more = self.update(device, desc, tf, budget)?;
+            let more = self.update(device, desc, tf, reduction)?;
             stats = ResidencyStats {
                 uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
                 relayout: stats.relayout || more.relayout,
@@ -382,27 +383,31 @@ impl DeviceBudget {
     }
 }
 
-/// Selects every block's level of detail for `tf` keeping at most
-/// `budget_voxels` voxels (the data reduction asked for). When a fresh packing
-/// of that selection (slots with aprons, whole layers per level) would not fit
-/// `device`, the voxel budget shrinks until it fits, then grows back by
-/// bisection to use as much of the device as it can. Returns the selection and
-/// its fresh packing.
+/// Selects every block's level of detail for `tf` at data reduction
+/// `reduction` among the blocks `tf` shows. When a fresh packing of that
+/// selection (slots with aprons, whole layers per level) would not fit
+/// `device`, a cap on the voxels kept shrinks until it fits, then grows back
+/// by bisection to use as much of the device as it can (the selection is
+/// then [`LodSelection::capped`]). Returns the selection and its fresh packing.
 pub fn select_levels(
     store: &Store,
     tf: &TransferFunction,
-    budget_voxels: u64,
+    reduction: f32,
     device: DeviceBudget,
 ) -> Result<(LodSelection, Packing), GpuError> {
     let full_voxels = store.meta().geometry.voxel_count();
-    // The selection under `budget` and its packing, if that fits the device.
+    // The selection under a cap of `budget` voxels and its packing, if that
+    // fits the device.
     let attempt = |budget: u64| {
         let selection = lod::select(
             store.stats(),
             store.meta().value_map,
             tf,
             full_voxels,
-            budget,
+            Budget {
+                reduction: f64::from(reduction),
+                cap_voxels: budget,
+            },
         );
         // A packing that does not fit the texture edge counts as too big.
         let packing = Packing::new(&selection, device.max_edge).ok();
@@ -412,12 +417,12 @@ pub fn select_levels(
         let fits = packing.filter(|_| bytes <= device.bytes);
         (selection, fits, bytes)
     };
-    let (selection, fits, mut bytes) = attempt(budget_voxels);
+    let (selection, fits, mut bytes) = attempt(u64::MAX);
     if let Some(packing) = fits {
         return Ok((selection, packing));
     }
     // Shrink until a selection fits; `too_big` is the smallest budget known not to.
-    let mut too_big = budget_voxels.min(selection.kept_voxels);
+    let mut too_big = selection.budget_voxels.min(selection.kept_voxels);
     let mut best = None;
     let mut over_budget = selection.over_budget;
     for _ in 0..MAX_SELECTIONS {
@@ -442,7 +447,13 @@ pub fn select_levels(
         }
     }
     let Some((mut fitting, mut selection, mut packing)) = best else {
-        let coarsest = lod::select(store.stats(), store.meta().value_map, tf, full_voxels, 0);
+        let coarsest = lod::select(
+            store.stats(),
+            store.meta().value_map,
+            tf,
+            full_voxels,
+            Budget::voxels(0),
+        );
         return Err(GpuError::Unsupported {
             what: format!(
                 "the {} blocks the transfer function shows, even all at level 4 ({} voxels)",
@@ -466,10 +477,4 @@ pub fn select_levels(
         }
     }
     Ok((selection, packing))
-}
-
-/// The voxels a frame may keep for `reduction` (full-volume voxels per kept
-/// voxel) of a volume of `full_voxels`.
-pub fn budget_voxels(full_voxels: u64, reduction: f32) -> u64 {
-    (full_voxels as f64 / f64::from(reduction.max(1.0))).ceil() as u64
 }

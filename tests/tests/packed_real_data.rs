@@ -134,7 +134,7 @@ fn cthead_packed_at_level_0_matches_the_reference() {
 /// Renders at 9:1 and 35:1, prints the error against the reference, checks it
 /// against `max_mean_delta_e` and compares the images with their goldens. The
 /// bounds sit about half again above what was measured when the goldens were
-/// made (engine 0.68 and 1.16, CT head 4.04 and 4.31), so a worse level
+/// made (engine 0.83 and 1.70, CT head 2.41 and 4.40), so a worse level
 /// selection or broken borders fail while rounding does not.
 fn reduced_renders(test: &str, name: &str, max_mean_delta_e: [f64; 2]) {
     let Some(case) = case(test, name) else {
@@ -150,8 +150,9 @@ fn reduced_renders(test: &str, name: &str, max_mean_delta_e: [f64; 2]) {
             shaders::cpu::render_packed(&case.dataset.cache, &request, features, max_edge)
                 .unwrap_or_else(|e| panic!("{name} {ratio}:1: {e}"));
         let reduction = selection.reduction();
+        // Within 10 % of the reduction asked for (among the blocks shown).
         assert!(
-            reduction >= f64::from(ratio) * 0.95,
+            reduction >= f64::from(ratio) * 0.95 && reduction <= f64::from(ratio) * 1.1,
             "{name}: asked for {ratio}:1, got {reduction:.1}:1"
         );
         let error = colour_difference(&frame, &reference).expect("same size");
@@ -193,6 +194,6 @@ fn cthead_reduced_9_and_35_to_1_error_is_reported_and_bounded() {
     reduced_renders(
         "cthead_reduced_9_and_35_to_1_error_is_reported_and_bounded",
         "cthead",
-        [6.0, 7.0],
+        [3.6, 6.5],
     );
 }

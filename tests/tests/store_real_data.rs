@@ -107,15 +107,22 @@ fn assert_round_trip(volume: &Volume, store: &Store) {
     }
 }
 
-/// Budgets for 9:1 and 35:1 and a sweep: within budget, monotone, no empty block stored.
+/// Reductions of 9:1 and 35:1 and a sweep: within budget, monotone, no empty
+/// block stored, and the reduction reached within 10 % of the one asked for.
 fn check_selection(name: &str, store: &Store, tf: &TransferFunction) {
     let meta = store.meta();
     let full = meta.geometry.voxel_count();
     let mut previous: Option<lod::LodSelection> = None;
     for ratio in [200.0, 35.0, 20.0, 9.0, 4.0, 1.0] {
-        let budget = (full as f64 / ratio) as u64;
         let start = std::time::Instant::now();
-        let sel = lod::select(store.stats(), meta.value_map, tf, full, budget);
+        let sel = lod::select(
+            store.stats(),
+            meta.value_map,
+            tf,
+            full,
+            lod::Budget::reduction(ratio),
+        );
+        let budget = sel.budget_voxels;
         let ms = start.elapsed().as_secs_f64() * 1e3;
         assert!(
             sel.kept_voxels <= budget || sel.over_budget,
@@ -133,16 +140,19 @@ fn check_selection(name: &str, store: &Store, tf: &TransferFunction) {
                 );
             }
         }
+        // A larger budget may coarsen a block a smaller one refined (it took
+        // a larger refinement the smaller passed over; see lod.rs), but it
+        // never leaves more of the estimated error.
         if let Some(p) = &previous {
-            for (b, (&new, &old)) in sel.lod.iter().zip(&p.lod).enumerate() {
-                assert!(
-                    new <= old,
-                    "{name}: budget {budget} coarsened block {b} from {old} to {new}"
-                );
-            }
+            assert!(
+                sel.error <= p.error,
+                "{name}: budget {budget} leaves error {} above the smaller budget's {}",
+                sel.error,
+                p.error
+            );
         }
         println!(
-            "{name}: budget {ratio}:1 → reduction {:.1}:1, levels {:?}, {} of {} blocks non-empty, {ms:.2} ms",
+            "{name}: {ratio}:1 asked → reduction {:.1}:1, levels {:?}, {} of {} blocks non-empty, {ms:.2} ms",
             sel.reduction(),
             sel.level_counts(),
             sel.non_empty,
@@ -150,8 +160,8 @@ fn check_selection(name: &str, store: &Store, tf: &TransferFunction) {
         );
         if ratio == 9.0 || ratio == 35.0 {
             assert!(
-                sel.reduction() >= ratio * 0.99,
-                "{name}: {ratio}:1 budget gave {:.2}:1",
+                sel.reduction() >= ratio * 0.99 && sel.reduction() <= ratio * 1.1,
+                "{name}: {ratio}:1 asked gave {:.2}:1",
                 sel.reduction()
             );
         }

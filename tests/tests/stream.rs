@@ -46,7 +46,7 @@ async fn connect_with_hello(server: &TestServer) -> (Socket, serde_json::Value) 
     match next(&mut socket).await {
         Received::Json(hello) => {
             assert_eq!(hello["type"], "hello", "{hello}");
-            assert_eq!(hello["protocol"], 1, "{hello}");
+            assert_eq!(hello["protocol"], server::protocol::PROTOCOL, "{hello}");
             (socket, hello)
         }
         Received::Frame(h, _) => panic!("expected hello first, got frame {h:?}"),

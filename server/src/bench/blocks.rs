@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
+use blocks::lod::Budget;
 use blocks::store::{IngestOptions, Store};
 use blocks::{Preset, TfPoint, TransferFunction, ingest};
 
@@ -217,7 +218,7 @@ fn reads_per_second(
 fn time_selection(
     store: &Store,
     tf: &TransferFunction,
-    budget: u64,
+    budget: Budget,
 ) -> (blocks::lod::LodSelection, f64, f64) {
     let full = store.meta().geometry.voxel_count();
     let mut times = Vec::new();
@@ -240,22 +241,21 @@ fn time_selection(
     (selection, times[times.len() / 2], times[0])
 }
 
-/// Selections at 9:1 and 35:1 budgets on `store`, as JSON lines.
+/// Selections at data reductions 9:1 and 35:1 on `store`, as JSON lines.
 fn report_selections(dataset: &str, store: &Store, tf: &TransferFunction) -> anyhow::Result<()> {
-    let full = store.meta().geometry.voxel_count();
     for ratio in [9.0, 35.0] {
-        let budget = (full as f64 / ratio) as u64;
-        let (sel, median, min) = time_selection(store, tf, budget);
+        let (sel, median, min) = time_selection(store, tf, Budget::reduction(ratio));
         say(&serde_json::json!({
             "bench": "lod_selection",
             "dataset": dataset,
             "dims": store.meta().geometry.dims,
             "blocks": sel.lod.len(),
             "non_empty": sel.non_empty,
-            "budget_ratio": ratio,
-            "budget_voxels": budget,
+            "reduction_asked": ratio,
+            "budget_voxels": sel.budget_voxels,
             "kept_voxels": sel.kept_voxels,
             "reduction": sel.reduction(),
+            "empty_share": sel.empty_share(),
             "levels": sel.level_counts(),
             "runs": 21,
             "ms_median": median,

@@ -505,6 +505,7 @@ fn render_job(state: &AppState, client: Client, render: Render) -> Job {
             encoding,
             lossless: quality == Quality::Full,
             converged: quality == Quality::Full && converged,
+            memory_limited: rendered.stats.memory_limited,
             pending_blocks: u16::try_from(rendered.stats.pending_blocks).unwrap_or(u16::MAX),
             width: width as u16,
             height: height as u16,
@@ -516,6 +517,7 @@ fn render_job(state: &AppState, client: Client, render: Render) -> Job {
             encode_ms: (start.elapsed().as_secs_f64() * 1e3) as f32,
             reduction: rendered.stats.reduction as f32,
             queue_ms: rendered.queue_ms as f32,
+            empty_share: rendered.stats.empty_share as f32,
         };
         let mut bytes = Vec::with_capacity(protocol::HEADER_LEN + image.len());
         bytes.extend_from_slice(&header.to_bytes());

@@ -25,7 +25,7 @@ use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
 use crate::renderer::RenderStats;
-use crate::residency::{Residency, budget_voxels};
+use crate::residency::Residency;
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuError, LightSettings};
 
@@ -49,7 +49,6 @@ pub struct CpuRenderer {
     cache: Arc<BlockCache>,
     desc: VolumeTexture,
     device: CpuDevice,
-    full_voxels: u64,
     residency: Residency<CpuAtlas>,
     /// The transfer function's table, for the function it was made from.
     table: Option<(TransferFunction, Vec<[f32; 4]>)>,
@@ -84,7 +83,6 @@ impl CpuRenderer {
         );
         CpuRenderer {
             device: CpuDevice { max_edge },
-            full_voxels: store.meta().geometry.voxel_count(),
             residency: Residency::new(Arc::clone(&cache), budget_bytes),
             cache,
             desc,
@@ -138,12 +136,11 @@ impl CpuRenderer {
     fn render_lit(&mut self, request: &FrameRequest, complete: bool) -> Result<Frame, GpuError> {
         request.validate()?;
         let tf = request.store_transfer_function(self.cache.store().meta());
-        let budget = budget_voxels(self.full_voxels, request.reduction);
         let stats = RenderStats::from(self.residency.update_complete(
             &self.device,
             &self.desc,
             &tf,
-            budget,
+            request.reduction,
             complete,
         )?);
         if self.table.as_ref().is_none_or(|(t, _)| *t != tf) {
@@ -211,6 +208,8 @@ impl CpuRenderer {
         raycast(&params, &atlas.texture, table, &mut rgba);
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.reduction = selection.reduction();
+        stats.empty_share = selection.empty_share();
+        stats.memory_limited = selection.capped;
         stats.level_counts = selection.level_counts();
         self.last = stats;
         Ok(Frame {
