@@ -3,6 +3,11 @@
 //! mean, root mean square, 99th percentile and the fraction of pixels above 6
 //! (ΔE₆: clearly visible side by side). Used to report what a data reduction or
 //! an illumination approximation costs against its full-resolution reference.
+//!
+//! Beside it: the mean of NVIDIA's ꟻLIP error map ([`flip_mean`], Andersson et
+//! al. 2020, through the `nv-flip` crate), the figure rendering papers report,
+//! and the share of the reference's opaque pixels an image still covers
+//! ([`opaque_coverage`]), which counts holes that a mean hides.
 
 use crate::{Frame, GpuError};
 
@@ -61,12 +66,7 @@ pub fn delta_e(a: [u8; 3], b: [u8; 3]) -> f64 {
 /// # Errors
 /// When the frames differ in size.
 pub fn per_pixel(actual: &Frame, reference: &Frame) -> Result<Vec<f64>, GpuError> {
-    if (actual.width, actual.height) != (reference.width, reference.height) {
-        return Err(GpuError::InvalidRequest(format!(
-            "cannot compare a {}x{} image with a {}x{} one",
-            actual.width, actual.height, reference.width, reference.height
-        )));
-    }
+    same_size(actual, reference)?;
     Ok(actual
         .rgba
         .chunks_exact(4)
@@ -108,6 +108,80 @@ pub fn object_colour_difference(
         .map(|(d, _)| d)
         .collect();
     Ok(statistics(object))
+}
+
+/// The mean of the ꟻLIP error map (0 to 1; alpha ignored) of `actual` against
+/// `reference`, for a viewer at 67 pixels per degree (a 0.7 m distance from a
+/// 24-inch 4K monitor, the ꟻLIP default).
+///
+/// # Errors
+/// When the frames differ in size.
+pub fn flip_mean(actual: &Frame, reference: &Frame) -> Result<f64, GpuError> {
+    same_size(actual, reference)?;
+    let rgb = |f: &Frame| {
+        let data: Vec<u8> = f
+            .rgba
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect();
+        nv_flip::FlipImageRgb8::with_data(f.width, f.height, &data)
+    };
+    let map = nv_flip::flip(
+        rgb(reference),
+        rgb(actual),
+        nv_flip::DEFAULT_PIXELS_PER_DEGREE,
+    );
+    Ok(nv_flip::FlipPool::from_image(&map).mean().into())
+}
+
+/// Per pixel, the opacity (0 to 1) of a view rendered twice, once on a black
+/// and once on a white background: over black a pixel is C, over white
+/// C + (1 − α), so α = 1 − (white − black), averaged over the three channels.
+///
+/// # Errors
+/// When the frames differ in size.
+pub fn opacity(on_black: &Frame, on_white: &Frame) -> Result<Vec<f32>, GpuError> {
+    same_size(on_black, on_white)?;
+    Ok(on_black
+        .rgba
+        .chunks_exact(4)
+        .zip(on_white.rgba.chunks_exact(4))
+        .map(|(b, w)| {
+            let through: f32 = (0..3)
+                .map(|c| f32::from(w[c]) - f32::from(b[c]))
+                .sum::<f32>()
+                / (3.0 * 255.0);
+            (1.0 - through).clamp(0.0, 1.0)
+        })
+        .collect())
+}
+
+/// Of the pixels where `reference` is at least half opaque, the share where
+/// `actual` is too (1 when the reference has none): 1 − the share of holes.
+/// Opacities as [`opacity`] gives them.
+pub fn opaque_coverage(actual: &[f32], reference: &[f32]) -> f64 {
+    let (mut opaque, mut covered) = (0usize, 0usize);
+    for (&a, &r) in actual.iter().zip(reference) {
+        if r >= 0.5 {
+            opaque += 1;
+            covered += usize::from(a >= 0.5);
+        }
+    }
+    if opaque == 0 {
+        1.0
+    } else {
+        covered as f64 / opaque as f64
+    }
+}
+
+fn same_size(a: &Frame, b: &Frame) -> Result<(), GpuError> {
+    if (a.width, a.height) != (b.width, b.height) {
+        return Err(GpuError::InvalidRequest(format!(
+            "cannot compare a {}x{} image with a {}x{} one",
+            a.width, a.height, b.width, b.height
+        )));
+    }
+    Ok(())
 }
 
 /// Mean, RMS, 99th percentile, maximum and ΔE₆ of per-pixel differences (all 0
@@ -197,5 +271,49 @@ mod tests {
         let d = object_colour_difference(&frame(&a), &frame(&b), [0; 3]).expect("same size");
         assert!((d.above_6 - 2.0 / 3.0).abs() < 1e-12, "{d:?}");
         assert_eq!(statistics(Vec::new()).rms, 0.0);
+    }
+
+    fn flat(width: u32, px: impl Fn(u32) -> [u8; 3]) -> Frame {
+        Frame {
+            width,
+            height: width,
+            rgba: (0..width * width)
+                .flat_map(|i| {
+                    let [r, g, b] = px(i);
+                    [r, g, b, 255]
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn flip_is_zero_for_equal_images_and_grows_with_the_difference() {
+        let reference = flat(32, |i| [(i % 32 * 8) as u8, 90, 40]);
+        let same = flip_mean(&reference, &reference).expect("same size");
+        assert!(same.abs() < 1e-6, "{same}");
+        let near = flat(32, |i| [(i % 32 * 8) as u8, 100, 40]);
+        let far = flat(32, |i| [(i % 32 * 8) as u8, 250, 40]);
+        let (near, far) = (
+            flip_mean(&near, &reference).expect("same size"),
+            flip_mean(&far, &reference).expect("same size"),
+        );
+        assert!(0.0 < near && near < far && far <= 1.0, "{near} {far}");
+        assert!(flip_mean(&flat(8, |_| [0; 3]), &reference).is_err());
+    }
+
+    #[test]
+    fn opacity_comes_from_two_backgrounds_and_coverage_counts_holes() {
+        // Half-transparent grey object: 64 over black, 64 + 127.5 over white.
+        let black = flat(2, |i| if i < 2 { [64; 3] } else { [0; 3] });
+        let white = flat(2, |i| if i < 2 { [192; 3] } else { [255; 3] });
+        let alpha = opacity(&black, &white).expect("same size");
+        assert!((alpha[0] - 0.498).abs() < 0.01, "{alpha:?}");
+        assert_eq!(alpha[3], 0.0);
+        let reference = [1.0, 0.9, 0.2, 0.6];
+        assert_eq!(
+            opaque_coverage(&[1.0, 0.5, 1.0, 0.1], &reference),
+            2.0 / 3.0
+        );
+        assert_eq!(opaque_coverage(&[0.0; 4], &[0.1; 4]), 1.0);
     }
 }

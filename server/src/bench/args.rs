@@ -22,7 +22,8 @@ pub struct BenchArgs {
 pub enum BenchCommand {
     /// Frame rendering from packed blocks per dataset, image size and data
     /// reduction: with and without empty-block skipping, and against the
-    /// full-resolution reference (time and ΔE colour difference).
+    /// full-resolution reference (time and ΔE colour difference; at step 1/8
+    /// voxel ΔE, ꟻLIP and the share of its opaque pixels still covered).
     Render(Box<BenchRenderArgs>),
     /// Reading a generated raw volume slab by slab: MB/s and peak memory.
     Read(BenchReadArgs),

@@ -1,12 +1,14 @@
 //! `voxserve bench render`: for each dataset, the packed renderer (GPU or
 //! CPU, `--renderer`) at every image size and data reduction, with and without
 //! empty-block skipping, against the full-resolution reference renderer of
-//! the same backend (time and colour difference).
+//! the same backend: time, and colour difference against the reference at the
+//! same step and against the reference at step 1/8 voxel (ΔE*uv, ꟻLIP, and the
+//! share of the reference's opaque pixels the packed frame still covers).
 
 use std::time::Instant;
 
 use blocks::{TransferFunction, Volume};
-use shaders::colour_difference::colour_difference;
+use shaders::colour_difference::{self, colour_difference};
 use shaders::cpu::CPU_FEATURES;
 use shaders::{
     AnyRenderer, Backend, Choice, Frame, FrameRequest, GpuError, ReferenceRenderer, Shading,
@@ -35,6 +37,25 @@ pub fn render(args: &BenchRenderArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The step of the finest reference, in voxels.
+const FINE_STEP_VOXELS: f32 = 0.125;
+
+/// The full-resolution reference at [`FINE_STEP_VOXELS`]: its frame over the
+/// view's background and its per-pixel opacity.
+struct Fine {
+    frame: Frame,
+    opacity: Vec<f32>,
+}
+
+/// `request` over a white background (to measure opacity beside the frame
+/// over the view's black one).
+fn on_white(request: &FrameRequest) -> FrameRequest {
+    FrameRequest {
+        background: [1.0; 3],
+        ..request.clone()
+    }
 }
 
 /// The full-resolution reference a backend's packed renderer is compared
@@ -105,19 +126,30 @@ impl<'a> RenderBench<'a> {
         })
     }
 
-    /// One image size and shading: the reference frame, then the packed
-    /// renderer at every data reduction.
+    /// One image size and shading: the reference frames (at the view's step,
+    /// timed, and at step 1/8 over black and white), then the packed renderer
+    /// at every data reduction.
     fn view(&mut self, edge: u32, shading: Shading) -> anyhow::Result<()> {
         let base = view_request(edge, shading, &self.tf);
         let (reference_frame, reference_ms) =
             timed(self.args.frames, || self.reference.render(&base))?;
+        let fine = FrameRequest {
+            step_voxels: FINE_STEP_VOXELS,
+            ..base.clone()
+        };
+        let frame = self.reference.render(&fine)?;
+        let on_white = self.reference.render(&on_white(&fine))?;
+        let fine = Fine {
+            opacity: colour_difference::opacity(&frame, &on_white)?,
+            frame,
+        };
         for &reduction in &self.args.reductions {
             let request = FrameRequest {
                 reduction,
                 ..base.clone()
             };
             say(&self
-                .packed(&request, &reference_frame, reference_ms)?
+                .packed(&request, &reference_frame, reference_ms, &fine)?
                 .to_string())?;
         }
         Ok(())
@@ -131,6 +163,7 @@ impl<'a> RenderBench<'a> {
         request: &FrameRequest,
         reference_frame: &Frame,
         reference_ms: f64,
+        fine: &Fine,
     ) -> anyhow::Result<serde_json::Value> {
         let frames = self.args.frames;
         let renderer = &mut self.renderer;
@@ -145,6 +178,10 @@ impl<'a> RenderBench<'a> {
         };
         let (_, no_skip_ms) = timed(frames, || renderer.render(&no_skip))?;
         let error = colour_difference(&frame, reference_frame).map_err(anyhow::Error::msg)?;
+        let fine_error = colour_difference(&frame, &fine.frame)?;
+        let flip = colour_difference::flip_mean(&frame, &fine.frame)?;
+        let opacity = colour_difference::opacity(&frame, &renderer.render(&on_white(request))?)?;
+        let coverage = colour_difference::opaque_coverage(&opacity, &fine.opacity);
         let selection = renderer.selection();
         Ok(serde_json::json!({
             "bench": "render",
@@ -174,6 +211,10 @@ impl<'a> RenderBench<'a> {
             "packed_vs_reference_speedup": reference_ms / skip_ms,
             "mpix_per_s": f64::from(request.width * request.height) / 1e3 / skip_ms,
             "delta_e_vs_reference": error,
+            "fine_step_voxels": FINE_STEP_VOXELS,
+            "delta_e_vs_fine_reference": fine_error,
+            "flip_vs_fine_reference": flip,
+            "opaque_coverage_of_fine_reference": coverage,
         }))
     }
 }
