@@ -79,10 +79,12 @@ impl Budget {
         }
     }
 
-    /// The voxels this budget allows when `non_empty` blocks are shown.
-    fn voxels_for(&self, non_empty: usize) -> u64 {
+    /// The voxels this budget allows when `non_empty` blocks are shown, and
+    /// whether the cap rather than the reduction set them.
+    fn voxels_for(&self, non_empty: usize) -> (u64, bool) {
         let asked = (non_empty as f64 * block_voxels(0) as f64 / self.reduction.max(1.0)).ceil();
-        (asked as u64).min(self.cap_voxels)
+        let asked = asked as u64;
+        (asked.min(self.cap_voxels), self.cap_voxels < asked)
     }
 }
 
@@ -231,38 +233,30 @@ fn block_errors(
     arc: &[f64; HISTOGRAM_BINS],
     depth: &[f64; HISTOGRAM_BINS],
 ) -> [f64; LEVELS] {
-    let opacity = |level: usize| {
+    // Per level: the cumulative histogram (as shares), its voxels, and the
+    // block's opacity along 16 voxels under it.
+    let summary = |level: usize| {
         let h = stats.histogram(level, b);
         let total = h.iter().map(|&c| f64::from(c)).sum::<f64>().max(1.0);
-        let mean = h
-            .iter()
-            .zip(depth)
-            .map(|(&c, d)| f64::from(c) * d)
-            .sum::<f64>()
-            / total;
-        1.0 - (-f64::from(BLOCK) * mean).exp()
-    };
-    let seen = opacity(0);
-    let cumulative = |level: usize| {
-        let h = stats.histogram(level, b);
-        let total = h.iter().map(|&c| f64::from(c)).sum::<f64>().max(1.0);
-        let mut sum = 0.0;
+        let (mut sum, mut depth_sum) = (0.0, 0.0);
         let mut c = [0.0; HISTOGRAM_BINS];
         for (k, &count) in h.iter().enumerate() {
             sum += f64::from(count);
+            depth_sum += f64::from(count) * depth[k];
             c[k] = sum / total;
         }
-        (c, total)
+        let opacity = 1.0 - (-f64::from(BLOCK) * depth_sum / total).exp();
+        (c, total, opacity)
     };
-    let (c0, voxels) = cumulative(0);
+    let (c0, voxels, seen) = summary(0);
     let mut errors = [0.0; LEVELS];
     for (level, e) in errors.iter_mut().enumerate().skip(1) {
-        let (cl, _) = cumulative(level);
+        let (cl, _, opacity) = summary(level);
         *e = voxels
             * (0..HISTOGRAM_BINS)
                 .map(|k| (c0[k] - cl[k]).abs() * arc[k])
                 .sum::<f64>()
-            + block_voxels(0) as f64 * (seen - opacity(level)).abs();
+            + block_voxels(0) as f64 * (seen - opacity).abs();
     }
     errors
 }
@@ -381,8 +375,7 @@ pub fn select(
         })
         .collect();
     let non_empty = lod.iter().filter(|&&l| l != EMPTY).count();
-    let budget_voxels = budget.voxels_for(non_empty);
-    let capped = budget_voxels < Budget::reduction(budget.reduction).voxels_for(non_empty);
+    let (budget_voxels, capped) = budget.voxels_for(non_empty);
     let mut kept = non_empty as u64 * block_voxels(LEVELS - 1);
     let mut error: f64 = per_block.iter().flatten().map(|e| e[LEVELS - 1]).sum();
     let (steps, targets) = refinement_order(&per_block);
