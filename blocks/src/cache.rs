@@ -272,12 +272,24 @@ impl BlockCache {
         request: bool,
     ) -> Result<Option<Pinned>, Error> {
         let keys = self.apron_chunks(level, block, apron);
-        let mut pinned = Pinned::with_capacity(keys.len());
+        Ok(self
+            .pin(&keys, request)?
+            .map(|chunks| chunks.into_iter().map(|(k, c)| (k.1, c)).collect()))
+    }
+
+    /// The chunks `keys` if every one is in memory, pinned; otherwise as
+    /// [`BlockCache::pin_with_apron`].
+    pub fn pin(
+        self: &Arc<Self>,
+        keys: &[ChunkKey],
+        request: bool,
+    ) -> Result<Option<HashMap<ChunkKey, Arc<VoxelData>>>, Error> {
+        let mut pinned = HashMap::with_capacity(keys.len());
         let mut missing = Vec::new();
-        for &key in &keys {
+        for &key in keys {
             match self.cached_chunk(key) {
                 Some(chunk) => {
-                    pinned.insert(key.1, chunk);
+                    pinned.insert(key, chunk);
                 }
                 None => missing.push(key),
             }
@@ -330,6 +342,34 @@ impl BlockCache {
             .map(|(k, c)| c.map(|c| (k.1, c)))
             .collect::<Result<_, _>>()?;
         Ok(self.assemble_with_apron(level, block, apron, &chunks))
+    }
+
+    /// Block `block` at the level in entry 13 of `levels` with a one-voxel
+    /// apron that meets its neighbours at their levels in `levels` without a
+    /// step ([`crate::seams`]); missing chunks are read on the caller's thread.
+    pub fn seamless_block(
+        &self,
+        block: [u32; 3],
+        levels: &crate::seams::Neighbourhood,
+    ) -> Result<VoxelData, Error> {
+        let level = usize::from(levels[13]);
+        let mut voxels = self.block_with_apron(level, block, crate::packing::APRON)?;
+        let meta = self.store.meta();
+        let keys = crate::seams::seam_chunks(block, meta.blocks, meta.geometry.dims, levels);
+        let chunks = keys
+            .iter()
+            .zip(self.chunks(&keys))
+            .map(|(k, c)| c.map(|c| (*k, c)))
+            .collect::<Result<_, _>>()?;
+        crate::seams::fix_apron(
+            &mut voxels,
+            block,
+            meta.blocks,
+            meta.geometry.dims,
+            levels,
+            &chunks,
+        );
+        Ok(voxels)
     }
 
     /// The chunks of `level` that block `block` with an `apron` touches.

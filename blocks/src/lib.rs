@@ -16,6 +16,7 @@
 //! - [`cache`]: [`cache::BlockCache`], decoded chunks under a byte budget.
 //! - [`lod`]: transfer-function based level-of-detail selection under a budget.
 //! - [`packing`]: the atlas layout by level and the block index, for the GPU.
+//! - [`seams`]: aprons that meet neighbours of other levels without a step.
 //! - [`transfer_function`]: [`TransferFunction`] (control points in physical units),
 //!   its named presets and the 1D RGBA table that the GPU stages sample.
 //! - [`error`]: [`Error`], this crate's one error type.
@@ -27,6 +28,7 @@ pub mod ingest;
 pub mod lod;
 pub mod packing;
 pub mod phantom;
+pub mod seams;
 pub mod store;
 pub mod transfer_function;
 pub mod volume;

@@ -10,8 +10,9 @@
 //! With the apron, hardware trilinear filtering and central-difference
 //! gradients at a block's edge read the right neighbour values instead of
 //! whatever block sits next to it in the atlas (the cost: (18/16)³ ≈ 1.42× the
-//! voxels at level 0). Where neighbouring blocks have different levels, small
-//! cracks remain; interblock interpolation would hide them.
+//! voxels at level 0). Where neighbouring blocks have different levels, the
+//! finer block's apron meets the coarser one's reconstruction instead
+//! ([`crate::seams`]).
 //!
 //! # Updates
 //! When the transfer function or the budget changes, [`Packing::update`] keeps

@@ -90,11 +90,17 @@ pub trait Voxel: bytemuck::Pod + Into<f64> + PartialOrd + Send + Sync {
     fn from_le(bytes: &[u8]) -> Self;
     /// The value from big-endian bytes.
     fn from_be(bytes: &[u8]) -> Self;
+    /// The value nearest `v`: rounded to nearest and saturated for integers.
+    fn from_f64(v: f64) -> Self;
 }
 
 macro_rules! impl_voxel {
-    ($($t:ty),*) => {$(
+    ($round:expr; $($t:ty),*) => {$(
         impl Voxel for $t {
+            fn from_f64(v: f64) -> Self {
+                // `as` saturates at the type's range (NaN becomes 0).
+                $round(v) as $t
+            }
             fn from_le(bytes: &[u8]) -> Self {
                 let mut b = [0u8; size_of::<$t>()];
                 b.copy_from_slice(bytes);
@@ -108,7 +114,8 @@ macro_rules! impl_voxel {
         }
     )*};
 }
-impl_voxel!(u8, i8, u16, i16, u32, i32, f32);
+impl_voxel!(f64::round; u8, i8, u16, i16, u32, i32);
+impl_voxel!(std::convert::identity; f32);
 
 /// The stored voxel values of a volume or a slab of one.
 #[derive(Debug, Clone, PartialEq)]

@@ -38,18 +38,22 @@ pub struct GpuAtlas {
 }
 
 /// Where an upload gets a block's voxels: block `b` (in block-statistics
-/// order) at `level`, with its one-voxel apron. The renderer passes voxels it
-/// pinned in memory, so an upload never waits for storage.
-pub type BlockSource<'a> = &'a (dyn Fn(usize, usize) -> Result<VoxelData, GpuError> + Sync);
+/// order) at its level in `lod` (the packing's levels of every block), with
+/// its one-voxel apron meeting its neighbours at their levels
+/// ([`blocks::seams`]). The renderer passes voxels it pinned in memory, so an
+/// upload never waits for storage.
+pub type BlockSource<'a> = &'a (dyn Fn(usize, &[u8]) -> Result<VoxelData, GpuError> + Sync);
 
 /// A source reading blocks through `cache`, missing chunks on the caller's
 /// thread (the CPU twin, tests).
 pub fn cache_source(
     cache: &BlockCache,
-) -> impl Fn(usize, usize) -> Result<VoxelData, GpuError> + Sync + '_ {
-    move |b, level| {
+) -> impl Fn(usize, &[u8]) -> Result<VoxelData, GpuError> + Sync + '_ {
+    move |b, lod| {
+        let grid = cache.store().meta().blocks;
         let block = cache.store().stats().block_position(b);
-        Ok(cache.block_with_apron(level, block, blocks::packing::APRON)?)
+        let levels = blocks::seams::neighbourhood(lod, grid, block);
+        Ok(cache.seamless_block(block, &levels)?)
     }
 }
 
@@ -60,7 +64,7 @@ fn slot_bytes(
     desc: &VolumeTexture,
     b: usize,
 ) -> Result<Vec<u8>, GpuError> {
-    let voxels = source(b, usize::from(packing.lod[b]))?;
+    let voxels = source(b, &packing.lod)?;
     Ok(desc.texel_bytes(&voxels).into_owned())
 }
 
@@ -290,7 +294,7 @@ impl CpuAtlas {
                 .par_iter()
                 .filter(|&&b| packing.slot_origin(b).is_some())
                 .map(|&b| {
-                    let voxels = source(b, usize::from(packing.lod[b]))?;
+                    let voxels = source(b, &packing.lod)?;
                     Ok((b, desc.texel_values(&voxels)))
                 })
                 .collect::<Result<_, GpuError>>()?;

@@ -14,12 +14,14 @@
 //! renders at once from coarse data and refines as blocks arrive, and other
 //! datasets' frames never wait for its reads.
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use blocks::TransferFunction;
 use blocks::cache::{BlockCache, Pinned};
 use blocks::lod::{self, Budget, EMPTY, LodSelection};
 use blocks::packing::{APRON, Packing};
+use blocks::seams::{self, SeamChunks};
 use blocks::store::{LEVELS, Store};
 use rayon::prelude::*;
 
@@ -62,6 +64,10 @@ struct Target {
 struct Shown<A> {
     atlas: A,
     selection: LodSelection,
+    /// Per block, whether its apron was written without a chunk it needs to
+    /// meet a neighbour of another level ([`blocks::seams`]): written again
+    /// when the chunk arrives.
+    rough: Vec<bool>,
 }
 
 /// The levels to show per block now, the chunks pinned for the blocks to
@@ -119,7 +125,8 @@ impl<A: Atlas> Residency<A> {
         self.data_version
     }
 
-    /// Blocks shown coarser than selected, waiting for their data.
+    /// Blocks shown coarser than selected, or with aprons not yet meeting a
+    /// neighbour's level, waiting for their data.
     pub fn pending(&self) -> usize {
         self.pending
     }
@@ -199,7 +206,9 @@ impl<A: Atlas> Residency<A> {
     }
 
     /// Shows what memory allows of the target now: uploads the blocks whose
-    /// level changes (or every block, when the atlas is laid out anew).
+    /// level changes (or every block, when the atlas is laid out anew), and
+    /// writes again the blocks whose aprons must meet a neighbour's new level
+    /// ([`blocks::seams`]).
     fn show(
         &mut self,
         device: &A::Device,
@@ -210,38 +219,100 @@ impl<A: Atlas> Residency<A> {
             return Ok(());
         };
         let shown_lod = self.shown.as_ref().map(|s| s.selection.lod.as_slice());
-        let plan = plan(&self.cache, &target.selection, shown_lod)?;
+        let rough_before = self
+            .shown
+            .as_ref()
+            .is_some_and(|s| s.rough.iter().any(|&r| r));
+        let mut plan = plan(&self.cache, &target.selection, shown_lod)?;
         self.pending = plan.pending;
-        if shown_lod == Some(plan.lod.as_slice()) {
+        let same_levels = shown_lod == Some(plan.lod.as_slice());
+        if same_levels && !rough_before {
             return Ok(());
         }
         let max_edge = A::max_edge(device);
         let selection = target.selection.with_levels(plan.lod.clone());
-        self.data_version += 1;
         let grid = self.cache.store().meta().blocks;
-        let kept = self.shown.take().map(|s| s.atlas);
+        let kept = self.shown.take();
         let update = match &kept {
-            Some(atlas) => Some(atlas.packing().update(&selection, max_edge)?),
+            Some(shown) => Some(shown.atlas.packing().update(&selection, max_edge)?),
             None => None,
         };
         match (kept, update) {
-            (Some(mut atlas), Some(update)) if !update.relayout => {
-                stats.uploaded_blocks = update.uploads.len();
-                let source = pinned_source(&self.cache, &plan.pins);
-                atlas.update(device, update.packing, &update.uploads, desc, &source)?;
-                self.shown = Some(Shown { atlas, selection });
+            (Some(shown), Some(update)) if !update.relayout => {
+                // Blocks that keep their slot but whose aprons meet a
+                // neighbour's new level, or were written without every chunk.
+                let touched = seams::neighbour_changed(&shown.selection.lod, &plan.lod, grid);
+                let mut uploads = update.uploads;
+                let moved: std::collections::HashSet<usize> = uploads.iter().copied().collect();
+                let again: Vec<(usize, Option<Pinned>)> = (0..plan.lod.len())
+                    .into_par_iter()
+                    .filter(|&b| {
+                        plan.lod[b] != EMPTY
+                            && !moved.contains(&b)
+                            && (touched[b] || shown.rough.get(b).copied().unwrap_or(false))
+                    })
+                    .map(|b| {
+                        let block = self.cache.store().stats().block_position(b);
+                        let pins = self.cache.pin_with_apron(
+                            usize::from(plan.lod[b]),
+                            block,
+                            APRON,
+                            true,
+                        )?;
+                        Ok((b, pins))
+                    })
+                    .collect::<Result<_, GpuError>>()?;
+                let mut rough = shown.rough;
+                rough.resize(plan.lod.len(), false);
+                for (b, pins) in again {
+                    match pins {
+                        Some(pins) => {
+                            plan.pins[b] = Some(pins);
+                            uploads.push(b);
+                        }
+                        // Its chunks are on their way: written when they arrive.
+                        None => rough[b] = true,
+                    }
+                }
+                if uploads.is_empty() && same_levels {
+                    self.pending += rough.iter().filter(|&&r| r).count();
+                    self.shown = Some(Shown { rough, ..shown });
+                    return Ok(());
+                }
+                let seams = pin_seams(&self.cache, &plan.lod, &uploads, &mut rough)?;
+                self.data_version += 1;
+                stats.uploaded_blocks = uploads.len();
+                let source = pinned_source(&self.cache, &plan.pins, &seams);
+                let mut atlas = shown.atlas;
+                atlas.update(device, update.packing, &uploads, desc, &source)?;
+                self.pending += rough.iter().filter(|&&r| r).count();
+                self.shown = Some(Shown {
+                    atlas,
+                    selection,
+                    rough,
+                });
             }
             (kept, _) => {
                 // The old atlas goes before the new one is made.
                 drop(kept);
+                self.data_version += 1;
                 let (selection, plan) = self.fresh_plan(plan)?;
-                self.pending = plan.pending;
                 let packing = Packing::new(&selection, max_edge)?;
                 stats.uploaded_blocks = selection.non_empty;
                 stats.relayout = true;
-                let source = pinned_source(&self.cache, &plan.pins);
+                let every: Vec<usize> = (0..plan.lod.len())
+                    .filter(|&b| plan.lod[b] != EMPTY)
+                    .collect();
+                let mut rough = vec![false; plan.lod.len()];
+                let seams = pin_seams(&self.cache, &plan.lod, &every, &mut rough)?;
+                let source = pinned_source(&self.cache, &plan.pins, &seams);
                 let atlas = A::upload(device, grid, packing, desc, &source)?;
-                self.shown = Some(Shown { atlas, selection });
+                self.pending = plan.pending + rough.iter().filter(|&&r| r).count();
+                self.shown = Some(Shown {
+                    atlas,
+                    selection,
+                    rough,
+                });
             }
         }
         Ok(())
@@ -345,18 +416,67 @@ fn finest_in_memory(
     Ok((coarsest as u8, pins))
 }
 
-/// A block source assembling each block from its pinned chunks.
+/// The chunks of other levels the aprons of blocks `write` read at levels
+/// `lod`, pinned where every one is in memory (the others are requested);
+/// blocks written without them are marked in `rough`, the others cleared.
+fn pin_seams(
+    cache: &Arc<BlockCache>,
+    lod: &[u8],
+    write: &[usize],
+    rough: &mut [bool],
+) -> Result<HashMap<usize, SeamChunks>, GpuError> {
+    let grid = cache.store().meta().blocks;
+    let dims = cache.store().meta().geometry.dims;
+    let stats = cache.store().stats();
+    let pinned: Vec<(usize, Option<SeamChunks>)> = write
+        .par_iter()
+        .map(|&b| {
+            let block = stats.block_position(b);
+            let levels = seams::neighbourhood(lod, grid, block);
+            let keys = seams::seam_chunks(block, grid, dims, &levels);
+            Ok((b, cache.pin(&keys, true)?))
+        })
+        .collect::<Result<_, GpuError>>()?;
+    let mut seams = HashMap::with_capacity(pinned.len());
+    for (b, chunks) in pinned {
+        if let Some(r) = rough.get_mut(b) {
+            *r = chunks.is_none();
+        }
+        if let Some(chunks) = chunks {
+            seams.insert(b, chunks);
+        }
+    }
+    Ok(seams)
+}
+
+/// A block source assembling each block from its pinned chunks, its apron
+/// meeting its neighbours' levels where their chunks are in `seams`.
 fn pinned_source<'a>(
     cache: &'a BlockCache,
     pins: &'a [Option<Pinned>],
-) -> impl Fn(usize, usize) -> Result<blocks::VoxelData, GpuError> + Sync + 'a {
-    move |b, level| {
+    seams: &'a HashMap<usize, SeamChunks>,
+) -> impl Fn(usize, &[u8]) -> Result<blocks::VoxelData, GpuError> + Sync + 'a {
+    move |b, lod| {
         let block = cache.store().stats().block_position(b);
-        match pins.get(b).and_then(Option::as_ref) {
-            Some(pinned) => Ok(cache.assemble_with_apron(level, block, APRON, pinned)),
+        let level = usize::from(lod[b]);
+        let mut voxels = match pins.get(b).and_then(Option::as_ref) {
+            Some(pinned) => cache.assemble_with_apron(level, block, APRON, pinned),
             // Not planned to change: only a relayout uploads it, and relayouts pin every block.
-            None => Ok(cache.block_with_apron(level, block, APRON)?),
+            None => cache.block_with_apron(level, block, APRON)?,
+        };
+        if let Some(chunks) = seams.get(&b) {
+            let meta = cache.store().meta();
+            let levels = seams::neighbourhood(lod, meta.blocks, block);
+            seams::fix_apron(
+                &mut voxels,
+                block,
+                meta.blocks,
+                meta.geometry.dims,
+                &levels,
+                chunks,
+            );
         }
+        Ok(voxels)
     }
 }
 
