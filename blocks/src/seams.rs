@@ -94,18 +94,26 @@ pub fn neighbourhood(lod: &[u8], grid: [u32; 3], block: [u32; 3]) -> Neighbourho
     levels
 }
 
-/// Per block of a grid of `grid` blocks, whether a neighbour's level differs
-/// between `old` and `new` (per block, x fastest): its apron, written for the
-/// old levels, must be written again.
+/// Per block of a grid of `grid` blocks, whether its apron must be written
+/// again going from levels `old` to `new` (per block, x fastest): a
+/// neighbour's level changed and it is coarser than the block (now or
+/// before). A neighbour that turns finer, same-level or empty from
+/// something not coarser leaves the apron as it was: at the block's level.
 pub fn neighbour_changed(old: &[u8], new: &[u8], grid: [u32; 3]) -> Vec<bool> {
     let mut touched = vec![false; new.len()];
     let [gx, gy, _] = grid.map(|g| g as usize);
     let index = |n: [u32; 3]| (n[2] as usize * gy + n[1] as usize) * gx + n[0] as usize;
-    for (c, _) in old.iter().zip(new).enumerate().filter(|(_, (o, n))| o != n) {
+    for (c, (&was, &now)) in old.iter().zip(new).enumerate().filter(|(_, (o, n))| o != n) {
         let block = [c % gx, (c / gx) % gy, c / (gx * gy)].map(|v| v as u32);
         for d in offsets() {
-            if let Some(t) = neighbour(block, d, grid).and_then(|n| touched.get_mut(index(n))) {
-                *t = true;
+            let Some(b) = neighbour(block, d, grid).map(index) else {
+                continue;
+            };
+            let Some(&own) = new.get(b) else {
+                continue;
+            };
+            if usize::from(own) < LEVELS && (coarser(was, own) || coarser(now, own)) {
+                touched[b] = true;
             }
         }
     }
@@ -323,13 +331,13 @@ mod tests {
     }
 
     #[test]
-    fn a_level_change_touches_the_26_neighbours_only() {
+    fn a_neighbour_turning_coarser_touches_the_26_neighbours_only() {
         let grid = [4, 4, 4];
+        let index = |x: usize, y: usize, z: usize| (z * 4 + y) * 4 + x;
         let old = vec![1u8; 64];
         let mut new = old.clone();
-        new[(2 * 4 + 1) * 4 + 1] = 0; // block (1, 1, 2)
+        new[index(1, 1, 2)] = 2;
         let touched = neighbour_changed(&old, &new, grid);
-        let index = |x: usize, y: usize, z: usize| (z * 4 + y) * 4 + x;
         assert_eq!(touched.iter().filter(|&&t| t).count(), 26);
         assert!(touched[index(0, 0, 1)], "(0, 0, 1) is a corner neighbour");
         assert!(
@@ -337,6 +345,22 @@ mod tests {
             "the block itself is written anyway"
         );
         assert!(!touched[index(3, 1, 2)], "(3, 1, 2) is two blocks away");
+        // Finer or empty: the neighbours' aprons stay at their own level.
+        for level in [0, EMPTY] {
+            new[index(1, 1, 2)] = level;
+            let touched = neighbour_changed(&old, &new, grid);
+            assert!(touched.iter().all(|&t| !t), "level {level}");
+        }
+        // From coarser back to the same level: written again.
+        let mut was = vec![1u8; 64];
+        was[index(1, 1, 2)] = 3;
+        assert_eq!(
+            neighbour_changed(&was, &old, grid)
+                .iter()
+                .filter(|&&t| t)
+                .count(),
+            26
+        );
     }
 
     #[test]
