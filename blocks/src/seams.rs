@@ -71,6 +71,11 @@ fn neighbour(block: [u32; 3], d: [i64; 3], grid: [u32; 3]) -> Option<[u32; 3]> {
     Some(n)
 }
 
+/// Where block `n` is in per-block arrays over a grid of `grid` blocks (x fastest).
+fn grid_index(n: [u32; 3], grid: [u32; 3]) -> usize {
+    (n[2] as usize * grid[1] as usize + n[1] as usize) * grid[0] as usize + n[0] as usize
+}
+
 /// The offsets of the 26 neighbours.
 fn offsets() -> impl Iterator<Item = [i64; 3]> {
     (-1..=1)
@@ -82,13 +87,10 @@ fn offsets() -> impl Iterator<Item = [i64; 3]> {
 /// `grid` blocks).
 pub fn neighbourhood(lod: &[u8], grid: [u32; 3], block: [u32; 3]) -> Neighbourhood {
     let mut levels = [EMPTY; 27];
-    let index = |n: [u32; 3]| {
-        (n[2] as usize * grid[1] as usize + n[1] as usize) * grid[0] as usize + n[0] as usize
-    };
-    levels[13] = lod.get(index(block)).copied().unwrap_or(EMPTY);
+    levels[13] = lod.get(grid_index(block, grid)).copied().unwrap_or(EMPTY);
     for d in offsets() {
         if let Some(n) = neighbour(block, d, grid) {
-            levels[entry(d)] = lod.get(index(n)).copied().unwrap_or(EMPTY);
+            levels[entry(d)] = lod.get(grid_index(n, grid)).copied().unwrap_or(EMPTY);
         }
     }
     levels
@@ -102,11 +104,10 @@ pub fn neighbourhood(lod: &[u8], grid: [u32; 3], block: [u32; 3]) -> Neighbourho
 pub fn neighbour_changed(old: &[u8], new: &[u8], grid: [u32; 3]) -> Vec<bool> {
     let mut touched = vec![false; new.len()];
     let [gx, gy, _] = grid.map(|g| g as usize);
-    let index = |n: [u32; 3]| (n[2] as usize * gy + n[1] as usize) * gx + n[0] as usize;
     for (c, (&was, &now)) in old.iter().zip(new).enumerate().filter(|(_, (o, n))| o != n) {
         let block = [c % gx, (c / gx) % gy, c / (gx * gy)].map(|v| v as u32);
         for d in offsets() {
-            let Some(b) = neighbour(block, d, grid).map(index) else {
+            let Some(b) = neighbour(block, d, grid).map(|n| grid_index(n, grid)) else {
                 continue;
             };
             let Some(&own) = new.get(b) else {
@@ -317,6 +318,11 @@ mod tests {
         Arc::new(VoxelData::U16(v))
     }
 
+    /// A slot of `level` whose every texel is 7.
+    fn sevens(level: usize) -> VoxelData {
+        VoxelData::U16(vec![7; (slot_edge(level) as usize).pow(3)])
+    }
+
     #[test]
     fn neighbourhood_reads_levels_around_a_block_and_empty_outside_the_grid() {
         let grid = [3, 2, 1];
@@ -378,7 +384,7 @@ mod tests {
         let coarse = chunk(|x, y, _| 100.0 * x as f64 + 10.0 * y as f64);
         let chunks: SeamChunks = [((2, [0, 0, 0]), coarse)].into();
         let side = slot_edge(0) as usize;
-        let mut slot = VoxelData::U16(vec![7; side * side * side]);
+        let mut slot = sevens(0);
         assert!(fix_apron(
             &mut slot,
             [0, 0, 0],
@@ -405,7 +411,7 @@ mod tests {
         assert_eq!(at(0, 5, 5), 7);
         assert_eq!(at(16, 5, 5), 7);
         // Missing chunks leave the apron and say so.
-        let mut slot = VoxelData::U16(vec![7; side * side * side]);
+        let mut slot = sevens(0);
         assert!(!fix_apron(
             &mut slot,
             [0, 0, 0],
@@ -426,8 +432,7 @@ mod tests {
         let lod = [0u8, 2];
         let levels = neighbourhood(&lod, grid, [1, 0, 0]);
         assert!(seam_chunks([1, 0, 0], grid, [32, 16, 16], &levels).is_empty());
-        let side = slot_edge(2) as usize;
-        let mut slot = VoxelData::U16(vec![7; side * side * side]);
+        let mut slot = sevens(2);
         assert!(fix_apron(
             &mut slot,
             [1, 0, 0],
@@ -436,6 +441,6 @@ mod tests {
             &levels,
             &SeamChunks::new()
         ));
-        assert_eq!(slot, VoxelData::U16(vec![7; side * side * side]));
+        assert_eq!(slot, sevens(2));
     }
 }

@@ -92,13 +92,13 @@ fn averages(s: &Sums, ty: VoxelType) -> VoxelData {
         .zip(&s.count)
         .map(|(&sum, &n)| if n == 0 { f64::NAN } else { sum / f64::from(n) });
     match ty {
-        VoxelType::U8 => VoxelData::U8(mean.map(|m| m.round() as u8).collect()),
-        VoxelType::I8 => VoxelData::I8(mean.map(|m| m.round() as i8).collect()),
-        VoxelType::U16 => VoxelData::U16(mean.map(|m| m.round() as u16).collect()),
-        VoxelType::I16 => VoxelData::I16(mean.map(|m| m.round() as i16).collect()),
-        VoxelType::U32 => VoxelData::U32(mean.map(|m| m.round() as u32).collect()),
-        VoxelType::I32 => VoxelData::I32(mean.map(|m| m.round() as i32).collect()),
-        VoxelType::F32 => VoxelData::F32(mean.map(|m| m as f32).collect()),
+        VoxelType::U8 => VoxelData::U8(mean.map(u8::from_f64).collect()),
+        VoxelType::I8 => VoxelData::I8(mean.map(i8::from_f64).collect()),
+        VoxelType::U16 => VoxelData::U16(mean.map(u16::from_f64).collect()),
+        VoxelType::I16 => VoxelData::I16(mean.map(i16::from_f64).collect()),
+        VoxelType::U32 => VoxelData::U32(mean.map(u32::from_f64).collect()),
+        VoxelType::I32 => VoxelData::I32(mean.map(i32::from_f64).collect()),
+        VoxelType::F32 => VoxelData::F32(mean.map(f32::from_f64).collect()),
     }
 }
 
