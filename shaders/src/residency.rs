@@ -264,6 +264,10 @@ impl<A: Atlas> Residency<A> {
                     .collect::<Result<_, GpuError>>()?;
                 let mut rough = shown.rough;
                 rough.resize(plan.lod.len(), false);
+                // A block no longer shown has no apron left to finish.
+                for (r, &level) in rough.iter_mut().zip(&plan.lod) {
+                    *r &= level != EMPTY;
+                }
                 for (b, pins) in again {
                     match pins {
                         Some(pins) => {
