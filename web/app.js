@@ -455,7 +455,10 @@ async function start() {
   buildLightPanel();
   defaultLights();
   buildDatasetPicker(datasets);
-  stream = new ViewStream(drawFrame, showError, () => {});
+  stream = new ViewStream(drawFrame, showError, () => {}, (set) => {
+    camera.adopt(set);
+    return camera.params();
+  });
   attachLightDrag();
   attachGestures(canvas, camera, () => requestFrame());
   attachControls();

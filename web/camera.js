@@ -1,7 +1,10 @@
 // Orbit camera state and the pointer, wheel and touch gestures that change it.
-// Angles in degrees, distance in bounding-sphere radii: the view settings
-// `az`, `el` and `dist`, whose defaults and ranges come from the server's
-// schema (GET /api/settings).
+// Angles in degrees, distance in bounding-sphere radii, the target in mm from
+// the volume's centre: the view settings `az`, `el`, `dist`, `tx`, `ty` and
+// `tz`, whose defaults and ranges come from the server's schema (GET
+// /api/settings). A reset asks the server to `fit` the camera to what the
+// transfer function shows; the server answers with the camera it chose
+// (`adopt`).
 
 const DEGREES_PER_PIXEL = 0.4;
 
@@ -11,6 +14,7 @@ export class OrbitCamera {
     this.az0 = schema.default('az');
     this.el0 = schema.default('el');
     this.dist0 = schema.default('dist');
+    this.target0 = ['tx', 'ty', 'tz'].map((name) => schema.default(name));
     const el = schema.get('el');
     const dist = schema.get('dist');
     this.elRange = [el.min, el.max];
@@ -18,10 +22,22 @@ export class OrbitCamera {
     this.reset();
   }
 
+  // The default angles, framing what the transfer function shows.
   reset() {
     this.az = this.az0;
     this.el = this.el0;
     this.dist = this.dist0;
+    this.target = [...this.target0];
+    this.fit = true;
+  }
+
+  // Takes the distance and target of the camera a fit chose (the server's
+  // `camera` message, settings by name).
+  adopt(set) {
+    if (typeof set.dist === 'number') this.dist = set.dist;
+    const target = ['tx', 'ty', 'tz'].map((name) => set[name]);
+    if (target.every((v) => typeof v === 'number')) this.target = target;
+    this.fit = false;
   }
 
   orbit(dxPixels, dyPixels) {
@@ -31,12 +47,16 @@ export class OrbitCamera {
 
   zoom(factor) {
     this.dist = clamp(this.dist * factor, ...this.distRange);
+    this.fit = false;
   }
 
-  // The view settings, as numbers.
+  // The view settings (numbers rounded as the server rounds a fit's).
   params() {
     const round = (v, digits) => Number(v.toFixed(digits));
-    return { az: round(this.az, 2), el: round(this.el, 2), dist: round(this.dist, 3) };
+    const [tx, ty, tz] = this.target.map((v) => round(v, 2));
+    return {
+      az: round(this.az, 2), el: round(this.el, 2), dist: round(this.dist, 3), tx, ty, tz, fit: this.fit,
+    };
   }
 }
 

@@ -5,7 +5,9 @@
 // the server sends nothing more until it is, so a slow link drops frames
 // instead of building lag. The server decides the quality: small JPEG frames
 // while views keep coming, then the lossless full frame, then light
-// refinements until converged. A `status` message ({type:'status', id}) is
+// refinements until converged. A view with `fit: true` is answered by a
+// `camera` message (the camera the server chose, now the session's) before
+// its frame. A `status` message ({type:'status', id}) is
 // answered in order by {type:'status', id, view_id, sent, acked, rendering,
 // waiting, converged} (tests use it); this client sends none and ignores
 // the replies. A server shutting down closes the socket with code 1001; the
@@ -50,11 +52,14 @@ export function parseHeader(buffer) {
 
 export class ViewStream {
   // `draw(bitmap, info)` shows a frame, `fail(message)` reports an error,
-  // `hello(message)` receives the server's greeting (dataset, settings).
-  constructor(draw, fail, hello) {
+  // `hello(message)` receives the server's greeting (dataset, settings),
+  // `camera(set)` takes the camera a fit chose and returns the view settings
+  // the client now holds for it (the server has them: they are not sent back).
+  constructor(draw, fail, hello, camera) {
     this.draw = draw;
     this.fail = fail;
     this.hello = hello;
+    this.camera = camera;
     this.view = null;
     this.dpr = 1;
     this.sent = {};
@@ -126,6 +131,11 @@ export class ViewStream {
       const message = JSON.parse(data);
       if (message.type === 'error') this.fail(message.message);
       else if (message.type === 'hello') this.hello(message);
+      else if (message.type === 'camera') {
+        const held = this.camera(message.set);
+        Object.assign(this.sent, held);
+        if (this.view) Object.assign(this.view, held);
+      }
       return;
     }
     let header;

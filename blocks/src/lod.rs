@@ -160,6 +160,27 @@ impl LodSelection {
             .collect()
     }
 
+    /// The voxels the shown (non-empty) blocks span, as index ranges
+    /// `[lo, hi)` per axis of a volume of `dims` voxels cut into a grid of
+    /// `grid` blocks (x fastest, as `lod`); `None` when every block is empty.
+    pub fn shown_voxels(&self, grid: [u32; 3], dims: [u32; 3]) -> Option<[[u32; 3]; 2]> {
+        let (gx, gy) = (grid[0] as usize, grid[1] as usize);
+        let mut span: Option<[[u32; 3]; 2]> = None;
+        for (b, _) in self.lod.iter().enumerate().filter(|(_, l)| **l != EMPTY) {
+            let n = [b % gx, b / gx % gy, b / (gx * gy)].map(|n| n as u32);
+            let lo: [u32; 3] = std::array::from_fn(|a| (n[a] * BLOCK).min(dims[a]));
+            let hi: [u32; 3] = std::array::from_fn(|a| ((n[a] + 1) * BLOCK).min(dims[a]));
+            span = Some(match span {
+                None => [lo, hi],
+                Some([l, h]) => [
+                    std::array::from_fn(|a| l[a].min(lo[a])),
+                    std::array::from_fn(|a| h[a].max(hi[a])),
+                ],
+            });
+        }
+        span
+    }
+
     /// How many blocks sit at each level.
     pub fn level_counts(&self) -> [usize; LEVELS] {
         let mut counts = [0; LEVELS];
@@ -619,6 +640,15 @@ mod tests {
         assert!(sel.kept_voxels <= 1024 && !sel.capped, "{sel:?}");
         assert!(sel.reduction() >= 4.0, "{}", sel.reduction());
         assert!((sel.empty_share() - 0.75).abs() < 1e-9);
+        // The shown blocks' voxels: blocks (1, 0, 0) and (1, 1, 0) of a 2×2×2
+        // grid over 20×32×30 voxels (the last blocks cut short).
+        let two = sel.with_levels(vec![EMPTY, 2, EMPTY, 0, EMPTY, EMPTY, EMPTY, EMPTY]);
+        assert_eq!(
+            two.shown_voxels([2, 2, 2], [20, 32, 30]),
+            Some([[16, 0, 0], [20, 32, 16]])
+        );
+        let none = sel.with_levels(vec![EMPTY; 8]);
+        assert_eq!(none.shown_voxels([2, 2, 2], [20, 32, 30]), None);
         // At 1:1 the block is whole: reduction 1 although three quarters are empty.
         let full = select(
             &stats(),

@@ -3,7 +3,7 @@
 //! | route | answer |
 //! |---|---|
 //! | `GET /` and other paths | the web client (`web/`) |
-//! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Queue-Ms` (waited for the render worker), `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), `X-Pending-Blocks` (blocks still shown coarser: 0 unless reading them took too long), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
+//! | `GET /api/render?…` | a PNG of one frame; the query's parameters are the view settings ([`crate::view`], listed by `GET /api/settings`); headers `X-Render-Ms`, `X-Queue-Ms` (waited for the render worker), `X-Encode-Ms`, `X-Reduction` (data reduction rendered at), `X-Levels` (blocks per level 0..4), `X-Pending-Blocks` (blocks still shown coarser: 0 unless reading them took too long), with `fit=true` `X-Camera` (the camera the fit chose, as query parameters), and for `shading=global` `X-Refinement` (in-scattering directions in, j/J) and `X-Light-Ms` |
 //! | `HEAD /api/render?…`, `HEAD /api/datasets/{id}/render?…` | the `GET`'s checks and content type; never renders |
 //! | `GET /api/stream` | a WebSocket view session: [`crate::protocol`], [`crate::stream`] |
 //! | `GET /api/settings` | every view setting (name, flag, group, kind, range or choices, unit, default, doc, what it takes), as JSON: the web client builds its controls from it |
@@ -599,6 +599,17 @@ async fn render_pairs(
     }
     set("x-levels", format!("{:?}", stats.level_counts));
     set("x-pending-blocks", stats.pending_blocks.to_string());
+    if let Some(camera) = &stats.camera {
+        // The camera a fit chose, as query parameters that draw it again.
+        let query = shaders::settings::Settings::settings()
+            .iter()
+            .map(|s: &&dyn shaders::settings::Setting<shaders::Camera>| {
+                format!("{}={}", s.spec().name, s.text(camera))
+            })
+            .collect::<Vec<_>>()
+            .join("&");
+        set("x-camera", query);
+    }
     if let Some(light) = stats.light() {
         set(
             "x-refinement",

@@ -19,7 +19,11 @@
 //! at the start (the datasets' descriptions as `GET /api/datasets` gives them,
 //! and the stream settings), `{"type":"error","id":N,"message":"…"}` for a
 //! refused message (`id`: the message's, when it had one) or a view that
-//! cannot be rendered, and a [`Status`] for each `status` message:
+//! cannot be rendered, `{"type":"camera","set":{"az":…,"el":…,"dist":…,"tx":…,"ty":…,"tz":…,"fit":false,…}}`
+//! when the view asked for a fit (`"fit":true`): the camera the server chose
+//! (the target at the centre of what the transfer function shows, the
+//! distance framing it), now the session's view, sent before the frame drawn
+//! with it; and a [`Status`] for each `status` message:
 //!
 //! | field | meaning |
 //! |---|---|
@@ -264,6 +268,12 @@ pub enum Reply {
     },
     /// Where the session stands; see the module docs.
     Status(Status),
+    /// The camera a fit chose (`fit` set in the view): every camera setting,
+    /// now the session's; it comes before the frame drawn with it.
+    Camera {
+        /// The camera's settings by name, as a view message sets them.
+        set: Map<String, Value>,
+    },
 }
 
 /// Where a session stands, the answer to a `status` message.

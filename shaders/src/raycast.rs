@@ -124,6 +124,21 @@ impl VolumePlacement {
         }
     }
 
+    /// The smallest model-space box (mm, axis-aligned) around the voxels
+    /// `lo..hi` (index ranges, voxel edges) of a volume of `dims` voxels.
+    pub fn model_box(&self, dims: [u32; 3], lo: [u32; 3], hi: [u32; 3]) -> (Vec3, Vec3) {
+        let (mut min, mut max) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for corner in 0..8 {
+            let offset = Vec3::from_array(std::array::from_fn(|a| {
+                let edge = if corner & (1 << a) != 0 { hi[a] } else { lo[a] };
+                edge as f32 / dims[a].max(1) as f32 - 0.5
+            }));
+            let p = self.model_from_texture * offset;
+            (min, max) = (min.min(p), max.max(p));
+        }
+        (min, max)
+    }
+
     /// The radius of the sphere around the model origin that holds the volume.
     pub fn radius(&self) -> f32 {
         let mut radius = 0.0f32;

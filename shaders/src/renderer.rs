@@ -222,6 +222,9 @@ pub struct RenderStats {
     pub pending_blocks: usize,
     /// The illumination mode's stages of this frame (lit shading only).
     pub illumination: Option<Timings>,
+    /// The camera the frame was drawn with when the request asked for a fit
+    /// ([`crate::Camera::fit`]).
+    pub camera: Option<crate::Camera>,
 }
 
 impl From<ResidencyStats> for RenderStats {
@@ -412,6 +415,9 @@ impl Renderer {
             request.reduction,
             complete,
         )?);
+        let fitted = self.residency.fitted(request, &self.desc);
+        let request = fitted.as_ref().unwrap_or(request);
+        stats.camera = fitted.as_ref().map(|r| r.camera);
         if let Some(mode) = Mode::of(request.shading) {
             let refine = if converge {
                 Refine::Converge
@@ -493,6 +499,17 @@ impl Renderer {
     }
 }
 
+/// Refuses a request to fit the camera: full-resolution references draw the
+/// camera as given (a fit needs the packed renderer's blocks).
+pub(crate) fn refuse_fit(request: &FrameRequest) -> Result<(), GpuError> {
+    if request.camera.fit {
+        return Err(GpuError::InvalidRequest(
+            "the full-resolution reference draws the camera as given: fit with the packed renderer and pass the camera it chose".into(),
+        ));
+    }
+    Ok(())
+}
+
 /// Renders one plain full-resolution texture: the reference the packed renderer
 /// is checked and priced against.
 #[derive(Debug)]
@@ -526,8 +543,11 @@ impl ReferenceRenderer {
         &self.volume.desc
     }
 
-    /// Renders one frame and reads it back (`reduction` and `skip_empty` do not apply).
+    /// Renders one frame and reads it back (`reduction` and `skip_empty` do
+    /// not apply). The camera is drawn as given: a fit is refused (fit with a
+    /// packed renderer and pass the camera it chose, as benchmarks do).
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        refuse_fit(request)?;
         let (range, modality) = &self.classification;
         let tf = request.transfer_function(*range, modality.as_deref());
         self.frame

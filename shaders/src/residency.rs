@@ -25,9 +25,10 @@ use blocks::seams::{self, SeamChunks};
 use blocks::store::{LEVELS, Store};
 use rayon::prelude::*;
 
-use crate::GpuError;
 use crate::packed::Atlas;
+use crate::raycast::VolumePlacement;
 use crate::volume_texture::VolumeTexture;
+use crate::{FrameRequest, GpuError};
 
 /// How long [`Residency::update_complete`] sleeps between checks when no
 /// arrival wakes it.
@@ -118,6 +119,36 @@ impl<A: Atlas> Residency<A> {
     /// The selection shown, once a frame was rendered.
     pub fn selection(&self) -> Option<&LodSelection> {
         self.shown.as_ref().map(|s| &s.selection)
+    }
+
+    /// `request` with its camera fitted to the blocks shown
+    /// ([`crate::Camera::fitted`]) when it asks for a fit; when no block is
+    /// shown the camera stays and only the fit is cleared. `None` when the
+    /// request asks for no fit.
+    pub fn fitted(&self, request: &FrameRequest, desc: &VolumeTexture) -> Option<FrameRequest> {
+        if !request.camera.fit {
+            return None;
+        }
+        let grid = self.cache.store().meta().blocks;
+        let shown = self
+            .selection()
+            .and_then(|s| s.shown_voxels(grid, desc.geometry.dims));
+        let placement = VolumePlacement::of(desc);
+        let aspect = request.width as f32 / request.height as f32;
+        let camera = match shown {
+            Some([lo, hi]) => {
+                let (min, max) = placement.model_box(desc.geometry.dims, lo, hi);
+                request.camera.fitted(min, max, placement.radius(), aspect)
+            }
+            None => crate::Camera {
+                fit: false,
+                ..request.camera
+            },
+        };
+        Some(FrameRequest {
+            camera,
+            ..request.clone()
+        })
     }
 
     /// Changes whenever the shown blocks change.

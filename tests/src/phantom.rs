@@ -44,3 +44,28 @@ pub fn phantom_64_on_disk(dir: &std::path::Path) -> Dataset {
     Dataset::load(&path, &Default::default(), TEST_CACHE_BYTES)
         .unwrap_or_else(|e| panic!("opening the store: {e}"))
 }
+
+/// A bright ball (250 of 8 bits) of radius 7 voxels inside the one block
+/// (2, 1, 2) of a dark 64³ cube of 1 mm voxels: far from the cube's centre,
+/// a small share of its box (what fitting the camera is tested on).
+pub fn ball_off_centre() -> Volume {
+    let n = 64u32;
+    let centre = [40.0f32, 24.0, 40.0];
+    let voxels = (0..n * n * n)
+        .map(|i| {
+            let p = [i % n, (i / n) % n, i / (n * n)];
+            let r = (0..3)
+                .map(|a| (p[a] as f32 + 0.5 - centre[a]).powi(2))
+                .sum::<f32>()
+                .sqrt();
+            if r < 7.0 { 250 } else { 0 }
+        })
+        .collect();
+    Volume::new(
+        "ball",
+        blocks::Geometry::new([n, n, n], [1.0, 1.0, 1.0]),
+        blocks::VoxelData::U8(voxels),
+        blocks::ValueMap::IDENTITY,
+    )
+    .unwrap_or_else(|e| panic!("the ball volume: {e}"))
+}

@@ -113,6 +113,16 @@ const PIXELS: &str = "const c = document.getElementById('view');
     for (let i = 0; i < d.length; i += 4 * 97) { sum += d[i] + d[i + 1] + d[i + 2]; if (d[i] + d[i + 1] + d[i + 2] > 30) lit += 1; }
     return lit * 1e9 + sum;";
 
+/// The lit pixels' bounding box: its longer side over the canvas's shorter one.
+const EXTENT: &str = "const c = document.getElementById('view');
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let x0 = c.width, y0 = c.height, x1 = -1, y1 = -1;
+    for (let y = 0; y < c.height; y += 1) for (let x = 0; x < c.width; x += 1) {
+      const i = 4 * (y * c.width + x);
+      if (d[i] + d[i + 1] + d[i + 2] > 30) { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); }
+    }
+    return x1 < 0 ? 0 : Math.max(x1 - x0 + 1, y1 - y0 + 1) / Math.min(c.width, c.height);";
+
 async fn exercise(client: &Client, url: &str) -> Result<(), String> {
     client
         .goto(url)
@@ -349,6 +359,78 @@ async fn the_page_draws_orbits_on_drag_and_switches_presets_in_headless_chromium
     };
     let server = TestServer::start(gpu, 64).await;
     let result = exercise(&client, &server.url("/")).await;
+    finish(test, client, result).await;
+}
+
+/// The lit pixels' centroid, as fractions of the canvas (x·1e3 + y, each to 0.001).
+const CENTROID: &str = "const c = document.getElementById('view');
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let sx = 0, sy = 0, n = 0;
+    for (let y = 0; y < c.height; y += 1) for (let x = 0; x < c.width; x += 1) {
+      const i = 4 * (y * c.width + x);
+      if (d[i] + d[i + 1] + d[i + 2] > 30) { sx += x + 0.5; sy += y + 0.5; n += 1; }
+    }
+    return n === 0 ? -1 : Math.round(1000 * sx / n / c.width) * 1e3 + Math.round(1000 * sy / n / c.height);";
+
+/// Loads the page on a small ball far from its volume's centre; the first
+/// view, and a reset after zooming out, frame it in the middle of the image.
+async fn framing(client: &Client, url: &str) -> Result<(), String> {
+    client
+        .goto(url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    let check = |when: &'static str| async move {
+        // The default distance alone draws the ball at about a sixth of the
+        // smaller side, off centre; fitted, its block fills 85 %.
+        let extent = wait_for(client, when, EXTENT, |v| v >= 0.35).await?;
+        let centroid = number(client, when, CENTROID).await?;
+        let (cx, cy) = ((centroid / 1e3).round() / 1e3, (centroid % 1e3) / 1e3);
+        if extent > 0.9 || (cx - 0.5).abs() > 0.08 || (cy - 0.5).abs() > 0.08 {
+            return Err(format!(
+                "{when}: the ball spans {extent:.2} around ({cx:.2}, {cy:.2})"
+            ));
+        }
+        Ok::<f64, String>(extent)
+    };
+    let first = check("the first view").await?;
+    // Zoom out, then reset.
+    client
+        .execute(
+            "const c = document.getElementById('view');
+             for (let i = 0; i < 5; i += 1) c.dispatchEvent(new WheelEvent('wheel', { deltaY: 300, cancelable: true }));
+             return 0;",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("zooming out: {e}"))?;
+    wait_for(client, "the zoomed-out view", EXTENT, |v| v < first * 0.5).await?;
+    client
+        .execute(
+            "document.getElementById('reset').click(); return 0;",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("resetting: {e}"))?;
+    check("the reset view").await?;
+    Ok(())
+}
+
+#[tokio::test]
+async fn the_first_view_and_a_reset_frame_what_the_transfer_function_shows() {
+    let test = "the_first_view_and_a_reset_frame_what_the_transfer_function_shows";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    // The CPU renderer: no GPU needed.
+    let ball = voxserve_tests::render::dataset_of(voxserve_tests::phantom::ball_off_centre());
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![ball],
+        1,
+        StreamSettings::default(),
+    )
+    .await;
+    let result = framing(&client, &server.url("/")).await;
     finish(test, client, result).await;
 }
 

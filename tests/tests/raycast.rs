@@ -440,3 +440,102 @@ fn ring_residual(frame: &Frame) -> f64 {
         .collect();
     (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt()
 }
+
+/// The bounding box of the pixels brighter than the black background:
+/// (x0, y0, x1, y1), pixel edges.
+fn drawn_box(frame: &Frame) -> (u32, u32, u32, u32) {
+    let mut b = (u32::MAX, u32::MAX, 0, 0);
+    for (i, px) in frame.rgba.chunks(4).enumerate() {
+        if px[..3].iter().any(|&c| c > 10) {
+            let (x, y) = (i as u32 % frame.width, i as u32 / frame.width);
+            b = (b.0.min(x), b.1.min(y), b.2.max(x + 1), b.3.max(y + 1));
+        }
+    }
+    b
+}
+
+#[test]
+fn a_fitted_camera_centres_and_frames_what_the_transfer_function_shows() {
+    let dataset = dataset_of(voxserve_tests::phantom::ball_off_centre());
+    let tf = Preset::Generic.transfer_function([0.0, 255.0]);
+    let plain = FrameRequest {
+        camera: Camera {
+            azimuth_deg: 25.0,
+            elevation_deg: 15.0,
+            ..Camera::default()
+        },
+        ..FrameRequest::new(96, 64, tf)
+    };
+    let fit = FrameRequest {
+        camera: Camera {
+            fit: true,
+            ..plain.camera
+        },
+        ..plain.clone()
+    };
+    let gpu = gpu_or_skip("a_fitted_camera_centres_and_frames_what_the_transfer_function_shows");
+    let mut renderers = vec![(
+        "CPU",
+        Backend::Cpu.renderer(dataset.cache.clone(), TEST_GPU_BUDGET_BYTES),
+    )];
+    if let Some(g) = gpu {
+        renderers.push((
+            "GPU",
+            Backend::Gpu(g.clone()).renderer(dataset.cache.clone(), TEST_GPU_BUDGET_BYTES),
+        ));
+    }
+    for (name, renderer) in renderers {
+        let mut renderer = renderer.unwrap_or_else(|e| panic!("{name} renderer: {e}"));
+        let small = drawn_box(&renderer.render(&plain).expect("default camera"));
+        assert_eq!(renderer.last_stats().camera, None, "{name}: no fit asked");
+        let framed = renderer.render(&fit).expect("fitted camera");
+        let camera = renderer
+            .last_stats()
+            .camera
+            .expect("the camera the fit chose");
+        println!(
+            "{name}: default camera draws {small:?}, fitted {:?} with {camera:?}",
+            drawn_box(&framed)
+        );
+        assert!(
+            !camera.fit && camera.azimuth_deg == 25.0,
+            "{name}: {camera:?}"
+        );
+        // Block (2, 1, 2) spans voxels 32..48, 16..32, 32..48: its centre is
+        // 8, −8, 8 mm from the cube's.
+        assert!(
+            (camera.target() - glam::Vec3::new(8.0, -8.0, 8.0)).length() < 0.05,
+            "{name}: target {:?}",
+            camera.target()
+        );
+        let (x0, y0, x1, y1) = drawn_box(&framed);
+        let centre = (f64::from(x0 + x1) / 2.0, f64::from(y0 + y1) / 2.0);
+        assert!(
+            (centre.0 - 48.0).abs() <= 2.0 && (centre.1 - 32.0).abs() <= 2.0,
+            "{name}: the ball is drawn around {centre:?}, not the image's centre"
+        );
+        // The block's box spans 85 % of the 64-pixel side seen obliquely; the
+        // ball inside it about 0.5.
+        let extent = f64::from((x1 - x0).max(y1 - y0)) / 64.0;
+        assert!(
+            (0.45..=0.87).contains(&extent),
+            "{name}: the ball spans {extent:.2} of the smaller side"
+        );
+        let small_extent = f64::from((small.2 - small.0).max(small.3 - small.1)) / 64.0;
+        assert!(
+            small_extent < 0.3,
+            "{name}: the default camera draws it {small_extent:.2} tall"
+        );
+        // The fitted camera, asked for again, draws the same frame.
+        let again = renderer
+            .render(&FrameRequest {
+                camera,
+                ..plain.clone()
+            })
+            .expect("the chosen camera");
+        assert_eq!(
+            again, framed,
+            "{name}: the chosen camera draws another frame"
+        );
+    }
+}

@@ -50,6 +50,26 @@ async fn the_view_changes_with_the_camera() {
         }
     };
     let front = frame("az=0").await;
+    // A fit answers with its camera, which draws the same frame again.
+    let url = server.url("/api/render?w=64&h=64&preset=ct-soft-tissue&az=30&fit=true");
+    let response = get(&url).await;
+    let camera = response.headers()["x-camera"]
+        .to_str()
+        .expect("text")
+        .to_owned();
+    assert!(
+        camera.contains("fit=false") && camera.contains("tx="),
+        "{camera}"
+    );
+    let fitted = response.bytes().await.expect("body");
+    let again = get(&server.url(&format!(
+        "/api/render?w=64&h=64&preset=ct-soft-tissue&{camera}"
+    )))
+    .await
+    .bytes()
+    .await
+    .expect("body");
+    assert_eq!(fitted, again, "the camera {camera} draws the fitted frame");
     let side = frame("az=90").await;
     let near = frame("az=0&dist=1.5").await;
     let (d_side, _) = voxserve_tests::image_compare::measure(&front, &side, 8);

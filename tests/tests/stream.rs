@@ -771,3 +771,61 @@ async fn a_server_on_the_cpu_renderer_streams_frames_and_says_which_renderer_ser
         "{text}"
     );
 }
+
+#[tokio::test]
+async fn a_fit_is_answered_with_the_camera_chosen_before_its_frame_and_the_session_keeps_it() {
+    let dataset = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![dataset],
+        1,
+        StreamSettings::default(),
+    )
+    .await;
+    let mut socket = connect(&server).await;
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 1, "set": {"w": 48, "h": 40, "az": 20, "fit": true}}),
+    )
+    .await;
+    let camera = match next(&mut socket).await {
+        Received::Json(m) if m["type"] == "camera" => m["set"].clone(),
+        Received::Json(m) => panic!("expected the camera first, got {m}"),
+        Received::Frame(h, _) => panic!("expected the camera before frame {h:?}"),
+    };
+    assert_eq!(camera["fit"], false, "{camera}");
+    assert_eq!(camera["az"], 20.0, "{camera}");
+    let default_distance = shaders::Camera::default().distance;
+    let distance = camera["dist"].as_f64().expect("dist");
+    assert!(
+        distance > 0.0 && (distance - f64::from(default_distance)).abs() > 0.01,
+        "the fit chose the distance: {camera}"
+    );
+    for name in ["tx", "ty", "tz"] {
+        assert!(camera[name].is_number(), "{name}: {camera}");
+    }
+    // Every frame of the view, interactive and full, is drawn with that
+    // camera, and no second camera message comes: the session keeps it.
+    let frames = until_converged(&mut socket, 1).await;
+    let fitted = frames.last().expect("frames").1.clone();
+    // The same camera sent as plain settings draws the same full frame.
+    let mut set = camera.as_object().expect("an object").clone();
+    set.insert("az".into(), serde_json::json!(21));
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 2, "set": set}),
+    )
+    .await;
+    until_converged(&mut socket, 2).await;
+    send(
+        &mut socket,
+        serde_json::json!({"type": "view", "id": 3, "set": {"az": 20}}),
+    )
+    .await;
+    let again = until_converged(&mut socket, 3).await;
+    assert_eq!(
+        again.last().expect("frames").1,
+        fitted,
+        "the session kept the fitted camera"
+    );
+}

@@ -8,9 +8,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde_json::{Map, Value};
-use shaders::FrameRequest;
 use shaders::frame::MAX_IMAGE_EDGE;
 use shaders::illumination::Mode;
+use shaders::settings::Settings;
+use shaders::{Camera, FrameRequest};
 use tokio::time::Instant;
 
 use super::StreamSettings;
@@ -204,6 +205,27 @@ impl Session {
                 (false, None) => Progress::Refining,
             };
         }
+    }
+
+    /// The frame being rendered was drawn with `camera`, the one a fit chose:
+    /// the view takes it (so later frames keep it) and the client is told.
+    /// Nothing when the view no longer asks for a fit (a later message set
+    /// the camera itself).
+    pub fn on_fitted(&mut self, camera: Camera) -> Option<Reply> {
+        if !self.view.frame.camera.fit {
+            return None;
+        }
+        let current = &mut self.view.frame.camera;
+        // The angles may have moved since the fit began: they stay.
+        *current = Camera {
+            azimuth_deg: current.azimuth_deg,
+            elevation_deg: current.elevation_deg,
+            roll_deg: current.roll_deg,
+            ..camera
+        };
+        Some(Reply::Camera {
+            set: current.to_json(),
+        })
     }
 
     /// The frame being rendered failed; the error to send. Nothing more is

@@ -13,6 +13,7 @@ use std::time::Duration;
 
 use axum::extract::ws::{CloseFrame, Message, close_code};
 use futures_util::{Sink, SinkExt, Stream, StreamExt};
+use shaders::Camera;
 use tokio::time::Instant;
 
 use super::Place;
@@ -33,6 +34,8 @@ struct Encoded {
     header: FrameHeader,
     bytes: Vec<u8>,
     arrivals: u64,
+    /// The camera a fit chose, when the view asked for one.
+    camera: Option<Camera>,
 }
 
 /// A frame ready to send, or why there is none.
@@ -342,6 +345,11 @@ where
             Some(Reply::error(None, "binary message: expected JSON text"))
         }
         Event::Rendered(Ok(frame)) => {
+            if let Some(reply) = frame.camera.and_then(|c| session.on_fitted(c))
+                && send_reply(sink, &reply).await.is_err()
+            {
+                return Some(End::Gone);
+            }
             if sink
                 .send(Message::Binary(frame.bytes.into()))
                 .await
@@ -526,6 +534,7 @@ fn render_job(state: &AppState, client: Client, render: Render) -> Job {
             header,
             bytes,
             arrivals: rendered.arrivals,
+            camera: rendered.stats.camera,
         })
     })
 }

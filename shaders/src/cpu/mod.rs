@@ -141,6 +141,7 @@ pub fn render_reference(
     features: wgpu::Features,
 ) -> Result<Frame, GpuError> {
     request.validate()?;
+    crate::renderer::refuse_fit(request)?;
     let desc = VolumeTexture::for_volume(volume, features);
     let texture = Texture3d::new(desc.geometry.dims, desc.texel_values(&volume.voxels));
     let table = request

@@ -136,13 +136,16 @@ impl CpuRenderer {
     fn render_lit(&mut self, request: &FrameRequest, complete: bool) -> Result<Frame, GpuError> {
         request.validate()?;
         let tf = request.store_transfer_function(self.cache.store().meta());
-        let stats = RenderStats::from(self.residency.update_complete(
+        let mut stats = RenderStats::from(self.residency.update_complete(
             &self.device,
             &self.desc,
             &tf,
             request.reduction,
             complete,
         )?);
+        let fitted = self.residency.fitted(request, &self.desc);
+        let request = fitted.as_ref().unwrap_or(request);
+        stats.camera = fitted.as_ref().map(|r| r.camera);
         if self.table.as_ref().is_none_or(|(t, _)| *t != tf) {
             self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
         }
