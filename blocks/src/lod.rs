@@ -162,23 +162,61 @@ impl LodSelection {
 
     /// The voxels the shown (non-empty) blocks span, as index ranges
     /// `[lo, hi)` per axis of a volume of `dims` voxels cut into a grid of
-    /// `grid` blocks (x fastest, as `lod`); `None` when every block is empty.
-    pub fn shown_voxels(&self, grid: [u32; 3], dims: [u32; 3]) -> Option<[[u32; 3]; 2]> {
+    /// `grid` blocks (x fastest, as `lod`). On each side of each axis, groups
+    /// of blocks cut off from the rest by an empty layer of blocks are left
+    /// out while together they hold at most `stray` (a share, 0 to 0.5) of
+    /// the shown blocks: a speck of noise far from the rest does not widen
+    /// the box. `None` when every block is empty.
+    pub fn shown_voxels(
+        &self,
+        grid: [u32; 3],
+        dims: [u32; 3],
+        stray: f64,
+    ) -> Option<[[u32; 3]; 2]> {
         let (gx, gy) = (grid[0] as usize, grid[1] as usize);
-        let mut span: Option<[[u32; 3]; 2]> = None;
+        // Shown blocks per block coordinate, per axis.
+        let mut counts: [Vec<usize>; 3] = grid.map(|n| vec![0; n as usize]);
+        let mut shown = 0usize;
         for (b, _) in self.lod.iter().enumerate().filter(|(_, l)| **l != EMPTY) {
-            let n = [b % gx, b / gx % gy, b / (gx * gy)].map(|n| n as u32);
-            let lo: [u32; 3] = std::array::from_fn(|a| (n[a] * BLOCK).min(dims[a]));
-            let hi: [u32; 3] = std::array::from_fn(|a| ((n[a] + 1) * BLOCK).min(dims[a]));
-            span = Some(match span {
-                None => [lo, hi],
-                Some([l, h]) => [
-                    std::array::from_fn(|a| l[a].min(lo[a])),
-                    std::array::from_fn(|a| h[a].max(hi[a])),
-                ],
-            });
+            let n = [b % gx, b / gx % gy, b / (gx * gy)];
+            for (a, count) in counts.iter_mut().enumerate() {
+                if let Some(c) = count.get_mut(n[a]) {
+                    *c += 1;
+                }
+            }
+            shown += 1;
         }
-        span
+        if shown == 0 {
+            return None;
+        }
+        let left_out = (shown as f64 * stray.clamp(0.0, 0.5)).floor() as usize;
+        // The first shown coordinate from one end, after dropping the groups
+        // of layers cut off from the rest by an empty layer while they hold
+        // at most `left_out` blocks together.
+        fn edge<'a>(counts: impl Iterator<Item = (usize, &'a usize)>, left_out: usize) -> u32 {
+            let (mut dropped, mut group, mut start) = (0, 0, None);
+            for (i, &c) in counts {
+                if c > 0 {
+                    start = start.or(Some(i));
+                    group += c;
+                } else if let Some(first) = start {
+                    if dropped + group > left_out {
+                        return first as u32;
+                    }
+                    (dropped, group, start) = (dropped + group, 0, None);
+                }
+            }
+            start.map_or(0, |i| i as u32)
+        }
+        let mut lo = [0u32; 3];
+        let mut hi = [0u32; 3];
+        for a in 0..3 {
+            let first = edge(counts[a].iter().enumerate(), left_out);
+            let last = edge(counts[a].iter().enumerate().rev(), left_out);
+            lo[a] = (first * BLOCK).min(dims[a]);
+            hi[a] = ((last.max(first) + 1) * BLOCK).min(dims[a]);
+        }
+        Some([lo, hi])
     }
 
     /// How many blocks sit at each level.
@@ -644,11 +682,33 @@ mod tests {
         // grid over 20×32×30 voxels (the last blocks cut short).
         let two = sel.with_levels(vec![EMPTY, 2, EMPTY, 0, EMPTY, EMPTY, EMPTY, EMPTY]);
         assert_eq!(
-            two.shown_voxels([2, 2, 2], [20, 32, 30]),
+            two.shown_voxels([2, 2, 2], [20, 32, 30], 0.0),
+            Some([[16, 0, 0], [20, 32, 16]])
+        );
+        // Even leaving out a quarter per side, one of two blocks is not a stray.
+        assert_eq!(
+            two.shown_voxels([2, 2, 2], [20, 32, 30], 0.25),
             Some([[16, 0, 0], [20, 32, 16]])
         );
         let none = sel.with_levels(vec![EMPTY; 8]);
-        assert_eq!(none.shown_voxels([2, 2, 2], [20, 32, 30]), None);
+        assert_eq!(none.shown_voxels([2, 2, 2], [20, 32, 30], 0.01), None);
+        // A row of 100 blocks along x and one stray block 10 rows further
+        // up: with 1 % left out per side the stray goes, without it stays;
+        // the row's own end blocks stay (no empty layer cuts them off).
+        let grid = [100, 12, 1];
+        let mut lod = vec![EMPTY; 1200];
+        lod[..100].fill(1);
+        lod[11 * 100 + 50] = 1;
+        let row = sel.with_levels(lod);
+        let dims = [1600, 192, 16];
+        assert_eq!(
+            row.shown_voxels(grid, dims, 0.0),
+            Some([[0, 0, 0], [1600, 192, 16]])
+        );
+        assert_eq!(
+            row.shown_voxels(grid, dims, 0.01),
+            Some([[0, 0, 0], [1600, 16, 16]])
+        );
         // At 1:1 the block is whole: reduction 1 although three quarters are empty.
         let full = select(
             &stats(),

@@ -322,6 +322,16 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
             light.directions
         );
     }
+    if let Some(camera) = &stats.camera {
+        // The fit's camera as flags, to draw the same view again.
+        let flags: Vec<String> = shaders::settings::Settings::settings()
+            .iter()
+            .map(|s: &&dyn shaders::settings::Setting<shaders::Camera>| {
+                format!("{}={}", s.spec().flag(), s.text(camera))
+            })
+            .collect();
+        tracing::info!("fitted camera: --{}", flags.join(" --"));
+    }
     let (reduction, levels, device) = (stats.reduction, stats.level_counts, backend.describe());
     let empty = stats.empty_share * 100.0;
     let limited = if stats.memory_limited {

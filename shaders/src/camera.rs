@@ -48,6 +48,10 @@ crate::choice_setting!(Projection);
 
 /// The share of the image's smaller side a fitted camera gives the box it frames.
 pub const FIT_SHARE: f32 = 0.85;
+/// The share of the shown blocks a fit may leave out on each side of each
+/// axis when an empty layer of blocks cuts them off from the rest, so that a
+/// speck of noise far from the rest does not shrink the view.
+pub const FIT_STRAY: f64 = 0.01;
 
 crate::settings! {
     /// An orbit camera around a target point.
@@ -78,9 +82,10 @@ crate::settings! {
         /// The point the camera orbits: millimetres superior (z) of the volume's centre.
         pub target_z: f32 = 0.0, "tz" | "target-z", number(-1e4, 1e4, "millimetres from the volume's centre", "mm");
         /// Frame what the transfer function shows: the target moves to the
-        /// centre of its non-empty blocks and the distance makes them fill
-        /// 85 % of the image's smaller side from this direction (a view
-        /// session does it once and answers with the camera it chose).
+        /// centre of its non-empty blocks (stray specks apart from the rest,
+        /// up to 1 % of them per side, left out) and the distance makes them fill 85 % of the image's smaller
+        /// side from this direction (a view session does it once and answers
+        /// with the camera it chose).
         pub fit: bool = false, "fit", by_type();
     }
 }
@@ -196,12 +201,12 @@ impl Camera {
         }
         // Rounded as clients round what they send back (0.01 mm, 0.001 radii),
         // so a client adopting the camera sends no change.
-        let round = |v: f32, unit: f32| (v / unit).round() * unit;
+        let round = |v: f32, per_unit: f32| (v * per_unit).round() / per_unit;
         Camera {
-            target_x: round(target.x, 0.01),
-            target_y: round(target.y, 0.01),
-            target_z: round(target.z, 0.01),
-            distance: round(eye_distance / radius.max(f32::MIN_POSITIVE), 0.001)
+            target_x: round(target.x, 100.0),
+            target_y: round(target.y, 100.0),
+            target_z: round(target.z, 100.0),
+            distance: round(eye_distance / radius.max(f32::MIN_POSITIVE), 1000.0)
                 .clamp(MIN_DISTANCE as f32, MAX_DISTANCE as f32),
             fit: false,
             ..*self

@@ -121,8 +121,8 @@ impl<A: Atlas> Residency<A> {
         self.shown.as_ref().map(|s| &s.selection)
     }
 
-    /// `request` with its camera fitted to the blocks shown
-    /// ([`crate::Camera::fitted`]) when it asks for a fit; when no block is
+    /// `request` with its camera fitted to the blocks shown, stray ones left
+    /// out ([`crate::camera::FIT_STRAY`], [`crate::Camera::fitted`]) when it asks for a fit; when no block is
     /// shown the camera stays and only the fit is cleared. `None` when the
     /// request asks for no fit.
     pub fn fitted(&self, request: &FrameRequest, desc: &VolumeTexture) -> Option<FrameRequest> {
@@ -132,7 +132,7 @@ impl<A: Atlas> Residency<A> {
         let grid = self.cache.store().meta().blocks;
         let shown = self
             .selection()
-            .and_then(|s| s.shown_voxels(grid, desc.geometry.dims));
+            .and_then(|s| s.shown_voxels(grid, desc.geometry.dims, crate::camera::FIT_STRAY));
         let placement = VolumePlacement::of(desc);
         let aspect = request.width as f32 / request.height as f32;
         let camera = match shown {
