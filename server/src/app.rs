@@ -601,11 +601,9 @@ async fn render_pairs(
     set("x-pending-blocks", stats.pending_blocks.to_string());
     if let Some(camera) = &stats.camera {
         // The camera a fit chose, as query parameters that draw it again.
-        let query = shaders::settings::Settings::settings()
+        let query = shaders::settings::Settings::to_texts(camera)
             .iter()
-            .map(|s: &&dyn shaders::settings::Setting<shaders::Camera>| {
-                format!("{}={}", s.spec().name, s.text(camera))
-            })
+            .map(|(spec, text)| format!("{}={text}", spec.name))
             .collect::<Vec<_>>()
             .join("&");
         set("x-camera", query);

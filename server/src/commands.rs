@@ -324,11 +324,9 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
     }
     if let Some(camera) = &stats.camera {
         // The fit's camera as flags, to draw the same view again.
-        let flags: Vec<String> = shaders::settings::Settings::settings()
+        let flags: Vec<String> = shaders::settings::Settings::to_texts(camera)
             .iter()
-            .map(|s: &&dyn shaders::settings::Setting<shaders::Camera>| {
-                format!("{}={}", s.spec().flag(), s.text(camera))
-            })
+            .map(|(spec, text)| format!("{}={text}", spec.flag()))
             .collect();
         tracing::info!("fitted camera: --{}", flags.join(" --"));
     }

@@ -184,13 +184,8 @@ impl Camera {
         // it must lie within FIT_SHARE of the smaller side's half.
         let reach = FIT_SHARE * aspect.min(1.0) * (self.fov_y_deg.to_radians() * 0.5).tan();
         let mut eye_distance = 0.0f32;
-        for corner in 0..8 {
-            let pick = |bit: u32, lo: f32, hi: f32| if corner & (1 << bit) != 0 { hi } else { lo };
-            let c = Vec3::new(
-                pick(0, min.x, max.x),
-                pick(1, min.y, max.y),
-                pick(2, min.z, max.z),
-            ) - target;
+        for corner in box_corners(min, max) {
+            let c = corner - target;
             let lateral = c.dot(b.right).abs().max(c.dot(b.up).abs());
             let needed = match self.projection {
                 Projection::Perspective => lateral / reach - c.dot(b.forward),
@@ -212,6 +207,17 @@ impl Camera {
             ..*self
         }
     }
+}
+
+/// The 8 corners of the axis-aligned box `min`..`max`.
+pub fn box_corners(min: Vec3, max: Vec3) -> [Vec3; 8] {
+    std::array::from_fn(|corner| {
+        Vec3::select(
+            glam::BVec3::new(corner & 1 != 0, corner & 2 != 0, corner & 4 != 0),
+            max,
+            min,
+        )
+    })
 }
 
 /// The `dist` setting's range, in bounding-sphere radii.
@@ -322,14 +328,7 @@ mod tests {
                 assert!(centre.x.abs() < 1e-4 && centre.y.abs() < 1e-4, "{centre}");
                 // The farthest corner from the centre, in half-heights of the image.
                 let mut reach = 0.0f32;
-                for corner in 0..8 {
-                    let pick =
-                        |bit: u32, lo: f32, hi: f32| if corner & (1 << bit) != 0 { hi } else { lo };
-                    let p = Vec3::new(
-                        pick(0, min.x, max.x),
-                        pick(1, min.y, max.y),
-                        pick(2, min.z, max.z),
-                    );
+                for p in box_corners(min, max) {
                     let ndc = view_proj.project_point3(p);
                     assert!(ndc.z > 0.0 && ndc.z < 1.0, "{projection:?} {aspect}: {ndc}");
                     reach = reach.max((ndc.x * aspect).abs()).max(ndc.y.abs());

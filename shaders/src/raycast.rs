@@ -11,6 +11,7 @@
 use blocks::Geometry;
 use glam::{Mat3, Mat4, Vec3, Vec4};
 
+use crate::camera::box_corners;
 use crate::illumination::Mode;
 use crate::packed_volume::{PackedLayout, PackedVolume};
 use crate::pipeline::ComputeStage;
@@ -127,13 +128,14 @@ impl VolumePlacement {
     /// The smallest model-space box (mm, axis-aligned) around the voxels
     /// `lo..hi` (index ranges, voxel edges) of a volume of `dims` voxels.
     pub fn model_box(&self, dims: [u32; 3], lo: [u32; 3], hi: [u32; 3]) -> (Vec3, Vec3) {
+        let offset = |edge: [u32; 3]| {
+            Vec3::from_array(std::array::from_fn(|a| {
+                edge[a] as f32 / dims[a].max(1) as f32 - 0.5
+            }))
+        };
         let (mut min, mut max) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for corner in 0..8 {
-            let offset = Vec3::from_array(std::array::from_fn(|a| {
-                let edge = if corner & (1 << a) != 0 { hi[a] } else { lo[a] };
-                edge as f32 / dims[a].max(1) as f32 - 0.5
-            }));
-            let p = self.model_from_texture * offset;
+        for corner in box_corners(offset(lo), offset(hi)) {
+            let p = self.model_from_texture * corner;
             (min, max) = (min.min(p), max.max(p));
         }
         (min, max)
@@ -141,13 +143,10 @@ impl VolumePlacement {
 
     /// The radius of the sphere around the model origin that holds the volume.
     pub fn radius(&self) -> f32 {
-        let mut radius = 0.0f32;
-        for corner in 0..8 {
-            let sign = |bit: u32| if corner & (1 << bit) != 0 { 0.5 } else { -0.5 };
-            let c = Vec3::new(sign(0), sign(1), sign(2));
-            radius = radius.max((self.model_from_texture * c).length());
-        }
-        radius
+        box_corners(Vec3::splat(-0.5), Vec3::splat(0.5))
+            .iter()
+            .map(|&c| (self.model_from_texture * c).length())
+            .fold(0.0, f32::max)
     }
 }
 

@@ -737,17 +737,22 @@ async fn a_missing_shard_is_an_error_naming_it_over_http_and_websocket() {
     assert!(message.contains("0/c/0/0/0: missing"), "{message}");
 }
 
-#[tokio::test]
-async fn a_server_on_the_cpu_renderer_streams_frames_and_says_which_renderer_serves() {
-    // No GPU needed: the CPU renderer runs everywhere.
+/// A server on the 32³ phantom with the CPU renderer: no GPU needed, it
+/// runs everywhere.
+async fn cpu_server() -> TestServer {
     let dataset = server::Dataset::phantom(32, 64 << 20).expect("phantom");
-    let server = TestServer::with_backend(
+    TestServer::with_backend(
         shaders::Backend::Cpu,
         vec![dataset],
         1,
         StreamSettings::default(),
     )
-    .await;
+    .await
+}
+
+#[tokio::test]
+async fn a_server_on_the_cpu_renderer_streams_frames_and_says_which_renderer_serves() {
+    let server = cpu_server().await;
     let (mut socket, hello) = connect_with_hello(&server).await;
     assert_eq!(hello["renderer"]["kind"], "cpu", "{hello}");
     send(
@@ -774,14 +779,7 @@ async fn a_server_on_the_cpu_renderer_streams_frames_and_says_which_renderer_ser
 
 #[tokio::test]
 async fn a_fit_is_answered_with_the_camera_chosen_before_its_frame_and_the_session_keeps_it() {
-    let dataset = server::Dataset::phantom(32, 64 << 20).expect("phantom");
-    let server = TestServer::with_backend(
-        shaders::Backend::Cpu,
-        vec![dataset],
-        1,
-        StreamSettings::default(),
-    )
-    .await;
+    let server = cpu_server().await;
     let mut socket = connect(&server).await;
     send(
         &mut socket,

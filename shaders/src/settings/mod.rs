@@ -373,6 +373,15 @@ pub trait Settings: Default + Sized + 'static {
             .map(|s| (s.spec().name.to_owned(), s.json(self)))
             .collect()
     }
+
+    /// Every setting's spec and current value as text (as a query or a flag
+    /// takes it), to write the settings back out (`name=text`, `--flag=text`).
+    fn to_texts(&self) -> Vec<(&'static Spec, String)> {
+        Self::settings()
+            .iter()
+            .map(|s| (s.spec(), s.text(self)))
+            .collect()
+    }
 }
 
 /// What a cached result of `stage` (one of a mode's `stages`, in the order
