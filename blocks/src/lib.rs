@@ -10,7 +10,8 @@
 //! - [`volume`]: [`Volume`], a voxel grid in memory with its [`Geometry`] and the
 //!   map from stored values to physical ones (Hounsfield units for CT).
 //! - [`phantom`]: the built-in dataset, a deterministic procedural CT head phantom
-//!   (a 3D Shepp–Logan head with Hounsfield-like values).
+//!   (skull with orbits, sinuses and foramen magnum, brain with ventricles,
+//!   contrast-filled arteries, a lesion; Hounsfield-like values).
 //! - [`store`]: the brick store: OME-Zarr 0.5 written with `zarrs`, 16³ blocks at
 //!   five levels of detail, per-block statistics, crash-safe ingest.
 //! - [`cache`]: [`cache::BlockCache`], decoded chunks under a byte budget.
