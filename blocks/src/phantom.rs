@@ -28,7 +28,7 @@
 //!   at (0, 20, −30), (66, 76, 72), and the lower face; a tube round the mandible; the neck at
 //!   (0, −12, −125), (56, 58, 70), through the cube's bottom; the nose from (0, 86, −4) to
 //!   (0, 104, −34); the ears at (±75, −14, −12).
-//! - Subcutaneous fat (−90 HU): 3 mm under the skin.
+//! - Subcutaneous fat (−90 HU): 4 mm under the skin.
 //! - Muscle (50 HU): 7 mm under the skin of face, jaw and neck; temporalis and masseter at
 //!   (±52, 4, −22).
 //! - Skull vault (1000 HU): outer surface an ellipsoid at (0, −10, 20), semi-axes (70, 92, 86), cut
@@ -87,12 +87,13 @@
 //! a structure falls from 1 to 0 over ±[`EDGE_VOXELS`] of its approximate signed
 //! distance to the surface, and the voxel takes `v·(1 − share) + value·share`.
 //! Without this, gradient shading shows every voxel step of the surfaces as
-//! terraces. The edge is 1.5 voxels each side, not 1: an edge sharper than that
-//! is more than trilinear interpolation reconstructs, and where a surface
-//! crosses the voxel grid at different offsets the interpolated profile changes
-//! its slope with the offset, which draws concentric rings, one per voxel slice,
-//! on every smooth surface seen head-on (in every shading, unshaded too, and at
-//! any step).
+//! terraces. The edge is 2 voxels each side (about a Gaussian blur of σ = 0.9
+//! voxel), not 1.5 or 1: a sharper smooth step is not band-limited enough for
+//! the voxel grid, and where a surface crosses the voxel planes at a slant
+//! its reconstructed normal tilts back and forth with the offset, which
+//! draws concentric rings, one per voxel slice, on every smooth surface seen
+//! head-on (at ±1.5 voxels they showed faintly on the vertex under gradient
+//! shading, whatever the step or the gradient filter).
 //!
 //! # Generation
 //! Row by row: along a row of constant y and z each structure (convex, and cut
@@ -125,7 +126,7 @@ const NOISE_HU: f32 = 12.0;
 /// Stored value = HU + this offset.
 const STORED_OFFSET: f32 = 1024.0;
 /// Half-width of the soft edge, in voxels (see the module docs).
-pub const EDGE_VOXELS: f32 = 1.5;
+pub const EDGE_VOXELS: f32 = 2.0;
 /// The deep and outer intervals of a row keep this much beyond the soft edge,
 /// in voxels, so that rounding never puts a voxel with a share strictly
 /// between 0 and 1 outside the band that evaluates it.
@@ -582,7 +583,9 @@ fn anatomy() -> Vec<Part> {
     let cerebrum_floor = Cut::above(5.0, 0.2);
 
     // Soft tissues as layers over the union of the scalp, face, jaw and neck:
-    // every shape's skin, then every shape's fat 3 mm in, then muscle 7 mm in.
+    // every shape's skin, then every shape's fat 4 mm in, then muscle 7 mm in
+    // (4 mm of skin: enough to reach its value between soft edges of ±2
+    // voxels at 256³).
     let face = ellipsoid([0.0, 20.0, -30.0], [66.0, 76.0, 72.0]);
     let lower_face = ellipsoid([0.0, 30.0, -76.0], [50.0, 56.0, 26.0]);
     let neck = ellipsoid([0.0, -12.0, -125.0], [56.0, 58.0, 70.0]);
@@ -603,8 +606,8 @@ fn anatomy() -> Vec<Part> {
     head.paint_both(SKIN, jaw(16.0));
     head.paint(SKIN, [capsule([0.0, 86.0, -4.0], [0.0, 104.0, -34.0], 7.0)]);
     head.paint_both(SKIN, [ellipsoid([75.0, -14.0, -12.0], [5.0, 12.0, 26.0])]);
-    head.paint(FAT, skin.map(|s| shrunk(s, 3.0)));
-    head.paint_both(FAT, jaw(13.0));
+    head.paint(FAT, skin.map(|s| shrunk(s, 4.0)));
+    head.paint_both(FAT, jaw(12.0));
     // Under the scalp lies bone, painted below; beside the skull base, the
     // temporalis and masseter.
     head.paint(MUSCLE, [face, lower_face, neck].map(|s| shrunk(s, 7.0)));
@@ -1100,7 +1103,7 @@ mod tests {
         let near = |got: f32, want: f32| (got - want).abs() <= NOISE_HU * 0.5 + 0.5;
         for (what, p, want) in [
             ("air", [110.0, 110.0, 110.0], AIR_HU),
-            ("scalp", [0.0, -10.0, 110.5], SKIN),
+            ("scalp", [0.0, -10.0, 110.0], SKIN),
             ("skull base", [38.0, -14.0, -40.0], BONE),
             ("grey matter", [20.0, -10.0, 88.0], GREY),
             ("white matter", [30.0, -10.0, 40.0], WHITE),
@@ -1114,8 +1117,6 @@ mod tests {
             ("dens", [0.0, -8.0, -70.0], BONE),
             ("carotid", [24.0, 2.0, -100.0], ARTERY),
             ("carotid", [-24.0, 2.0, -100.0], ARTERY),
-            ("basilar artery", [0.0, -9.0, -24.0], ARTERY),
-            ("superior sagittal sinus", [0.0, -10.0, 93.0], VEIN),
             ("lesion", [-32.0, 36.0, 34.0], LESION),
             ("oedema", [-32.0, 36.0, 44.0], OEDEMA),
             ("neck muscle", [0.0, -55.0, -110.0], MUSCLE),
@@ -1124,6 +1125,19 @@ mod tests {
             assert!(
                 near(got, want),
                 "{what} at {p:?}: {got} HU, expected {want}"
+            );
+        }
+        // Vessels not much wider than the edges keep some partial volume at
+        // their centre, as in a scan: within 30 HU of their contrast, well
+        // above soft tissue and below the bone ramp.
+        for (what, p, want) in [
+            ("basilar artery", [0.0, -9.0, -24.0], ARTERY),
+            ("superior sagittal sinus", [0.0, -10.0, 93.0], VEIN),
+        ] {
+            let got = hu_at(&v, p);
+            assert!(
+                (want - 30.0..=want + NOISE_HU).contains(&got),
+                "{what} at {p:?}: {got} HU, expected 30 HU below {want} or more"
             );
         }
     }
@@ -1238,7 +1252,8 @@ mod tests {
         let profile: Vec<f32> = (index(85.0)..index(110.0))
             .map(|z| v.physical_at(x, y, z) as f32)
             .collect();
-        let core = profile.iter().rposition(|h| *h > 950.0);
+        // The outer table, 2.5 mm thick, peaks near 900 HU between its edges.
+        let core = profile.iter().rposition(|h| *h > 800.0);
         let outside = core.and_then(|c| Some(c + profile[c..].iter().position(|h| *h < 60.0)?));
         let (Some(core), Some(outside)) = (core, outside) else {
             panic!("no bone to soft tissue transition in {profile:?}");

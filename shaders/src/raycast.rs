@@ -41,6 +41,10 @@ pub const FLAG_LIT: u32 = 8;
 /// [`RaycastParams::flags`] bit: exponential extinction compositing (eq. 2 of
 /// Schlegel et al.) instead of α-blending.
 pub const FLAG_EXTINCTION: u32 = 16;
+/// [`RaycastParams::flags`] bit: normals from the gradient of the cubic
+/// B-spline reconstruction at each block's level, not from central
+/// differences (`FrameRequest::cubic_gradient`).
+pub const FLAG_CUBIC_GRADIENT: u32 = 32;
 /// [`RaycastParams::mode`]: front-to-back compositing.
 pub const MODE_COMPOSITE: u32 = 0;
 /// [`RaycastParams::mode`]: maximum intensity projection.
@@ -196,6 +200,9 @@ impl RaycastParams {
         let mut flags = FLAG_JITTER;
         if request.shading == Shading::Gradient {
             flags |= FLAG_SHADED;
+            if request.cubic_gradient {
+                flags |= FLAG_CUBIC_GRADIENT;
+            }
         }
         if request.skip_empty {
             flags |= FLAG_SKIP_EMPTY;

@@ -355,6 +355,7 @@ impl Session {
             let s = self.settings.interactive_scale;
             request.width = ((request.width as f32 * s).round() as u32).max(1);
             request.height = ((request.height as f32 * s).round() as u32).max(1);
+            request.cubic_gradient = false;
             // Illumination modes keep their data: other blocks would recompute
             // their stages (the light, the summed-area table) twice a gesture.
             if Mode::of(request.shading).is_none() {
@@ -490,6 +491,10 @@ mod tests {
         assert_eq!(first.quality, Quality::Interactive);
         assert_eq!((first.request.width, first.request.height), (32, 24));
         assert_eq!(first.request.reduction, 4.0, "interactive_reduction × 1");
+        assert!(
+            !first.request.cubic_gradient,
+            "central differences while moving"
+        );
         sent_and_acked(&mut s, false);
         let t1 = t0 + ms(100);
         view(&mut s, t1, 2, serde_json::json!({"az": 10}));
@@ -507,6 +512,7 @@ mod tests {
         assert_eq!((full.quality, full.message_id), (Quality::Full, 2));
         assert_eq!((full.request.width, full.request.height), (64, 48));
         assert_eq!(full.request.reduction, 1.0);
+        assert!(full.request.cubic_gradient, "cubic normals when still");
         sent_and_acked(&mut s, true);
         assert!(waits_for_input(&s.next_action(still + ms(10_000))));
         let status = s.status(still, Some(5));

@@ -15,8 +15,8 @@ use wide::{f32x4, i32x4};
 use super::hash::{pcg_hash, unit_from_hash};
 use super::texture::{floor, round_down, split};
 use crate::raycast::{
-    FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY, MODE_COMPOSITE, MODE_MIP,
-    RaycastParams, WORKGROUP_SIZE,
+    FLAG_CUBIC_GRADIENT, FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY,
+    MODE_COMPOSITE, MODE_MIP, RaycastParams, WORKGROUP_SIZE,
 };
 
 /// Largest opacity fed to the opacity correction (as in the shader).
@@ -96,6 +96,8 @@ pub trait Storage: Sync + Sized {
     fn is_empty(loc: &Self::Location) -> bool;
     /// WGSL `sample_at`.
     fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> f32;
+    /// WGSL `voxel_edge`.
+    fn voxel_edge(loc: &Self::Location) -> f32;
     /// WGSL `sample_neighbour`.
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &Self::Location) -> f32;
     /// WGSL `light_at`: the stored light at a sample (I_s of global light
@@ -271,6 +273,19 @@ pub fn corrected_opacity(a: f32, exponent: f32) -> f32 {
 
 /// WGSL `gradient_at`.
 pub fn gradient_at<S: Storage>(s: &S, p: &RaycastParams, tc: Vec3, loc: &S::Location) -> Vec3 {
+    if p.flags & FLAG_CUBIC_GRADIENT != 0 {
+        return cubic_gradient_at(s, p, tc, loc);
+    }
+    central_difference_at(s, p, tc, loc)
+}
+
+/// WGSL `central_difference_at`.
+pub fn central_difference_at<S: Storage>(
+    s: &S,
+    p: &RaycastParams,
+    tc: Vec3,
+    loc: &S::Location,
+) -> Vec3 {
     let h = Vec3::from(p.volume.texel);
     let dx = Vec3::new(h.x, 0.0, 0.0);
     let dy = Vec3::new(0.0, h.y, 0.0);
@@ -281,6 +296,82 @@ pub fn gradient_at<S: Storage>(s: &S, p: &RaycastParams, tc: Vec3, loc: &S::Loca
         s.sample_neighbour(p, tc + dz, loc) - s.sample_neighbour(p, tc - dz, loc),
     );
     differences / (2.0 * h)
+}
+
+/// The reads of WGSL `cubic_gradient_at` about a sample at `x` in voxels of
+/// its level (voxel centres at whole `x`), per axis: where the trilinear
+/// reads go and how they are weighed.
+#[derive(Debug, Clone, Copy)]
+pub struct CubicReads {
+    /// The smoothing reads' positions (`p0`, `p1`), in the level's voxels.
+    pub smooth_at: [Vec3; 2],
+    /// Their weights (`s0`, `s1`).
+    pub smooth: [Vec3; 2],
+    /// The derivative's reads' positions (`q0`, `q1`), weighed −`e` and `e`.
+    pub derivative_at: [Vec3; 2],
+    /// `e`.
+    pub e: Vec3,
+}
+
+impl CubicReads {
+    /// The reads about `x` (WGSL `cubic_gradient_at`'s weights).
+    #[inline(always)]
+    pub fn at(x: Vec3) -> CubicReads {
+        let i = x.floor();
+        let a = x - i;
+        let b = Vec3::ONE - a;
+        let w0 = b * b * b / 6.0;
+        let w1 = (3.0 * a * a * a - 6.0 * a * a + Vec3::splat(4.0)) / 6.0;
+        let w3 = a * a * a / 6.0;
+        let w2 = Vec3::ONE - w0 - w1 - w3;
+        let d1 = a * (1.5 * a - Vec3::splat(2.0));
+        let d3 = 0.5 * a * a;
+        let e = Vec3::splat(0.5) + a * b;
+        let s0 = w0 + w1;
+        let s1 = w2 + w3;
+        CubicReads {
+            smooth_at: [i - Vec3::ONE + w1 / s0, i + Vec3::ONE + w3 / s1],
+            smooth: [s0, s1],
+            derivative_at: [i - Vec3::ONE - d1 / e, i + Vec3::ONE + d3 / e],
+            e,
+        }
+    }
+
+    /// The B-spline's derivative along each axis per voxel of the level,
+    /// from `read` (the trilinear reconstruction at a position in the
+    /// level's voxels), in the shader's order.
+    #[inline(always)]
+    pub fn gradient(&self, mut read: impl FnMut(Vec3) -> f32) -> Vec3 {
+        let [p0, p1] = self.smooth_at;
+        let [s0, s1] = self.smooth;
+        let [q0, q1] = self.derivative_at;
+        let mut g = Vec3::ZERO;
+        for k in 0..4u32 {
+            let first = k & 1 != 0;
+            let second = k & 2 != 0;
+            let pick = |on: bool, a: Vec3, b: Vec3| if on { b } else { a };
+            let (x1, wx1) = (pick(first, p0, p1).x, pick(first, s0, s1).x);
+            let (y1, wy1) = (pick(first, p0, p1).y, pick(first, s0, s1).y);
+            let (y2, wy2) = (pick(second, p0, p1).y, pick(second, s0, s1).y);
+            let (z2, wz2) = (pick(second, p0, p1).z, pick(second, s0, s1).z);
+            g.x += wy1 * wz2 * (read(Vec3::new(q1.x, y1, z2)) - read(Vec3::new(q0.x, y1, z2)));
+            g.y += wx1 * wz2 * (read(Vec3::new(x1, q1.y, z2)) - read(Vec3::new(x1, q0.y, z2)));
+            g.z += wx1 * wy2 * (read(Vec3::new(x1, y2, q1.z)) - read(Vec3::new(x1, y2, q0.z)));
+        }
+        g * self.e
+    }
+}
+
+/// WGSL `cubic_gradient_at`.
+pub fn cubic_gradient_at<S: Storage>(
+    s: &S,
+    p: &RaycastParams,
+    tc: Vec3,
+    loc: &S::Location,
+) -> Vec3 {
+    let h = Vec3::from(p.volume.texel) * S::voxel_edge(loc);
+    let reads = CubicReads::at(tc / h - Vec3::splat(0.5));
+    reads.gradient(|x| s.sample_neighbour(p, (x + Vec3::splat(0.5)) * h, loc)) / h
 }
 
 /// WGSL `shade`.
@@ -585,7 +676,108 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
 
 #[cfg(test)]
 mod tests {
-    use super::pow;
+    use glam::Vec3;
+
+    use super::{central_difference_at, cubic_gradient_at, pow};
+    use crate::cpu::Texture3d;
+    use crate::cpu::reference::PlainLocation;
+    use crate::raycast::RaycastParams;
+
+    /// A cube of `n`³ voxels with values `f(x, y, z)` at the voxel centres
+    /// (in voxels), and march parameters for it.
+    fn field(n: u32, f: impl Fn(Vec3) -> f32) -> (Texture3d, RaycastParams) {
+        let mut texels = Vec::new();
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    texels.push(f(Vec3::new(x as f32, y as f32, z as f32)));
+                }
+            }
+        }
+        let mut params: RaycastParams = bytemuck::Zeroable::zeroed();
+        params.volume.texel = [1.0 / n as f32; 3];
+        (Texture3d::new([n; 3], texels), params)
+    }
+
+    /// Points spread over the volume's middle, in voxels.
+    fn points(n: u32, margin: f32) -> impl Iterator<Item = Vec3> {
+        let span = n as f32 - 1.0 - 2.0 * margin;
+        (0..200).map(move |i| {
+            let u = |k: u32| ((i * k) % 199) as f32 / 198.0;
+            Vec3::new(u(37), u(101), u(53)) * span + Vec3::splat(margin)
+        })
+    }
+
+    #[test]
+    fn cubic_gradients_are_exact_on_a_linear_field_as_central_differences_are() {
+        let slope = Vec3::new(0.01, 0.02, -0.03);
+        let (texture, params) = field(24, |p| 0.5 + slope.dot(p));
+        // Per unit of texture coordinate: per voxel × 24.
+        let want = slope * 24.0;
+        for p in points(24, 2.0) {
+            let tc = (p + Vec3::splat(0.5)) / 24.0;
+            for (name, got) in [
+                (
+                    "cubic",
+                    cubic_gradient_at(&texture, &params, tc, &PlainLocation),
+                ),
+                (
+                    "central",
+                    central_difference_at(&texture, &params, tc, &PlainLocation),
+                ),
+            ] {
+                assert!(
+                    (got - want).length() < 1e-4,
+                    "{name} at {p}: {got} for {want}"
+                );
+            }
+        }
+    }
+
+    /// The largest angle, in degrees, between the gradient `gradient` finds
+    /// on the iso-surface of a ball with a soft edge and the ball's normal,
+    /// over the cap within 50° of the view along z, where a surface crosses
+    /// the voxel planes at every slant.
+    fn worst_normal_error(
+        gradient: fn(&Texture3d, &RaycastParams, Vec3, &PlainLocation) -> Vec3,
+    ) -> f32 {
+        // A logistic edge of scale 0.44 voxel: as steep as a Gaussian blur
+        // of σ = 0.8 voxel (a sharp CT kernel), radius 20.3 voxels.
+        let (n, centre, radius) = (48u32, Vec3::splat(23.7), 20.3);
+        let (texture, params) = field(n, |p| {
+            1.0 / (1.0 + ((p.distance(centre) - radius) / 0.44).exp())
+        });
+        let mut worst = 0.0f32;
+        for i in 0..400 {
+            let polar = (i as f32 / 400.0).sqrt() * 50f32.to_radians();
+            let azimuth = i as f32 * 2.399_963;
+            let normal = Vec3::new(
+                polar.sin() * azimuth.cos(),
+                polar.sin() * azimuth.sin(),
+                polar.cos(),
+            );
+            let p = centre + normal * radius;
+            let g = gradient(
+                &texture,
+                &params,
+                (p + Vec3::splat(0.5)) / n as f32,
+                &PlainLocation,
+            );
+            worst = worst.max((-g.normalize()).dot(normal).min(1.0).acos().to_degrees());
+        }
+        worst
+    }
+
+    #[test]
+    fn cubic_normals_follow_a_curved_edge_that_central_differences_tilt() {
+        let cubic = worst_normal_error(cubic_gradient_at);
+        let central = worst_normal_error(central_difference_at);
+        // Measured: 1.06° and 5.41°.
+        assert!(
+            cubic < 1.5 && central > 3.0 * cubic,
+            "cubic {cubic:.2}°, central {central:.2}°"
+        );
+    }
 
     #[test]
     fn pow_by_squaring_stays_within_2_to_the_minus_18_of_powf() {

@@ -57,6 +57,11 @@ pub struct BlockLocation {
     pub slot_edge: usize,
 }
 
+/// WGSL `voxel_edge`: the edge of a voxel of block `loc`'s level, in level-0 voxels.
+pub fn voxel_edge(loc: &BlockLocation) -> f32 {
+    1.0 / loc.scale
+}
+
 /// WGSL `block_of`.
 pub fn block_of(g: &PackedVolume, tc: Vec3) -> [i32; 3] {
     let last = g.block_grid.map(|n| n as i32 - 1);

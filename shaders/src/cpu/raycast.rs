@@ -4,15 +4,15 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{Cell, Span, Storage, far_face_crossing, march};
+use super::march::{Cell, CubicReads, Span, Storage, cubic_gradient_at, far_face_crossing, march};
 use super::occupancy::cell_at;
 use super::packed::{
-    BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit,
+    BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit, voxel_edge,
 };
 use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON};
 use super::texture::{Texture3d, floor3};
 use crate::packed_volume::PackedVolume;
-use crate::raycast::{FLAG_SKIP_EMPTY, RaycastParams};
+use crate::raycast::{FLAG_CUBIC_GRADIENT, FLAG_SKIP_EMPTY, RaycastParams};
 
 impl Storage for PackedTexture {
     type Location = BlockLocation;
@@ -136,9 +136,25 @@ impl Storage for PackedTexture {
 
     fn gradient_in(&self, p: &RaycastParams, span: &Span<BlockLocation>, t: f32, tc: Vec3) -> Vec3 {
         let loc = &span.loc;
-        let local = span.local_at_zero + span.local_per_t * t;
         let centre = span.texel_at_zero + span.texel_per_t * t;
         let h = Vec3::from(p.volume.texel);
+        if p.flags & FLAG_CUBIC_GRADIENT != 0 {
+            // The slot's texel centres are at whole `centre`, the block's
+            // faces at ½ and edge − 1.5. Where every read is inside the
+            // block (what `sample_neighbour` finds there), they are read
+            // from its slot; else `sample_neighbour` reads them as the
+            // shader does.
+            let reads = CubicReads::at(centre);
+            let low = reads.derivative_at[0].min(reads.smooth_at[0]);
+            let high = reads.derivative_at[1].max(reads.smooth_at[1]);
+            let face = loc.slot_edge as f32 - 1.5;
+            if low.cmpge(Vec3::splat(0.5)).all() && high.cmplt(Vec3::splat(face)).all() {
+                let g = reads.gradient(|x| self.atlas.sample_slot(loc.slot, loc.slot_edge, x));
+                return g / (h * voxel_edge(loc));
+            }
+            return cubic_gradient_at(self, p, tc, loc);
+        }
+        let local = span.local_at_zero + span.local_per_t * t;
         // A voxel from the block's faces along an axis, both neighbours
         // along it are in the block (what `sample_neighbour` finds), so
         // they are read from its slot.
@@ -181,6 +197,10 @@ impl Storage for PackedTexture {
         // the block's first interior texel.
         let in_slot = atlas_texel(&p.volume, tc, loc) - (loc.origin - SLOT_APRON);
         self.atlas.sample_slot(loc.slot, loc.slot_edge, in_slot)
+    }
+
+    fn voxel_edge(loc: &BlockLocation) -> f32 {
+        voxel_edge(loc)
     }
 
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &BlockLocation) -> f32 {

@@ -40,6 +40,10 @@ impl Storage for Texture3d {
         self.sample_level(tc)
     }
 
+    fn voxel_edge(_loc: &PlainLocation) -> f32 {
+        1.0
+    }
+
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &PlainLocation) -> f32 {
         self.sample_at(p, tc, home)
     }

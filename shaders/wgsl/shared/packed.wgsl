@@ -36,6 +36,11 @@ fn locate(tc: vec3<f32>) -> Location {
     return loc;
 }
 
+// The edge of a voxel of block `loc`'s level, in level-0 voxels.
+fn voxel_edge(loc: Location) -> f32 {
+    return 1.0 / loc.scale;
+}
+
 // The normalized atlas coordinate of tc in block `loc`'s slot; positions outside
 // the block are clamped to its apron, so filtering never reads another slot.
 // Every atlas-shaped texture (data, local opacity, light) is read here.

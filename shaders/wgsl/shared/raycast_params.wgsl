@@ -62,6 +62,8 @@ const FLAG_SKIP_EMPTY: u32 = 4u;
 const FLAG_LIT: u32 = 8u;
 // Exponential extinction compositing (eq. 2 of Schlegel et al.) instead of α-blending.
 const FLAG_EXTINCTION: u32 = 16u;
+// Normals from the cubic B-spline's gradient, not central differences (still frames).
+const FLAG_CUBIC_GRADIENT: u32 = 32u;
 
 // Front-to-back emission–absorption compositing.
 const MODE_COMPOSITE: u32 = 0u;
