@@ -376,15 +376,7 @@ impl Shape {
                 sin,
                 cos,
             } => {
-                // With f the implicit function (Σ (q/a)² − 1) and a_min the
-                // shortest semi-axis, |∇f| ≤ 2√(f + 1) / a_min, so the signed
-                // distance f/|∇f| is at least reach outside the ellipsoid scaled
-                // by s = k + √(k² + 1), and at most reach inside the one scaled
-                // by √(k² + 1) − k, with k = |reach| / a_min.
-                let a_min = semi[0].min(semi[1]).min(semi[2]);
-                let k = reach.abs() / a_min;
-                let root = (k * k + 1.0).sqrt();
-                let scale = if reach >= 0.0 { root + k } else { root - k };
+                let scale = reach_scale(semi, reach);
                 ellipsoid_row(center, semi.map(|s| s * scale), sin, cos, y, z)
             }
             Shape::Capsule { a, b, radius } => {
@@ -407,9 +399,7 @@ impl Shape {
                 sin,
                 cos,
             } => {
-                let a_min = semi[0].min(semi[1]).min(semi[2]);
-                let k = reach.abs() / a_min;
-                let scale = (k * k + 1.0).sqrt() + k;
+                let scale = reach_scale(semi, reach.abs());
                 let [a, b, c] = semi.map(|s| s * scale);
                 let half = [(a * cos).hypot(b * sin), (a * sin).hypot(b * cos), c];
                 std::array::from_fn(|i| [center[i] - half[i], center[i] + half[i]])
@@ -899,6 +889,20 @@ fn anatomy() -> Vec<Part> {
         ),
     );
     head.0
+}
+
+/// The factor by which an ellipsoid of semi-axes `semi` scales so that
+/// points outside the scaled one lie at least `reach` mm outside it (`reach`
+/// ≥ 0), or points inside it at least −`reach` deep (`reach` < 0). With f
+/// the implicit function (Σ (q/a)² − 1) and a_min the shortest semi-axis,
+/// |∇f| ≤ 2√(f + 1) / a_min, so the signed distance f/|∇f| is at least reach
+/// outside the ellipsoid scaled by k + √(k² + 1), and at most reach inside
+/// the one scaled by √(k² + 1) − k, with k = |reach| / a_min.
+fn reach_scale(semi: [f32; 3], reach: f32) -> f32 {
+    let a_min = semi[0].min(semi[1]).min(semi[2]);
+    let k = reach.abs() / a_min;
+    let root = (k * k + 1.0).sqrt();
+    if reach >= 0.0 { root + k } else { root - k }
 }
 
 /// The share of a voxel inside a surface at signed distance `d` voxels: 1 deep
