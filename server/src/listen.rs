@@ -10,7 +10,9 @@
 //! - **Timeouts**: a request's headers must arrive within
 //!   [`ConnectionLimits::header_timeout`] (slow-header connections end), and a
 //!   connection on which nothing was read or written for
-//!   [`ConnectionLimits::idle_timeout`] is closed.
+//!   [`ConnectionLimits::idle_timeout`] is closed unless a request on it is
+//!   being answered (a large frame may render for minutes on a CPU; what it
+//!   may cost is bounded by the render worker, not by the connection).
 //! - **Descriptors**: when `accept` fails for want of file descriptors, the
 //!   quietest connection is closed and accepting resumes shortly.
 //!
@@ -26,7 +28,7 @@ use std::future::Future;
 use std::io;
 use std::net::IpAddr;
 use std::pin::{Pin, pin};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
@@ -51,7 +53,8 @@ pub struct ConnectionLimits {
     pub per_client: usize,
     /// The longest a request's headers may take to arrive.
     pub header_timeout: Duration,
-    /// A connection on which nothing was read or written this long is closed.
+    /// A connection on which nothing was read or written this long, and no
+    /// request is being answered, is closed.
     pub idle_timeout: Duration,
 }
 
@@ -85,12 +88,25 @@ struct Open {
     close: CancellationToken,
 }
 
-/// When a connection last read or wrote: milliseconds since the registry's
-/// epoch.
+/// When a connection last read or wrote (milliseconds since the registry's
+/// epoch), and how many of its requests are being answered.
 #[derive(Debug)]
 struct Activity {
     epoch: Instant,
     last_ms: AtomicU64,
+    answering: AtomicUsize,
+}
+
+/// A request being answered on a connection: counted in its
+/// [`Activity`] until dropped.
+#[derive(Debug)]
+struct Answering(Arc<Activity>);
+
+impl Drop for Answering {
+    fn drop(&mut self) {
+        self.0.touch();
+        self.0.answering.fetch_sub(1, Ordering::Relaxed);
+    }
 }
 
 impl Activity {
@@ -98,9 +114,31 @@ impl Activity {
         let activity = Activity {
             epoch,
             last_ms: AtomicU64::new(0),
+            answering: AtomicUsize::new(0),
         };
         activity.touch();
         activity
+    }
+
+    /// Counts a request as being answered until the guard is dropped.
+    fn answering(self: &Arc<Self>) -> Answering {
+        self.answering.fetch_add(1, Ordering::Relaxed);
+        Answering(self.clone())
+    }
+
+    /// Whether a request is being answered.
+    fn busy(&self) -> bool {
+        self.answering.load(Ordering::Relaxed) > 0
+    }
+
+    /// When the connection was last active, for choosing the quietest: a
+    /// connection answering a request is not quiet.
+    fn quiet_since_ms(&self) -> u64 {
+        if self.busy() {
+            u64::MAX
+        } else {
+            self.last_ms.load(Ordering::Relaxed)
+        }
     }
 
     fn touch(&self) {
@@ -156,7 +194,7 @@ impl Registry {
             .open
             .iter()
             .filter(|(_, o)| which(o))
-            .min_by_key(|(_, o)| o.activity.last_ms.load(Ordering::Relaxed))
+            .min_by_key(|(_, o)| o.activity.quiet_since_ms())
             .map(|(id, _)| *id);
         let Some(open) = quietest.and_then(|id| self.open.remove(&id)) else {
             return false;
@@ -286,12 +324,25 @@ pub async fn serve(
             stream,
             activity: activity.clone(),
         };
-        let service = TowerToHyperService::new(router.clone().map_request(
-            move |mut request: axum::extract::Request<hyper::body::Incoming>| {
-                request.extensions_mut().insert(ConnectInfo(client));
-                request
-            },
-        ));
+        let answering = activity.clone();
+        let service = TowerToHyperService::new(
+            router
+                .clone()
+                .map_request(
+                    move |mut request: axum::extract::Request<hyper::body::Incoming>| {
+                        request.extensions_mut().insert(ConnectInfo(client));
+                        request
+                    },
+                )
+                .map_future(move |response| {
+                    let answering = answering.answering();
+                    async move {
+                        let response = response.await;
+                        drop(answering);
+                        response
+                    }
+                }),
+        );
         let builder = builder.clone();
         let connections = connections.clone();
         let stop = stop.clone();
@@ -353,8 +404,8 @@ where
 }
 
 /// Runs `connection` until it ends, it was `close`d (to make room), nothing
-/// was read or written for `idle_timeout`, or, after `stop`, it has finished
-/// its requests in flight.
+/// was read or written for `idle_timeout` while no request was being
+/// answered, or, after `stop`, it has finished its requests in flight.
 async fn watch(
     mut connection: Pin<&mut impl Serving>,
     activity: &Activity,
@@ -373,7 +424,7 @@ async fn watch(
                 connection.as_mut().finish();
             }
             () = tokio::time::sleep_until(idle_at.into()) => {
-                if activity.last() + idle_timeout <= Instant::now() {
+                if !activity.busy() && activity.last() + idle_timeout <= Instant::now() {
                     return Ok(());
                 }
             }
@@ -439,5 +490,58 @@ mod tests {
         );
         assert!(!close_first_b.is_cancelled() && !close_second_b.is_cancelled());
         assert_eq!(registry.open.len(), 3);
+        // A connection answering a request is not the quietest, however
+        // long ago it last read or wrote.
+        first_b.last_ms.store(0, Ordering::Relaxed);
+        let answering = first_b.answering();
+        let (_, _, close_third_b) = registry.admit(b, &limits);
+        assert!(!close_first_b.is_cancelled(), "busy connections stay");
+        assert!(close_second_b.is_cancelled() || close_third_a.is_cancelled());
+        drop(answering);
+        assert!(!first_b.busy());
+        drop(close_third_b);
+    }
+
+    #[tokio::test]
+    async fn a_request_answered_slower_than_the_idle_timeout_is_answered() {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let router = Router::new().route(
+            "/slow",
+            axum::routing::get(|| async {
+                tokio::time::sleep(Duration::from_millis(1500)).await;
+                "done"
+            }),
+        );
+        let limits = ConnectionLimits {
+            idle_timeout: Duration::from_millis(300),
+            ..ConnectionLimits::DEFAULT
+        };
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("address");
+        let stop = CancellationToken::new();
+        tokio::spawn(serve(listener, router, limits, None, stop.clone()));
+        let mut stream = TcpStream::connect(addr).await.expect("connect");
+        stream
+            .write_all(b"GET /slow HTTP/1.1\r\nHost: localhost\r\n\r\n")
+            .await
+            .expect("send");
+        let mut answer = vec![0u8; 1024];
+        let n = tokio::time::timeout(Duration::from_secs(10), stream.read(&mut answer))
+            .await
+            .expect("an answer")
+            .expect("read");
+        let text = String::from_utf8_lossy(&answer[..n]);
+        assert!(
+            text.starts_with("HTTP/1.1 200") && text.ends_with("done"),
+            "{text}"
+        );
+        // Then, quiet, the connection is closed after the idle timeout.
+        let started = Instant::now();
+        let end = tokio::time::timeout(Duration::from_secs(10), stream.read(&mut answer))
+            .await
+            .expect("closed");
+        assert!(matches!(end, Ok(0) | Err(_)), "{end:?}");
+        assert!(started.elapsed() < Duration::from_secs(5));
+        stop.cancel();
     }
 }

@@ -462,10 +462,18 @@ async fn a_client_s_big_frames_do_not_hold_up_another_s_small_frame() {
     let server = start(StreamSettings::default(), Access::default()).await;
     let (hog, viewer): (IpAddr, IpAddr) = ([127, 0, 0, 2].into(), [127, 0, 0, 3].into());
     // The hog asks for a 4096² frame, and keeps two more waiting (its
-    // share), asking again whenever it is refused for having that many.
+    // share), asking again whenever it is refused for having that many. A
+    // step of 2 voxels keeps them several turns each (bands ≥ 4 below) while
+    // the test stays short.
     let addr = server.addr;
     let first = tokio::spawn(async move {
-        raw_http_within(hog, addr, &get_render(4096), Duration::from_secs(300)).await
+        raw_http_within(
+            hog,
+            addr,
+            &get_render_at(4096, 2.0),
+            Duration::from_secs(300),
+        )
+        .await
     });
     let deadline = Instant::now() + Duration::from_secs(60);
     while server.state.renderer.bands() < 1 && Instant::now() < deadline {
@@ -476,8 +484,13 @@ async fn a_client_s_big_frames_do_not_hold_up_another_s_small_frame() {
         let addr = server.addr;
         hogging.push(tokio::spawn(async move {
             loop {
-                let answer =
-                    raw_http_within(hog, addr, &get_render(4096), Duration::from_secs(300)).await;
+                let answer = raw_http_within(
+                    hog,
+                    addr,
+                    &get_render_at(4096, 2.0),
+                    Duration::from_secs(300),
+                )
+                .await;
                 if !answer.starts_with("HTTP/1.1 429") {
                     return answer;
                 }
