@@ -9,7 +9,7 @@ use std::sync::Arc;
 use blocks::cache::BlockCache;
 use blocks::ingest;
 use blocks::lod::Budget;
-use blocks::store::{self, BLOCK, IngestOptions, LEVELS, Store, level_dims};
+use blocks::store::{self, BLOCK, IngestOptions, LEVELS, Store, level_dims, pyramid};
 use blocks::{Error, Geometry, Preset, VoxelData, VoxelType};
 
 mod common;
@@ -21,21 +21,14 @@ fn ingest_to(dir: &Path, source: &mut Memory) -> Result<Store, Error> {
     Store::open(&out)
 }
 
-/// The 2^l box average of `source` at level-l voxel (x, y, z), rounded half away
-/// from zero like the store.
-fn box_average(source: &Memory, level: usize, x: u32, y: u32, z: u32) -> f64 {
-    let f = 1u32 << level;
-    let [nx, ny, nz] = source.info.geometry.dims;
-    let (mut sum, mut n) = (0.0, 0.0);
-    for zz in z * f..((z + 1) * f).min(nz) {
-        for yy in y * f..((y + 1) * f).min(ny) {
-            for xx in x * f..((x + 1) * f).min(nx) {
-                sum += source.at(xx, yy, zz);
-                n += 1.0;
-            }
-        }
-    }
-    (sum / n).round()
+/// Level `level` of `source` at level-l voxel (x, y, z), as the store should
+/// hold it ([`pyramid::volume_level`] over the source's stored range).
+fn level_value(source: &Memory, level: usize, x: u32, y: u32, z: u32) -> f64 {
+    let dims = source.info.geometry.dims;
+    let range = source.voxels.stored_range().expect("values");
+    let l = pyramid::volume_level(&source.voxels, dims, range, level);
+    let ld = level_dims(dims, level);
+    l.get(((z * ld[1] + y) * ld[0] + x) as usize)
 }
 
 #[test]
@@ -60,7 +53,7 @@ fn every_block_at_every_level_round_trips_for_odd_sizes() {
                                 let p = [bx * edge + x, by * edge + y, bz * edge + z];
                                 let got = block.get(((z * edge + y) * edge + x) as usize);
                                 let want = if (0..3).all(|a| p[a] < ld[a]) {
-                                    box_average(&source, level, p[0], p[1], p[2])
+                                    level_value(&source, level, p[0], p[1], p[2])
                                 } else {
                                     0.0
                                 };
@@ -117,7 +110,7 @@ fn signed_and_float_volumes_round_trip() {
     assert_eq!(b.get(0), source.at(16, 16, 32));
     assert_eq!(
         store.read_block(2, [0, 0, 0]).expect("level 2").get(0),
-        box_average(&source, 2, 0, 0, 0)
+        level_value(&source, 2, 0, 0, 0)
     );
 
     let dir = tempfile::tempdir().expect("temp");
@@ -369,7 +362,7 @@ fn the_cache_serves_concurrent_readers_within_its_budget_and_aprons_copy_neighbo
     for (z, y, x) in [(0, 0, 0), (0, 5, 9), (9, 9, 9), (4, 0, 4)] {
         let p = [8 + x as i64 - 1, y as i64 - 1, 8 + z as i64 - 1];
         let c = [0, 1, 2].map(|i| p[i].clamp(0, i64::from(ld[i]) - 1) as u32);
-        let want = box_average(&source, 1, c[0], c[1], c[2]);
+        let want = level_value(&source, 1, c[0], c[1], c[2]);
         assert_eq!(
             a.get((z * side + y) * side + x),
             want,
@@ -398,14 +391,14 @@ fn lod_selection_on_stored_statistics_respects_budgets_and_skips_empty_blocks() 
     let tf = Preset::CtBone.transfer_function(store.meta().value_range().map(|v| v as f32));
     let full = u64::from(n).pow(3);
     let map = store.meta().value_map;
-    let sel = blocks::lod::select(store.stats(), map, &tf, full, Budget::reduction(1.0));
+    let sel = blocks::lod::select(store.stats(), map, &tf, full, Budget::reduction(1.0), None);
     // Blocks of pure air are empty; blocks touching the sphere are not.
     let air = store.stats().block_index([0, 0, 0]);
     let centre = store.stats().block_index([2, 2, 2]);
     assert_eq!(sel.lod[air], blocks::lod::EMPTY);
     assert_eq!(sel.lod[centre], 0, "unlimited budget: full resolution");
     for budget in [sel.non_empty as u64, full / 35, full / 9, full] {
-        let s = blocks::lod::select(store.stats(), map, &tf, full, Budget::voxels(budget));
+        let s = blocks::lod::select(store.stats(), map, &tf, full, Budget::voxels(budget), None);
         assert!(s.kept_voxels <= budget, "{budget}: {}", s.kept_voxels);
         assert_eq!(s.lod[air], blocks::lod::EMPTY);
     }

@@ -421,7 +421,7 @@ fn write_slabs(
                 }
             };
             let slab_dims = [dims[0], dims[1], depth];
-            let levels = pyramid::levels(slab, slab_dims);
+            let levels = pyramid::levels(slab, slab_dims, range);
             let mut stats = BlockStats::new([grid[0], grid[1], 1], range);
             stats.fill_row(0, &levels, slab_dims);
             uniform_blocks += (0..stats.block_count())
@@ -670,7 +670,7 @@ pub(super) fn read_stats(
 }
 
 /// The OME-Zarr 0.5 `multiscales` attribute: per level, scale = spacing · 2^l and
-/// the centre of its first voxel (a box average's centre).
+/// the centre of its first voxel (the centre of its box of 2^l voxels).
 fn ome_multiscales(meta: &StoreMeta) -> serde_json::Value {
     let axis =
         |name: &str| serde_json::json!({ "name": name, "type": "space", "unit": "millimeter" });
@@ -695,8 +695,10 @@ fn ome_multiscales(meta: &StoreMeta) -> serde_json::Value {
             "name": meta.name,
             "axes": [axis("z"), axis("y"), axis("x")],
             "datasets": datasets,
-            "type": "mean",
-            "metadata": { "description": "box average over 2^l voxels per axis" },
+            "type": "least-squares trilinear",
+            "metadata": {
+                "description": "per box of 2^l voxels per axis, centred on it, the values whose trilinear interpolant is nearest level 0 in the least-squares sense (within each 16-slice slab along z), clamped to the stored range",
+            },
         }],
     })
 }

@@ -231,7 +231,7 @@ mod tests {
             })
             .collect();
         let dims = [32, 16, 16];
-        let l = levels(VoxelData::U8(v), dims);
+        let l = levels(VoxelData::U8(v), dims, [0.0, 255.0]);
         let mut s = BlockStats::new([2, 1, 1], [0.0, 256.0]);
         s.fill_row(0, &l, dims);
         assert_eq!(s.min_max(0, 0), [0.0, 0.0]);
@@ -241,8 +241,8 @@ mod tests {
             s.histogram(0, 1).iter().map(|&c| u32::from(c)).sum::<u32>(),
             4096
         );
-        // Level 4 is one voxel per block: the block mean.
-        assert_eq!(s.min_max(4, 1), [128.0, 128.0]);
+        // Level 4 is one voxel per block: its value.
+        assert_eq!(s.min_max(4, 1), [l[4].get(1), l[4].get(1)]);
         assert_eq!(
             s.histogram(4, 1).iter().map(|&c| u32::from(c)).sum::<u32>(),
             1
