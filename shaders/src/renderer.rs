@@ -25,7 +25,7 @@ use crate::illumination::{Illumination, Inputs, Mode, Refine, Timings};
 use crate::packed::{Atlas, GpuAtlas};
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
-use crate::residency::{Residency, ResidencyStats};
+use crate::residency::{Residency, ResidencyStats, viewpoint};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
@@ -413,6 +413,7 @@ impl Renderer {
             &self.desc,
             &tf,
             request.reduction,
+            Some(viewpoint(request, &self.desc)),
             complete,
         )?);
         let fitted = self.residency.fitted(request, &self.desc);

@@ -19,7 +19,7 @@ use std::sync::Arc;
 
 use blocks::TransferFunction;
 use blocks::cache::{BlockCache, Pinned};
-use blocks::lod::{self, Budget, EMPTY, LodSelection};
+use blocks::lod::{self, Budget, EMPTY, LodSelection, Viewpoint};
 use blocks::packing::{APRON, Packing};
 use blocks::seams::{self, SeamChunks};
 use blocks::store::{LEVELS, Store};
@@ -35,6 +35,10 @@ use crate::{FrameRequest, GpuError};
 const ARRIVAL_PATIENCE: std::time::Duration = std::time::Duration::from_millis(200);
 /// Selections tried before a device budget is declared too small.
 const MAX_SELECTIONS: usize = 12;
+/// How far the view may turn, in degrees, before the levels are chosen again
+/// for what the viewer now sees ([`lod::Viewpoint`]): a drag re-selects every
+/// few degrees, not every frame.
+pub const VIEW_TURN_DEG: f64 = 5.0;
 
 /// What one update of the resident blocks did.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -57,7 +61,37 @@ pub struct ResidencyStats {
 struct Target {
     tf: TransferFunction,
     reduction: f32,
+    view: Option<Viewpoint>,
     selection: LodSelection,
+}
+
+impl Target {
+    /// Whether this target still serves `tf` at `reduction` seen from `view`:
+    /// the same transfer function and reduction, and a view turned by at
+    /// most [`VIEW_TURN_DEG`].
+    fn serves(&self, tf: &TransferFunction, reduction: f32, view: Option<&Viewpoint>) -> bool {
+        let same_view = match (&self.view, view) {
+            (Some(a), Some(b)) => a.angle_to(b) <= VIEW_TURN_DEG,
+            (None, None) => true,
+            _ => false,
+        };
+        self.tf == *tf && self.reduction == reduction && same_view
+    }
+}
+
+/// Where `request`'s camera sees a volume of `desc` from, for the level
+/// selection: the direction towards the eye in millimetres along the
+/// volume's index axes (the view's, for every block: what a block hides
+/// barely changes across the few degrees a perspective view spans).
+pub fn viewpoint(request: &FrameRequest, desc: &VolumeTexture) -> Viewpoint {
+    let geometry = &desc.geometry;
+    let radius = VolumePlacement::of(desc).radius();
+    let toward_eye = -request.camera.basis(radius).forward;
+    let direction = geometry.direction_f32();
+    Viewpoint {
+        toward_eye: direction.map(|axis| f64::from(toward_eye.dot(glam::Vec3::from(axis)))),
+        spacing: geometry.spacing,
+    }
 }
 
 /// What is in the atlas.
@@ -163,28 +197,31 @@ impl<A: Atlas> Residency<A> {
     }
 
     /// Brings the atlas towards the selection for `tf` at data reduction
-    /// `reduction` (among the blocks `tf` shows), never reading storage on
-    /// this thread: see the module docs.
+    /// `reduction` (among the blocks `tf` shows), seen from `view` if given,
+    /// never reading storage on this thread: see the module docs.
     pub fn update(
         &mut self,
         device: &A::Device,
         desc: &VolumeTexture,
         tf: &TransferFunction,
         reduction: f32,
+        view: Option<Viewpoint>,
     ) -> Result<ResidencyStats, GpuError> {
         let mut stats = ResidencyStats::default();
         let retarget = !self
             .target
             .as_ref()
-            .is_some_and(|t| t.tf == *tf && t.reduction == reduction);
+            .is_some_and(|t| t.serves(tf, reduction, view.as_ref()));
         if retarget {
             let start = std::time::Instant::now();
             let device_budget = self.device_budget(device, desc);
-            let (selection, _) = select_levels(self.cache.store(), tf, reduction, device_budget)?;
+            let store = self.cache.store();
+            let (selection, _) = select_levels(store, tf, reduction, view.as_ref(), device_budget)?;
             stats.select_ms = start.elapsed().as_secs_f64() * 1e3;
             self.target = Some(Target {
                 tf: tf.clone(),
                 reduction,
+                view,
                 selection,
             });
         } else if self.pending == 0 {
@@ -207,15 +244,16 @@ impl<A: Atlas> Residency<A> {
         desc: &VolumeTexture,
         tf: &TransferFunction,
         reduction: f32,
+        view: Option<Viewpoint>,
         complete: bool,
     ) -> Result<ResidencyStats, GpuError> {
-        let mut stats = self.update(device, desc, tf, reduction)?;
+        let mut stats = self.update(device, desc, tf, reduction, view)?;
         while complete && stats.pending_blocks > 0 {
             let seen = self.cache.arrivals();
             if self.cache.loading() > 0 {
                 self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
             }
-            let more = self.update(device, desc, tf, reduction)?;
+            let more = self.update(device, desc, tf, reduction, view)?;
             stats = ResidencyStats {
                 uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
                 relayout: stats.relayout || more.relayout,
@@ -539,7 +577,7 @@ impl DeviceBudget {
 }
 
 /// Selects every block's level of detail for `tf` at data reduction
-/// `reduction` among the blocks `tf` shows. When a fresh packing of that
+/// `reduction` among the blocks `tf` shows, seen from `view` if given. When a fresh packing of that
 /// selection (slots with aprons, whole layers per level) would not fit
 /// `device`, a cap on the voxels kept shrinks until it fits, then grows back
 /// by bisection to use as much of the device as it can (the selection is
@@ -548,6 +586,7 @@ pub fn select_levels(
     store: &Store,
     tf: &TransferFunction,
     reduction: f32,
+    view: Option<&Viewpoint>,
     device: DeviceBudget,
 ) -> Result<(LodSelection, Packing), GpuError> {
     let full_voxels = store.meta().geometry.voxel_count();
@@ -563,6 +602,7 @@ pub fn select_levels(
                 reduction: f64::from(reduction),
                 cap_voxels: budget,
             },
+            view,
         );
         // A packing that does not fit the texture edge counts as too big.
         let packing = Packing::new(&selection, device.max_edge).ok();
@@ -608,6 +648,7 @@ pub fn select_levels(
             tf,
             full_voxels,
             Budget::voxels(0),
+            None,
         );
         return Err(GpuError::Unsupported {
             what: format!(

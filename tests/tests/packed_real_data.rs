@@ -184,10 +184,13 @@ struct Bound {
 /// level 0, which matches the reference renderer within rounding: see the
 /// tests above), prints ΔE*uv, ꟻLIP and the opaque coverage, checks them
 /// against `bounds` and compares the reduced images with their goldens. The
-/// bounds sit about a third above what was measured when the goldens were
-/// made, so a worse level selection or broken borders fail while rounding
-/// does not; the targets (mean ΔE ≤ 1 / 2 / 3, coverage ≥ 0.99 at
-/// 35:1) are printed beside them.
+/// bounds sit a fifth to a third above what was measured when the goldens
+/// were made, and never above the targets (mean ΔE*uv ≤ 1 at 1:1, ≤ 2 at 9:1,
+/// ≤ 3 at 35:1), so a worse level selection or broken borders fail while
+/// rounding does not. The opaque coverage at 35:1 is bounded below what was
+/// measured: the target of 0.99 is not met on the CT head and the VHF head,
+/// whose thinnest structures (a head holder's edges, one voxel thick) fade
+/// at level 2.
 fn reduced_renders(test: &str, name: &str, bounds: [Bound; 3]) {
     let Some(case) = case(test, name, false) else {
         return;
@@ -278,11 +281,11 @@ fn engine_reduced_9_and_35_to_1_error_is_reported_and_bounded() {
     reduced_renders(
         "engine_reduced_9_and_35_to_1_error_is_reported_and_bounded",
         "engine",
-        // Measured: 9:1 mean 0.87, p99 9.6, coverage 0.9980; 35:1 1.79, 16.7, 0.9961.
+        // Measured: 9:1 mean 0.57, p99 6.9, coverage 0.9992; 35:1 1.10, 12.7, 0.9976.
         [
             FULL,
-            bound(9.0, 1.1, 12.0, 0.995),
-            bound(35.0, 2.3, 22.0, 0.99),
+            bound(9.0, 0.75, 9.0, 0.995),
+            bound(35.0, 1.4, 16.0, 0.995),
         ],
     );
 }
@@ -292,11 +295,11 @@ fn cthead_reduced_9_and_35_to_1_error_is_reported_and_bounded() {
     reduced_renders(
         "cthead_reduced_9_and_35_to_1_error_is_reported_and_bounded",
         "cthead",
-        // Measured: 9:1 mean 2.37, p99 23.3, coverage 0.984; 35:1 3.86, 33.1, 0.972.
+        // Measured: 9:1 mean 1.68, p99 19.7, coverage 0.9932; 35:1 2.52, 24.1, 0.9898.
         [
             FULL,
-            bound(9.0, 3.0, 29.0, 0.975),
-            bound(35.0, 4.9, 43.0, 0.96),
+            bound(9.0, 2.0, 25.0, 0.99),
+            bound(35.0, 3.0, 31.0, 0.985),
         ],
     );
 }
@@ -306,11 +309,11 @@ fn vhf_head_reduced_9_and_35_to_1_error_is_reported_and_bounded() {
     reduced_renders(
         "vhf_head_reduced_9_and_35_to_1_error_is_reported_and_bounded",
         "vhf",
-        // Measured: 9:1 mean 0.65, p99 13.3, coverage 0.977; 35:1 1.08, 21.3, 0.975.
+        // Measured: 9:1 mean 0.35, p99 8.7, coverage 0.9903; 35:1 0.65, 15.1, 0.9765.
         [
             FULL,
-            bound(9.0, 0.9, 17.0, 0.965),
-            bound(35.0, 1.4, 30.0, 0.96),
+            bound(9.0, 0.5, 11.5, 0.985),
+            bound(35.0, 0.9, 20.0, 0.97),
         ],
     );
 }

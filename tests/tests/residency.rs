@@ -1,11 +1,14 @@
-//! Blocks resident on the GPU across frames: a camera change uploads nothing, a
-//! transfer-function change uploads only the blocks that changed (and renders
-//! what a fresh renderer renders), and a device budget too small for level 0
-//! renders at the coarser levels the selection chose.
+//! Blocks resident on the GPU across frames: a camera change uploads nothing
+//! at 1:1 and re-selects only when the view turns by more than
+//! `VIEW_TURN_DEG`, a turn or a transfer-function change uploads only the
+//! blocks that changed (and renders what a fresh renderer renders), and a
+//! device budget too small for level 0 renders at the coarser levels the
+//! selection chose.
 
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
 use blocks::Preset;
+use shaders::residency::VIEW_TURN_DEG;
 use shaders::{Camera, FrameRequest, Renderer};
 use voxserve_tests::checks::coverage;
 use voxserve_tests::image_compare::{assert_similar, to_image};
@@ -41,7 +44,23 @@ fn camera_changes_upload_nothing_and_tf_changes_only_what_changed() {
         },
         ..soft.clone()
     };
+    // At 1:1 every block stays at level 0 from every side.
     renderer.render(&turned).expect("turned");
+    let stats = renderer.last_stats();
+    assert_eq!(
+        (stats.uploaded_blocks, stats.relayout),
+        (0, false),
+        "{stats:?}"
+    );
+    // A turn within VIEW_TURN_DEG does not even select again.
+    let nudged = FrameRequest {
+        camera: Camera {
+            azimuth_deg: 70.0 + VIEW_TURN_DEG as f32 * 0.8,
+            ..Camera::default()
+        },
+        ..soft.clone()
+    };
+    renderer.render(&nudged).expect("nudged");
     let stats = renderer.last_stats();
     assert_eq!(
         (stats.uploaded_blocks, stats.relayout, stats.select_ms),
@@ -86,6 +105,28 @@ fn camera_changes_upload_nothing_and_tf_changes_only_what_changed() {
     }
     let fresh = gpu_renderer(gpu, dataset).render(&finer).expect("fresh");
     assert_similar("residency-finer", &frame, &fresh, &SAME_BLOCKS);
+
+    // Seen from the other side, the blocks the viewer now sees get the
+    // detail: some blocks change level, not all.
+    let behind = FrameRequest {
+        camera: Camera {
+            azimuth_deg: 250.0,
+            ..Camera::default()
+        },
+        ..finer
+    };
+    let frame = renderer.render(&behind).expect("behind");
+    let stats = renderer.last_stats().clone();
+    println!("4:1 turned 180°: {stats:?}");
+    assert!(stats.uploaded_blocks > 0, "{stats:?}");
+    if !stats.relayout {
+        assert!(
+            stats.uploaded_blocks < resident,
+            "only changed blocks: {stats:?}"
+        );
+    }
+    let fresh = gpu_renderer(gpu, dataset).render(&behind).expect("fresh");
+    assert_similar("residency-behind", &frame, &fresh, &SAME_BLOCKS);
 }
 
 #[test]

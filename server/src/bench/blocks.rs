@@ -231,12 +231,20 @@ fn time_selection(
             tf,
             full,
             budget,
+            None,
         ));
         times.push(start.elapsed().as_secs_f64() * 1e3);
     }
     times.sort_by(f64::total_cmp);
     let selection = last.unwrap_or_else(|| {
-        blocks::lod::select(store.stats(), store.meta().value_map, tf, full, budget)
+        blocks::lod::select(
+            store.stats(),
+            store.meta().value_map,
+            tf,
+            full,
+            budget,
+            None,
+        )
     });
     (selection, times[times.len() / 2], times[0])
 }

@@ -25,7 +25,7 @@ use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
 use crate::renderer::RenderStats;
-use crate::residency::Residency;
+use crate::residency::{Residency, viewpoint};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuError, LightSettings};
 
@@ -141,6 +141,7 @@ impl CpuRenderer {
             &self.desc,
             &tf,
             request.reduction,
+            Some(viewpoint(request, &self.desc)),
             complete,
         )?);
         let fitted = self.residency.fitted(request, &self.desc);
