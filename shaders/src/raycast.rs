@@ -94,9 +94,11 @@ pub struct RaycastParams {
     pub mode: u32,
     /// Upper bound on samples per ray.
     pub max_steps: u32,
-    /// How far towards the eye (mm) the light is read: one light-cache cell for
-    /// extinction-based illumination, so a surface reads the light just outside
-    /// it rather than a blend with the shadowed cells behind it; 0 otherwise.
+    /// How far towards the eye (mm) the light is read, so a surface reads the
+    /// light just outside it rather than a blend with the shadowed texels
+    /// behind it: one light-cache cell for extinction-based illumination,
+    /// [`crate::illumination::LIGHT_READ_VOXELS`] voxels for global light;
+    /// 0 otherwise.
     pub light_offset: f32,
     /// The image row this dispatch's first row is (0 unless a band).
     pub first_row: u32,

@@ -222,8 +222,13 @@ impl Storage for PackedTexture {
             // shared/light_cache.wgsl: grid-shaped, read at tc.
             return Texture3d::sample_level3(channels, tc);
         }
+        // shared/light_volume.wgsl: in the block tc lies in, else in `loc`'s.
         match &self.light {
-            Some(light) => Vec3::splat(light.sample_texel(atlas_texel(&p.volume, tc, loc))),
+            Some(light) => {
+                let there = <Self as Storage>::locate(self, p, tc);
+                let home = if there.empty { loc } else { &there };
+                Vec3::splat(light.sample_texel(atlas_texel(&p.volume, tc, home)))
+            }
             None => Vec3::ONE,
         }
     }
