@@ -4,7 +4,7 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{Cell, CubicReads, Span, Storage, cubic_gradient_at, far_face_crossing, march};
+use super::march::{Cell, CubicReads, Span, Storage, far_face_crossing, march};
 use super::occupancy::cell_at;
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit, voxel_edge,
@@ -148,11 +148,30 @@ impl Storage for PackedTexture {
             let low = reads.derivative_at[0].min(reads.smooth_at[0]);
             let high = reads.derivative_at[1].max(reads.smooth_at[1]);
             let face = loc.slot_edge as f32 - 1.5;
-            if low.cmpge(Vec3::splat(0.5)).all() && high.cmplt(Vec3::splat(face)).all() {
-                let g = reads.gradient(|x| self.atlas.sample_slot(loc.slot, loc.slot_edge, x));
-                return g / (h * voxel_edge(loc));
+            let inside =
+                |x: Vec3| x.cmpge(Vec3::splat(0.5)).all() && x.cmplt(Vec3::splat(face)).all();
+            let per_voxel = h * voxel_edge(loc);
+            if inside(low) && inside(high) {
+                // Every read in the block: its 4³ texels are in the slot.
+                return self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
             }
-            return cubic_gradient_at(self, p, tc, loc);
+            // Near a face: the reads in the block from its slot, the others
+            // where `sample_neighbour` finds them (slot position x is level
+            // voxel x − 1 of the block, centred at (x + ½)·per_voxel).
+            let first_voxel = Vec3::new(
+                loc.block[0] as f32,
+                loc.block[1] as f32,
+                loc.block[2] as f32,
+            ) * (BLOCK * loc.scale);
+            let g = reads.gradient(|x| {
+                if inside(x) {
+                    self.atlas.sample_slot(loc.slot, loc.slot_edge, x)
+                } else {
+                    let tc = (x - Vec3::ONE + first_voxel + Vec3::splat(0.5)) * per_voxel;
+                    self.sample_neighbour(p, tc, loc)
+                }
+            });
+            return g / per_voxel;
         }
         let local = span.local_at_zero + span.local_per_t * t;
         // A voxel from the block's faces along an axis, both neighbours

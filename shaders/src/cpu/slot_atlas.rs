@@ -242,6 +242,54 @@ impl SlotAtlas {
         Some(lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array())
     }
 
+    /// The cubic B-spline's derivative along x, y and z (per texel) at `p`,
+    /// texel coordinates within the slot at `base` of edge `edge`, from the
+    /// 4³ texels about it, weighed directly (separably). The shader reads
+    /// the same sum as 8 trilinear reads per axis (Sigg and Hadwiger), which
+    /// the GPU's filtering makes cheap and the CPU's does not: 64 texels
+    /// instead of 192, the same value up to rounding. `p` must have its 4³
+    /// texels in the slot (`floor(p) − 1 ≥ 0`, `floor(p) + 2 ≤ edge − 1`).
+    #[inline(always)]
+    pub fn cubic_gradient(&self, base: usize, edge: usize, p: Vec3) -> Vec3 {
+        let i = p.floor();
+        let a = p - i;
+        let b = Vec3::ONE - a;
+        // Per axis, the B-spline's weights w and its derivative's d for the
+        // texels floor(p) − 1 … floor(p) + 2.
+        let w = [
+            b * b * b / 6.0,
+            (3.0 * a * a * a - 6.0 * a * a + Vec3::splat(4.0)) / 6.0,
+            (-3.0 * a * a * a + 3.0 * a * a + 3.0 * a + Vec3::ONE) / 6.0,
+            a * a * a / 6.0,
+        ];
+        let d = [
+            -0.5 * b * b,
+            a * (1.5 * a - Vec3::splat(2.0)),
+            (-3.0 * a * a + 2.0 * a + Vec3::ONE) * 0.5,
+            0.5 * a * a,
+        ];
+        let first =
+            base + ((i.z as usize - 1) * edge + (i.y as usize - 1)) * edge + (i.x as usize - 1);
+        // Along x per row (smooth and derivative), then y, then z.
+        let mut g = Vec3::ZERO;
+        for (k, (wz, dz)) in w.iter().zip(&d).enumerate() {
+            let (mut s_xy, mut dx_y, mut sx_dy) = (0.0f32, 0.0f32, 0.0f32);
+            for (j, (wy, dy)) in w.iter().zip(&d).enumerate() {
+                let row = &self.texels[first + (k * edge + j) * edge..][..4];
+                let (mut s, mut dx) = (0.0f32, 0.0f32);
+                for (t, (wx, ddx)) in row.iter().zip(w.iter().zip(&d)) {
+                    s += wx.x * t;
+                    dx += ddx.x * t;
+                }
+                s_xy += wy.y * s;
+                dx_y += wy.y * dx;
+                sx_dy += dy.y * s;
+            }
+            g += Vec3::new(wz.z * dx_y, wz.z * sx_dy, dz.z * s_xy);
+        }
+        g
+    }
+
     /// `sample_slot(p + a) − sample_slot(p − a)` for the unit steps `a`
     /// along x, y and z, in a slot of level 0, for `p` with a texel and a
     /// half to spare on every side (`None` where it has not): both samples
@@ -314,3 +362,52 @@ pub const LEVEL0_EDGE: usize = slot_edge(0) as usize;
 
 /// The apron's width, as a texel offset within a slot.
 pub const SLOT_APRON: f32 = APRON as f32;
+
+#[cfg(test)]
+mod tests {
+    use blocks::lod::LodSelection;
+
+    use super::*;
+    use crate::cpu::march::CubicReads;
+
+    #[test]
+    fn cubic_gradients_weighed_directly_equal_the_shaders_trilinear_reads() {
+        // A level-0 and a level-2 slot filled with uneven values.
+        let lod = vec![0u8, 2];
+        let selection = LodSelection {
+            kept_voxels: 0,
+            budget_voxels: 0,
+            capped: false,
+            full_voxels: 0,
+            non_empty: 2,
+            over_budget: false,
+            error: 0.0,
+            lod,
+        };
+        let packing = Packing::new(&selection, 2048).expect("packing");
+        let mut atlas = SlotAtlas::new(&packing);
+        for (b, level) in [(0usize, 0usize), (1, 2)] {
+            let slot = atlas.slot_mut(b, level).expect("slot");
+            for (i, t) in slot.iter_mut().enumerate() {
+                *t = ((i * 7919) % 1000) as f32 / 1000.0 + (i as f32 * 0.01).sin();
+            }
+        }
+        for (b, level) in [(0usize, 0usize), (1, 2)] {
+            let base = atlas.slot_base(b).expect("stored");
+            let edge = slot_edge(level) as usize;
+            // Positions whose 4³ texels lie in the slot, fractions all over.
+            let span = (edge - 3) as f32 - 1.0;
+            for k in 0..200 {
+                let f = |s: f32| 1.0 + ((k as f32 * s).sin() * 0.5 + 0.5) * span;
+                let p = Vec3::new(f(1.3), f(2.7), f(0.9));
+                let direct = atlas.cubic_gradient(base, edge, p);
+                let reads = CubicReads::at(p).gradient(|x| atlas.sample_slot(base, edge, x));
+                let scale = reads.abs().max_element().max(1.0);
+                assert!(
+                    (direct - reads).abs().max_element() < 1e-4 * scale,
+                    "level {level} at {p}: {direct} vs {reads}"
+                );
+            }
+        }
+    }
+}
