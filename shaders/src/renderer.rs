@@ -413,7 +413,7 @@ impl Renderer {
             &self.desc,
             &tf,
             request.reduction,
-            Some(viewpoint(request, &self.desc)),
+            viewpoint(request, &self.desc),
             complete,
         )?);
         let fitted = self.residency.fitted(request, &self.desc);

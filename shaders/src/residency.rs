@@ -25,6 +25,7 @@ use blocks::seams::{self, SeamChunks};
 use blocks::store::{LEVELS, Store};
 use rayon::prelude::*;
 
+use crate::illumination::Mode;
 use crate::packed::Atlas;
 use crate::raycast::VolumePlacement;
 use crate::volume_texture::VolumeTexture;
@@ -82,16 +83,23 @@ impl Target {
 /// Where `request`'s camera sees a volume of `desc` from, for the level
 /// selection: the direction towards the eye in millimetres along the
 /// volume's index axes (the view's, for every block: what a block hides
-/// barely changes across the few degrees a perspective view spans).
-pub fn viewpoint(request: &FrameRequest, desc: &VolumeTexture) -> Viewpoint {
+/// barely changes across the few degrees a perspective view spans). `None`
+/// under an illumination mode: its light is computed from every resident
+/// block, so levels that followed the camera would recompute it on every
+/// turn, during a drag too; there the levels follow the transfer function
+/// alone and the light is kept while the camera moves.
+pub fn viewpoint(request: &FrameRequest, desc: &VolumeTexture) -> Option<Viewpoint> {
+    if Mode::of(request.shading).is_some() {
+        return None;
+    }
     let geometry = &desc.geometry;
     let radius = VolumePlacement::of(desc).radius();
     let toward_eye = -request.camera.basis(radius).forward;
     let direction = geometry.direction_f32();
-    Viewpoint {
+    Some(Viewpoint {
         toward_eye: direction.map(|axis| f64::from(toward_eye.dot(glam::Vec3::from(axis)))),
         spacing: geometry.spacing,
-    }
+    })
 }
 
 /// What is in the atlas.

@@ -141,7 +141,7 @@ impl CpuRenderer {
             &self.desc,
             &tf,
             request.reduction,
-            Some(viewpoint(request, &self.desc)),
+            viewpoint(request, &self.desc),
             complete,
         )?);
         let fitted = self.residency.fitted(request, &self.desc);
