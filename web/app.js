@@ -458,6 +458,8 @@ async function start() {
   stream = new ViewStream(drawFrame, showError, () => {}, (set) => {
     camera.adopt(set);
     return camera.params();
+  }, (attempts) => {
+    canvas.dataset.attempts = String(attempts);
   });
   attachLightDrag();
   attachGestures(canvas, camera, () => requestFrame());

@@ -15,8 +15,14 @@
 // was idle and closed to free its place): then it reconnects when the view
 // changes next; and after code 4401 (the access token expired): then it logs
 // in again (auth.js). The token rides as the subprotocol `bearer.TOKEN`.
+// A socket that closes before it opened was refused (a full server answers
+// the upgrade with 503, too many sessions from this client with 429) or
+// never reached the server; the WebSocket API hides which, so the client
+// asks with a plain GET /api/stream (426 where a session could open now)
+// and tells the user the server's reason, then tries again after the
+// server's Retry-After, doubled on each refusal in a row up to a minute.
 
-import { logInAgain, socketProtocols } from './auth.js';
+import { authFetch, logInAgain, socketProtocols } from './auth.js';
 
 export const HEADER_LEN = 44;
 // The close code of a session closed for being idle (protocol.rs CLOSE_IDLE).
@@ -24,6 +30,8 @@ const CLOSE_IDLE = 4408;
 // The close code of a session whose access token expired (CLOSE_EXPIRED).
 const CLOSE_EXPIRED = 4401;
 const ENCODINGS = { 1: 'image/jpeg', 2: 'image/png', 3: 'image/webp' };
+// The longest wait between tries to open a session, in seconds.
+const MAX_RETRY_S = 60;
 
 // The header of a binary frame (see server/src/protocol.rs `FrameHeader`).
 export function parseHeader(buffer) {
@@ -54,12 +62,17 @@ export class ViewStream {
   // `draw(bitmap, info)` shows a frame, `fail(message)` reports an error,
   // `hello(message)` receives the server's greeting (dataset, settings),
   // `camera(set)` takes the camera a fit chose and returns the view settings
-  // the client now holds for it (the server has them: they are not sent back).
-  constructor(draw, fail, hello, camera) {
+  // the client now holds for it (the server has them: they are not sent back);
+  // `attempted(n)` hears of each try to open a session (n so far).
+  constructor(draw, fail, hello, camera, attempted = () => {}) {
     this.draw = draw;
     this.fail = fail;
     this.hello = hello;
     this.camera = camera;
+    this.attempted = attempted;
+    this.attempts = 0;
+    // Tries in a row that did not open a session.
+    this.refusals = 0;
     this.view = null;
     this.dpr = 1;
     this.sent = {};
@@ -73,7 +86,11 @@ export class ViewStream {
     const scheme = location.protocol === 'https:' ? 'wss://' : 'ws://';
     const socket = new WebSocket(`${scheme}${location.host}/api/stream`, socketProtocols());
     socket.binaryType = 'arraybuffer';
+    this.attempts += 1;
+    this.attempted(this.attempts);
     socket.onopen = () => {
+      socket.opened = true;
+      this.refusals = 0;
       // A new session knows nothing: send the whole view.
       this.sent = {};
       this.sentDpr = null;
@@ -91,10 +108,40 @@ export class ViewStream {
         this.fail('paused while idle: move the view to resume');
         return;
       }
+      if (!socket.opened) {
+        this.retryRefused();
+        return;
+      }
       this.fail('connection to the server lost: reconnecting…');
       setTimeout(() => this.connect(), 1000);
     };
     this.socket = socket;
+  }
+
+  // After a socket closed without opening: why (see the top of this file),
+  // shown, and another try after a wait that doubles while refusals go on.
+  async retryRefused() {
+    let reason;
+    let wait = 1;
+    try {
+      const response = await authFetch('/api/stream');
+      if (response.status === 426) {
+        // Room now (a place freed in between): try again at once.
+        reason = null;
+      } else {
+        const body = await response.json().catch(() => ({}));
+        reason = body.error || `the server answered ${response.status}`;
+        wait = Number(response.headers.get('Retry-After')) || 2;
+      }
+    } catch (e) {
+      reason = `cannot reach the server (${e.message})`;
+    }
+    this.refusals += 1;
+    const first = reason === null ? 0.25 : wait;
+    const delay = Math.min(MAX_RETRY_S, first * 2 ** (this.refusals - 1));
+    if (reason === null && this.refusals > 2) reason = 'the view session did not open';
+    if (reason !== null) this.fail(`${reason}; trying again in ${Math.round(delay)} s`);
+    setTimeout(() => this.connect(), delay * 1000);
   }
 
   // Sets the whole view (settings as in GET /api/render; w and h in CSS pixels).

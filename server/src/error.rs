@@ -47,8 +47,14 @@ impl AppError {
     }
 }
 
+/// Seconds a client refused for want of capacity (503, 429) is asked to wait
+/// before it tries again (`Retry-After`); the web client doubles it on each
+/// refusal in a row.
+pub const RETRY_AFTER_S: u32 = 2;
+
 impl IntoResponse for AppError {
     fn into_response(self) -> Response {
+        let retry = matches!(self, AppError::Busy(_) | AppError::TooMany(_));
         let (status, message) = match self {
             AppError::BadRequest(m) => (StatusCode::BAD_REQUEST, m),
             AppError::Forbidden(m) => (StatusCode::FORBIDDEN, m),
@@ -67,6 +73,13 @@ impl IntoResponse for AppError {
                 )
             }
         };
-        (status, Json(serde_json::json!({ "error": message }))).into_response()
+        let mut response = (status, Json(serde_json::json!({ "error": message }))).into_response();
+        if retry {
+            response.headers_mut().insert(
+                axum::http::header::RETRY_AFTER,
+                axum::http::HeaderValue::from(RETRY_AFTER_S),
+            );
+        }
+        response
     }
 }

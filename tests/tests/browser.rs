@@ -14,7 +14,9 @@
 //! in the address bar.
 //!
 //! A second test serves from the CPU renderer (`--renderer cpu`) and counts
-//! the frames a 2-second drag brings: at least 5.
+//! the frames a 2-second drag brings: at least 5. A third holds the one
+//! session place of a server: the page names the full server, tries again
+//! at most 3 times in 7 s, and draws once the place frees.
 //!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
@@ -549,5 +551,111 @@ async fn on_the_cpu_renderer_a_two_second_drag_shows_at_least_five_frames_in_chr
         }
     }
     .await;
+    finish(test, client, result).await;
+}
+
+/// Whether the page's error banner shows, and says `what` (1 or 0).
+fn banner_says(what: &str) -> String {
+    format!(
+        "const e = document.getElementById('error');
+         return !e.hidden && e.textContent.includes({what:?}) ? 1 : 0;"
+    )
+}
+
+const ATTEMPTS: &str = "return Number(document.getElementById('view').dataset.attempts || 0);";
+
+/// With the server's one session place taken, the page says the server is
+/// full and tries again less and less often; once the place frees, it opens
+/// its session and draws.
+async fn full_server(client: &Client, server: &TestServer) -> Result<(), String> {
+    let (mut holder, _) = tokio_tungstenite::connect_async(server.ws_url("/api/stream"))
+        .await
+        .map_err(|e| format!("the test's own session: {e}"))?;
+    // What the page asks to learn why its socket closed.
+    let http = reqwest::Client::new();
+    let probe = http
+        .get(server.url("/api/stream"))
+        .send()
+        .await
+        .map_err(|e| format!("GET /api/stream: {e}"))?;
+    let retry = probe
+        .headers()
+        .get("retry-after")
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_owned);
+    if probe.status() != 503 || retry.as_deref() != Some("2") {
+        return Err(format!(
+            "GET /api/stream on a full server: {} with Retry-After {retry:?}, expected 503 and 2",
+            probe.status()
+        ));
+    }
+    let url = server.url("/");
+    client
+        .goto(&url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    let full = banner_says("view sessions are open");
+    wait_for(client, "the banner naming the full server", &full, |v| {
+        v == 1.0
+    })
+    .await?;
+    let before = number(client, "attempts", ATTEMPTS).await?;
+    tokio::time::sleep(Duration::from_secs(7)).await;
+    let after = number(client, "attempts", ATTEMPTS).await?;
+    println!("full server: {before} tries, then {after} after 7 s");
+    // Waits of 2, 4, 8 s… after the first refusals: at most 3 more tries
+    // in 7 s (retrying every second would be 7), and at least one.
+    if !(after - before >= 1.0 && after - before <= 3.0) {
+        return Err(format!(
+            "the page tried {before} times, then {after} after 7 s: expected 1 to 3 more"
+        ));
+    }
+    if number(client, "the banner", &full).await? != 1.0 {
+        return Err("the banner no longer names the full server while it is full".into());
+    }
+    if number(client, "frames", FRAMES).await? != 0.0 {
+        return Err("a frame arrived while the server was full".into());
+    }
+    holder
+        .close(None)
+        .await
+        .map_err(|e| format!("closing the test's session: {e}"))?;
+    drop(holder);
+    let probe = http
+        .get(server.url("/api/stream"))
+        .send()
+        .await
+        .map_err(|e| format!("GET /api/stream: {e}"))?;
+    if probe.status() != 426 {
+        return Err(format!(
+            "GET /api/stream with a place free: {}, expected 426",
+            probe.status()
+        ));
+    }
+    wait_for(client, "a frame once the place is free", FRAMES, |v| {
+        v >= 1.0
+    })
+    .await?;
+    Ok(())
+}
+
+#[tokio::test]
+async fn a_full_server_is_named_and_retried_with_growing_waits_until_a_place_frees() {
+    let test = "a_full_server_is_named_and_retried_with_growing_waits_until_a_place_frees";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let ball = voxserve_tests::render::dataset_of(voxserve_tests::phantom::ball_off_centre());
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![ball],
+        1,
+        StreamSettings {
+            max_sessions: 1,
+            ..StreamSettings::default()
+        },
+    )
+    .await;
+    let result = full_server(&client, &server).await;
     finish(test, client, result).await;
 }

@@ -51,9 +51,10 @@ use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use axum::Extension;
-use axum::extract::ws::WebSocketUpgrade;
+use axum::Json;
+use axum::extract::ws::{WebSocketUpgrade, rejection::WebSocketUpgradeRejection};
 use axum::extract::{ConnectInfo, State};
-use axum::http::{HeaderMap, Uri};
+use axum::http::{HeaderMap, StatusCode, Uri};
 use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
@@ -222,9 +223,12 @@ impl Sessions {
 /// `GET /api/stream`: upgrades to a view session, or answers 403 to a page
 /// of another site ([`crate::access`]), 429 when the client has
 /// [`StreamSettings::sessions_per_client`] open and 503 when
-/// [`StreamSettings::max_sessions`] are.
+/// [`StreamSettings::max_sessions`] are (both with `Retry-After`). A GET
+/// that asks no upgrade is answered the same way, and 426 (upgrade
+/// required) where a session could open now: a browser, whose WebSocket
+/// hides why an upgrade failed, asks so to tell its user why.
 pub async fn handler(
-    ws: WebSocketUpgrade,
+    ws: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
     State(state): State<AppState>,
     ConnectInfo(address): ConnectInfo<SocketAddr>,
     Extension(principal): Extension<Principal>,
@@ -240,6 +244,16 @@ pub async fn handler(
         .sessions
         .try_open(client, address.ip())
         .map_err(IntoResponse::into_response)?;
+    let Ok(ws) = ws else {
+        drop(place);
+        let message =
+            "GET /api/stream opens a view session over WebSocket (a session could open now)";
+        return Err((
+            StatusCode::UPGRADE_REQUIRED,
+            Json(serde_json::json!({ "error": message })),
+        )
+            .into_response());
+    };
     let caller = socket::Caller {
         datasets: state.visible(&principal),
         principal,
