@@ -3,7 +3,9 @@
 //!
 //! The unit cached is the decoded 16³ inner chunk of a level: it is a block at
 //! level 0, and holds 8^l blocks at level l, so neighbouring coarse blocks (and
-//! the aprons of their neighbours) come from one decode. Eviction follows the
+//! the aprons of their neighbours) come from one decode. A coarse chunk of a
+//! store with box extremes is followed by them ([`Store::read_chunk_record`]):
+//! a block's pinned chunks carry what [`crate::visibility`] needs. Eviction follows the
 //! `quick_cache` policy (CLOCK-Pro style, close to LRU under scans) weighted by
 //! bytes. Levels 3 and 4, at most 1/512 of the data, can be made resident: read
 //! once and never evicted.
@@ -136,7 +138,12 @@ impl BlockCache {
         let store = &self.store;
         let chunks: Vec<(ChunkKey, Arc<VoxelData>)> = keys
             .into_par_iter()
-            .map(|key| Ok((key, Arc::new(store.read_chunk(usize::from(key.0), key.1)?))))
+            .map(|key| {
+                Ok((
+                    key,
+                    Arc::new(store.read_chunk_record(usize::from(key.0), key.1)?),
+                ))
+            })
             .collect::<Result<_, Error>>()?;
         self.resident.extend(chunks);
         Ok(())
@@ -172,7 +179,7 @@ impl BlockCache {
         self.chunks.get_or_insert_with(&key, || {
             self.inline_reads.fetch_add(1, Ordering::Relaxed);
             self.store
-                .read_chunk(usize::from(key.0), key.1)
+                .read_chunk_record(usize::from(key.0), key.1)
                 .map(Arc::new)
         })
     }
@@ -243,7 +250,7 @@ impl BlockCache {
 
     /// A background read of `key`: into the cache, or its error kept.
     fn read_in_background(&self, key: ChunkKey) {
-        let read = self.store.read_chunk(usize::from(key.0), key.1);
+        let read = self.store.read_chunk_record(usize::from(key.0), key.1);
         let mut loads = self.lock_loads();
         match read {
             Ok(voxels) => self.chunks.insert(key, Arc::new(voxels)),
@@ -346,20 +353,33 @@ impl BlockCache {
 
     /// Block `block` at the level in entry 13 of `levels` with a one-voxel
     /// apron that meets its neighbours at their levels in `levels` without a
-    /// step ([`crate::seams`]); missing chunks are read on the caller's thread.
+    /// step ([`crate::seams`]), thin structures kept visible under `tf`
+    /// ([`crate::visibility`]); missing chunks are read on the caller's thread.
     pub fn seamless_block(
         &self,
         block: [u32; 3],
         levels: &crate::seams::Neighbourhood,
+        tf: &crate::TransferFunction,
     ) -> Result<VoxelData, Error> {
         let level = usize::from(levels[13]);
-        let mut voxels = self.block_with_apron(level, block, crate::packing::APRON)?;
         let meta = self.store.meta();
+        let extinction = crate::visibility::Extinction {
+            tf,
+            value_map: meta.value_map,
+        };
+        let kept = |c: Arc<VoxelData>| crate::visibility::kept_chunk(&c, extinction);
+        let keys = self.apron_chunks(level, block, crate::packing::APRON);
+        let pinned: Pinned = keys
+            .iter()
+            .zip(self.chunks(&keys))
+            .map(|(k, c)| c.map(|c| (k.1, kept(c))))
+            .collect::<Result<_, _>>()?;
+        let mut voxels = self.assemble_with_apron(level, block, crate::packing::APRON, &pinned);
         let keys = crate::seams::seam_chunks(block, meta.blocks, meta.geometry.dims, levels);
         let chunks = keys
             .iter()
             .zip(self.chunks(&keys))
-            .map(|(k, c)| c.map(|c| (*k, c)))
+            .map(|(k, c)| c.map(|c| (*k, kept(c))))
             .collect::<Result<_, _>>()?;
         crate::seams::fix_apron(
             &mut voxels,

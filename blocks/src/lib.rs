@@ -32,6 +32,7 @@ pub mod phantom;
 pub mod seams;
 pub mod store;
 pub mod transfer_function;
+pub mod visibility;
 pub mod volume;
 
 pub use error::Error;

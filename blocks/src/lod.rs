@@ -301,8 +301,7 @@ fn bin_depths(
         (0..BIN_SAMPLES)
             .map(|s| {
                 let v = lo + (hi - lo) * (s as f64 + 0.5) / BIN_SAMPLES as f64;
-                let alpha = f64::from(tf.evaluate(v as f32)[3]).min(0.999);
-                -(1.0 - alpha).ln()
+                tf.optical_depth(v as f32)
             })
             .sum::<f64>()
             / BIN_SAMPLES as f64

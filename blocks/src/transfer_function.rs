@@ -178,6 +178,14 @@ impl TransferFunction {
             .collect())
     }
 
+    /// The optical depth of a sample one voxel long at a physical value:
+    /// −ln(1 − opacity), the opacity capped at 0.999 (a finite depth for an
+    /// opaque value).
+    pub fn optical_depth(&self, value: f32) -> f64 {
+        let alpha = f64::from(self.evaluate(value)[3]).clamp(0.0, 0.999);
+        -(1.0 - alpha).ln()
+    }
+
     /// The largest opacity over a physical value interval: zero means a block whose
     /// values lie in `[lo, hi]` is empty under this transfer function.
     pub fn max_opacity(&self, lo: f32, hi: f32) -> f32 {

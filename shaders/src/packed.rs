@@ -9,10 +9,10 @@
 //! the blocks [`blocks::packing::Packing::update`] lists are written, each into
 //! its slot, and the index is rewritten whole (8 bytes per block).
 
-use blocks::VoxelData;
 use blocks::cache::BlockCache;
 use blocks::packing::{Packing, slot_edge};
 use blocks::store::LEVELS;
+use blocks::{TransferFunction, VoxelData};
 use rayon::prelude::*;
 
 use crate::cpu::{PackedTexture, SlotAtlas};
@@ -44,16 +44,17 @@ pub struct GpuAtlas {
 /// upload never waits for storage.
 pub type BlockSource<'a> = &'a (dyn Fn(usize, &[u8]) -> Result<VoxelData, GpuError> + Sync);
 
-/// A source reading blocks through `cache`, missing chunks on the caller's
-/// thread (the CPU twin, tests).
-pub fn cache_source(
-    cache: &BlockCache,
-) -> impl Fn(usize, &[u8]) -> Result<VoxelData, GpuError> + Sync + '_ {
+/// A source reading blocks through `cache` as the residency shows them for
+/// `tf`, missing chunks on the caller's thread (the CPU twin, tests).
+pub fn cache_source<'a>(
+    cache: &'a BlockCache,
+    tf: &'a TransferFunction,
+) -> impl Fn(usize, &[u8]) -> Result<VoxelData, GpuError> + Sync + 'a {
     move |b, lod| {
         let grid = cache.store().meta().blocks;
         let block = cache.store().stats().block_position(b);
         let levels = blocks::seams::neighbourhood(lod, grid, block);
-        Ok(cache.seamless_block(block, &levels)?)
+        Ok(cache.seamless_block(block, &levels, tf)?)
     }
 }
 
@@ -378,15 +379,16 @@ impl Atlas for CpuAtlas {
     }
 }
 
-/// The atlas of `packing` assembled in memory as the GPU samples it, with its
-/// index: the bindings of the `raycast` CPU twin.
+/// The atlas of `packing` assembled in memory as the GPU samples it for
+/// `tf`, with its index: the bindings of the `raycast` CPU twin.
 pub fn assemble_cpu(
     cache: &BlockCache,
     packing: &Packing,
     desc: &VolumeTexture,
+    tf: &TransferFunction,
 ) -> Result<PackedTexture, GpuError> {
     let grid = cache.store().meta().blocks;
-    let source = cache_source(cache);
+    let source = cache_source(cache, tf);
     let device = CpuDevice {
         max_edge: CPU_MAX_EDGE,
     };

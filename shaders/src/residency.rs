@@ -17,12 +17,12 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use blocks::TransferFunction;
-use blocks::cache::{BlockCache, Pinned};
+use blocks::cache::{BlockCache, ChunkKey, Pinned};
 use blocks::lod::{self, Budget, EMPTY, LodSelection, Viewpoint};
 use blocks::packing::{APRON, Packing};
 use blocks::seams::{self, SeamChunks};
 use blocks::store::{LEVELS, Store};
+use blocks::{TransferFunction, VoxelData, visibility};
 use rayon::prelude::*;
 
 use crate::illumination::Mode;
@@ -111,6 +111,9 @@ struct Shown<A> {
     /// meet a neighbour of another level ([`blocks::seams`]): written again
     /// when the chunk arrives.
     rough: Vec<bool>,
+    /// The transfer function its coarse blocks keep thin structures for
+    /// ([`blocks::visibility`]).
+    tf: TransferFunction,
 }
 
 /// The levels to show per block now, the chunks pinned for the blocks to
@@ -303,7 +306,11 @@ impl<A: Atlas> Residency<A> {
         let mut plan = plan(&self.cache, &target.selection, shown_lod)?;
         self.pending = plan.pending;
         let same_levels = shown_lod == Some(plan.lod.as_slice());
-        if same_levels && !rough_before {
+        // Coarse blocks keep thin structures for one transfer function: a
+        // change writes them again.
+        let reclassify = self.cache.store().has_box_extremes()
+            && self.shown.as_ref().is_some_and(|s| s.tf != target.tf);
+        if same_levels && !rough_before && !reclassify {
             return Ok(());
         }
         let max_edge = A::max_edge(device);
@@ -326,7 +333,9 @@ impl<A: Atlas> Residency<A> {
                     .filter(|&b| {
                         plan.lod[b] != EMPTY
                             && !moved.contains(&b)
-                            && (touched[b] || shown.rough.get(b).copied().unwrap_or(false))
+                            && (touched[b]
+                                || shown.rough.get(b).copied().unwrap_or(false)
+                                || (reclassify && plan.lod[b] > 0))
                     })
                     .map(|b| {
                         let block = self.cache.store().stats().block_position(b);
@@ -357,10 +366,18 @@ impl<A: Atlas> Residency<A> {
                 }
                 if uploads.is_empty() && same_levels {
                     self.pending += rough.iter().filter(|&&r| r).count();
-                    self.shown = Some(Shown { rough, ..shown });
+                    let tf = target.tf.clone();
+                    self.shown = Some(Shown { rough, tf, ..shown });
                     return Ok(());
                 }
-                let seams = pin_seams(&self.cache, &plan.lod, &uploads, &mut rough)?;
+                let mut seams = pin_seams(&self.cache, &plan.lod, &uploads, &mut rough)?;
+                keep_thin_structures(
+                    &self.cache,
+                    &target.tf,
+                    &plan.lod,
+                    &mut plan.pins,
+                    &mut seams,
+                );
                 self.data_version += 1;
                 stats.uploaded_blocks = uploads.len();
                 let source = pinned_source(&self.cache, &plan.pins, &seams);
@@ -371,13 +388,14 @@ impl<A: Atlas> Residency<A> {
                     atlas,
                     selection,
                     rough,
+                    tf: target.tf.clone(),
                 });
             }
             (kept, _) => {
                 // The old atlas goes before the new one is made.
                 drop(kept);
                 self.data_version += 1;
-                let (selection, plan) = self.fresh_plan(plan)?;
+                let (selection, mut plan) = self.fresh_plan(plan)?;
                 let packing = Packing::new(&selection, max_edge)?;
                 stats.uploaded_blocks = selection.non_empty;
                 stats.relayout = true;
@@ -385,7 +403,9 @@ impl<A: Atlas> Residency<A> {
                     .filter(|&b| plan.lod[b] != EMPTY)
                     .collect();
                 let mut rough = vec![false; plan.lod.len()];
-                let seams = pin_seams(&self.cache, &plan.lod, &every, &mut rough)?;
+                let mut seams = pin_seams(&self.cache, &plan.lod, &every, &mut rough)?;
+                let tf = target.tf.clone();
+                keep_thin_structures(&self.cache, &tf, &plan.lod, &mut plan.pins, &mut seams);
                 let source = pinned_source(&self.cache, &plan.pins, &seams);
                 let atlas = A::upload(device, grid, packing, desc, &source)?;
                 self.pending = plan.pending + rough.iter().filter(|&&r| r).count();
@@ -393,6 +413,7 @@ impl<A: Atlas> Residency<A> {
                     atlas,
                     selection,
                     rough,
+                    tf,
                 });
             }
         }
@@ -530,13 +551,73 @@ fn pin_seams(
     Ok(seams)
 }
 
+/// Replaces every coarse chunk in `pins` (per block, at its level in `lod`)
+/// and in `seams` by its values with thin structures kept visible under `tf`
+/// ([`blocks::visibility`]), each chunk computed once; chunks without box
+/// extremes stay as they are.
+fn keep_thin_structures(
+    cache: &BlockCache,
+    tf: &TransferFunction,
+    lod: &[u8],
+    pins: &mut [Option<Pinned>],
+    seams: &mut HashMap<usize, SeamChunks>,
+) {
+    if !cache.store().has_box_extremes() {
+        return;
+    }
+    let coarse = |level: u8| level > 0 && usize::from(level) < LEVELS;
+    let mut records: HashMap<ChunkKey, Arc<VoxelData>> = HashMap::new();
+    for (b, chunks) in pins.iter().enumerate() {
+        let Some(chunks) = chunks else { continue };
+        let level = lod.get(b).copied().unwrap_or(EMPTY);
+        if coarse(level) {
+            for (&position, chunk) in chunks {
+                records
+                    .entry((level, position))
+                    .or_insert_with(|| Arc::clone(chunk));
+            }
+        }
+    }
+    for chunks in seams.values() {
+        for (&key, chunk) in chunks {
+            if coarse(key.0) {
+                records.entry(key).or_insert_with(|| Arc::clone(chunk));
+            }
+        }
+    }
+    let extinction = visibility::Extinction {
+        tf,
+        value_map: cache.store().meta().value_map,
+    };
+    let kept: HashMap<ChunkKey, Arc<VoxelData>> = records
+        .into_par_iter()
+        .map(|(key, record)| (key, visibility::kept_chunk(&record, extinction)))
+        .collect();
+    for (b, chunks) in pins.iter_mut().enumerate() {
+        let Some(chunks) = chunks else { continue };
+        let level = lod.get(b).copied().unwrap_or(EMPTY);
+        for (&position, chunk) in chunks.iter_mut() {
+            if let Some(k) = kept.get(&(level, position)) {
+                *chunk = Arc::clone(k);
+            }
+        }
+    }
+    for chunks in seams.values_mut() {
+        for (key, chunk) in chunks.iter_mut() {
+            if let Some(k) = kept.get(key) {
+                *chunk = Arc::clone(k);
+            }
+        }
+    }
+}
+
 /// A block source assembling each block from its pinned chunks, its apron
 /// meeting its neighbours' levels where their chunks are in `seams`.
 fn pinned_source<'a>(
     cache: &'a BlockCache,
     pins: &'a [Option<Pinned>],
     seams: &'a HashMap<usize, SeamChunks>,
-) -> impl Fn(usize, &[u8]) -> Result<blocks::VoxelData, GpuError> + Sync + 'a {
+) -> impl Fn(usize, &[u8]) -> Result<VoxelData, GpuError> + Sync + 'a {
     move |b, lod| {
         let block = cache.store().stats().block_position(b);
         let level = usize::from(lod[b]);

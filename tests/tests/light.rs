@@ -91,7 +91,9 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
     let params: LightParams = *light.params().expect("params");
     let packing = renderer.packing().expect("packed").clone();
     let desc: VolumeTexture = *renderer.volume_texture();
-    let packed = shaders::packed::assemble_cpu(&dataset.cache, &packing, &desc).expect("atlas");
+    let tf = request.store_transfer_function(dataset.store.meta());
+    let packed =
+        shaders::packed::assemble_cpu(&dataset.cache, &packing, &desc, &tf).expect("atlas");
     let table = request
         .store_transfer_function(dataset.store.meta())
         .table(desc.tf_domain, 1024)

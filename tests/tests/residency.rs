@@ -3,7 +3,8 @@
 //! `VIEW_TURN_DEG`, a turn or a transfer-function change uploads only the
 //! blocks that changed (and renders what a fresh renderer renders), and a
 //! device budget too small for level 0 renders at the coarser levels the
-//! selection chose.
+//! selection chose. A transfer-function change at 35:1 writes the coarse
+//! blocks again (they keep thin structures for one transfer function).
 
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
@@ -245,4 +246,37 @@ fn a_cold_transfer_function_change_renders_at_once_from_memory_and_refines_as_bl
         .expect("full detail");
     let diff = assert_similar("residency-cold-refined", &frame, &full, &SAME_BLOCKS);
     println!("refined vs full detail: {diff:?}");
+}
+
+/// Coarse blocks keep thin structures visible for one transfer function
+/// (`blocks::visibility`): after a change of transfer function every coarse
+/// block is written again, so the frame is a fresh renderer's, on the CPU
+/// renderer (no GPU needed).
+#[test]
+fn a_transfer_function_change_writes_the_coarse_blocks_again() {
+    let dataset = phantom_64_dataset();
+    let range = phantom_64().value_range;
+    let renderer = || shaders::cpu::CpuRenderer::new(dataset.cache.clone(), 512 << 20);
+    let at = |preset: Preset| FrameRequest {
+        reduction: 35.0,
+        ..FrameRequest::new(64, 64, preset.transfer_function(range))
+    };
+    let mut updated = renderer();
+    updated
+        .render(&at(Preset::CtSoftTissue))
+        .expect("soft tissue");
+    for preset in [Preset::CtBone, Preset::CtAngio] {
+        let request = at(preset);
+        let frame = updated.render(&request).expect("changed");
+        let stats = updated.last_stats().clone();
+        println!("→ {preset:?} at 35:1: {stats:?}");
+        let fresh = renderer().render(&request).expect("fresh");
+        let diff = assert_similar(
+            &format!("residency-reclassified-{preset:?}"),
+            &frame,
+            &fresh,
+            &SAME_BLOCKS,
+        );
+        println!("updated vs fresh renderer: {diff:?}");
+    }
 }

@@ -360,8 +360,21 @@ fn write_store(
     })
 }
 
-/// Creates the zarr array of every level (z, y, x; shards of [`SHARD`]³ holding
-/// [`BLOCK`]³ inner chunks, zstd at `zstd_level`) and stores its metadata.
+/// The zarr arrays of voxels a store holds, in the order a [`Slab`] carries
+/// them: every level's values (`/0` … `/4`), then per coarse level the
+/// smallest and the largest level-0 value of each voxel's box
+/// (`/voxserve/box_min/1` … `/4`, `/voxserve/box_max/1` … `/4`,
+/// [`pyramid::box_extremes`]). Each: z, y, x; shards of [`SHARD`]³ holding
+/// [`BLOCK`]³ inner chunks.
+pub(super) fn voxel_arrays() -> Vec<(usize, String)> {
+    let values = (0..LEVELS).map(|l| (l, format!("/{l}")));
+    let min = (1..LEVELS).map(|l| (l, format!("/voxserve/box_min/{l}")));
+    let max = (1..LEVELS).map(|l| (l, format!("/voxserve/box_max/{l}")));
+    values.chain(min).chain(max).collect()
+}
+
+/// Creates every array of [`voxel_arrays`] (zstd at `zstd_level`) and stores
+/// its metadata.
 fn level_arrays(
     storage: &Arc<dyn ReadableWritableStorageTraits>,
     path: &Path,
@@ -369,8 +382,14 @@ fn level_arrays(
     zstd_level: i32,
 ) -> Result<Vec<WritableArray>, Error> {
     let (zarr_dtype, fill) = zarr_type(info.voxel_type);
-    let mut arrays = Vec::with_capacity(LEVELS);
-    for level in 0..LEVELS {
+    for group in ["/voxserve", "/voxserve/box_min", "/voxserve/box_max"] {
+        GroupBuilder::new()
+            .build(storage.clone(), group)
+            .and_then(|g| g.store_metadata().map_err(Into::into))
+            .map_err(|e| zarr_error(path, group, e))?;
+    }
+    let mut arrays = Vec::new();
+    for (level, key) in voxel_arrays() {
         let [nx, ny, nz] = level_dims(info.geometry.dims, level).map(u64::from);
         let array = ArrayBuilder::new(
             vec![nz, ny, nx],
@@ -381,7 +400,7 @@ fn level_arrays(
         .subchunk_shape(vec![u64::from(BLOCK); 3])
         .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(zstd_level, true))])
         .dimension_names(["z", "y", "x"].into())
-        .build(storage.clone(), &format!("/{level}"))
+        .build(storage.clone(), &key)
         .map_err(|e| zarr_error(path, "array", e))?;
         array
             .store_metadata()
@@ -421,9 +440,13 @@ fn write_slabs(
                 }
             };
             let slab_dims = [dims[0], dims[1], depth];
-            let levels = pyramid::levels(slab, slab_dims, range);
+            let extremes = pyramid::box_extremes(&slab, slab_dims);
+            let mut levels = pyramid::levels(slab, slab_dims, range);
             let mut stats = BlockStats::new([grid[0], grid[1], 1], range);
             stats.fill_row(0, &levels, slab_dims);
+            // In the order of `voxel_arrays`.
+            let (min, max): (Vec<_>, Vec<_>) = extremes.into_iter().unzip();
+            levels.extend(min.into_iter().chain(max));
             uniform_blocks += (0..stats.block_count())
                 .filter(|&b| {
                     let [lo, hi] = stats.min_max(0, b);
@@ -488,6 +511,7 @@ fn store_root_metadata(
 /// One slab's output on its way to the writer.
 struct Slab {
     bz: u32,
+    /// The voxels of every array of [`voxel_arrays`], in its order.
     levels: Vec<VoxelData>,
     stats: BlockStats,
 }
@@ -509,7 +533,9 @@ impl SlabWriter<'_> {
         let mut codec_options = CodecOptions::default();
         codec_options.set_experimental_partial_encoding(true);
         // Per level: voxels waiting for 16 of that level's slices, and where they start.
-        let mut pending: Vec<(u32, VoxelData)> = (0..LEVELS)
+        let arrays = voxel_arrays();
+        let mut pending: Vec<(u32, VoxelData)> = arrays
+            .iter()
             .map(|_| (0, VoxelData::zeros(self.voxel_type, 0)))
             .collect();
         let mut written = 0;
@@ -522,8 +548,10 @@ impl SlabWriter<'_> {
                 self.path,
             )?;
             let last = slab.bz == self.last_row;
-            for (level, data) in slab.levels.into_iter().enumerate() {
-                let (pending_z0, buffer) = &mut pending[level];
+            for (i, data) in slab.levels.into_iter().enumerate() {
+                let (level, key) = &arrays[i];
+                let level = *level;
+                let (pending_z0, buffer) = &mut pending[i];
                 if buffer.is_empty() {
                     *pending_z0 = (slab.bz * BLOCK) >> level;
                     *buffer = data; // no copy while nothing waits (always so at level 0)
@@ -540,13 +568,15 @@ impl SlabWriter<'_> {
                         0..u64::from(dims[1]),
                         0..u64::from(dims[0]),
                     ]);
-                    self.arrays[level]
+                    self.arrays[i]
                         .store_array_subset_opt(
                             &subset,
                             ArrayBytes::new_flen(Cow::Borrowed(full.as_bytes())),
                             &codec_options,
                         )
-                        .map_err(|e| zarr_error(&self.path.join(level.to_string()), "write", e))?;
+                        .map_err(|e| {
+                            zarr_error(&self.path.join(key.trim_start_matches('/')), "write", e)
+                        })?;
                 }
             }
             written += 1;

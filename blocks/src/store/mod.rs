@@ -148,8 +148,9 @@ pub struct Store {
     location: StoreLocation,
     meta: StoreMeta,
     voxel_type: VoxelType,
-    levels: Vec<Array<dyn ReadableStorageTraits>>,
-    shard_indexes: Vec<ArrayShardedReadableExtCache>,
+    /// The arrays of `ingest::voxel_arrays` the store holds: every level's,
+    /// then the box extremes where the store has them.
+    arrays: Vec<VoxelArray>,
     stats: BlockStats,
     /// The files a store on disk must hold (none for a store in memory).
     manifest: Option<Arc<Manifest>>,
@@ -162,6 +163,22 @@ impl std::fmt::Debug for Store {
             .field("meta", &self.meta)
             .finish_non_exhaustive()
     }
+}
+
+/// One zarr array of voxels of a store, with its shard indexes cached.
+struct VoxelArray {
+    /// Its path inside the store, without the leading `/`.
+    key: String,
+    /// The level its voxels are at.
+    level: usize,
+    array: Array<dyn ReadableStorageTraits>,
+    shard_index: ArrayShardedReadableExtCache,
+}
+
+/// Where the arrays of coarse level `level`'s box minima and maxima sit among
+/// a store's [`VoxelArray`]s.
+fn extremes_index(level: usize) -> (usize, usize) {
+    (LEVELS + level - 1, 2 * LEVELS - 2 + level)
 }
 
 /// A [`Error::Field`] about the store at `path`.
@@ -255,42 +272,63 @@ impl Store {
             .voxel_type()
             .map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
         meta.geometry.checked(&root, &META_GEOMETRY_FIELDS)?;
-        let mut levels = Vec::with_capacity(LEVELS);
-        let mut shard_indexes = Vec::with_capacity(LEVELS);
-        for level in 0..LEVELS {
-            let array = Array::open(storage.clone(), &format!("/{level}")).map_err(|e| {
+        // Stores written before box extremes were kept hold the levels only.
+        let with_extremes = storage
+            .get(
+                &zarrs::storage::StoreKey::new("voxserve/box_min/1/zarr.json")
+                    .map_err(|e| store_error(&root, "voxserve/box_min", format!("{e}")))?,
+            )
+            .map_err(|e| store_error(&root, "voxserve/box_min", format!("{e}")))?
+            .is_some();
+        let mut arrays = Vec::new();
+        for (level, key) in ingest::voxel_arrays() {
+            if key.starts_with("/voxserve") && !with_extremes {
+                continue;
+            }
+            let array = Array::open(storage.clone(), &key).map_err(|e| {
                 store_error(
-                    &location.file(&level.to_string()),
+                    &location.file(key.trim_start_matches('/')),
                     "zarr.json",
                     format!("{e}"),
                 )
             })?;
-            shard_indexes.push(ArrayShardedReadableExtCache::new(&array));
-            levels.push(array);
+            arrays.push(VoxelArray {
+                key: key.trim_start_matches('/').to_owned(),
+                level,
+                shard_index: ArrayShardedReadableExtCache::new(&array),
+                array,
+            });
         }
         let stats = ingest::read_stats(storage, &location.file(""), &meta)?;
         Ok(Store {
             location,
             meta,
             voxel_type,
-            levels,
-            shard_indexes,
+            arrays,
             stats,
             manifest: None,
         })
     }
 
     /// Checks that every shard the manifest does not list is one `zarrs` left
-    /// out because all its voxels are 0: each of its blocks must have the
-    /// statistics `[0, 0]`.
+    /// out because all its voxels are 0: each of a level's blocks there must
+    /// have the statistics `[0, 0]`, and a box-extremes shard may be missing
+    /// only where level 0's smallest (or largest) value of each block is 0.
     fn check_left_out_shards(&self, manifest: &Manifest) -> Result<(), Error> {
-        for level in 0..LEVELS {
+        for (i, array) in self.arrays.iter().enumerate() {
+            let level = array.level;
             let shards = self.chunk_grid(level).map(|n| n.div_ceil(CHUNKS_PER_SHARD));
+            // Which statistic of which level says a block holds a value other than 0.
+            let holds = |b: usize| match i {
+                _ if i < LEVELS => self.stats.min_max(level, b) != [0.0, 0.0],
+                _ if i == extremes_index(level).0 => self.stats.min_max(0, b)[0] != 0.0,
+                _ => self.stats.min_max(0, b)[1] != 0.0,
+            };
             // The first inner chunk of each shard that holds a block with data,
             // by the statistics.
             let mut holds_data = vec![None; shards.iter().map(|&n| n as usize).product()];
             for b in 0..self.stats.block_count() {
-                if self.stats.min_max(level, b) == [0.0, 0.0] {
+                if !holds(b) {
                     continue;
                 }
                 let chunk = self.stats.block_position(b).map(|c| c >> level);
@@ -298,7 +336,7 @@ impl Store {
                 holds_data[((z * shards[1] + y) * shards[0] + x) as usize] = Some(chunk);
             }
             for chunk in holds_data.into_iter().flatten() {
-                let key = shard_key(level, chunk);
+                let key = shard_key(&array.key, chunk);
                 if !manifest.lists(&key) {
                     return Err(Error::Missing {
                         path: self.location.file(&key),
@@ -340,12 +378,57 @@ impl Store {
 
     /// How messages name the shard file that holds inner chunk `chunk` (x, y, z) of `level`.
     pub fn shard_path(&self, level: usize, chunk: [u32; 3]) -> PathBuf {
-        self.location.file(&shard_key(level, chunk))
+        self.location.file(&shard_key(&level.to_string(), chunk))
     }
 
     /// The decoded 16³ inner chunk `chunk` (x, y, z) of `level`; voxels beyond the
     /// volume's edge hold 0.
     pub fn read_chunk(&self, level: usize, chunk: [u32; 3]) -> Result<VoxelData, Error> {
+        self.check_chunk(level, chunk)?;
+        self.read_subchunk(&self.arrays[level], chunk)
+    }
+
+    /// Whether the store keeps each coarse voxel's box extremes
+    /// ([`Store::read_box_extremes`]); stores written before they were kept
+    /// do not.
+    pub fn has_box_extremes(&self) -> bool {
+        self.arrays.len() > LEVELS
+    }
+
+    /// For inner chunk `chunk` of coarse `level` (1 to 4): per voxel, the
+    /// smallest and the largest level-0 value in its box of 2^l voxels per
+    /// axis ([`pyramid::box_extremes`]). `None` at level 0 and for a store
+    /// without them.
+    pub fn read_box_extremes(
+        &self,
+        level: usize,
+        chunk: [u32; 3],
+    ) -> Result<Option<(VoxelData, VoxelData)>, Error> {
+        self.check_chunk(level, chunk)?;
+        if level == 0 || !self.has_box_extremes() {
+            return Ok(None);
+        }
+        let (min, max) = extremes_index(level);
+        Ok(Some((
+            self.read_subchunk(&self.arrays[min], chunk)?,
+            self.read_subchunk(&self.arrays[max], chunk)?,
+        )))
+    }
+
+    /// What a [`crate::BlockCache`] keeps of inner chunk `chunk` of `level`:
+    /// its 16³ values, followed at a coarse level of a store with box
+    /// extremes by the 16³ box minima and the 16³ box maxima.
+    pub fn read_chunk_record(&self, level: usize, chunk: [u32; 3]) -> Result<VoxelData, Error> {
+        let mut record = self.read_chunk(level, chunk)?;
+        if let Some((min, max)) = self.read_box_extremes(level, chunk)? {
+            record.append(min)?;
+            record.append(max)?;
+        }
+        Ok(record)
+    }
+
+    /// An error unless `chunk` lies within `level`'s chunk grid.
+    fn check_chunk(&self, level: usize, chunk: [u32; 3]) -> Result<(), Error> {
         let grid = self.chunk_grid(level.min(LEVELS - 1));
         if level >= LEVELS || chunk.iter().zip(grid).any(|(&c, g)| c >= g) {
             return Err(store_error(
@@ -356,17 +439,20 @@ impl Store {
                 ),
             ));
         }
+        Ok(())
+    }
+
+    /// Inner chunk `chunk` of `array`, decoded.
+    fn read_subchunk(&self, array: &VoxelArray, chunk: [u32; 3]) -> Result<VoxelData, Error> {
         let [x, y, z] = chunk.map(u64::from);
-        let bytes: ArrayBytes<'static> = self.levels[level]
-            .retrieve_subchunk_opt(
-                &self.shard_indexes[level],
-                &[z, y, x],
-                &CodecOptions::default(),
-            )
-            .map_err(|e| self.read_error(level, chunk, e))?;
-        let raw = bytes
-            .into_fixed()
-            .map_err(|e| store_error(&self.shard_path(level, chunk), "chunk", format!("{e}")))?;
+        let bytes: ArrayBytes<'static> = array
+            .array
+            .retrieve_subchunk_opt(&array.shard_index, &[z, y, x], &CodecOptions::default())
+            .map_err(|e| self.read_error(array, chunk, e))?;
+        let raw = bytes.into_fixed().map_err(|e| {
+            let shard = self.location.file(&shard_key(&array.key, chunk));
+            store_error(&shard, "chunk", format!("{e}"))
+        })?;
         Ok(VoxelData::from_bytes(self.voxel_type, &raw, false))
     }
 
@@ -409,9 +495,10 @@ impl Store {
         let whole = zarrs::array::ArraySubset::new_with_shape(
             [dims[2], dims[1], dims[0]].map(u64::from).to_vec(),
         );
-        let raw: ArrayBytes<'static> = self.levels[level]
+        let raw: ArrayBytes<'static> = self.arrays[level]
+            .array
             .retrieve_array_subset_opt(&whole, &CodecOptions::default())
-            .map_err(|e| self.read_error(level, [0; 3], e))?;
+            .map_err(|e| self.read_error(&self.arrays[level], [0; 3], e))?;
         let raw = raw
             .into_fixed()
             .map_err(|e| store_error(&self.location.file(""), "level", format!("{e}")))?;
@@ -427,10 +514,12 @@ impl Store {
         Ok(volume)
     }
 
-    fn read_error(&self, level: usize, chunk: [u32; 3], e: ArrayError) -> Error {
-        let shard = self.shard_path(level, chunk);
+    fn read_error(&self, array: &VoxelArray, chunk: [u32; 3], e: ArrayError) -> Error {
+        let level = array.level;
+        let key = shard_key(&array.key, chunk);
+        let shard = self.location.file(&key);
         if let Some(manifest) = &self.manifest
-            && manifest.lists(&shard_key(level, chunk))
+            && manifest.lists(&key)
             && !shard.is_file()
         {
             return Error::Missing {
@@ -460,10 +549,11 @@ impl Store {
 /// Inner chunks per shard along each axis.
 const CHUNKS_PER_SHARD: u32 = SHARD / BLOCK;
 
-/// The key of the shard file that holds inner chunk `chunk` (x, y, z) of `level`.
-fn shard_key(level: usize, chunk: [u32; 3]) -> String {
+/// The key of the shard file that holds inner chunk `chunk` (x, y, z) of the
+/// array at `array` (e.g. `2` for level 2's values).
+fn shard_key(array: &str, chunk: [u32; 3]) -> String {
     let [x, y, z] = chunk.map(|c| c / CHUNKS_PER_SHARD);
-    format!("{level}/c/{z}/{y}/{x}")
+    format!("{array}/c/{z}/{y}/{x}")
 }
 
 /// For a store without a manifest, the error that names its older format, if

@@ -234,6 +234,60 @@ pub fn levels(slab: VoxelData, dims: [u32; 3], range: [f64; 2]) -> Vec<VoxelData
     std::iter::once(slab).chain(coarse).collect()
 }
 
+/// Per level 1..=4 of a slab of `dims` (x, y, depth): for every voxel of
+/// that level, the smallest and the largest level-0 value in its box of 2^l
+/// voxels per axis (NaNs left out; NaN where the box holds none), in the
+/// voxel type. Element l − 1 is level l's (minima, maxima). With them the
+/// renderer can tell a thin structure that a coarse value blurred away
+/// ([`crate::visibility`]).
+pub fn box_extremes(slab: &VoxelData, dims: [u32; 3]) -> Vec<(VoxelData, VoxelData)> {
+    let d = dims.map(|n| n as usize);
+    (1..LEVELS)
+        .into_par_iter()
+        .map(|level| {
+            crate::volume::with_voxels!(slab, v => {
+                let (lo, hi) = extremes_of(v, d, 1 << level);
+                (VoxelData::from(lo), VoxelData::from(hi))
+            })
+        })
+        .collect()
+}
+
+/// [`box_extremes`] of one level: boxes of `s` voxels per axis.
+fn extremes_of<T: Voxel>(v: &[T], d: [usize; 3], s: usize) -> (Vec<T>, Vec<T>) {
+    let c = d.map(|n| n.div_ceil(s));
+    let boxes = c[0] * c[1] * c[2];
+    // The type's largest and smallest values (±∞ for floats) until a value comes.
+    let (mut lo, mut hi) = (
+        vec![T::from_f64(f64::INFINITY); boxes],
+        vec![T::from_f64(f64::NEG_INFINITY); boxes],
+    );
+    for z in 0..d[2] {
+        for y in 0..d[1] {
+            let row = &v[(z * d[1] + y) * d[0]..][..d[0]];
+            let out = ((z / s) * c[1] + y / s) * c[0];
+            for (x, &value) in row.iter().enumerate() {
+                // NaN compares false: it never becomes an extreme.
+                let j = out + x / s;
+                if value < lo[j] {
+                    lo[j] = value;
+                }
+                if value > hi[j] {
+                    hi[j] = value;
+                }
+            }
+        }
+    }
+    // Only a box of NaNs (floats) keeps lo > hi: it has no extremes.
+    let nan = T::from_f64(f64::NAN);
+    for (l, h) in lo.iter_mut().zip(hi.iter_mut()) {
+        if *l > *h {
+            (*l, *h) = (nan, nan);
+        }
+    }
+    (lo, hi)
+}
+
 /// Level `level` of a whole volume `voxels` of `dims` whose stored values
 /// span `range`, computed slab by slab as ingest stores it (for checking a
 /// store against its source).
@@ -439,6 +493,51 @@ mod tests {
         assert_eq!(l[1].get(1), 2.0);
         assert_eq!(l[1].get(2), 2.0);
         assert_eq!(l[2].get(0), 2.0);
+    }
+
+    #[test]
+    fn box_extremes_are_each_boxs_smallest_and_largest_value() {
+        // 5 × 3 × 2 voxels: boxes of 2 per axis at level 1 (3 × 2 × 1 of them, the last
+        // ones partial); a NaN is left out, and a box of NaNs only stays NaN.
+        let mut v: Vec<f32> = (0..30).map(|i| ((i * 7) % 11) as f32).collect();
+        v[0] = f32::NAN;
+        for i in [4, 9, 14, 19, 24, 29] {
+            v[i] = f32::NAN; // the last column: box x = 2 holds only NaNs
+        }
+        let extremes = box_extremes(&VoxelData::F32(v.clone()), [5, 3, 2]);
+        assert_eq!(extremes.len(), LEVELS - 1);
+        let (VoxelData::F32(lo), VoxelData::F32(hi)) = &extremes[0] else {
+            panic!("f32 in, f32 out");
+        };
+        for (j, (&l, &h)) in lo.iter().zip(hi).enumerate() {
+            let (bx, by) = (j % 3, j / 3);
+            let inside: Vec<f32> = (0..30)
+                .filter(|&i| (i % 5) / 2 == bx && (i / 5 % 3) / 2 == by && !v[i].is_nan())
+                .map(|i| v[i])
+                .collect();
+            if inside.is_empty() {
+                assert!(l.is_nan() && h.is_nan(), "box {j}");
+            } else {
+                assert_eq!(
+                    l,
+                    inside.iter().copied().fold(f32::INFINITY, f32::min),
+                    "box {j}"
+                );
+                assert_eq!(
+                    h,
+                    inside.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+                    "box {j}"
+                );
+            }
+        }
+        // Level 4: one box for the whole slab.
+        let (VoxelData::F32(lo), VoxelData::F32(hi)) = &extremes[3] else {
+            panic!("f32 in, f32 out");
+        };
+        assert_eq!(
+            (lo.as_slice(), hi.as_slice()),
+            ([0.0].as_slice(), [10.0].as_slice())
+        );
     }
 
     #[test]
