@@ -370,29 +370,64 @@ function requestFrame() {
 }
 
 // The dataset picker: the server's datasets, the first chosen.
-function buildDatasetPicker(datasets) {
-  const datasetSelect = document.getElementById('dataset');
-  for (const d of datasets) {
+const datasetSelect = document.getElementById('dataset');
+let datasets = [];
+
+// Makes dataset `id` (or the first) the current one, with its presets.
+function chooseDataset(id) {
+  dataset = datasets.find((d) => d.id === id) || datasets[0];
+  datasetSelect.value = dataset.id;
+  presetSelect.replaceChildren();
+  for (const preset of dataset.presets) {
+    const option = new Option(preset.name, preset.name);
+    option.title = preset.description;
+    presetSelect.add(option);
+  }
+  presetSelect.value = dataset.default_preset;
+  loadPreset();
+}
+
+function fillDatasetPicker(list) {
+  datasets = list;
+  datasetSelect.replaceChildren();
+  for (const d of list) {
     const [nx, ny, nz] = d.dims;
     datasetSelect.add(new Option(`${d.name} ${nx}×${ny}×${nz}`, d.id));
   }
-  const choose = (id) => {
-    dataset = datasets.find((d) => d.id === id) || datasets[0];
-    presetSelect.replaceChildren();
-    for (const preset of dataset.presets) {
-      const option = new Option(preset.name, preset.name);
-      option.title = preset.description;
-      presetSelect.add(option);
-    }
-    presetSelect.value = dataset.default_preset;
-    loadPreset();
-  };
-  choose(datasets[0].id);
+}
+
+function buildDatasetPicker(list) {
+  fillDatasetPicker(list);
+  chooseDataset(list[0].id);
   datasetSelect.addEventListener('change', () => {
-    choose(datasetSelect.value);
+    chooseDataset(datasetSelect.value);
     camera.reset();
     requestFrame();
   });
+}
+
+// Every session's hello lists the datasets the server offers now: after a
+// restart the list may have changed. The current dataset stays if it is
+// still offered; if it is gone, the first is shown, and the user told.
+function adoptHello(message) {
+  const list = message.datasets || [];
+  const same = list.length === datasets.length && list.every((d, i) => d.id === datasets[i].id);
+  if (same) return;
+  const current = dataset;
+  if (list.length === 0) {
+    showError('the server offers no datasets now');
+    return;
+  }
+  fillDatasetPicker(list);
+  if (current && list.some((d) => d.id === current.id)) {
+    dataset = list.find((d) => d.id === current.id);
+    datasetSelect.value = dataset.id;
+    return;
+  }
+  chooseDataset(list[0].id);
+  camera.reset();
+  requestFrame();
+  showError(`${current ? current.name : 'the dataset'} is no longer offered by the server: showing ${dataset.name}`);
 }
 
 function attachControls() {
@@ -433,7 +468,7 @@ function attachControls() {
 
 async function start() {
   resizeCanvas();
-  let datasets;
+  let offered;
   try {
     await logIn();
   } catch (e) {
@@ -443,7 +478,7 @@ async function start() {
   try {
     const [loaded, response] = await Promise.all([Schema.load(), authFetch('/api/datasets')]);
     schema = loaded;
-    datasets = await response.json();
+    offered = await response.json();
   } catch (e) {
     showError(`cannot load the settings or the dataset list: ${e.message}`);
     return;
@@ -454,8 +489,8 @@ async function start() {
   clipSliders = buildClipSliders(schema.get('clip'));
   buildLightPanel();
   defaultLights();
-  buildDatasetPicker(datasets);
-  stream = new ViewStream(drawFrame, showError, () => {}, (set) => {
+  buildDatasetPicker(offered);
+  stream = new ViewStream(drawFrame, showError, adoptHello, (set) => {
     camera.adopt(set);
     return camera.params();
   }, (attempts) => {

@@ -15,6 +15,11 @@
 // was idle and closed to free its place): then it reconnects when the view
 // changes next; and after code 4401 (the access token expired): then it logs
 // in again (auth.js). The token rides as the subprotocol `bearer.TOKEN`.
+// The whole view goes once the session's hello has arrived (its dataset list
+// may have changed since the page loaded: `hello(message)` adopts it first).
+// A refused view message (an `error` with its id) changed nothing on the
+// server: the names it set are no longer taken as sent, and the next view
+// carries them again (not at once: the refused value may still be there).
 // A socket that closes before it opened was refused (a full server answers
 // the upgrade with 503, too many sessions from this client with 429) or
 // never reached the server; the WebSocket API hides which, so the client
@@ -79,6 +84,11 @@ export class ViewStream {
     this.sentDpr = null;
     this.id = 0;
     this.sentAt = new Map();
+    // The names each view message not yet reflected by a frame set, by id:
+    // a refused message changed nothing on the server, so they are sent
+    // again with the next view.
+    this.messages = new Map();
+    this.greeted = false;
     this.connect();
   }
 
@@ -91,10 +101,13 @@ export class ViewStream {
     socket.onopen = () => {
       socket.opened = true;
       this.refusals = 0;
-      // A new session knows nothing: send the whole view.
+      // A new session knows nothing: the whole view goes once the hello has
+      // said what the server offers now (after a restart its datasets may
+      // differ, and a view naming one that is gone would be refused whole).
       this.sent = {};
       this.sentDpr = null;
-      this.flush();
+      this.greeted = false;
+      this.messages.clear();
     };
     socket.onmessage = (event) => this.receive(event.data);
     socket.onclose = (event) => {
@@ -156,7 +169,7 @@ export class ViewStream {
   }
 
   flush() {
-    if (!this.view || this.socket.readyState !== WebSocket.OPEN) return;
+    if (!this.view || !this.greeted || this.socket.readyState !== WebSocket.OPEN) return;
     const set = {};
     for (const [name, value] of Object.entries(this.view)) {
       if (this.sent[name] !== value) set[name] = value;
@@ -168,16 +181,34 @@ export class ViewStream {
     if (Object.keys(set).length === 0 && this.sentDpr === this.dpr) return;
     this.id += 1;
     this.sentAt.set(this.id, performance.now());
+    this.messages.set(this.id, { names: Object.keys(set), dpr: this.sentDpr !== this.dpr });
     this.socket.send(JSON.stringify({ type: 'view', id: this.id, set, dpr: this.dpr }));
     this.sent = { ...this.view };
     this.sentDpr = this.dpr;
   }
 
+  // The server refused view message `id` and kept its settings as they were:
+  // what it set is no longer taken as sent (not sent again at once: the
+  // refused value may still be in the view; the next view carries them).
+  forget(id) {
+    const message = this.messages.get(id);
+    if (!message) return;
+    this.messages.delete(id);
+    for (const name of message.names) delete this.sent[name];
+    if (message.dpr) this.sentDpr = null;
+  }
+
   async receive(data) {
     if (typeof data === 'string') {
       const message = JSON.parse(data);
-      if (message.type === 'error') this.fail(message.message);
-      else if (message.type === 'hello') this.hello(message);
+      if (message.type === 'error') {
+        this.forget(message.id);
+        this.fail(message.message);
+      } else if (message.type === 'hello') {
+        this.hello(message);
+        this.greeted = true;
+        this.flush();
+      }
       else if (message.type === 'camera') {
         const held = this.camera(message.set);
         Object.assign(this.sent, held);
@@ -196,6 +227,7 @@ export class ViewStream {
     const bitmap = await createImageBitmap(new Blob([new Uint8Array(data, HEADER_LEN)], { type }));
     const sentAt = this.sentAt.get(header.messageId);
     for (const id of this.sentAt.keys()) if (id < header.messageId) this.sentAt.delete(id);
+    for (const id of this.messages.keys()) if (id <= header.messageId) this.messages.delete(id);
     this.draw(bitmap, { ...header, latencyMs: sentAt === undefined ? NaN : performance.now() - sentAt });
     if (this.socket.readyState === WebSocket.OPEN) {
       this.socket.send(JSON.stringify({ type: 'ack', frame: header.frameId }));

@@ -74,7 +74,18 @@ impl TestServer {
     /// # Panics
     /// When the server cannot start.
     pub async fn serving(state: AppState) -> TestServer {
-        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind port 0");
+        TestServer::serving_at(state, "127.0.0.1:0").await
+    }
+
+    /// A server of `state` on `address` (e.g. the one a stopped server
+    /// used, to restart it as a client sees a restart).
+    ///
+    /// # Panics
+    /// When the server cannot start.
+    pub async fn serving_at(state: AppState, address: &str) -> TestServer {
+        let listener = TcpListener::bind(address)
+            .await
+            .unwrap_or_else(|e| panic!("bind {address}: {e}"));
         let addr = listener.local_addr().expect("local address");
         let (stop, stopped) = oneshot::channel::<()>();
         let shutdown = async {

@@ -16,7 +16,9 @@
 //! A second test serves from the CPU renderer (`--renderer cpu`) and counts
 //! the frames a 2-second drag brings: at least 5. A third holds the one
 //! session place of a server: the page names the full server, tries again
-//! at most 3 times in 7 s, and draws once the place frees.
+//! at most 3 times in 7 s, and draws once the place frees. A fourth restarts
+//! the server on the same port without the dataset the page shows: the page
+//! switches to one the new server offers and draws it at its own size.
 //!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
@@ -657,5 +659,78 @@ async fn a_full_server_is_named_and_retried_with_growing_waits_until_a_place_fre
     )
     .await;
     let result = full_server(&client, &server).await;
+    finish(test, client, result).await;
+}
+
+const FIDELITY: &str = "return document.getElementById('fidelity').textContent;";
+
+/// Whether the page shows a lossless frame of `dataset` as large as its
+/// canvas (1 or 0).
+fn full_frame_of(dataset: &str) -> String {
+    format!(
+        "const c = document.getElementById('view');
+         const f = document.getElementById('fidelity').textContent;
+         return document.getElementById('dataset').value === {dataset:?}
+           && f.startsWith(`${{c.width}}×${{c.height}} lossless`) ? 1 : 0;"
+    )
+}
+
+/// The page draws the phantom; the server restarts on the same port
+/// offering only the ball; the page takes the ball and draws it full size.
+async fn restarted(client: &Client, first: TestServer) -> Result<(), String> {
+    let url = first.url("/");
+    client
+        .goto(&url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    wait_for(
+        client,
+        "the phantom, full size",
+        &full_frame_of("phantom"),
+        |v| v == 1.0,
+    )
+    .await?;
+    let address = first.base_url.trim_start_matches("http://").to_owned();
+    first
+        .shut_down()
+        .await
+        .map_err(|e| format!("stopping the first server: {e}"))?;
+    let ball = voxserve_tests::render::dataset_of(voxserve_tests::phantom::ball_off_centre());
+    let id = ball.id.clone();
+    let renderer = server::RenderService::start(shaders::Backend::Cpu, 512 << 20, 1)
+        .map_err(|e| format!("render worker: {e}"))?;
+    let state = server::AppState::new(vec![ball], renderer, StreamSettings::default());
+    let _second = TestServer::serving_at(state, &address).await;
+    let ball_drawn = wait_for(
+        client,
+        "the ball after the restart",
+        &full_frame_of(&id),
+        |v| v == 1.0,
+    )
+    .await;
+    let fidelity = client
+        .execute(FIDELITY, vec![])
+        .await
+        .map_err(|e| format!("fidelity: {e}"))?;
+    println!("after the restart: {fidelity}");
+    ball_drawn.map(|_| ())
+}
+
+#[tokio::test]
+async fn after_a_restart_without_its_dataset_the_page_shows_one_the_server_offers_at_full_size() {
+    let test =
+        "after_a_restart_without_its_dataset_the_page_shows_one_the_server_offers_at_full_size";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let phantom = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let first = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![phantom],
+        1,
+        StreamSettings::default(),
+    )
+    .await;
+    let result = restarted(&client, first).await;
     finish(test, client, result).await;
 }
