@@ -89,8 +89,17 @@ function drawFrame(bitmap, info) {
 
 function showError(message) {
   errorBox.textContent = message;
+  placeBanner();
   errorBox.hidden = false;
 }
+
+// The error banner sits just below the toolbar, whose height changes as it
+// wraps and as its panels open.
+const toolbar = document.getElementById('toolbar');
+function placeBanner() {
+  errorBox.style.top = `${Math.round(toolbar.getBoundingClientRect().bottom + 6)}px`;
+}
+new ResizeObserver(placeBanner).observe(toolbar);
 
 function resizeCanvas() {
   const dpr = window.devicePixelRatio || 1;

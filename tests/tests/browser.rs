@@ -15,8 +15,9 @@
 //!
 //! A second test serves from the CPU renderer (`--renderer cpu`) and counts
 //! the frames a 2-second drag brings: at least 5. A third holds the one
-//! session place of a server: the page names the full server, tries again
-//! at most 3 times in 7 s, and draws once the place frees. A fourth restarts
+//! session place of a server: the page names the full server in a banner
+//! below the toolbar, tries again at most 3 times in 7 s, and draws once the
+//! place frees. A fourth restarts
 //! the server on the same port without the dataset the page shows: the page
 //! switches to one the new server offers and draws it at its own size.
 //!
@@ -601,6 +602,19 @@ async fn full_server(client: &Client, server: &TestServer) -> Result<(), String>
         v == 1.0
     })
     .await?;
+    // Below the toolbar, whatever its rows (it covered the second row).
+    let gap = number(
+        client,
+        "the banner's place",
+        "const t = document.getElementById('toolbar').getBoundingClientRect();
+         const e = document.getElementById('error').getBoundingClientRect();
+         return e.top - t.bottom;",
+    )
+    .await?;
+    println!("full server: the banner starts {gap:.0} px below the toolbar");
+    if gap < 0.0 {
+        return Err(format!("the banner overlaps the toolbar by {:.0} px", -gap));
+    }
     let before = number(client, "attempts", ATTEMPTS).await?;
     tokio::time::sleep(Duration::from_secs(7)).await;
     let after = number(client, "attempts", ATTEMPTS).await?;
