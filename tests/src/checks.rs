@@ -73,6 +73,40 @@ pub fn assert_front_view_of_phantom(img: &RgbaImage) -> (f64, f64) {
     (c, m)
 }
 
+/// Per pixel of `frame` (row by row), its luminance (Rec. 601, 0 to 255) less
+/// the luminance blurred by a 7-pixel box along x, then along y (edges
+/// repeated), twice: what is left is detail a few pixels across, such as
+/// rings on a smooth surface.
+pub fn high_pass_luminance(frame: &shaders::Frame) -> Vec<f64> {
+    const REACH: usize = 3;
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let luminance: Vec<f64> = frame
+        .rgba
+        .chunks(4)
+        .map(|p| 0.299 * f64::from(p[0]) + 0.587 * f64::from(p[1]) + 0.114 * f64::from(p[2]))
+        .collect();
+    let box_blur = |image: &[f64], along_x: bool| -> Vec<f64> {
+        let (n, stride, lines, line_stride) = if along_x { (w, 1, h, w) } else { (h, w, w, 1) };
+        let mut out = vec![0.0; image.len()];
+        for line in 0..lines {
+            for i in 0..n {
+                let sum: f64 = (i as isize - REACH as isize..=(i + REACH) as isize)
+                    .map(|j| {
+                        image[line * line_stride + j.clamp(0, n as isize - 1) as usize * stride]
+                    })
+                    .sum();
+                out[line * line_stride + i * stride] = sum / (2 * REACH + 1) as f64;
+            }
+        }
+        out
+    };
+    let mut blurred = luminance.clone();
+    for _ in 0..2 {
+        blurred = box_blur(&box_blur(&blurred, true), false);
+    }
+    luminance.iter().zip(&blurred).map(|(l, b)| l - b).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

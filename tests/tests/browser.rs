@@ -420,21 +420,22 @@ async fn framing(client: &Client, url: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// The state of a server that renders on the CPU (no GPU needed) and offers
+/// only a small ball off its volume's centre.
+fn ball_state(stream: StreamSettings) -> server::AppState {
+    let ball = voxserve_tests::render::dataset_of(voxserve_tests::phantom::ball_off_centre());
+    let renderer =
+        server::RenderService::start(shaders::Backend::Cpu, 512 << 20, 1).expect("render worker");
+    server::AppState::new(vec![ball], renderer, stream)
+}
+
 #[tokio::test]
 async fn the_first_view_and_a_reset_frame_what_the_transfer_function_shows() {
     let test = "the_first_view_and_a_reset_frame_what_the_transfer_function_shows";
     let Some((_driver, client)) = open_browser(test).await else {
         return;
     };
-    // The CPU renderer: no GPU needed.
-    let ball = voxserve_tests::render::dataset_of(voxserve_tests::phantom::ball_off_centre());
-    let server = TestServer::with_backend(
-        shaders::Backend::Cpu,
-        vec![ball],
-        1,
-        StreamSettings::default(),
-    )
-    .await;
+    let server = TestServer::serving(ball_state(StreamSettings::default())).await;
     let result = framing(&client, &server.url("/")).await;
     finish(test, client, result).await;
 }
@@ -661,16 +662,10 @@ async fn a_full_server_is_named_and_retried_with_growing_waits_until_a_place_fre
     let Some((_driver, client)) = open_browser(test).await else {
         return;
     };
-    let ball = voxserve_tests::render::dataset_of(voxserve_tests::phantom::ball_off_centre());
-    let server = TestServer::with_backend(
-        shaders::Backend::Cpu,
-        vec![ball],
-        1,
-        StreamSettings {
-            max_sessions: 1,
-            ..StreamSettings::default()
-        },
-    )
+    let server = TestServer::serving(ball_state(StreamSettings {
+        max_sessions: 1,
+        ..StreamSettings::default()
+    }))
     .await;
     let result = full_server(&client, &server).await;
     finish(test, client, result).await;
@@ -709,11 +704,8 @@ async fn restarted(client: &Client, first: TestServer) -> Result<(), String> {
         .shut_down()
         .await
         .map_err(|e| format!("stopping the first server: {e}"))?;
-    let ball = voxserve_tests::render::dataset_of(voxserve_tests::phantom::ball_off_centre());
-    let id = ball.id.clone();
-    let renderer = server::RenderService::start(shaders::Backend::Cpu, 512 << 20, 1)
-        .map_err(|e| format!("render worker: {e}"))?;
-    let state = server::AppState::new(vec![ball], renderer, StreamSettings::default());
+    let state = ball_state(StreamSettings::default());
+    let id = state.datasets[0].id.clone();
     let _second = TestServer::serving_at(state, &address).await;
     let ball_drawn = wait_for(
         client,

@@ -326,40 +326,13 @@ fn ball() -> blocks::Volume {
 /// box along x and y, twice) within `radius` pixels of the image's centre.
 fn high_pass_rms(frame: &shaders::Frame, radius: f64) -> f64 {
     let (w, h) = (frame.width as usize, frame.height as usize);
-    let luminance: Vec<f64> = frame
-        .rgba
-        .chunks(4)
-        .map(|p| 0.299 * f64::from(p[0]) + 0.587 * f64::from(p[1]) + 0.114 * f64::from(p[2]))
-        .collect();
-    let blur = |image: &[f64], along_x: bool| -> Vec<f64> {
-        let mut out = vec![0.0; image.len()];
-        for y in 0..h {
-            for x in 0..w {
-                let sum: f64 = (-3i64..=3)
-                    .map(|d| {
-                        let (xx, yy) = if along_x {
-                            ((x as i64 + d).clamp(0, w as i64 - 1) as usize, y)
-                        } else {
-                            (x, (y as i64 + d).clamp(0, h as i64 - 1) as usize)
-                        };
-                        image[yy * w + xx]
-                    })
-                    .sum();
-                out[y * w + x] = sum / 7.0;
-            }
-        }
-        out
-    };
-    let mut blurred = luminance.clone();
-    for _ in 0..2 {
-        blurred = blur(&blur(&blurred, true), false);
-    }
+    let detail = voxserve_tests::checks::high_pass_luminance(frame);
     let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
     let (mut sum, mut n) = (0.0, 0.0);
     for y in 0..h {
         for x in 0..w {
             if (x as f64 - cx).hypot(y as f64 - cy) < radius {
-                sum += (luminance[y * w + x] - blurred[y * w + x]).powi(2);
+                sum += detail[y * w + x].powi(2);
                 n += 1.0;
             }
         }

@@ -440,33 +440,8 @@ fn a_smooth_surface_seen_head_on_shows_no_rings() {
 fn ring_residual(frame: &Frame, centre: (f64, f64), squash: f64) -> f64 {
     const BINS_PER_PIXEL: f64 = 2.0;
     const RADII: std::ops::RangeInclusive<f64> = 4.0..=40.0;
-    const BLUR: usize = 3;
     let (w, h) = (frame.width as usize, frame.height as usize);
-    let luminance: Vec<f64> = frame
-        .rgba
-        .chunks(4)
-        .map(|p| 0.299 * f64::from(p[0]) + 0.587 * f64::from(p[1]) + 0.114 * f64::from(p[2]))
-        .collect();
-    // A box blur along x, then along y (edges repeated), twice.
-    let box_blur = |image: &[f64], along_x: bool| -> Vec<f64> {
-        let (n, stride, lines, line_stride) = if along_x { (w, 1, h, w) } else { (h, w, w, 1) };
-        let mut out = vec![0.0; image.len()];
-        for line in 0..lines {
-            for i in 0..n {
-                let sum: f64 = (i as isize - BLUR as isize..=(i + BLUR) as isize)
-                    .map(|j| {
-                        image[line * line_stride + j.clamp(0, n as isize - 1) as usize * stride]
-                    })
-                    .sum();
-                out[line * line_stride + i * stride] = sum / (2 * BLUR + 1) as f64;
-            }
-        }
-        out
-    };
-    let mut blurred = luminance.clone();
-    for _ in 0..2 {
-        blurred = box_blur(&box_blur(&blurred, true), false);
-    }
+    let detail = voxserve_tests::checks::high_pass_luminance(frame);
     let (cx, cy) = centre;
     let bins = (RADII.end() * BINS_PER_PIXEL) as usize + 1;
     let mut sums = vec![(0.0f64, 0u32); bins];
@@ -476,7 +451,7 @@ fn ring_residual(frame: &Frame, centre: (f64, f64), squash: f64) -> f64 {
             let r = (dx * dx + dy * dy * squash).sqrt();
             if RADII.contains(&r) && dx.abs() > 2.0 {
                 let bin = &mut sums[(r * BINS_PER_PIXEL) as usize];
-                bin.0 += luminance[y * w + x] - blurred[y * w + x];
+                bin.0 += detail[y * w + x];
                 bin.1 += 1;
             }
         }
