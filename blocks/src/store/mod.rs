@@ -272,19 +272,19 @@ impl Store {
             .voxel_type()
             .map_err(|m| store_error(&root, "attributes.voxserve.voxel_type", m))?;
         meta.geometry.checked(&root, &META_GEOMETRY_FIELDS)?;
-        // Stores written before box extremes were kept hold the levels only.
+        // Stores written before box extremes were kept hold the levels only:
+        // the first extremes array's metadata tells.
+        let all = ingest::voxel_arrays();
+        let first_extremes = format!("{}/zarr.json", all[LEVELS].1.trim_start_matches('/'));
+        let unreadable =
+            |e: &dyn std::fmt::Display| store_error(&root, &first_extremes, format!("{e}"));
         let with_extremes = storage
-            .get(
-                &zarrs::storage::StoreKey::new("voxserve/box_min/1/zarr.json")
-                    .map_err(|e| store_error(&root, "voxserve/box_min", format!("{e}")))?,
-            )
-            .map_err(|e| store_error(&root, "voxserve/box_min", format!("{e}")))?
+            .get(&zarrs::storage::StoreKey::new(&first_extremes).map_err(|e| unreadable(&e))?)
+            .map_err(|e| unreadable(&e))?
             .is_some();
+        let kept = if with_extremes { all.len() } else { LEVELS };
         let mut arrays = Vec::new();
-        for (level, key) in ingest::voxel_arrays() {
-            if key.starts_with("/voxserve") && !with_extremes {
-                continue;
-            }
+        for (level, key) in all.into_iter().take(kept) {
             let array = Array::open(storage.clone(), &key).map_err(|e| {
                 store_error(
                     &location.file(key.trim_start_matches('/')),
@@ -319,10 +319,14 @@ impl Store {
             let level = array.level;
             let shards = self.chunk_grid(level).map(|n| n.div_ceil(CHUNKS_PER_SHARD));
             // Which statistic of which level says a block holds a value other than 0.
-            let holds = |b: usize| match i {
-                _ if i < LEVELS => self.stats.min_max(level, b) != [0.0, 0.0],
-                _ if i == extremes_index(level).0 => self.stats.min_max(0, b)[0] != 0.0,
-                _ => self.stats.min_max(0, b)[1] != 0.0,
+            let holds = |b: usize| {
+                if i < LEVELS {
+                    self.stats.min_max(level, b) != [0.0, 0.0]
+                } else if i == extremes_index(level).0 {
+                    self.stats.min_max(0, b)[0] != 0.0
+                } else {
+                    self.stats.min_max(0, b)[1] != 0.0
+                }
             };
             // The first inner chunk of each shard that holds a block with data,
             // by the statistics.
