@@ -236,14 +236,47 @@ impl Preset {
         }
     }
 
-    /// The preset a volume of `modality` starts with: CT bone for CT, MR for
-    /// MR, generic otherwise.
-    pub fn for_modality(modality: Option<&str>) -> Preset {
-        match modality {
-            Some("CT") => Preset::CtBone,
-            Some("MR") => Preset::Mr,
-            _ => Preset::Generic,
+    /// The presets that suit a volume of `modality` whose physical values are
+    /// in `unit`, the one to start with first: the CT presets (laid out in
+    /// Hounsfield units) only for CT in HU, the MR one for MR, and the
+    /// generic one (laid over the value range) for every volume.
+    pub fn offered(modality: Option<&str>, unit: Option<&str>) -> &'static [Preset] {
+        match (modality, unit) {
+            (Some("CT"), Some("HU")) => &[
+                Preset::CtBone,
+                Preset::CtSoftTissue,
+                Preset::CtAngio,
+                Preset::Generic,
+            ],
+            (Some("MR"), _) => &[Preset::Mr, Preset::Generic],
+            _ => &[Preset::Generic],
         }
+    }
+
+    /// The preset a volume of `modality` in `unit` starts with: CT bone for
+    /// CT in HU, MR for MR, generic otherwise.
+    pub fn for_data(modality: Option<&str>, unit: Option<&str>) -> Preset {
+        Preset::offered(modality, unit)[0]
+    }
+
+    /// Why this preset does not suit a volume of `modality` in `unit`, or
+    /// `None` when it is among [`Preset::offered`].
+    pub fn unsuited(self, modality: Option<&str>, unit: Option<&str>) -> Option<String> {
+        if Preset::offered(modality, unit).contains(&self) {
+            return None;
+        }
+        let what = match (modality, unit) {
+            (Some(m), Some(u)) => format!("{m} in {u}"),
+            (Some(m), None) => format!("{m} without a unit"),
+            (None, Some(u)) => format!("of no modality, in {u}"),
+            (None, None) => "of no modality or unit".to_owned(),
+        };
+        let wants = match self {
+            Preset::CtBone | Preset::CtSoftTissue | Preset::CtAngio => "CT in HU",
+            Preset::Mr => "MR",
+            Preset::Generic => "any volume",
+        };
+        Some(format!("{self} is for {wants} and the volume is {what}"))
     }
 
     /// A one-line description for menus and `--help`.
@@ -335,6 +368,32 @@ impl FromStr for Preset {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ct_presets_are_offered_only_for_ct_in_hounsfield_units() {
+        let names = |m, u| {
+            Preset::offered(m, u)
+                .iter()
+                .map(|p| p.name())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            names(Some("CT"), Some("HU")),
+            ["ct-bone", "ct-soft-tissue", "ct-angio", "generic"]
+        );
+        // CT windowed to 8 bits (a MetaImage of LIDC) is not in HU.
+        assert_eq!(names(Some("CT"), None), ["generic"]);
+        assert_eq!(names(Some("MR"), None), ["mr", "generic"]);
+        assert_eq!(names(None, None), ["generic"]);
+        assert_eq!(Preset::for_data(Some("CT"), Some("HU")), Preset::CtBone);
+        assert_eq!(Preset::CtBone.unsuited(Some("CT"), Some("HU")), None);
+        let why = Preset::CtSoftTissue.unsuited(None, None).expect("refused");
+        assert!(
+            why.contains("CT in HU") && why.contains("no modality"),
+            "{why}"
+        );
+        assert!(Preset::Mr.unsuited(Some("CT"), Some("HU")).is_some());
+    }
 
     #[test]
     fn the_text_form_round_trips_and_bad_text_is_refused_with_the_point_named() {

@@ -299,6 +299,11 @@ pub fn render(args: RenderArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|| PathBuf::from(format!("{}.png", dataset.id)));
     let output = OutputFile::prepare(out)?;
     let request = args.view.frame;
+    if let Some(preset) = request.preset {
+        dataset
+            .check_preset(preset)
+            .map_err(|e| anyhow::anyhow!("--{e}"))?;
+    }
     let classification = match (&request.tf, request.preset) {
         (Some(_), _) => "its own transfer function".to_owned(),
         (None, preset) => preset

@@ -15,6 +15,7 @@ use blocks::ingest::{self, MemorySource, OpenOptions};
 use blocks::store::{IngestOptions, Store, ingest_in_memory};
 use blocks::{Geometry, Preset, ValueMap};
 use serde::Serialize;
+use shaders::settings::SettingError;
 
 /// The id of the built-in phantom.
 pub const PHANTOM_ID: &str = "phantom";
@@ -176,9 +177,40 @@ impl Dataset {
         self.store.meta().value_map
     }
 
-    /// The preset to start with: CT bone for CT, MR for MR, generic otherwise.
+    /// The presets that suit this dataset, the one to start with first: CT
+    /// ones for CT in HU, MR for MR, generic for all.
+    pub fn presets(&self) -> &'static [Preset] {
+        let m = self.store.meta();
+        Preset::offered(m.modality.as_deref(), m.unit.as_deref())
+    }
+
+    /// The preset to start with: CT bone for CT in HU, MR for MR, generic otherwise.
     pub fn default_preset(&self) -> Preset {
-        Preset::for_modality(self.store.meta().modality.as_deref())
+        self.presets()[0]
+    }
+
+    /// Refuses a preset that does not suit this dataset (a CT preset in
+    /// Hounsfield units on 8-bit engine data is an opaque box).
+    ///
+    /// # Errors
+    /// Names the preset, what it is for, and the presets this dataset offers.
+    pub fn check_preset(&self, preset: Preset) -> Result<(), SettingError> {
+        let m = self.store.meta();
+        match preset.unsuited(m.modality.as_deref(), m.unit.as_deref()) {
+            None => Ok(()),
+            Some(why) => {
+                let offered: Vec<&str> = self.presets().iter().map(|p| p.name()).collect();
+                Err(SettingError::of_value(
+                    "preset",
+                    format!("{:?}", preset.name()),
+                    format!(
+                        "one of {} for dataset '{}' ({why})",
+                        offered.join(", "),
+                        self.id
+                    ),
+                ))
+            }
+        }
     }
 
     /// The level-0 histogram summed over every block, and the physical range
@@ -200,7 +232,8 @@ impl Dataset {
             value_range: m.value_range(),
             unit: m.unit.clone(),
             modality: m.modality.clone(),
-            presets: Preset::ALL
+            presets: self
+                .presets()
                 .iter()
                 .map(|p| PresetInfo {
                     name: p.name(),

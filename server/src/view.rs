@@ -177,14 +177,18 @@ impl View {
         Ok(())
     }
 
-    /// Checks what no single setting can: the frame's settings together, and
-    /// that the dataset is one of `datasets`.
+    /// Checks what no single setting can: the frame's settings together,
+    /// that the dataset is one of `datasets`, and that the preset suits it.
     ///
     /// # Errors
     /// The first setting refused.
     pub fn check(&self, datasets: &[Dataset]) -> Result<(), SettingError> {
         self.frame.validate()?;
-        self.dataset(datasets).map(|_| ())
+        let dataset = self.dataset(datasets)?;
+        match self.frame.preset {
+            Some(preset) => dataset.check_preset(preset),
+            None => Ok(()),
+        }
     }
 
     /// The dataset shown: the one named, else the first of `datasets`.

@@ -176,12 +176,30 @@ fn every_path_accepts_and_refuses_the_same_values_with_the_same_message() {
     for d in settings {
         let name = d["name"].as_str().expect("name");
         let expected = d["expected"].as_str().expect("expected");
-        for s in samples(d) {
+        for mut s in samples(d) {
             tried += 1;
             let case = format!("{name} = {:?} (JSON {})", s.text, s.json);
+            // A preset the schema takes may not suit the dataset shown (the
+            // phantom is CT in HU: no mr): the view refuses it, naming the
+            // dataset and its presets (the command line has no dataset).
+            let unsuited = name == "preset"
+                && s.valid
+                && !datasets[0].presets().iter().any(|p| p.name() == s.text);
+            if unsuited {
+                s.valid = false;
+            }
             let query = by_query(name, &s.text, &datasets);
             let session = by_session(name, &s.json, &datasets);
-            let command_line = by_command_line(name, &s.text);
+            let command_line = by_command_line(name, &s.text).filter(|_| !unsuited);
+            if unsuited {
+                let (q, w) = (query.expect_err(&case), session.expect_err(&case));
+                assert_eq!(expected_part(&q), expected_part(&w), "{case}");
+                assert!(
+                    q.contains("expected one of ct-bone, ct-soft-tissue, ct-angio, generic for dataset 'phantom'"),
+                    "{case}: {q}"
+                );
+                continue;
+            }
             match (&query, &session) {
                 (Ok(q), Ok(w)) => {
                     assert!(

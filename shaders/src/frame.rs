@@ -263,7 +263,8 @@ crate::settings! {
             whole(1, MAX_IMAGE_EDGE, "a whole number of pixels", "px"), group Image;
         /// Background colour as six hex digits rrggbb.
         pub background: [f32; 3] = [0.0; 3], "bg" | "background", by_type(), group Image;
-        /// Transfer-function preset [default: ct-bone for CT, mr for MR, else generic].
+        /// Transfer-function preset [default: ct-bone for CT in HU, mr for MR, else
+        /// generic]; CT presets only for CT in HU, mr only for MR.
         pub preset: Option<Preset> = None, "preset", by_type(), group Classification;
         /// A transfer function instead of a preset: VALUE:RRGGBB:OPACITY,… in
         /// physical units (e.g. HU), opacity per step of the smallest spacing.
@@ -319,16 +320,11 @@ impl FrameRequest {
     }
 
     /// The transfer function to classify with: `tf` when given, else the
-    /// preset (by default the one for `modality`) laid over `value_range`.
-    pub fn transfer_function(
-        &self,
-        value_range: [f32; 2],
-        modality: Option<&str>,
-    ) -> TransferFunction {
+    /// preset (by default `default`, the volume's own) laid over `value_range`.
+    pub fn transfer_function(&self, value_range: [f32; 2], default: Preset) -> TransferFunction {
         match (&self.tf, self.preset) {
             (Some(tf), _) => tf.clone(),
-            (None, Some(preset)) => preset.transfer_function(value_range),
-            (None, None) => Preset::for_modality(modality).transfer_function(value_range),
+            (None, preset) => preset.unwrap_or(default).transfer_function(value_range),
         }
     }
 
@@ -336,13 +332,16 @@ impl FrameRequest {
     pub fn store_transfer_function(&self, meta: &blocks::store::StoreMeta) -> TransferFunction {
         self.transfer_function(
             meta.value_range().map(|v| v as f32),
-            meta.modality.as_deref(),
+            Preset::for_data(meta.modality.as_deref(), meta.unit.as_deref()),
         )
     }
 
     /// The transfer function to classify `volume` with.
     pub fn volume_transfer_function(&self, volume: &blocks::Volume) -> TransferFunction {
-        self.transfer_function(volume.value_range, volume.modality.as_deref())
+        self.transfer_function(
+            volume.value_range,
+            Preset::for_data(volume.modality.as_deref(), volume.unit.as_deref()),
+        )
     }
 
     /// The rows drawn: [`FrameRequest::rows`] within the image, else all.
@@ -479,25 +478,21 @@ mod tests {
     }
 
     #[test]
-    fn the_transfer_function_comes_from_tf_then_preset_then_modality() {
+    fn the_transfer_function_comes_from_tf_then_preset_then_the_volumes_own() {
         let range = [-1024.0, 3071.0];
         let mut r = FrameRequest::default();
         assert_eq!(
-            r.transfer_function(range, Some("CT")),
+            r.transfer_function(range, Preset::CtBone),
             Preset::CtBone.transfer_function(range)
-        );
-        assert_eq!(
-            r.transfer_function(range, None),
-            Preset::Generic.transfer_function(range)
         );
         r.preset = Some(Preset::CtAngio);
         assert_eq!(
-            r.transfer_function(range, Some("MR")),
+            r.transfer_function(range, Preset::Mr),
             Preset::CtAngio.transfer_function(range)
         );
         let own = TransferFunction::parse("0:ffffff:0,100:ffffff:1").expect("tf");
         r.preset = None;
         r.tf = Some(own.clone());
-        assert_eq!(r.transfer_function(range, Some("CT")), own);
+        assert_eq!(r.transfer_function(range, Preset::CtBone), own);
     }
 }

@@ -17,7 +17,7 @@ use blocks::lod::LodSelection;
 use blocks::packing::Packing;
 use blocks::store::LEVELS;
 use blocks::transfer_function::TABLE_LEN;
-use blocks::{TransferFunction, Volume};
+use blocks::{Preset, TransferFunction, Volume};
 
 use crate::extinction::{Extinction, ExtinctionTimings};
 use crate::global_light::{GlobalLight, LightTimings};
@@ -518,8 +518,8 @@ pub struct ReferenceRenderer {
     gpu: GpuContext,
     pipeline: MarchPipeline,
     volume: GpuVolume,
-    /// The volume's physical value range and modality, for presets.
-    classification: ([f32; 2], Option<String>),
+    /// The volume's physical value range and its own preset.
+    classification: ([f32; 2], Preset),
     frame: FrameResources,
 }
 
@@ -527,7 +527,8 @@ impl ReferenceRenderer {
     /// Compiles the pipeline and uploads `volume`.
     pub fn new(gpu: GpuContext, volume: &Volume) -> Result<ReferenceRenderer, GpuError> {
         let pipeline = MarchPipeline::new(&gpu, Stage::Reference)?;
-        let classification = (volume.value_range, volume.modality.clone());
+        let own = Preset::for_data(volume.modality.as_deref(), volume.unit.as_deref());
+        let classification = (volume.value_range, own);
         let volume = GpuVolume::upload(&gpu, volume)?;
         let frame = FrameResources::new(&gpu)?;
         Ok(ReferenceRenderer {
@@ -549,8 +550,8 @@ impl ReferenceRenderer {
     /// packed renderer and pass the camera it chose, as benchmarks do).
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
         refuse_fit(request)?;
-        let (range, modality) = &self.classification;
-        let tf = request.transfer_function(*range, modality.as_deref());
+        let (range, own) = self.classification;
+        let tf = request.transfer_function(range, own);
         self.frame
             .prepare(&self.gpu, request, &tf, &self.volume.desc)?;
         let params = RaycastParams::new(

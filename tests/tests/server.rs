@@ -277,7 +277,7 @@ async fn the_web_client_and_dataset_list_are_served() {
     assert_eq!(phantom["dims"], serde_json::json!([32, 32, 32]));
     assert_eq!(phantom["unit"], "HU");
     assert_eq!(phantom["default_preset"], "ct-bone");
-    assert!(phantom["presets"].as_array().is_some_and(|p| p.len() == 5));
+    assert!(phantom["presets"].as_array().is_some_and(|p| p.len() == 4));
     // The histogram counts every voxel once, over the value range in HU.
     let counts: u64 = phantom["histogram"]
         .as_array()
@@ -351,6 +351,75 @@ async fn one_dataset_is_described_and_rendered_by_its_path_and_metrics_count_the
             text.contains(expected),
             "/metrics lacks {expected}:\n{text}"
         );
+    }
+}
+
+/// The names of a dataset's presets as `/api/datasets` lists them.
+fn preset_names(dataset: &serde_json::Value) -> Vec<String> {
+    dataset["presets"]
+        .as_array()
+        .map(|all| {
+            all.iter()
+                .filter_map(|p| p["name"].as_str().map(str::to_owned))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+#[tokio::test]
+async fn presets_suit_the_data_and_a_ct_preset_on_other_data_is_refused_by_name() {
+    let test = "presets_suit_the_data_and_a_ct_preset_on_other_data_is_refused_by_name";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    // The head's values with no modality or unit, as from a raw file.
+    let plain = {
+        let mut volume = blocks::phantom::head(24).expect("head");
+        volume.modality = None;
+        volume.unit = None;
+        volume.name = "plain".into();
+        voxserve_tests::render::dataset_of(volume)
+    };
+    let phantom = server::Dataset::phantom(24, 64 << 20).expect("phantom");
+    let server = TestServer::with_datasets(
+        gpu,
+        vec![phantom, plain],
+        2,
+        server::stream::StreamSettings::default(),
+    )
+    .await;
+    let datasets: serde_json::Value = get(&server.url("/api/datasets")).await.json_body().await;
+    assert_eq!(
+        preset_names(&datasets[0]),
+        ["ct-bone", "ct-soft-tissue", "ct-angio", "generic"]
+    );
+    assert_eq!(datasets[1]["id"], "plain");
+    assert_eq!(preset_names(&datasets[1]), ["generic"]);
+    assert_eq!(datasets[1]["default_preset"], "generic");
+
+    let refused =
+        get(&server.url("/api/render?dataset=plain&preset=ct-soft-tissue&w=16&h=16")).await;
+    assert_eq!(refused.status(), 400);
+    let message = refused.json_body().await["error"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    println!("{message}");
+    for part in [
+        "preset",
+        "ct-soft-tissue",
+        "one of generic",
+        "'plain'",
+        "CT in HU",
+    ] {
+        assert!(message.contains(part), "{part:?} in {message}");
+    }
+    for ok in [
+        "/api/render?dataset=plain&preset=generic&w=16&h=16",
+        "/api/render?dataset=plain&w=16&h=16",
+        "/api/render?dataset=phantom&preset=ct-angio&w=16&h=16",
+    ] {
+        assert_eq!(get(&server.url(ok)).await.status(), 200, "{ok}");
     }
 }
 

@@ -13,6 +13,6 @@ libfuzzer_sys::fuzz_target!(|text: &str| {
         .collect();
     let datasets = voxserve_fuzz::datasets();
     if let Ok(view) = server::View::from_query(&pairs, datasets) {
-        let _ = view.frame.transfer_function([0.0, 1000.0], Some("CT"));
+        let _ = view.frame.transfer_function([0.0, 1000.0], blocks::Preset::CtBone);
     }
 });
