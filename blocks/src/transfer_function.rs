@@ -186,6 +186,19 @@ impl TransferFunction {
         -(1.0 - alpha).ln()
     }
 
+    /// The span of values this transfer function shows: from the last point
+    /// of no opacity before the first point with some (the first point when
+    /// that has some) to the first point of no opacity after the last with
+    /// some (else the last point). `None` when it shows nothing.
+    pub fn shown_span(&self) -> Option<[f32; 2]> {
+        let points = &self.points;
+        let first = points.iter().position(|p| p.opacity > 0.0)?;
+        let last = points.iter().rposition(|p| p.opacity > 0.0)?;
+        let lo = points[first.saturating_sub(1)].value;
+        let hi = points[(last + 1).min(points.len() - 1)].value;
+        Some([lo, hi])
+    }
+
     /// The largest opacity over a physical value interval: zero means a block whose
     /// values lie in `[lo, hi]` is empty under this transfer function.
     pub fn max_opacity(&self, lo: f32, hi: f32) -> f32 {
@@ -368,6 +381,23 @@ impl FromStr for Preset {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_shown_span_runs_from_the_rise_of_opacity_to_its_last_fall() {
+        let span = |text: &str| TransferFunction::parse(text).expect("tf").shown_span();
+        assert_eq!(
+            Preset::CtBone
+                .transfer_function([-1024.0, 3071.0])
+                .shown_span(),
+            Some([150.0, 2000.0])
+        );
+        assert_eq!(
+            span("0:000000:0,100:ffffff:1,200:ffffff:0,900:ffffff:0"),
+            Some([0.0, 200.0])
+        );
+        assert_eq!(span("50:ffffff:0.5,80:ffffff:0.5"), Some([50.0, 80.0]));
+        assert_eq!(span("0:000000:0,100:ffffff:0"), None);
+    }
 
     #[test]
     fn ct_presets_are_offered_only_for_ct_in_hounsfield_units() {

@@ -101,6 +101,14 @@ fn samples(d: &Json) -> Vec<Sample> {
                 ],
                 Some("dataset") => vec![text("phantom", true), text("lung", false)],
                 Some("clip") => vec![text("0,0.1,0,1,0.9,1", true), text("0,0,0,1,1", false)],
+                Some("window") => vec![
+                    text("500,2000", true),
+                    text("-600,1500", true),
+                    text("40,0", false),
+                    text("40,-80", false),
+                    text("40", false),
+                    text("1e9,10", false),
+                ],
                 Some("light") => vec![
                     text("point:0.5,0.5,2", true),
                     text("directional:0,0,0", false),

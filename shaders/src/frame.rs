@@ -23,10 +23,11 @@ pub enum Shading {
     /// Compositing with gradient Blinn–Phong, a light above and left of the eye.
     #[default]
     Gradient,
-    /// Maximum intensity projection: the transfer function of the largest value
-    /// met among visible ones.
+    /// Maximum intensity projection: the largest value met among visible
+    /// ones, in grey through the window.
     Mip,
-    /// Minimum intensity projection: the smallest visible value.
+    /// Minimum intensity projection: the smallest visible value, in grey
+    /// through the window.
     MinIp,
     /// Compositing lit by global light propagation with first-order scattering
     /// (shadows from a light anywhere, also inside the volume): see [`crate::light`].
@@ -62,8 +63,12 @@ impl Choice for Shading {
         match self {
             Shading::Unshaded => "compositing of transfer-function colours, unlit",
             Shading::Gradient => "compositing lit by the data's gradient (Blinn-Phong)",
-            Shading::Mip => "maximum intensity projection",
-            Shading::MinIp => "minimum intensity projection of visible values",
+            Shading::Mip => {
+                "maximum intensity projection of visible values, greyscale through the window"
+            }
+            Shading::MinIp => {
+                "minimum intensity projection of visible values, greyscale through the window"
+            }
             Shading::GlobalLight => {
                 "global light propagation: shadows and first-order scattering from the light"
             }
@@ -223,6 +228,69 @@ impl TextSetting for ClipBox {
     }
 }
 
+/// The largest magnitude of a window's centre or width, in physical units.
+pub const MAX_WINDOW: f32 = 1.0e7;
+
+/// A greyscale window, as radiologists set one: the value shown mid-grey
+/// (centre, "level") and the span from black to white (width), in physical
+/// units (e.g. HU).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Window {
+    /// The value shown mid-grey.
+    pub centre: f32,
+    /// The span from black to white (> 0).
+    pub width: f32,
+}
+
+impl Window {
+    /// The window whose black and white are `lo` and `hi` (a width of at
+    /// least a millionth of `hi`'s size or 1e-6 when they meet).
+    pub fn spanning(lo: f32, hi: f32) -> Window {
+        let width = (hi - lo).max(hi.abs().max(lo.abs()) * 1e-6).max(1e-6);
+        Window {
+            centre: lo + width / 2.0,
+            width,
+        }
+    }
+
+    /// The value shown black.
+    pub fn low(&self) -> f32 {
+        self.centre - self.width / 2.0
+    }
+}
+
+impl TextSetting for Window {
+    fn expected() -> String {
+        format!("CENTRE,WIDTH in physical units, the width above 0, both within ±{MAX_WINDOW}")
+    }
+
+    fn parse_text(text: &str) -> Result<Window, Expected> {
+        let values: Vec<f32> = text
+            .split(',')
+            .map(|v| v.trim().parse::<f32>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| Expected(Self::expected()))?;
+        let [centre, width] = values[..] else {
+            return Err(Expected(Self::expected()));
+        };
+        let window = Window { centre, width };
+        window.check_value().map(|()| window)
+    }
+
+    fn check_value(&self) -> Result<(), Expected> {
+        let within = |v: f32| v.is_finite() && v.abs() <= MAX_WINDOW;
+        if within(self.centre) && within(self.width) && self.width > 0.0 {
+            Ok(())
+        } else {
+            Err(Expected(Self::expected()))
+        }
+    }
+
+    fn text(&self) -> String {
+        format!("{},{}", self.centre, self.width)
+    }
+}
+
 impl TextSetting for TransferFunction {
     fn expected() -> String {
         format!(
@@ -246,7 +314,7 @@ impl TextSetting for TransferFunction {
     }
 }
 
-crate::text_setting!(ClipBox, TransferFunction);
+crate::text_setting!(ClipBox, TransferFunction, Window);
 
 crate::settings! {
     /// Everything needed to render one frame of a volume: what a client asks
@@ -269,6 +337,11 @@ crate::settings! {
         /// A transfer function instead of a preset: VALUE:RRGGBB:OPACITY,… in
         /// physical units (e.g. HU), opacity per step of the smallest spacing.
         pub tf: Option<TransferFunction> = None, "tf", by_type(), group Classification;
+        /// Greyscale window of maximum and minimum intensity projections:
+        /// CENTRE,WIDTH in physical units (e.g. 500,2000 in HU) [default: from
+        /// where the transfer function's opacity rises above 0 to where it
+        /// last falls back or ends].
+        pub window: Option<Window> = None, "window", by_type(), group Classification;
         /// How samples are lit.
         pub shading: Shading = Shading::Gradient, "shading", by_type();
         /// How samples combine along a ray.
@@ -326,6 +399,15 @@ impl FrameRequest {
             (Some(tf), _) => tf.clone(),
             (None, preset) => preset.unwrap_or(default).transfer_function(value_range),
         }
+    }
+
+    /// The greyscale window of maximum and minimum intensity projections:
+    /// the one given, else the span `tf` shows (else `value_range`).
+    pub fn window_of(&self, tf: &TransferFunction, value_range: [f32; 2]) -> Window {
+        self.window.unwrap_or_else(|| {
+            let [lo, hi] = tf.shown_span().unwrap_or(value_range);
+            Window::spanning(lo, hi)
+        })
     }
 
     /// The transfer function to classify the store described by `meta` with.

@@ -184,6 +184,7 @@ fn every_mirrored_struct_matches_its_wgsl_twin_field_by_field() {
         light_offset,
         first_row,
         image_height,
+        window,
     });
     for source in [
         crate::wgsl::RAYCAST,

@@ -86,7 +86,7 @@ pub use wgpu;
 pub use backend::{AnyRenderer, Backend, RendererChoice};
 pub use camera::{Camera, Projection};
 pub use error::GpuError;
-pub use frame::{ClipBox, Compositing, Frame, FrameRequest, Rows, Shading};
+pub use frame::{ClipBox, Compositing, Frame, FrameRequest, Rows, Shading, Window};
 pub use global_light::{LightSettings, LightSource};
 pub use gpu::GpuContext;
 pub use raycast::{MarchPipeline, RaycastParams, Stage};

@@ -8,7 +8,7 @@
 //! volume's geometry by [`RaycastParams::new`]; GPU stages and CPU twins read
 //! exactly that struct, so they differ only in arithmetic.
 
-use blocks::Geometry;
+use blocks::{Geometry, TransferFunction};
 use glam::{Mat3, Mat4, Vec3, Vec4};
 
 use crate::camera::box_corners;
@@ -104,6 +104,10 @@ pub struct RaycastParams {
     pub first_row: u32,
     /// The image's height in rows, which places the rays.
     pub image_height: u32,
+    /// The greyscale window of [`MODE_MIP`] and [`MODE_MINIP`] in
+    /// transfer-function coordinates: the value shown black (x) and the span
+    /// to white (y); z, w unused.
+    pub window: [f32; 4],
 }
 
 /// Where the volume sits in model space: the linear map from texture offsets
@@ -170,12 +174,13 @@ pub fn samples_per_ray(geometry: &Geometry, request: &FrameRequest) -> u32 {
 }
 
 impl RaycastParams {
-    /// The uniforms for rendering `request` of the volume stored as `texture`, with
-    /// a transfer-function table of `tf_len` entries, from packed blocks laid out
-    /// as `packed` (zeros for the reference stage).
+    /// The uniforms for rendering `request` of the volume stored as `texture`,
+    /// classified by `tf` as a table of `tf_len` entries, from packed blocks laid
+    /// out as `packed` (zeros for the reference stage).
     pub fn new(
         texture: &VolumeTexture,
         request: &FrameRequest,
+        tf: &TransferFunction,
         tf_len: u32,
         packed: PackedLayout,
     ) -> RaycastParams {
@@ -227,6 +232,10 @@ impl RaycastParams {
             Shading::MinIp => MODE_MINIP,
         };
         let [r, g, b] = request.background;
+        // The window in transfer-function coordinates (0..1 over tf_domain).
+        let [d0, d1] = texture.tf_domain;
+        let window = request.window_of(tf, texture.tf_domain);
+        let span = (d1 - d0).max(f32::MIN_POSITIVE);
         RaycastParams {
             inv_view_proj,
             texture_from_model,
@@ -249,6 +258,7 @@ impl RaycastParams {
             light_offset,
             first_row: rows.first,
             image_height: request.height,
+            window: [(window.low() - d0) / span, window.width / span, 0.0, 0.0],
         }
     }
 
@@ -401,9 +411,9 @@ mod tests {
 
     #[test]
     fn params_are_a_multiple_of_16_bytes_like_the_wgsl_struct() {
-        // WGSL: three mat4x4 (64 each), six vec3 + scalar pairs, three vec4s and
+        // WGSL: three mat4x4 (64 each), six vec3 + scalar pairs, four vec4s and
         // one vec3<u32> + scalar (16 each), eight scalars.
-        assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 10 * 16 + 8 * 4);
+        assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 11 * 16 + 8 * 4);
         assert_eq!(size_of::<RaycastParams>() % 16, 0);
     }
 
@@ -424,7 +434,8 @@ mod tests {
         let tf = blocks::Preset::Generic.transfer_function([0.0, 1.0]);
         let p = RaycastParams::new(
             &texture,
-            &FrameRequest::new(8, 8, tf),
+            &FrameRequest::new(8, 8, tf.clone()),
+            &tf,
             16,
             PackedLayout::default(),
         );

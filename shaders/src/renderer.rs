@@ -430,7 +430,7 @@ impl Renderer {
             };
             stats.illumination = Some(self.update_illumination(mode, request, &tf, refine)?);
         }
-        self.draw(request, stats)
+        self.draw(request, &tf, stats)
     }
 
     /// Brings illumination mode `mode` up to date for `request` (every
@@ -466,13 +466,18 @@ impl Renderer {
         lit.state.update(&self.gpu, inputs, request, refine)
     }
 
-    /// Renders the frame of `request` from what is resident.
-    fn draw(&mut self, request: &FrameRequest, mut stats: RenderStats) -> Result<Frame, GpuError> {
+    /// Renders the frame of `request` from what is resident, classified by `tf`.
+    fn draw(
+        &mut self,
+        request: &FrameRequest,
+        tf: &TransferFunction,
+        mut stats: RenderStats,
+    ) -> Result<Frame, GpuError> {
         let (Some(atlas), Some(selection)) = (self.residency.atlas(), self.residency.selection())
         else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
-        let params = RaycastParams::new(&self.desc, request, TABLE_LEN as u32, atlas.layout);
+        let params = RaycastParams::new(&self.desc, request, tf, TABLE_LEN as u32, atlas.layout);
         // The lit mode's pipeline and light, once computed; else unlit.
         let lit = Mode::of(request.shading)
             .and_then(|mode| self.lit.iter().find(|l| l.mode == mode))
@@ -557,6 +562,7 @@ impl ReferenceRenderer {
         let params = RaycastParams::new(
             &self.volume.desc,
             request,
+            &tf,
             TABLE_LEN as u32,
             PackedLayout::default(),
         );

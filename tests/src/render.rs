@@ -98,7 +98,8 @@ pub fn cpu_raycast(
         atlas_dims: packing.atlas_dims,
         block_grid: dataset.store.meta().blocks,
     };
-    let params = shaders::RaycastParams::new(desc, request, table.len() as u32, layout);
+    let tf = request.store_transfer_function(dataset.store.meta());
+    let params = shaders::RaycastParams::new(desc, request, &tf, table.len() as u32, layout);
     let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
     shaders::cpu::raycast(&params, packed, table, &mut rgba);
     Frame {

@@ -354,6 +354,58 @@ async fn one_dataset_is_described_and_rendered_by_its_path_and_metrics_count_the
     }
 }
 
+/// The image `/api/render?{query}` answers, as RGBA.
+async fn render_png(server: &TestServer, query: &str) -> image::RgbaImage {
+    let r = get(&server.url(&format!("/api/render?{query}"))).await;
+    assert_eq!(r.status(), 200, "{query}");
+    image::load_from_memory(&r.bytes().await.expect("body"))
+        .expect("PNG")
+        .to_rgba8()
+}
+
+/// The 90th percentile of the greys brighter than the black background.
+fn bright_foreground(img: &image::RgbaImage) -> Option<u8> {
+    let mut shown: Vec<u8> = img.pixels().map(|p| p.0[0]).filter(|&g| g > 0).collect();
+    shown.sort_unstable();
+    shown.get(shown.len() * 9 / 10).copied()
+}
+
+#[tokio::test]
+async fn mip_and_minip_are_greyscale_through_the_window() {
+    let test = "mip_and_minip_are_greyscale_through_the_window";
+    let Some(gpu) = gpu_or_skip(test) else {
+        return;
+    };
+    let server = TestServer::start(gpu, 48).await;
+    let view = "w=64&h=64&az=0&el=0&preset=ct-bone&fit=true";
+    for shading in ["mip", "minip"] {
+        let img = render_png(&server, &format!("{view}&shading={shading}")).await;
+        let coloured = img
+            .pixels()
+            .filter(|p| p.0[0] != p.0[1] || p.0[1] != p.0[2])
+            .count();
+        assert_eq!(coloured, 0, "{shading}: every pixel grey");
+        assert!(
+            bright_foreground(&img).is_some(),
+            "{shading}: something shows"
+        );
+    }
+    // ct-bone shows 150 to 2000 HU: the phantom's bone (1000 HU, the
+    // brightest tenth of the pixels) is a middle grey by default; a window
+    // from -100 to 100 HU makes it white, one centred on it a middle grey.
+    let mip = |window: &str| format!("{view}&shading=mip{window}");
+    let grey = |img: &image::RgbaImage| bright_foreground(img).unwrap_or(0);
+    let default = grey(&render_png(&server, &mip("")).await);
+    let narrow = grey(&render_png(&server, &mip("&window=0,200")).await);
+    let centred = grey(&render_png(&server, &mip("&window=1000,400")).await);
+    println!(
+        "MIP 90th-percentile grey: default {default}, window 0,200 {narrow}, 1000,400 {centred}"
+    );
+    assert!((80..=150).contains(&default), "default window: {default}");
+    assert_eq!(narrow, 255, "bone above the window is white");
+    assert!((70..=180).contains(&centred), "centred window: {centred}");
+}
+
 /// The names of a dataset's presets as `/api/datasets` lists them.
 fn preset_names(dataset: &serde_json::Value) -> Vec<String> {
     dataset["presets"]

@@ -389,6 +389,11 @@ fn shade(p: &RaycastParams, rgb: Vec3, g: Vec3, view_dir: Vec3) -> Vec3 {
     rgb * (ambient + kd * diffuse) + Vec3::splat(ks * specular)
 }
 
+/// WGSL `window_grey`.
+fn window_grey(p: &RaycastParams, u: f32) -> f32 {
+    ((u - p.window[0]) / p.window[1]).clamp(0.0, 1.0)
+}
+
 /// WGSL `pow(x, e)` for `x ≥ 0`: by squaring where `e` is a whole number
 /// up to 64 (shininess is), without a call into the C library (each squaring
 /// doubles the relative error so far: at most 2⁻¹⁸ for e ≤ 64, far below
@@ -664,8 +669,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
     if p.mode != MODE_COMPOSITE {
         out = background;
         if found {
-            let c = classify(p, tf, extreme);
-            out = c.xyz() * c.w + (1.0 - c.w) * background;
+            out = Vec3::splat(window_grey(p, extreme));
         }
     }
     let out = out.clamp(Vec3::ZERO, Vec3::ONE);

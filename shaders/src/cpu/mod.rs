@@ -144,10 +144,15 @@ pub fn render_reference(
     crate::renderer::refuse_fit(request)?;
     let desc = VolumeTexture::for_volume(volume, features);
     let texture = Texture3d::new(desc.geometry.dims, desc.texel_values(&volume.voxels));
-    let table = request
-        .volume_transfer_function(volume)
-        .table(desc.tf_domain, TABLE_LEN)?;
-    let params = RaycastParams::new(&desc, request, table.len() as u32, PackedLayout::default());
+    let tf = request.volume_transfer_function(volume);
+    let table = tf.table(desc.tf_domain, TABLE_LEN)?;
+    let params = RaycastParams::new(
+        &desc,
+        request,
+        &tf,
+        table.len() as u32,
+        PackedLayout::default(),
+    );
     let mut rgba = vec![0u8; params.width as usize * params.height as usize * 4];
     reference(&params, &texture, &table, &mut rgba);
     Ok(Frame {

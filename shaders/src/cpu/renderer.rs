@@ -199,14 +199,14 @@ impl CpuRenderer {
 
     /// Ray-casts the frame of `request` from what is resident.
     fn draw(&mut self, request: &FrameRequest, mut stats: RenderStats) -> Result<Frame, GpuError> {
-        let (Some(atlas), Some(selection), Some((_, table))) = (
+        let (Some(atlas), Some(selection), Some((tf, table))) = (
             self.residency.atlas(),
             self.residency.selection(),
             &self.table,
         ) else {
             return Err(GpuError::InvalidRequest("no blocks are resident".into()));
         };
-        let params = RaycastParams::new(&self.desc, request, table.len() as u32, atlas.layout);
+        let params = RaycastParams::new(&self.desc, request, tf, table.len() as u32, atlas.layout);
         let start = Instant::now();
         let mut rgba = vec![0u8; params.width as usize * params.height as usize * 4];
         raycast(&params, &atlas.texture, table, &mut rgba);

@@ -105,6 +105,12 @@ fn shade(rgb: vec3<f32>, g: vec3<f32>, view_dir: vec3<f32>) -> vec3<f32> {
     return rgb * (params.phong.x + params.phong.y * diffuse) + vec3<f32>(params.phong.z * specular);
 }
 
+// The grey a projected value u (transfer-function coordinates) shows through
+// the window: black at its low end, white at its high end.
+fn window_grey(u: f32) -> f32 {
+    return clamp((u - params.window.x) / params.window.y, 0.0, 1.0);
+}
+
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if gid.x >= params.width || gid.y >= params.height {
@@ -208,8 +214,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if params.mode != MODE_COMPOSITE {
         out = params.background.rgb;
         if found {
-            let c = classify(extreme);
-            out = c.rgb * c.a + (1.0 - c.a) * params.background.rgb;
+            out = vec3<f32>(window_grey(extreme));
         }
     }
     textureStore(output, vec2<i32>(gid.xy), vec4<f32>(clamp(out, vec3<f32>(0.0), vec3<f32>(1.0)), 1.0));

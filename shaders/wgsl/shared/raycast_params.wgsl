@@ -50,6 +50,9 @@ struct RaycastParams {
     light_offset: f32,
     first_row: u32,
     image_height: u32,
+    // The greyscale window of MODE_MIP and MODE_MINIP in transfer-function
+    // coordinates: the value shown black (x) and the span to white (y).
+    window: vec4<f32>,
 }
 
 // Offset each ray's first sample by a per-pixel fraction of a step (hides wood-grain banding).
@@ -67,7 +70,9 @@ const FLAG_CUBIC_GRADIENT: u32 = 32u;
 
 // Front-to-back emission–absorption compositing.
 const MODE_COMPOSITE: u32 = 0u;
-// Maximum intensity projection: the largest value met (among visible ones).
+// Maximum intensity projection: the largest value met (among visible ones),
+// in grey through the window.
 const MODE_MIP: u32 = 1u;
-// Minimum intensity projection: the smallest value met (among visible ones).
+// Minimum intensity projection: the smallest value met (among visible ones),
+// in grey through the window.
 const MODE_MINIP: u32 = 2u;
