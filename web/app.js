@@ -30,6 +30,8 @@ const clipBox = document.getElementById('clip');
 const lightPanel = document.getElementById('light-panel');
 const errorBox = document.getElementById('error');
 const fidelity = document.getElementById('fidelity');
+const statusLine = document.getElementById('status');
+const hint = document.getElementById('hint');
 const lightInputs = Object.fromEntries(
   ['kind', 'drag', 'azimuth', 'elevation', 'distance', 'spot']
     .map((name) => [name, document.getElementById(`light-${name}`)]),
@@ -47,6 +49,7 @@ let stream = null;
 let customTf = null;
 const tfEditor = new TfEditor(document.getElementById('tf'), document.getElementById('tf-colour'), (text) => {
   customTf = text;
+  markEdited();
   requestFrame();
 });
 // Per lit mode: its light as the panel shows it, and its other settings' controls.
@@ -61,8 +64,45 @@ let intensityControl = null;
 // Loads the chosen preset's transfer function into the editor.
 function loadPreset() {
   customTf = null;
+  presetSelect.querySelector('option[value=""]')?.remove();
   const preset = dataset.presets.find((p) => p.name === presetSelect.value);
   if (preset) tfEditor.load(dataset.histogram, dataset.histogram_range, preset.tf);
+}
+
+// An edited transfer function is no preset: the menu says which it was edited
+// from, so choosing that preset again is a change that restores it.
+function markEdited() {
+  let edited = presetSelect.querySelector('option[value=""]');
+  if (!edited) {
+    const from = presetSelect.value;
+    edited = new Option(`${from} (edited)`, '');
+    edited.title = 'The transfer function as edited; choose a preset to go back to it';
+    presetSelect.add(edited, 0);
+  }
+  presetSelect.value = '';
+}
+
+// The status line: plain words for what the image is, the technical
+// figures on hover; the spinner turns while more is still to come.
+function showStatus(words, detail = '', busy = true) {
+  statusLine.textContent = words;
+  fidelity.title = detail;
+  fidelity.classList.toggle('busy', busy);
+}
+
+// What a frame is, in words a radiologist uses.
+function plainStatus(info) {
+  if (info.emptyShare >= 1) {
+    return 'Nothing is visible with this transfer function: widen it, or choose a preset';
+  }
+  const parts = [info.lossless ? 'Still image' : 'Quick preview while the view changes'];
+  if (info.lossless) parts.push(info.reduction <= 1.05 ? 'full detail' : `detail reduced ${info.reduction.toFixed(0)}:1`);
+  if (info.memoryLimited) parts.push('memory allows no more detail');
+  if (info.directions && info.refined < info.directions) {
+    parts.push(`lighting ${Math.round((100 * info.refined) / info.directions)} %`);
+  }
+  if (info.pendingBlocks) parts.push('loading more detail…');
+  return parts.join(' · ');
 }
 
 function drawFrame(bitmap, info) {
@@ -80,10 +120,12 @@ function drawFrame(bitmap, info) {
   const asked = Number(reductionSelect.value);
   const limited = info.memoryLimited ? ` (memory holds no more than this; ${asked}:1 asked)` : '';
   const empty = ` · ${(info.emptyShare * 100).toFixed(0)} % empty`;
-  fidelity.textContent =
+  const detail =
     `${info.width}×${info.height} ${quality} · reduction ${info.reduction.toFixed(1)}:1${limited}${empty}` +
     `${light}${loading} · ` +
     `render ${info.renderMs.toFixed(0)} ms · encode ${info.encodeMs.toFixed(0)} ms${latency}`;
+  const done = info.lossless && info.converged && !info.pendingBlocks;
+  showStatus(plainStatus(info), detail, !done);
   canvas.dataset.frames = String(Number(canvas.dataset.frames || 0) + 1);
 }
 
@@ -97,7 +139,9 @@ function showError(message) {
 // wraps and as its panels open.
 const toolbar = document.getElementById('toolbar');
 function placeBanner() {
-  errorBox.style.top = `${Math.round(toolbar.getBoundingClientRect().bottom + 6)}px`;
+  const below = Math.round(toolbar.getBoundingClientRect().bottom + 6);
+  errorBox.style.top = `${below}px`;
+  document.documentElement.style.setProperty('--panel-top', `${below}px`);
 }
 new ResizeObserver(placeBanner).observe(toolbar);
 
@@ -153,9 +197,18 @@ function buildClipSliders(setting) {
       slider.max = 1000;
       slider.value = Math.round(value * 1000);
       slider.title = `${axis} ${i === 0 ? 'from' : 'to'}`;
+      slider.setAttribute('aria-label', slider.title);
       row.append(slider);
       return slider;
     });
+    const readout = document.createElement('output');
+    const show = () => {
+      const [from, to] = pair.map((p) => Math.round(Number(p.value) / 10));
+      readout.textContent = `${from}–${to} %`;
+    };
+    for (const slider of pair) slider.addEventListener('input', show);
+    show();
+    row.append(readout);
     clipBox.append(row);
     return pair;
   });
@@ -364,6 +417,7 @@ function attachLightDrag() {
 // and renders small lossy frames while they do).
 function requestFrame() {
   if (!dataset || !stream) return;
+  fidelity.classList.add('busy');
   const { size, dpr } = viewport();
   const choices = Object.fromEntries(Object.entries(toolbarSelects).map(([name, s]) => [name, s.value]));
   stream.update({
@@ -419,6 +473,7 @@ function buildDatasetPicker(list) {
 // restart the list may have changed. The current dataset stays if it is
 // still offered; if it is gone, the first is shown, and the user told.
 function adoptHello(message) {
+  if (!canvas.dataset.frames) showStatus(`Drawing the first view of ${dataset ? dataset.name : 'the dataset'}…`);
   const list = message.datasets || [];
   const same = list.length === datasets.length && list.every((d, i) => d.id === datasets[i].id);
   if (same) return;
@@ -437,6 +492,26 @@ function adoptHello(message) {
   camera.reset();
   requestFrame();
   showError(`${current ? current.name : 'the dataset'} is no longer offered by the server: showing ${dataset.name}`);
+}
+
+// The toolbar's panels open one at a time; on phones the menu button folds
+// the toolbar to one row.
+function attachPanels() {
+  const panels = [...toolbar.querySelectorAll(':scope > details')];
+  for (const panel of panels) {
+    panel.addEventListener('toggle', () => {
+      if (!panel.open) return;
+      hint.hidden = true;
+      for (const other of panels) if (other !== panel) other.open = false;
+      placeBanner();
+    });
+  }
+  const menu = document.getElementById('menu');
+  menu.addEventListener('click', () => {
+    const open = toolbar.classList.toggle('open');
+    menu.setAttribute('aria-expanded', String(open));
+    menu.title = open ? 'Hide the controls' : 'Show the controls';
+  });
 }
 
 function attachControls() {
@@ -475,8 +550,37 @@ function attachControls() {
   });
 }
 
+// The interaction hint shows until the user first moves the view or closes
+// it (remembered in this browser); the toolbar's "?" shows it again.
+const HINTED = 'voxserve.hinted';
+function attachHint() {
+  let seen = false;
+  try {
+    seen = localStorage.getItem(HINTED) === '1';
+  } catch {
+    // Storage may be off: the hint shows on every visit.
+  }
+  hint.hidden = seen;
+  const dismiss = () => {
+    hint.hidden = true;
+    try {
+      localStorage.setItem(HINTED, '1');
+    } catch {
+      // As above.
+    }
+  };
+  document.getElementById('hint-close').addEventListener('click', dismiss);
+  canvas.addEventListener('pointerdown', dismiss);
+  canvas.addEventListener('wheel', dismiss, { passive: true });
+  document.getElementById('help').addEventListener('click', () => {
+    hint.hidden = !hint.hidden;
+  });
+}
+
 async function start() {
   resizeCanvas();
+  attachHint();
+  showStatus('Loading the settings and the list of datasets…');
   let offered;
   try {
     await logIn();
@@ -505,7 +609,9 @@ async function start() {
   }, (attempts) => {
     canvas.dataset.attempts = String(attempts);
   });
+  showStatus(`Connecting to the server to show ${dataset.name}…`);
   attachLightDrag();
+  attachPanels();
   attachGestures(canvas, camera, () => requestFrame());
   attachControls();
   showLight();

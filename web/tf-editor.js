@@ -12,6 +12,21 @@
 // takes): `VALUE:RRGGBB:OPACITY,…` in physical units.
 
 const HANDLE = 6;
+// Window/level keeps the middle of what the points show on the histogram's
+// value range, and their spread between these shares of the range wide: a
+// drag can narrow, widen or move the window, never push it off the histogram.
+const MIN_SPREAD = 0.005;
+const MAX_SPREAD = 20;
+
+// The span of values `points` show: from the last point of no opacity before
+// the first with some, to the first of no opacity after the last with some
+// (as the server's `TransferFunction::shown_span`); null when none shows.
+export function shownSpan(points) {
+  const first = points.findIndex((p) => p.opacity > 0);
+  if (first < 0) return null;
+  const last = points.length - 1 - [...points].reverse().findIndex((p) => p.opacity > 0);
+  return [points[Math.max(0, first - 1)].value, points[Math.min(points.length - 1, last + 1)].value];
+}
 
 export function parseTf(text) {
   return text.split(',').map((part) => {
@@ -56,6 +71,7 @@ export class TfEditor {
     this.points = parseTf(text);
     this.selected = -1;
     this.draw();
+    this.canvas.dataset.tf = this.text();
   }
 
   text() {
@@ -100,20 +116,38 @@ export class TfEditor {
   move(e) {
     if (!this.drag) return;
     const at = this.fromEvent(e);
+    const [rangeLo, rangeHi] = this.range;
     if (this.drag.kind === 'point') {
+      // Between its neighbours, and within the histogram's range.
       const i = this.drag.i;
-      const lo = i > 0 ? this.points[i - 1].value : -Infinity;
-      const hi = i + 1 < this.points.length ? this.points[i + 1].value : Infinity;
+      const lo = Math.max(rangeLo, i > 0 ? this.points[i - 1].value : -Infinity);
+      const hi = Math.min(rangeHi, i + 1 < this.points.length ? this.points[i + 1].value : Infinity);
       this.points[i].value = Math.min(hi, Math.max(lo, at.value));
       this.points[i].opacity = at.opacity;
     } else {
-      const { start, original } = this.drag;
-      const shift = at.value - start.value;
-      const scale = Math.exp((at.y - start.y) / 100);
-      const middle = (original[0].value + original[original.length - 1].value) / 2;
-      this.points = original.map((p) => ({ ...p, value: middle + (p.value - middle) * scale + shift }));
+      this.points = this.windowed(this.drag.original, at.value - this.drag.start.value, at.y - this.drag.start.y);
     }
     this.changed();
+  }
+
+  // `original` moved by `shift` (level) and spread by `dy` pixels (window),
+  // kept on the histogram: the middle of what they show within the value
+  // range, and between MIN_SPREAD and MAX_SPREAD of it wide.
+  windowed(original, shift, dy) {
+    const [lo, hi] = this.range;
+    const extent = hi - lo;
+    const middle = (original[0].value + original[original.length - 1].value) / 2;
+    const span = shownSpan(original) || [original[0].value, original[original.length - 1].value];
+    const spread = Math.max(span[1] - span[0], Number.EPSILON);
+    const scale = Math.min(
+      Math.max(Math.exp(dy / 100), (MIN_SPREAD * extent) / spread),
+      Math.max(1, (MAX_SPREAD * extent) / spread),
+    );
+    const moved = original.map((p) => ({ ...p, value: middle + (p.value - middle) * scale + shift }));
+    const [a, b] = shownSpan(moved) || [moved[0].value, moved[moved.length - 1].value];
+    const centre = (a + b) / 2;
+    const fix = Math.min(hi, Math.max(lo, centre)) - centre;
+    return moved.map((p) => ({ ...p, value: p.value + fix }));
   }
 
   up(e) {
@@ -133,14 +167,18 @@ export class TfEditor {
       const index = this.points.findIndex((p) => p.value > at.value);
       const next = index < 0 ? this.points.length : index;
       const neighbour = this.points[Math.min(next, this.points.length - 1)];
-      this.points.splice(next, 0, { value: at.value, colour: neighbour.colour, opacity: at.opacity });
+      const value = Math.min(this.range[1], Math.max(this.range[0], at.value));
+      this.points.splice(next, 0, { value, colour: neighbour.colour, opacity: at.opacity });
       this.selected = next;
     }
     this.changed();
   }
 
+  // After every edit: redraw, keep the text on the canvas (`data-tf`, for
+  // tests and inspection) and tell the page.
   changed() {
     this.draw();
+    this.canvas.dataset.tf = this.text();
     this.onChange(this.text());
   }
 

@@ -21,6 +21,14 @@
 //! the server on the same port without the dataset the page shows: the page
 //! switches to one the new server offers and draws it at its own size.
 //!
+//! At 1400×900 a window/level drag across the transfer-function editor keeps
+//! it on the histogram, and the preset chosen again restores it; the status
+//! line speaks in words, the hint shows how to move the view, panels open
+//! over the image and sliders show their values and apply while moving. At
+//! 390×844 with touch emulation the toolbar folds, panels are a bottom sheet
+//! and controls are at least 40 px tall. Screenshots of both layouts are kept
+//! in `target/tmp/layout-*.png`.
+//!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
 //! it).
@@ -299,6 +307,18 @@ async fn drag(
 /// skipped, with the reason printed) when there is none and
 /// `VOXSERVE_REQUIRE_BROWSER` is not `1`.
 async fn open_browser(test: &str) -> Option<(Driver, Client)> {
+    open_browser_as(test, 640, 480, false).await
+}
+
+/// [`open_browser`] with a window of `width`×`height` CSS pixels; with
+/// `touch`, as a phone: Chromium's mobile emulation of that size with a
+/// touch screen (coarse pointer) at device pixel ratio 3.
+async fn open_browser_as(
+    test: &str,
+    width: u32,
+    height: u32,
+    touch: bool,
+) -> Option<(Driver, Client)> {
     let require = std::env::var("VOXSERVE_REQUIRE_BROWSER").is_ok_and(|v| v == "1");
     let driver = match start_driver() {
         Ok(d) => d,
@@ -310,8 +330,14 @@ async fn open_browser(test: &str) -> Option<(Driver, Client)> {
     };
     let mut capabilities = serde_json::Map::new();
     let mut options = serde_json::json!({
-        "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=640,480"],
+        "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                 format!("--window-size={width},{height}")],
     });
+    if touch {
+        options["mobileEmulation"] = serde_json::json!({
+            "deviceMetrics": {"width": width, "height": height, "pixelRatio": 3.0, "touch": true},
+        });
+    }
     if let Some(chromium) = find("chromium") {
         options["binary"] = serde_json::json!(chromium);
     }
@@ -671,14 +697,15 @@ async fn a_full_server_is_named_and_retried_with_growing_waits_until_a_place_fre
     finish(test, client, result).await;
 }
 
-const FIDELITY: &str = "return document.getElementById('fidelity').textContent;";
+/// The status line's technical figures (its hover text).
+const FIDELITY: &str = "return document.getElementById('fidelity').title;";
 
 /// Whether the page shows a lossless frame of `dataset` as large as its
 /// canvas (1 or 0).
 fn full_frame_of(dataset: &str) -> String {
     format!(
         "const c = document.getElementById('view');
-         const f = document.getElementById('fidelity').textContent;
+         const f = document.getElementById('fidelity').title;
          return document.getElementById('dataset').value === {dataset:?}
            && f.startsWith(`${{c.width}}×${{c.height}} lossless`) ? 1 : 0;"
     )
@@ -738,5 +765,471 @@ async fn after_a_restart_without_its_dataset_the_page_shows_one_the_server_offer
     )
     .await;
     let result = restarted(&client, first).await;
+    finish(test, client, result).await;
+}
+
+/// The string `script` computes in the page ("" if it is not one).
+async fn text(client: &Client, what: &str, script: &str) -> Result<String, String> {
+    Ok(client
+        .execute(script, vec![])
+        .await
+        .map_err(|e| format!("{what}: {e}"))?
+        .as_str()
+        .unwrap_or_default()
+        .to_owned())
+}
+
+/// Runs `script` in the page for its effect.
+async fn run(client: &Client, what: &str, script: &str) -> Result<(), String> {
+    client
+        .execute(script, vec![])
+        .await
+        .map(|_| ())
+        .map_err(|e| format!("{what}: {e}"))
+}
+
+/// Keeps a screenshot of the page as a test artifact, `target/tmp/NAME.png`.
+async fn keep_screenshot(client: &Client, name: &str) -> Result<(), String> {
+    let png = client
+        .screenshot()
+        .await
+        .map_err(|e| format!("screenshot {name}: {e}"))?;
+    let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("{name}.png"));
+    std::fs::write(&path, png).map_err(|e| format!("writing {}: {e}", path.display()))?;
+    println!("screenshot: {}", path.display());
+    Ok(())
+}
+
+/// A server of the phantom (CT in HU, 32³) rendering on the CPU.
+async fn phantom_on_cpu(stream: StreamSettings) -> TestServer {
+    let phantom = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    TestServer::with_backend(shaders::Backend::Cpu, vec![phantom], 1, stream).await
+}
+
+/// The values a transfer function's text shows (`VALUE:RRGGBB:OPACITY,…`),
+/// as `TransferFunction::shown_span` finds them.
+fn shown_span(tf: &str) -> Option<[f32; 2]> {
+    blocks::TransferFunction::parse(tf).ok()?.shown_span()
+}
+
+/// Drags the mouse across the element `id` from its centre, `steps` moves
+/// of `dx` pixels right.
+async fn drag_on(client: &Client, id: &str, steps: u32, dx: f64) -> Result<(), String> {
+    let element = client
+        .find(Locator::Id(id))
+        .await
+        .map_err(|e| format!("#{id}: {e}"))?;
+    let mut drag = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element,
+            duration: None,
+            x: 0.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down { button: 0 });
+    for _ in 0..steps {
+        drag = drag.then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(20)),
+            x: dx,
+            y: 0.0,
+        });
+    }
+    drag = drag.then(PointerAction::Up { button: 0 });
+    client
+        .perform_actions(drag)
+        .await
+        .map_err(|e| format!("dragging on #{id}: {e}"))
+}
+
+const STATUS: &str = "return document.getElementById('status').textContent;";
+/// Whether the view is finished: lossless, converged, nothing loading (1 or 0).
+const FINISHED: &str =
+    "return document.getElementById('fidelity').classList.contains('busy') ? 0 : 1;";
+const EDITED_TF: &str = "return document.getElementById('tf').dataset.tf || '';";
+
+/// Window/level dragged 400 px across keeps the transfer function on the
+/// histogram, the menu says it was edited, and choosing the preset again
+/// restores it.
+async fn tf_drag(client: &Client, server: &TestServer) -> Result<(), String> {
+    client
+        .goto(&server.url("/"))
+        .await
+        .map_err(|e| format!("loading the page: {e}"))?;
+    wait_for(client, "a lit canvas", PIXELS, |v| v >= 1e9).await?;
+    wait_for(client, "the view finished", FINISHED, |v| v == 1.0).await?;
+    let first = pixels(client).await?;
+    let body = reqwest::get(server.url("/api/datasets"))
+        .await
+        .map_err(|e| format!("GET /api/datasets: {e}"))?
+        .bytes()
+        .await
+        .map_err(|e| format!("/api/datasets: {e}"))?;
+    let datasets: serde_json::Value =
+        serde_json::from_slice(&body).map_err(|e| format!("/api/datasets: {e}"))?;
+    let range = [
+        datasets[0]["histogram_range"][0]
+            .as_f64()
+            .unwrap_or(f64::NAN) as f32,
+        datasets[0]["histogram_range"][1]
+            .as_f64()
+            .unwrap_or(f64::NAN) as f32,
+    ];
+    let preset_tf = text(client, "the editor's points", EDITED_TF).await?;
+    run(
+        client,
+        "opening the editor",
+        "document.getElementById('tf-panel').open = true;",
+    )
+    .await?;
+    let frames = number(client, "frames", FRAMES).await?;
+    // 400 px to the left (the panel sits at the window's right edge, where
+    // a drag to the right leaves the window; the editor keeps both ways alike).
+    drag_on(client, "tf", 8, -50.0).await?;
+    let edited = text(client, "the edited points", EDITED_TF).await?;
+    let span = shown_span(&edited).ok_or(format!("the edited {edited} shows nothing"))?;
+    let middle = (span[0] + span[1]) / 2.0;
+    println!("tf drag: {preset_tf} → {edited}; range {range:?}, shown {span:?}");
+    if !(range[0]..=range[1]).contains(&middle) {
+        return Err(format!(
+            "after a 400 px drag the window's middle {middle} left the range {range:?}"
+        ));
+    }
+    let menu = text(
+        client,
+        "the preset menu",
+        "const s = document.getElementById('preset');
+         return `${s.value}|${s.options[s.selectedIndex].text}`;",
+    )
+    .await?;
+    if menu != "|ct-bone (edited)" {
+        return Err(format!(
+            "the preset menu shows '{menu}', expected ct-bone (edited)"
+        ));
+    }
+    wait_for(client, "a frame of the edit", FRAMES, |n| n > frames).await?;
+    let shown = pixels(client).await?;
+    let status = text(client, "the status line", STATUS).await?;
+    println!("tf drag: status '{status}', pixels {shown}");
+    if shown < 1e9 && !status.contains("Nothing is visible") {
+        return Err(format!("a black image with the status '{status}'"));
+    }
+    // Choosing ct-bone again is a change, and restores its points and image.
+    let frames = number(client, "frames", FRAMES).await?;
+    run(
+        client,
+        "choosing ct-bone",
+        "const s = document.getElementById('preset');
+         s.value = 'ct-bone';
+         s.dispatchEvent(new Event('change'));",
+    )
+    .await?;
+    let restored = text(client, "the points", EDITED_TF).await?;
+    if restored != preset_tf {
+        return Err(format!("ct-bone again: {restored}, expected {preset_tf}"));
+    }
+    let options = number(
+        client,
+        "menu entries",
+        "return document.getElementById('preset').options.length;",
+    )
+    .await?;
+    if options != 4.0 {
+        return Err(format!(
+            "{options} presets listed after restoring: the edited entry stays"
+        ));
+    }
+    wait_for(client, "a frame of ct-bone", FRAMES, |n| n > frames).await?;
+    wait_for(client, "the view finished", FINISHED, |v| v == 1.0).await?;
+    let again = pixels(client).await?;
+    if (again - first).abs() > 0.5 {
+        return Err(format!("ct-bone again shows {again}, first {first}"));
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn a_window_level_drag_keeps_the_transfer_function_on_the_histogram_and_the_preset_restores_it()
+ {
+    let test = "a_window_level_drag_keeps_the_transfer_function_on_the_histogram_and_the_preset_restores_it";
+    let Some((_driver, client)) = open_browser_as(test, 1400, 900, false).await else {
+        return;
+    };
+    let server = phantom_on_cpu(StreamSettings::default()).await;
+    let result = tf_drag(&client, &server).await;
+    finish(test, client, result).await;
+}
+
+/// Whether the hint shows (1 or 0).
+const HINT_SHOWN: &str = "return document.getElementById('hint').hidden ? 0 : 1;";
+
+/// Heights: the toolbar's, and every open panel's box (JSON).
+const TOOLBAR_HEIGHT: &str =
+    "return document.getElementById('toolbar').getBoundingClientRect().height;";
+
+/// The controls a finger must hit, shown now, shorter than 40 px (JSON list
+/// of `tag#id height`).
+const SMALL_TARGETS: &str = "const shown = (e) => e.getClientRects().length > 0
+       && getComputedStyle(e).visibility !== 'hidden';
+    const targets = [...document.querySelectorAll(
+      '#toolbar select, #toolbar button, #toolbar summary, #toolbar input[type=range], #toolbar input[type=color]')]
+      .concat([...document.querySelectorAll('#toolbar input[type=checkbox]')].map((c) => c.closest('label') || c));
+    return JSON.stringify(targets.filter(shown)
+      .map((e) => [e.tagName.toLowerCase() + (e.id ? '#' + e.id : ''), e.getBoundingClientRect().height])
+      .filter(([, h]) => h < 40));";
+
+/// Every slider shows its value beside it (the names of those that do not).
+const SILENT_SLIDERS: &str = "return JSON.stringify([...document.querySelectorAll('#toolbar input[type=range]')]
+      .filter((i) => { const o = i.parentElement.querySelector('output'); return !o || o.textContent.trim() === ''; })
+      .map((i) => i.id || i.title));";
+
+/// The status line in words, its figures on hover, the interaction hint,
+/// panels over the image that leave the toolbar's height alone, one open at
+/// a time, sliders that show their values and apply as they move.
+async fn desktop_layout(client: &Client, server: &TestServer) -> Result<(), String> {
+    client
+        .goto(&server.url("/"))
+        .await
+        .map_err(|e| format!("loading the page: {e}"))?;
+    if number(client, "the hint", HINT_SHOWN).await? != 1.0 {
+        return Err("no interaction hint on a first visit".into());
+    }
+    let hint = text(
+        client,
+        "the hint",
+        "return document.getElementById('hint').innerText;",
+    )
+    .await?;
+    if !hint.contains("Drag") || !hint.contains("zoom") || hint.contains("pinch") {
+        return Err(format!("the hint for a mouse says '{hint}'"));
+    }
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    wait_for(client, "the view finished", FINISHED, |v| v == 1.0).await?;
+    let status = text(client, "the status line", STATUS).await?;
+    let figures = text(client, "the figures", FIDELITY).await?;
+    println!("status '{status}'; on hover '{figures}'");
+    if ["reduction", "render", "encode", " ms", "latency"]
+        .iter()
+        .any(|jargon| status.contains(jargon))
+        || !status.starts_with("Still image")
+    {
+        return Err(format!("the status line says '{status}'"));
+    }
+    if !figures.contains("reduction") || !figures.contains("render") {
+        return Err(format!("the hover text says '{figures}'"));
+    }
+    keep_screenshot(client, "layout-1400x900").await?;
+    // A drag on the image puts the hint away, for good; "?" brings it back.
+    drag_across(client).await?;
+    if number(client, "the hint", HINT_SHOWN).await? != 0.0 {
+        return Err("the hint still shows after the view was moved".into());
+    }
+    client
+        .refresh()
+        .await
+        .map_err(|e| format!("reloading: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    if number(client, "the hint", HINT_SHOWN).await? != 0.0 {
+        return Err("the hint shows again after a reload".into());
+    }
+    run(
+        client,
+        "the help button",
+        "document.getElementById('help').click();",
+    )
+    .await?;
+    if number(client, "the hint", HINT_SHOWN).await? != 1.0 {
+        return Err("'?' does not show the hint".into());
+    }
+    run(
+        client,
+        "closing the hint",
+        "document.getElementById('hint-close').click();",
+    )
+    .await?;
+
+    // Global light's panel opens over the image: the toolbar keeps its height.
+    let closed = number(client, "the toolbar", TOOLBAR_HEIGHT).await?;
+    run(
+        client,
+        "global light",
+        "const s = document.getElementById('shading');
+         s.value = 'global';
+         s.dispatchEvent(new Event('change'));
+         document.getElementById('light-panel').open = true;",
+    )
+    .await?;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let open = number(client, "the toolbar", TOOLBAR_HEIGHT).await?;
+    let panel = text(
+        client,
+        "the panel's box",
+        "const r = document.querySelector('#light-panel > div').getBoundingClientRect();
+         const t = document.getElementById('toolbar').getBoundingClientRect();
+         return `${r.top - t.bottom},${innerHeight - r.bottom},${r.height}`;",
+    )
+    .await?;
+    println!(
+        "toolbar {closed} px; with Illumination open {open} px; panel (gap, room below, height) {panel}"
+    );
+    if open > closed + 1.0 || open > 100.0 {
+        return Err(format!(
+            "Illumination makes the toolbar {open} px tall ({closed} px closed)"
+        ));
+    }
+    let place: Vec<f64> = panel.split(',').filter_map(|v| v.parse().ok()).collect();
+    if place.len() != 3 || place[0] < 0.0 || place[1] < 0.0 || place[2] < 50.0 {
+        return Err(format!(
+            "the panel sits at (gap, room below, height) {panel}"
+        ));
+    }
+    keep_screenshot(client, "layout-1400x900-illumination").await?;
+    let silent = text(client, "sliders", SILENT_SLIDERS).await?;
+    if silent != "[]" {
+        return Err(format!("sliders without their value: {silent}"));
+    }
+    // A light slider applies as it moves, before it is let go.
+    let frames = wait_for(client, "frames", FRAMES, |n| n >= 1.0).await?;
+    run(
+        client,
+        "moving the azimuth slider",
+        "const s = document.getElementById('light-azimuth');
+         s.value = String(Number(s.value) + 40);
+         s.dispatchEvent(new Event('input'));",
+    )
+    .await?;
+    wait_for(client, "a frame while the slider moves", FRAMES, |n| {
+        n > frames
+    })
+    .await?;
+    // One panel at a time.
+    run(
+        client,
+        "the clip panel",
+        "document.getElementById('clip-panel').open = true;",
+    )
+    .await?;
+    wait_for(
+        client,
+        "the light panel closed",
+        "return document.getElementById('light-panel').open ? 0 : 1;",
+        |v| v == 1.0,
+    )
+    .await?;
+    Ok(())
+}
+
+#[tokio::test]
+async fn the_status_speaks_plainly_a_hint_shows_how_to_move_and_panels_open_over_the_image() {
+    let test = "the_status_speaks_plainly_a_hint_shows_how_to_move_and_panels_open_over_the_image";
+    let Some((_driver, client)) = open_browser_as(test, 1400, 900, false).await else {
+        return;
+    };
+    let server = phantom_on_cpu(StreamSettings::default()).await;
+    let result = desktop_layout(&client, &server).await;
+    finish(test, client, result).await;
+}
+
+/// On a phone: the toolbar folds to one row, a panel opens as a sheet at the
+/// bottom, every control is at least 40 px tall, nothing is wider than the
+/// screen, and the hint speaks of fingers.
+async fn phone_layout(client: &Client, server: &TestServer) -> Result<(), String> {
+    client
+        .goto(&server.url("/"))
+        .await
+        .map_err(|e| format!("loading the page: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    let coarse = number(
+        client,
+        "the pointer",
+        "return matchMedia('(pointer: coarse)').matches ? 1 : 0;",
+    )
+    .await?;
+    if coarse != 1.0 {
+        return Err("the emulated phone has no coarse pointer".into());
+    }
+    let hint = text(
+        client,
+        "the hint",
+        "return document.getElementById('hint').innerText;",
+    )
+    .await?;
+    if !hint.contains("pinch") || hint.contains("wheel") {
+        return Err(format!("the hint on a phone says '{hint}'"));
+    }
+    let folded = number(client, "the toolbar", TOOLBAR_HEIGHT).await?;
+    let small = text(client, "touch targets", SMALL_TARGETS).await?;
+    let overflow = number(
+        client,
+        "page width over the viewport's",
+        "const d = document.getElementById('dataset').getBoundingClientRect();
+         return Math.max(document.documentElement.scrollWidth - innerWidth, d.right - innerWidth);",
+    )
+    .await?;
+    println!("phone: toolbar {folded} px folded; small targets {small}; overflow {overflow} px");
+    keep_screenshot(client, "layout-390x844").await?;
+    if folded > 60.0 {
+        return Err(format!("the folded toolbar is {folded} px tall"));
+    }
+    if small != "[]" {
+        return Err(format!("controls under 40 px: {small}"));
+    }
+    if overflow > 0.0 {
+        return Err(format!("{overflow} px wider than the screen"));
+    }
+    run(
+        client,
+        "the menu",
+        "document.getElementById('menu').click();
+         const s = document.getElementById('shading');
+         s.value = 'global';
+         s.dispatchEvent(new Event('change'));",
+    )
+    .await?;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let unfolded = number(client, "the toolbar", TOOLBAR_HEIGHT).await?;
+    run(
+        client,
+        "the Illumination panel",
+        "document.getElementById('light-panel').open = true;",
+    )
+    .await?;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let with_panel = number(client, "the toolbar", TOOLBAR_HEIGHT).await?;
+    let sheet = text(
+        client,
+        "the sheet",
+        "const r = document.querySelector('#light-panel > div').getBoundingClientRect();
+         return `${innerHeight - r.bottom},${r.height / innerHeight},${r.left},${innerWidth - r.right}`;",
+    )
+    .await?;
+    let small = text(client, "touch targets", SMALL_TARGETS).await?;
+    println!(
+        "phone: toolbar {unfolded} px unfolded, {with_panel} px with Illumination open; \
+         sheet (gap below, share of height, left, right) {sheet}; small targets {small}"
+    );
+    keep_screenshot(client, "layout-390x844-illumination").await?;
+    if with_panel > unfolded + 1.0 {
+        return Err(format!(
+            "Illumination makes the toolbar {with_panel} px tall ({unfolded} px without)"
+        ));
+    }
+    let place: Vec<f64> = sheet.split(',').filter_map(|v| v.parse().ok()).collect();
+    if place.len() != 4 || place[0].abs() > 1.0 || place[1] > 0.51 || place[2].abs() > 1.0 {
+        return Err(format!("the sheet sits at {sheet}"));
+    }
+    if small != "[]" {
+        return Err(format!("controls under 40 px with the panel open: {small}"));
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn on_a_phone_the_toolbar_folds_panels_are_a_bottom_sheet_and_targets_are_40_px() {
+    let test = "on_a_phone_the_toolbar_folds_panels_are_a_bottom_sheet_and_targets_are_40_px";
+    let Some((_driver, client)) = open_browser_as(test, 390, 844, true).await else {
+        return;
+    };
+    let server = phantom_on_cpu(StreamSettings::default()).await;
+    let result = phone_layout(&client, &server).await;
     finish(test, client, result).await;
 }

@@ -476,7 +476,7 @@ async fn bad_messages_get_errors_and_neither_this_session_nor_another_is_harmed(
     // A transfer function of its own replaces the preset once that is removed (null).
     send(
         &mut a,
-        serde_json::json!({"type": "view", "id": 10, "set": {"preset": "mr"}}),
+        serde_json::json!({"type": "view", "id": 10, "set": {"preset": "ct-angio"}}),
     )
     .await;
     until_converged(&mut a, 10).await;
