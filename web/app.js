@@ -124,7 +124,7 @@ function drawFrame(bitmap, info) {
     `${info.width}×${info.height} ${quality} · reduction ${info.reduction.toFixed(1)}:1${limited}${empty}` +
     `${light}${loading} · ` +
     `render ${info.renderMs.toFixed(0)} ms · encode ${info.encodeMs.toFixed(0)} ms${latency}`;
-  const done = info.lossless && info.converged && !info.pendingBlocks;
+  const done = info.latest && info.lossless && info.converged && !info.pendingBlocks;
   showStatus(plainStatus(info), detail, !done);
   canvas.dataset.frames = String(Number(canvas.dataset.frames || 0) + 1);
 }
@@ -417,10 +417,9 @@ function attachLightDrag() {
 // and renders small lossy frames while they do).
 function requestFrame() {
   if (!dataset || !stream) return;
-  fidelity.classList.add('busy');
   const { size, dpr } = viewport();
   const choices = Object.fromEntries(Object.entries(toolbarSelects).map(([name, s]) => [name, s.value]));
-  stream.update({
+  const sent = stream.update({
     dataset: dataset.id,
     ...camera.params(),
     ...size,
@@ -430,6 +429,7 @@ function requestFrame() {
     clip: clipParam(),
     ...lightParams(),
   }, dpr);
+  if (sent) fidelity.classList.add('busy');
 }
 
 // The dataset picker: the server's datasets, the first chosen.
@@ -439,6 +439,7 @@ let datasets = [];
 // Makes dataset `id` (or the first) the current one, with its presets.
 function chooseDataset(id) {
   dataset = datasets.find((d) => d.id === id) || datasets[0];
+  camera.setRadius(dataset.radius_mm);
   datasetSelect.value = dataset.id;
   presetSelect.replaceChildren();
   for (const preset of dataset.presets) {
@@ -486,6 +487,7 @@ function adoptHello(message) {
   if (current && list.some((d) => d.id === current.id)) {
     dataset = list.find((d) => d.id === current.id);
     datasetSelect.value = dataset.id;
+    camera.setRadius(dataset.radius_mm);
     return;
   }
   chooseDataset(list[0].id);

@@ -157,19 +157,21 @@ export class ViewStream {
     setTimeout(() => this.connect(), delay * 1000);
   }
 
-  // Sets the whole view (settings as in GET /api/render; w and h in CSS pixels).
+  // Sets the whole view (settings as in GET /api/render; w and h in CSS
+  // pixels). Whether a view message went (false: nothing changed, or it goes
+  // once the session is open).
   update(view, dpr) {
     this.view = { ...view };
     this.dpr = dpr;
     if (this.socket.readyState === WebSocket.CLOSED && this.socket.idleClosed) {
       this.connect();
-      return;
+      return false;
     }
-    this.flush();
+    return this.flush();
   }
 
   flush() {
-    if (!this.view || !this.greeted || this.socket.readyState !== WebSocket.OPEN) return;
+    if (!this.view || !this.greeted || this.socket.readyState !== WebSocket.OPEN) return false;
     const set = {};
     for (const [name, value] of Object.entries(this.view)) {
       if (this.sent[name] !== value) set[name] = value;
@@ -178,13 +180,14 @@ export class ViewStream {
     for (const name of Object.keys(this.sent)) {
       if (!(name in this.view)) set[name] = null;
     }
-    if (Object.keys(set).length === 0 && this.sentDpr === this.dpr) return;
+    if (Object.keys(set).length === 0 && this.sentDpr === this.dpr) return false;
     this.id += 1;
     this.sentAt.set(this.id, performance.now());
     this.messages.set(this.id, { names: Object.keys(set), dpr: this.sentDpr !== this.dpr });
     this.socket.send(JSON.stringify({ type: 'view', id: this.id, set, dpr: this.dpr }));
     this.sent = { ...this.view };
     this.sentDpr = this.dpr;
+    return true;
   }
 
   // The server refused view message `id` and kept its settings as they were:
@@ -228,7 +231,12 @@ export class ViewStream {
     const sentAt = this.sentAt.get(header.messageId);
     for (const id of this.sentAt.keys()) if (id < header.messageId) this.sentAt.delete(id);
     for (const id of this.messages.keys()) if (id <= header.messageId) this.messages.delete(id);
-    this.draw(bitmap, { ...header, latencyMs: sentAt === undefined ? NaN : performance.now() - sentAt });
+    this.draw(bitmap, {
+      ...header,
+      latencyMs: sentAt === undefined ? NaN : performance.now() - sentAt,
+      // Whether it shows the last view sent (later ones may be on their way).
+      latest: header.messageId >= this.id,
+    });
     if (this.socket.readyState === WebSocket.OPEN) {
       this.socket.send(JSON.stringify({ type: 'ack', frame: header.frameId }));
     }

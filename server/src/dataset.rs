@@ -59,6 +59,9 @@ pub struct DatasetInfo {
     /// `spacing`, `origin`, `direction`).
     #[serde(flatten)]
     pub geometry: Geometry,
+    /// The radius (mm) of the sphere about the volume's centre that holds
+    /// it: the unit of the camera's `dist`, and what clients pan and zoom by.
+    pub radius_mm: f32,
     /// 16³ blocks along x, y, z.
     pub blocks: [u32; 3],
     /// `uint8`, `uint16`, …
@@ -227,6 +230,7 @@ impl Dataset {
             id: self.id.clone(),
             name: m.name.clone(),
             geometry: m.geometry,
+            radius_mm: shaders::raycast::VolumePlacement::of_geometry(&m.geometry).radius(),
             blocks: m.blocks,
             voxel_type: m.voxel_type.clone(),
             value_range: m.value_range(),

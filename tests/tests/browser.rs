@@ -27,7 +27,9 @@
 //! over the image and sliders show their values and apply while moving. At
 //! 390×844 with touch emulation the toolbar folds, panels are a bottom sheet
 //! and controls are at least 40 px tall. Screenshots of both layouts are kept
-//! in `target/tmp/layout-*.png`.
+//! in `target/tmp/layout-*.png`. On the ball, the wheel zooms keeping the
+//! point under the cursor in place, a right drag pans by as many pixels, and
+//! the keyboard alone focuses the view, zooms, orbits and resets it.
 //!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
@@ -1231,5 +1233,164 @@ async fn on_a_phone_the_toolbar_folds_panels_are_a_bottom_sheet_and_targets_are_
     };
     let server = phantom_on_cpu(StreamSettings::default()).await;
     let result = phone_layout(&client, &server).await;
+    finish(test, client, result).await;
+}
+
+/// The lit pixels' centroid as fractions of the canvas, and their extent.
+async fn ball_place(client: &Client, when: &str) -> Result<(f64, f64, f64), String> {
+    wait_for(client, when, FINISHED, |v| v == 1.0).await?;
+    let centroid = number(client, when, CENTROID).await?;
+    if centroid < 0.0 {
+        return Err(format!("{when}: nothing shows"));
+    }
+    let extent = number(client, when, EXTENT).await?;
+    Ok((
+        (centroid / 1e3).round() / 1e3,
+        (centroid % 1e3) / 1e3,
+        extent,
+    ))
+}
+
+/// Waits for a frame after `frames`, then for the view to finish, and says
+/// where the ball is.
+async fn ball_after(client: &Client, frames: f64, when: &str) -> Result<(f64, f64, f64), String> {
+    wait_for(client, when, FRAMES, |n| n > frames).await?;
+    let place = ball_place(client, when).await?;
+    println!(
+        "{when}: ball at ({:.3}, {:.3}), extent {:.3}",
+        place.0, place.1, place.2
+    );
+    Ok(place)
+}
+
+/// Sends `keys` to the page's focused element.
+async fn press(client: &Client, keys: &str) -> Result<(), String> {
+    client
+        .active_element()
+        .await
+        .map_err(|e| format!("the focused element: {e}"))?
+        .send_keys(keys)
+        .await
+        .map_err(|e| format!("pressing {keys:?}: {e}"))
+}
+
+/// The wheel zooms towards the cursor, a right drag pans, and the view
+/// works from the keyboard: Tab focuses it, + zooms, arrows orbit, R resets.
+async fn pan_zoom_keys(client: &Client, url: &str) -> Result<(), String> {
+    client
+        .goto(url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    let (x0, y0, e0) = ball_place(client, "the first view").await?;
+    println!("first view: ball at ({x0:.3}, {y0:.3}), extent {e0:.3}");
+    // Zoom in with the cursor a quarter of the width left of the centre:
+    // the ball grows and moves away from the cursor, to the right.
+    let frames = number(client, "frames", FRAMES).await?;
+    run(
+        client,
+        "zooming in at the left",
+        "const c = document.getElementById('view');
+         const r = c.getBoundingClientRect();
+         c.dispatchEvent(new WheelEvent('wheel', { deltaY: -400, cancelable: true,
+           clientX: r.left + r.width * 0.25, clientY: r.top + r.height / 2 }));",
+    )
+    .await?;
+    let (x1, _, e1) = ball_after(client, frames, "zoomed in at the left").await?;
+    // Kept in place under the cursor: the ball's offset from it grows by the zoom.
+    let expected = 0.25 + (x0 - 0.25) * e1 / e0;
+    if e1 < e0 * 1.2 || (x1 - expected).abs() > 0.05 {
+        return Err(format!(
+            "zoomed in at x 0.25: the ball went from {x0:.3} (extent {e0:.3}) to {x1:.3} \
+             (extent {e1:.3}); expected about {expected:.3}"
+        ));
+    }
+    // Keyboard alone: Tab focuses the view (first in the page), R resets.
+    client
+        .find(Locator::Css("body"))
+        .await
+        .map_err(|e| format!("the page: {e}"))?
+        .send_keys("\u{E004}")
+        .await
+        .map_err(|e| format!("Tab: {e}"))?;
+    let focused = text(client, "the focus", "return document.activeElement.id;").await?;
+    if focused != "view" {
+        return Err(format!("Tab focused '{focused}', not the view"));
+    }
+    let frames = number(client, "frames", FRAMES).await?;
+    press(client, "r").await?;
+    let (x2, y2, e2) = ball_after(client, frames, "R").await?;
+    if (x2 - x0).abs() > 0.03 || (y2 - y0).abs() > 0.03 || (e2 - e0).abs() > 0.05 {
+        return Err(format!("R: the ball at ({x2:.3}, {y2:.3}), extent {e2:.3}"));
+    }
+    let frames = number(client, "frames", FRAMES).await?;
+    press(client, "++").await?;
+    let (_, _, e3) = ball_after(client, frames, "+ +").await?;
+    if e3 < e2 * 1.15 {
+        return Err(format!("+ +: extent {e2:.3} → {e3:.3}"));
+    }
+    let frames = number(client, "frames", FRAMES).await?;
+    let before = pixels(client).await?;
+    press(client, "\u{E012}\u{E012}").await?;
+    wait_for(client, "a frame after ←", FRAMES, |n| n > frames).await?;
+    wait_for(client, "the orbited view", PIXELS, |v| {
+        (v - before).abs() > 0.5
+    })
+    .await?;
+    let frames = number(client, "frames", FRAMES).await?;
+    press(client, "r").await?;
+    ball_after(client, frames, "R again").await?;
+    // A right drag of 100 px to the right pans: the ball follows the pointer.
+    let width = number(
+        client,
+        "the view's width",
+        "return document.getElementById('view').getBoundingClientRect().width;",
+    )
+    .await?;
+    let (x4, y4, _) = ball_place(client, "before the pan").await?;
+    let frames = number(client, "frames", FRAMES).await?;
+    let canvas = client
+        .find(Locator::Id("view"))
+        .await
+        .map_err(|e| format!("the canvas: {e}"))?;
+    let mut drag = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: canvas,
+            duration: None,
+            x: 0.0,
+            y: 0.0,
+        })
+        .then(PointerAction::Down { button: 2 });
+    for _ in 0..4 {
+        drag = drag.then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(30)),
+            x: 25.0,
+            y: 0.0,
+        });
+    }
+    drag = drag.then(PointerAction::Up { button: 2 });
+    client
+        .perform_actions(drag)
+        .await
+        .map_err(|e| format!("right-dragging: {e}"))?;
+    let (x5, y5, _) = ball_after(client, frames, "panned 100 px right").await?;
+    let moved = (x5 - x4) * width;
+    if (moved - 100.0).abs() > 15.0 || (y5 - y4).abs() > 0.03 {
+        return Err(format!(
+            "a 100 px right drag moved the ball {moved:.0} px across and {:.3} down",
+            y5 - y4
+        ));
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn the_wheel_zooms_where_it_points_a_right_drag_pans_and_keys_move_the_view() {
+    let test = "the_wheel_zooms_where_it_points_a_right_drag_pans_and_keys_move_the_view";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let server = TestServer::serving(ball_state(StreamSettings::default())).await;
+    let result = pan_zoom_keys(&client, &server.url("/")).await;
     finish(test, client, result).await;
 }

@@ -276,6 +276,21 @@ async fn the_web_client_and_dataset_list_are_served() {
     assert_eq!(phantom["id"], "phantom");
     assert_eq!(phantom["dims"], serde_json::json!([32, 32, 32]));
     assert_eq!(phantom["unit"], "HU");
+    // The camera's unit of distance: half the diagonal of the volume's box.
+    let half_diagonal = (0..3)
+        .map(|a| {
+            let side = phantom["dims"][a].as_f64().unwrap_or(0.0)
+                * phantom["spacing"][a].as_f64().unwrap_or(0.0);
+            side * side
+        })
+        .sum::<f64>()
+        .sqrt()
+        / 2.0;
+    let radius = phantom["radius_mm"].as_f64().unwrap_or(0.0);
+    assert!(
+        (radius - half_diagonal).abs() < 1e-3 * half_diagonal,
+        "radius_mm {radius}, half diagonal {half_diagonal}"
+    );
     assert_eq!(phantom["default_preset"], "ct-bone");
     assert!(phantom["presets"].as_array().is_some_and(|p| p.len() == 4));
     // The histogram counts every voxel once, over the value range in HU.
