@@ -105,8 +105,10 @@ function plainStatus(info) {
   return parts.join(' · ');
 }
 
-function drawFrame(bitmap, info) {
+function drawFrame(bitmap, info, blob) {
   errorBox.hidden = true;
+  if (info.latest && info.lossless) savedFrame = { blob, info };
+  document.getElementById('save').disabled = !savedFrame;
   context.imageSmoothingEnabled = true;
   context.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
   bitmap.close();
@@ -413,23 +415,193 @@ function attachLightDrag() {
   }, { capture: true, passive: false });
 }
 
-// Sends the view; the server renders what it needs (it sees the messages come
-// and renders small lossy frames while they do).
-function requestFrame() {
-  if (!dataset || !stream) return;
-  const { size, dpr } = viewport();
+// The whole view as the controls and the camera hold it (view settings by name).
+function currentView() {
   const choices = Object.fromEntries(Object.entries(toolbarSelects).map(([name, s]) => [name, s.value]));
-  const sent = stream.update({
+  return {
     dataset: dataset.id,
     ...camera.params(),
-    ...size,
+    ...viewport().size,
     ...(customTf ? { tf: customTf } : { preset: presetSelect.value }),
     ...choices,
     reduction: Number(reductionSelect.value),
     clip: clipParam(),
     ...lightParams(),
-  }, dpr);
-  if (sent) fidelity.classList.add('busy');
+  };
+}
+
+// Sends the view; the server renders what it needs (it sees the messages come
+// and renders small lossy frames while they do).
+function requestFrame() {
+  if (!dataset || !stream) return;
+  const view = currentView();
+  const sent = stream.update(view, viewport().dpr);
+  if (sent) {
+    fidelity.classList.add('busy');
+    savedFrame = null;
+    document.getElementById('save').disabled = true;
+  }
+  linkView(view);
+  showOrientation();
+}
+
+// The view in the address, so a link reproduces it: every setting sent but
+// the image size (the window's) and a pending fit, as the hash's query with
+// the settings' own names and text forms.
+const UNLINKED = new Set(['w', 'h', 'fit']);
+function linkView(view) {
+  const params = new URLSearchParams();
+  // Until a fit is answered, the camera is the server's to choose.
+  const unsettled = view.fit ? new Set(Object.keys(camera.params())) : new Set();
+  for (const [name, value] of Object.entries(view)) {
+    if (!UNLINKED.has(name) && !unsettled.has(name)) params.set(name, String(value));
+  }
+  const address = `${location.pathname}${location.search}#${params}`;
+  if (address !== `${location.pathname}${location.search}${location.hash}`) {
+    history.replaceState(null, '', address);
+  }
+}
+
+// A linked value typed as its setting takes it.
+function typed(name, text) {
+  const setting = schema.settings.get(name);
+  if (!setting) return text;
+  if (['number', 'whole', 'one_of'].includes(setting.kind)) return Number(text);
+  if (setting.kind === 'bool') return text === 'true';
+  return text;
+}
+
+// Sets the controls and the camera from a link's hash (before the first
+// view goes); the server checks every value as from any other client.
+function applyLink() {
+  const params = new URLSearchParams(location.hash.slice(1));
+  const get = (name) => params.get(name);
+  if (![...params.keys()].some((name) => schema.settings.has(name))) return;
+  if (get('dataset') !== null) chooseDataset(get('dataset'));
+  if (get('preset') !== null && dataset.presets.some((p) => p.name === get('preset'))) {
+    presetSelect.value = get('preset');
+    loadPreset();
+  }
+  if (get('tf') !== null) {
+    tfEditor.load(dataset.histogram, dataset.histogram_range, get('tf'));
+    customTf = get('tf');
+    markEdited();
+  }
+  for (const [name, select] of Object.entries(toolbarSelects)) {
+    if (get(name) !== null) select.value = get(name);
+  }
+  if (get('reduction') !== null) {
+    const r = get('reduction');
+    if (![...reductionSelect.options].some((o) => o.value === r)) reductionSelect.add(new Option(`${r}:1`, r));
+    reductionSelect.value = r;
+  }
+  if (get('clip') !== null) {
+    const values = get('clip').split(',').map(Number);
+    clipSliders.forEach((pair, axis) => {
+      pair[0].value = Math.round(values[axis] * 1000);
+      pair[1].value = Math.round(values[axis + 3] * 1000);
+      pair[0].dispatchEvent(new Event('input'));
+    });
+  }
+  const cameraNames = ['az', 'el', 'dist', 'tx', 'ty', 'tz'];
+  if (cameraNames.some((name) => get(name) !== null)) {
+    const set = Object.fromEntries(cameraNames.filter((n) => get(n) !== null).map((n) => [n, Number(get(n))]));
+    if ('az' in set) camera.az = set.az;
+    if ('el' in set) camera.el = set.el;
+    camera.adopt(set);
+  }
+  if (get('light') !== null) {
+    modes.global.light = {
+      ...placement(get('light')),
+      colour: get('light_colour') ?? modes.global.light.colour,
+      intensity: get('light_intensity') !== null ? Number(get('light_intensity')) : modes.global.light.intensity,
+    };
+  }
+  if (get('lights')) {
+    const parts = get('lights').split(';')[0].split(':');
+    const fields = parts[0] === 'spot' ? 4 : 2;
+    modes.extinction.light = {
+      ...placement(parts.slice(0, fields).join(':')),
+      colour: parts[fields] || modes.extinction.light.colour,
+      intensity: parts[fields + 1] === undefined ? modes.extinction.light.intensity : Number(parts[fields + 1]),
+    };
+  }
+  for (const mode of Object.values(modes)) {
+    for (const c of mode.controls) {
+      const value = get(c.dataset.setting);
+      if (value !== null) c.setting.value = typed(c.dataset.setting, value);
+    }
+  }
+}
+
+// The patient's directions (LPS: +x left, +y posterior, +z superior) as
+// letters, and the labels of each edge of the view: the one or two
+// directions a screen direction is closest to (two when it is oblique).
+const DIRECTIONS = [['L', 'R'], ['P', 'A'], ['S', 'I']];
+function directionLetters(v) {
+  const order = [0, 1, 2].sort((a, b) => Math.abs(v[b]) - Math.abs(v[a]));
+  const letter = (axis) => DIRECTIONS[axis][v[axis] >= 0 ? 0 : 1];
+  const first = letter(order[0]);
+  return Math.abs(v[order[1]]) > 0.38 ? first + letter(order[1]) : first;
+}
+
+// Orientation labels at the view's edges and a scale bar in mm (at the
+// camera's target, the depth the view turns about).
+const SCALE_STEPS = [1, 2, 5];
+function showOrientation() {
+  const { right, up } = camera.axes();
+  const neg = (v) => v.map((c) => -c);
+  const edges = { right, left: neg(right), top: up, bottom: neg(up) };
+  for (const [edge, v] of Object.entries(edges)) {
+    document.getElementById(`orient-${edge}`).textContent = directionLetters(v);
+  }
+  const mmPerPixel = camera.mmPerPixel(canvas.clientHeight);
+  // The longest 1, 2 or 5 × 10^k mm bar within 120 CSS pixels.
+  let best = null;
+  for (let k = -3; k <= 5; k += 1) {
+    for (const step of SCALE_STEPS) {
+      const mm = step * 10 ** k;
+      if (mm / mmPerPixel <= 120) best = mm;
+    }
+  }
+  const bar = document.getElementById('scale');
+  if (!best) {
+    bar.hidden = true;
+    return;
+  }
+  bar.hidden = false;
+  bar.querySelector('div').style.width = `${(best / mmPerPixel).toFixed(1)}px`;
+  bar.querySelector('span').textContent = `${Number(best.toPrecision(2))} mm`;
+}
+
+// The last lossless frame of the view sent last (as the server encoded it,
+// lossless WebP or PNG), for the Save image button.
+let savedFrame = null;
+
+// Downloads that frame as a PNG, the same pixels.
+async function saveImage() {
+  if (!savedFrame) {
+    showError('no full frame yet: wait until the image is still and lossless');
+    return;
+  }
+  const { blob, info } = savedFrame;
+  let png = blob;
+  if (blob.type !== 'image/png') {
+    const bitmap = await createImageBitmap(blob);
+    const canvas2 = new OffscreenCanvas(info.width, info.height);
+    canvas2.getContext('2d').drawImage(bitmap, 0, 0);
+    bitmap.close();
+    png = await canvas2.convertToBlob({ type: 'image/png' });
+  }
+  const link = document.getElementById('download');
+  if (link.href) URL.revokeObjectURL(link.href);
+  link.href = URL.createObjectURL(png);
+  // What was saved stays on the link for inspection (the page's CSP lets it
+  // fetch nothing but its server, blob: addresses included).
+  link.saved = png;
+  const stamp = new Date().toISOString().replace(/[:.]/g, '-');
+  link.download = `voxserve-${dataset.id}-${stamp}.png`;
+  link.click();
 }
 
 // The dataset picker: the server's datasets, the first chosen.
@@ -542,6 +714,14 @@ function attachControls() {
     showLightPanel();
     requestFrame();
   });
+  document.getElementById('save').addEventListener('click', saveImage);
+  // A link pasted into this tab's address bar changes only the hash.
+  window.addEventListener('hashchange', () => {
+    applyLink();
+    showLight();
+    showLightPanel();
+    requestFrame();
+  });
   document.getElementById('reset').addEventListener('click', () => {
     camera.reset();
     requestFrame();
@@ -605,8 +785,11 @@ async function start() {
   buildLightPanel();
   defaultLights();
   buildDatasetPicker(offered);
+  applyLink();
   stream = new ViewStream(drawFrame, showError, adoptHello, (set) => {
     camera.adopt(set);
+    linkView(currentView());
+    showOrientation();
     return camera.params();
   }, (attempts) => {
     canvas.dataset.attempts = String(attempts);

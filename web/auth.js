@@ -52,12 +52,15 @@ function cleanUrl() {
   return url;
 }
 
+// Exchanges the login's code for a token; puts back the view the address
+// held before the login (its hash: a redirect URI carries none).
 async function exchange(oidc, code, state) {
   const saved = JSON.parse(sessionStorage.getItem(PKCE_KEY) || 'null');
   sessionStorage.removeItem(PKCE_KEY);
   if (!saved || saved.state !== state) {
     throw new Error('the login came back with a state this page did not send: log in again');
   }
+  if (saved.view) history.replaceState(null, '', `${cleanUrl().toString()}${saved.view}`);
   const body = new URLSearchParams({
     grant_type: 'authorization_code',
     code,
@@ -77,8 +80,11 @@ async function redirectToLogin(oidc) {
   const verifier = randomText(32);
   const digest = await crypto.subtle.digest('SHA-256', new TextEncoder().encode(verifier));
   const state = randomText(16);
-  const redirectUri = cleanUrl().toString();
-  sessionStorage.setItem(PKCE_KEY, JSON.stringify({ verifier, state, redirect_uri: redirectUri }));
+  const back = cleanUrl();
+  const view = back.hash;
+  back.hash = '';
+  const redirectUri = back.toString();
+  sessionStorage.setItem(PKCE_KEY, JSON.stringify({ verifier, state, redirect_uri: redirectUri, view }));
   const url = new URL(oidc.authorization_endpoint);
   url.search = new URLSearchParams({
     response_type: 'code',

@@ -64,7 +64,7 @@ export function parseHeader(buffer) {
 }
 
 export class ViewStream {
-  // `draw(bitmap, info)` shows a frame, `fail(message)` reports an error,
+  // `draw(bitmap, info, blob)` shows a frame (the blob: its encoded image), `fail(message)` reports an error,
   // `hello(message)` receives the server's greeting (dataset, settings),
   // `camera(set)` takes the camera a fit chose and returns the view settings
   // the client now holds for it (the server has them: they are not sent back);
@@ -227,7 +227,8 @@ export class ViewStream {
       return;
     }
     const type = ENCODINGS[header.encoding] || 'application/octet-stream';
-    const bitmap = await createImageBitmap(new Blob([new Uint8Array(data, HEADER_LEN)], { type }));
+    const blob = new Blob([new Uint8Array(data, HEADER_LEN)], { type });
+    const bitmap = await createImageBitmap(blob);
     const sentAt = this.sentAt.get(header.messageId);
     for (const id of this.sentAt.keys()) if (id < header.messageId) this.sentAt.delete(id);
     for (const id of this.messages.keys()) if (id <= header.messageId) this.messages.delete(id);
@@ -236,7 +237,7 @@ export class ViewStream {
       latencyMs: sentAt === undefined ? NaN : performance.now() - sentAt,
       // Whether it shows the last view sent (later ones may be on their way).
       latest: header.messageId >= this.id,
-    });
+    }, blob);
     if (this.socket.readyState === WebSocket.OPEN) {
       this.socket.send(JSON.stringify({ type: 'ack', frame: header.frameId }));
     }

@@ -29,7 +29,10 @@
 //! and controls are at least 40 px tall. Screenshots of both layouts are kept
 //! in `target/tmp/layout-*.png`. On the ball, the wheel zooms keeping the
 //! point under the cursor in place, a right drag pans by as many pixels, and
-//! the keyboard alone focuses the view, zooms, orbits and resets it.
+//! the keyboard alone focuses the view, zooms, orbits and resets it. A link
+//! copied from one tab reproduces the lossless frame in another, pixel for
+//! pixel; Save image gives it as a PNG; the view's edges name the patient's
+//! directions; the scale bar measures mm at the target.
 //!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
@@ -1392,5 +1395,219 @@ async fn the_wheel_zooms_where_it_points_a_right_drag_pans_and_keys_move_the_vie
     };
     let server = TestServer::serving(ball_state(StreamSettings::default())).await;
     let result = pan_zoom_keys(&client, &server.url("/")).await;
+    finish(test, client, result).await;
+}
+
+/// An FNV-1a hash of every pixel of the canvas (its whole image, exactly).
+const CANVAS_HASH: &str = "const c = document.getElementById('view');
+    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let h = 2166136261;
+    for (let i = 0; i < d.length; i += 1) { h ^= d[i]; h = Math.imul(h, 16777619) >>> 0; }
+    return h;";
+
+/// The labels at the view's edges, `left right top bottom`.
+const ORIENTATION: &str = "return ['left', 'right', 'top', 'bottom']
+      .map((e) => document.getElementById(`orient-${e}`).textContent).join(' ');";
+
+/// A link copied from one tab reproduces the same lossless frame in another,
+/// pixel for pixel; Save image gives that frame as a PNG of its size; the
+/// view's edges name the patient's directions; the scale bar measures mm.
+async fn sharing(client: &Client, server: &TestServer) -> Result<(), String> {
+    client
+        .goto(&server.url("/"))
+        .await
+        .map_err(|e| format!("loading the page: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    wait_for(client, "the first view", FINISHED, |v| v == 1.0).await?;
+    drag_across(client).await?;
+    let frames = number(client, "frames", FRAMES).await?;
+    run(
+        client,
+        "changing the view",
+        "const set = (id, value) => { const s = document.getElementById(id); s.value = value; s.dispatchEvent(new Event('change')); };
+         set('preset', 'ct-soft-tissue');
+         set('shading', 'unshaded');
+         set('reduction', '4');
+         const x0 = document.querySelector('#clip input');
+         x0.value = '150';
+         x0.dispatchEvent(new Event('input'));",
+    )
+    .await?;
+    wait_for(client, "a frame of the new view", FRAMES, |n| n > frames).await?;
+    wait_for(client, "the new view finished", FINISHED, |v| v == 1.0).await?;
+    let href = text(client, "the address", "return location.href;").await?;
+    let hash = number(client, "the image", CANVAS_HASH).await?;
+    println!("link: {href}");
+    for part in [
+        "preset=ct-soft-tissue",
+        "shading=unshaded",
+        "reduction=4",
+        "clip=0.15",
+        "az=",
+        "dataset=phantom",
+    ] {
+        if !href.contains(part) {
+            return Err(format!("the address {href} lacks {part}"));
+        }
+    }
+    // Save image: the full lossless frame as PNG, the canvas's size.
+    run(
+        client,
+        "Save image",
+        "document.getElementById('save').click();",
+    )
+    .await?;
+    wait_for(
+        client,
+        "the saved image",
+        "return document.getElementById('download').saved ? 1 : 0;",
+        |v| v == 1.0,
+    )
+    .await?;
+    let png = client
+        .execute_async(
+            "const done = arguments[arguments.length - 1];
+             document.getElementById('download').saved.arrayBuffer()
+               .then((b) => { const v = new DataView(b);
+                 const c = document.getElementById('view');
+                 done([v.getUint32(0), v.getUint32(16), v.getUint32(20), c.width, c.height,
+                       document.getElementById('download').download]); })
+               .catch((e) => done(String(e)));",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("reading the saved image: {e}"))?;
+    println!("saved image (signature, width, height, canvas width, height, name): {png}");
+    let values: Vec<f64> = png
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .take(5)
+                .filter_map(serde_json::Value::as_f64)
+                .collect()
+        })
+        .unwrap_or_default();
+    if values.len() != 5
+        || values[0] != f64::from(0x8950_4e47_u32)
+        || values[1] != values[3]
+        || values[2] != values[4]
+    {
+        return Err(format!(
+            "the saved image is {png}: expected a PNG of the canvas's size"
+        ));
+    }
+    // The same view in a second tab, from the address alone.
+    let first_tab = client
+        .window()
+        .await
+        .map_err(|e| format!("this tab: {e}"))?;
+    let tab = client
+        .new_window(true)
+        .await
+        .map_err(|e| format!("a new tab: {e}"))?;
+    client
+        .switch_to_window(tab.handle)
+        .await
+        .map_err(|e| format!("switching tabs: {e}"))?;
+    client
+        .goto(&href)
+        .await
+        .map_err(|e| format!("opening the link: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    wait_for(client, "the linked view", FINISHED, |v| v == 1.0).await?;
+    let again = number(client, "the linked image", CANVAS_HASH).await?;
+    let controls = text(
+        client,
+        "the controls",
+        "return ['preset', 'shading', 'reduction'].map((id) => document.getElementById(id).value).join(' ');",
+    )
+    .await?;
+    println!("second tab: controls {controls}; image hash {again} (first {hash})");
+    if controls != "ct-soft-tissue unshaded 4" {
+        return Err(format!("the linked page's controls read {controls}"));
+    }
+    if again != hash {
+        return Err(format!(
+            "the linked view's image differs (hash {again}, first {hash})"
+        ));
+    }
+    client
+        .close_window()
+        .await
+        .map_err(|e| format!("closing the tab: {e}"))?;
+    client
+        .switch_to_window(first_tab)
+        .await
+        .map_err(|e| format!("back to the first tab: {e}"))?;
+    // Facing the patient (azimuth 0): their right on the image's left.
+    for (camera, expected) in [("az=0&el=0", "R L S I"), ("az=90&el=0", "A P S I")] {
+        let url = server.url(&format!("/#dataset=phantom&{camera}&dist=3&tx=0&ty=0&tz=0"));
+        client
+            .goto(&url)
+            .await
+            .map_err(|e| format!("loading {url}: {e}"))?;
+        wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+        let labels = text(client, "the orientation", ORIENTATION).await?;
+        if labels != expected {
+            return Err(format!(
+                "at {camera} the edges read '{labels}', expected '{expected}'"
+            ));
+        }
+    }
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    keep_screenshot(client, "orientation-az90").await?;
+    // The scale bar: its label over its length is the mm per pixel at the
+    // target (distance 3 radii, the default field of view).
+    let scale = text(
+        client,
+        "the scale bar",
+        "const s = document.getElementById('scale');
+         return `${s.querySelector('span').textContent}|${parseFloat(s.querySelector('div').style.width)}|${document.getElementById('view').clientHeight}`;",
+    )
+    .await?;
+    let body = reqwest::get(server.url("/api/datasets"))
+        .await
+        .map_err(|e| format!("GET /api/datasets: {e}"))?
+        .bytes()
+        .await
+        .map_err(|e| format!("/api/datasets: {e}"))?;
+    let datasets: serde_json::Value =
+        serde_json::from_slice(&body).map_err(|e| format!("/api/datasets: {e}"))?;
+    let radius = datasets[0]["radius_mm"].as_f64().unwrap_or(f64::NAN);
+    let parts: Vec<&str> = scale.split('|').collect();
+    let mm: f64 = parts[0].trim_end_matches(" mm").parse().unwrap_or(f64::NAN);
+    let (bar, height): (f64, f64) = (
+        parts
+            .get(1)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(f64::NAN),
+        parts
+            .get(2)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(f64::NAN),
+    );
+    let expected = 2.0 * 3.0 * radius * (15f64).to_radians().tan() / height;
+    println!(
+        "scale bar: {mm} mm over {bar} px; {:.4} mm per px, expected {expected:.4}",
+        mm / bar
+    );
+    if ((mm / bar) / expected - 1.0).abs() > 0.005 {
+        return Err(format!(
+            "the scale bar says {scale}: {} mm per px, expected {expected}",
+            mm / bar
+        ));
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn a_link_reproduces_the_view_pixel_for_pixel_and_the_edges_name_the_patients_directions() {
+    let test =
+        "a_link_reproduces_the_view_pixel_for_pixel_and_the_edges_name_the_patients_directions";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let server = phantom_on_cpu(StreamSettings::default()).await;
+    let result = sharing(&client, &server).await;
     finish(test, client, result).await;
 }
