@@ -608,10 +608,69 @@ async function saveImage() {
 const datasetSelect = document.getElementById('dataset');
 let datasets = [];
 
+// A DICOM person name (family^given^middle^prefix^suffix) as people write it.
+function personName(pn) {
+  const [family = '', given = '', middle = '', prefix = '', suffix = ''] = pn.split('=')[0].split('^');
+  const first = [prefix, given, middle].filter(Boolean).join(' ');
+  return [family, first].filter(Boolean).join(', ') + (suffix ? ` ${suffix}` : '');
+}
+
+// A DICOM date (YYYYMMDD) as ISO 8601, unambiguous in every country.
+function isoDate(da) {
+  return /^\d{8}$/.test(da) ? `${da.slice(0, 4)}-${da.slice(4, 6)}-${da.slice(6)}` : da;
+}
+
+// The patient and the study of the current dataset in the image's corners.
+function showContext() {
+  const s = dataset.study || {};
+  const patient = [
+    s.patient_name ? personName(s.patient_name) : '',
+    s.patient_id ? `ID ${s.patient_id}` : '',
+    s.patient_birth_date ? `born ${isoDate(s.patient_birth_date)}` : '',
+  ];
+  const thickness = s.slice_thickness_mm ? `${Number(s.slice_thickness_mm.toPrecision(3))} mm slices` : '';
+  const study = [
+    s.study_date ? isoDate(s.study_date) : '',
+    s.study_description || '',
+    s.series_description || dataset.name,
+    [dataset.modality, thickness].filter(Boolean).join(' · '),
+  ];
+  document.getElementById('context-patient').textContent = patient.filter(Boolean).join('\n');
+  document.getElementById('context-study').textContent = study.filter(Boolean).join('\n');
+}
+
+// The Info button shows or hides the corners (remembered in this browser).
+const CONTEXT_SHOWN = 'voxserve.context';
+function attachContext() {
+  const box = document.getElementById('context');
+  const button = document.getElementById('context-toggle');
+  const show = (on) => {
+    box.hidden = !on;
+    button.setAttribute('aria-pressed', String(on));
+  };
+  let on = true;
+  try {
+    on = localStorage.getItem(CONTEXT_SHOWN) !== '0';
+  } catch {
+    // Storage may be off: shown.
+  }
+  show(on);
+  button.addEventListener('click', () => {
+    on = box.hidden;
+    show(on);
+    try {
+      localStorage.setItem(CONTEXT_SHOWN, on ? '1' : '0');
+    } catch {
+      // As above.
+    }
+  });
+}
+
 // Makes dataset `id` (or the first) the current one, with its presets.
 function chooseDataset(id) {
   dataset = datasets.find((d) => d.id === id) || datasets[0];
   camera.setRadius(dataset.radius_mm);
+  showContext();
   datasetSelect.value = dataset.id;
   presetSelect.replaceChildren();
   for (const preset of dataset.presets) {
@@ -646,6 +705,9 @@ function buildDatasetPicker(list) {
 // restart the list may have changed. The current dataset stays if it is
 // still offered; if it is gone, the first is shown, and the user told.
 function adoptHello(message) {
+  const notice = document.getElementById('notice');
+  notice.textContent = message.notice || '';
+  notice.hidden = !message.notice;
   if (!canvas.dataset.frames) showStatus(`Drawing the first view of ${dataset ? dataset.name : 'the dataset'}…`);
   const list = message.datasets || [];
   const same = list.length === datasets.length && list.every((d, i) => d.id === datasets[i].id);
@@ -660,6 +722,7 @@ function adoptHello(message) {
     dataset = list.find((d) => d.id === current.id);
     datasetSelect.value = dataset.id;
     camera.setRadius(dataset.radius_mm);
+    showContext();
     return;
   }
   chooseDataset(list[0].id);
@@ -797,6 +860,7 @@ async function start() {
   showStatus(`Connecting to the server to show ${dataset.name}…`);
   attachLightDrag();
   attachPanels();
+  attachContext();
   attachGestures(canvas, camera, () => requestFrame());
   attachControls();
   showLight();

@@ -409,6 +409,13 @@ fn write_dicom(path: &Path, s: &Slice, instance: usize) {
         format!("{}.{instance}", s.series).into(),
     );
     put(tags::MODALITY, VR::CS, "CT".into());
+    put(tags::PATIENT_NAME, VR::PN, "Doe^Jane".into());
+    put(tags::PATIENT_ID, VR::LO, "MRN-0042".into());
+    put(tags::PATIENT_BIRTH_DATE, VR::DA, "19700131".into());
+    put(tags::STUDY_DATE, VR::DA, "20261124".into());
+    put(tags::STUDY_DESCRIPTION, VR::LO, "CT HEAD WO".into());
+    put(tags::SERIES_DESCRIPTION, VR::LO, "AXIAL 2.5".into());
+    put(tags::SLICE_THICKNESS, VR::DS, "2.5".into());
     put(tags::SERIES_INSTANCE_UID, VR::UI, s.series.into());
     // InstanceNumber runs against position, so sorting by it would be wrong.
     put(
@@ -504,6 +511,28 @@ fn dicom_slices_are_sorted_by_position_with_spacing_from_positions() {
     assert_eq!(info.geometry.spacing, [0.25, 0.5, 2.5]);
     assert_eq!(info.geometry.origin, [0.0, 0.0, 10.0]);
     assert_eq!(info.unit.as_deref(), Some("HU"));
+    // Patient and study as the headers name them, for the viewer's corners.
+    let study = &info.study;
+    assert_eq!(study.patient_name.as_deref(), Some("Doe^Jane"));
+    assert_eq!(study.patient_id.as_deref(), Some("MRN-0042"));
+    assert_eq!(study.patient_birth_date.as_deref(), Some("19700131"));
+    assert_eq!(study.study_date.as_deref(), Some("20261124"));
+    assert_eq!(study.study_description.as_deref(), Some("CT HEAD WO"));
+    assert_eq!(study.series_description.as_deref(), Some("AXIAL 2.5"));
+    assert_eq!(study.slice_thickness_mm, Some(2.5));
+    // The store keeps them.
+    let out = temp();
+    let mut source = open(dir.path()).unwrap_or_else(|e| panic!("{e}"));
+    let target = out.path().join("series.zarr");
+    blocks::store::ingest(
+        source.as_mut(),
+        &target,
+        &blocks::store::IngestOptions::default(),
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let store = blocks::store::Store::open(target.as_path()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(&store.meta().study, study);
     let v = load(dir.path());
     // Slice k holds k * 100 + pixel index.
     for k in 0..4 {

@@ -74,6 +74,8 @@ pub struct AppState {
     pub tls: Option<Arc<crate::tls::Tls>>,
     /// Each client's API requests a second (at most `access.requests`).
     pub rates: Arc<RequestRates>,
+    /// A line every viewer shows over the image (`--notice`), if any.
+    pub notice: Option<Arc<str>>,
 }
 
 impl AppState {
@@ -102,7 +104,15 @@ impl AppState {
             audit: Arc::new(Audit::default()),
             tls: None,
             rates: Arc::new(RequestRates::new(Access::default().requests)),
+            notice: None,
         }
+    }
+
+    /// This state with `notice` shown by every viewer (e.g. "Not for
+    /// diagnostic use").
+    pub fn with_notice(mut self, notice: Option<String>) -> AppState {
+        self.notice = notice.filter(|n| !n.is_empty()).map(Arc::from);
+        self
     }
 
     /// This state served over `tls` (and sending HSTS).

@@ -270,7 +270,8 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     access.frame_ancestors = args.auth.frame_ancestors.clone();
     let mut state = AppState::new(datasets, renderer, args.stream.settings())
         .with_access(access)
-        .with_auth(auth, audit);
+        .with_auth(auth, audit)
+        .with_notice(args.notice.clone());
     if let Some(tls) = tls {
         state = state.with_tls(tls);
     }

@@ -72,6 +72,8 @@ pub struct DatasetInfo {
     pub unit: Option<String>,
     /// Imaging modality, when known.
     pub modality: Option<String>,
+    /// Patient and study, from DICOM headers (each absent when unknown).
+    pub study: ingest::Study,
     /// The transfer-function presets offered.
     pub presets: Vec<PresetInfo>,
     /// The preset a client should start with.
@@ -236,6 +238,7 @@ impl Dataset {
             value_range: m.value_range(),
             unit: m.unit.clone(),
             modality: m.modality.clone(),
+            study: m.study.clone(),
             presets: self
                 .presets()
                 .iter()

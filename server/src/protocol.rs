@@ -15,9 +15,10 @@
 //!
 //! # Server → client
 //!
-//! JSON text: `{"type":"hello","protocol":2,"datasets":[…],"renderer":{"kind":…,"device":…},"settings":{…}}` once
+//! JSON text: `{"type":"hello","protocol":2,"datasets":[…],"renderer":{"kind":…,"device":…},"settings":{…},"notice":…}` once
 //! at the start (the datasets' descriptions as `GET /api/datasets` gives them,
-//! and the stream settings), `{"type":"error","id":N,"message":"…"}` for a
+//! the stream settings, and the line every viewer shows over the image,
+//! `--notice`, or `null`), `{"type":"error","id":N,"message":"…"}` for a
 //! refused message (`id`: the message's, when it had one) or a view that
 //! cannot be rendered, `{"type":"camera","set":{"az":…,"el":…,"dist":…,"tx":…,"ty":…,"tz":…,"fit":false,…}}`
 //! when the view asked for a fit (`"fit":true`): the camera the server chose

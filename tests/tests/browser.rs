@@ -32,7 +32,9 @@
 //! the keyboard alone focuses the view, zooms, orbits and resets it. A link
 //! copied from one tab reproduces the lossless frame in another, pixel for
 //! pixel; Save image gives it as a PNG; the view's edges name the patient's
-//! directions; the scale bar measures mm at the target.
+//! directions; the scale bar measures mm at the target. On a DICOM series
+//! written for the test, the corners name the patient and the study, Info
+//! hides them (remembered), and the server's `--notice` shows.
 //!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
@@ -1609,5 +1611,146 @@ async fn a_link_reproduces_the_view_pixel_for_pixel_and_the_edges_name_the_patie
     };
     let server = phantom_on_cpu(StreamSettings::default()).await;
     let result = sharing(&client, &server).await;
+    finish(test, client, result).await;
+}
+
+/// A folder of 16 DICOM slices (16 × 16, 1 mm) of one CT series naming its
+/// patient and study, as a scanner writes them.
+fn dicom_series(dir: &std::path::Path) -> PathBuf {
+    use dicom_core::{DataElement, PrimitiveValue, VR};
+    use dicom_dictionary_std::tags;
+    let folder = dir.join("ct-series");
+    std::fs::create_dir_all(&folder).expect("the series folder");
+    for z in 0..16u16 {
+        let path = folder.join(format!("slice{z:02}.dcm"));
+        voxserve_tests::malformed::dicom_slice(
+            &path,
+            16,
+            16,
+            voxserve_tests::malformed::EXPLICIT_LE,
+            |obj| {
+                let mut put = |tag, vr, value: PrimitiveValue| {
+                    obj.put(DataElement::new(tag, vr, value));
+                };
+                put(
+                    tags::SOP_INSTANCE_UID,
+                    VR::UI,
+                    format!("1.2.3.4.5.{z}").into(),
+                );
+                put(
+                    tags::IMAGE_POSITION_PATIENT,
+                    VR::DS,
+                    format!("0\\0\\{z}").into(),
+                );
+                put(tags::PATIENT_NAME, VR::PN, "Doe^Jane".into());
+                put(tags::PATIENT_ID, VR::LO, "MRN-0042".into());
+                put(tags::PATIENT_BIRTH_DATE, VR::DA, "19700131".into());
+                put(tags::STUDY_DATE, VR::DA, "20261124".into());
+                put(tags::STUDY_DESCRIPTION, VR::LO, "CT HEAD WO".into());
+                put(tags::SERIES_DESCRIPTION, VR::LO, "AXIAL 1.0".into());
+                put(tags::SLICE_THICKNESS, VR::DS, "1".into());
+                // A bright core (bone) in soft tissue.
+                let pixels: Vec<u16> = (0..256u16)
+                    .map(|i| {
+                        let (x, y) = (i % 16, i / 16);
+                        if (4..12).contains(&x) && (4..12).contains(&y) && (4..12).contains(&z) {
+                            1000
+                        } else {
+                            40
+                        }
+                    })
+                    .collect();
+                put(tags::PIXEL_DATA, VR::OW, PrimitiveValue::U16(pixels.into()));
+            },
+        );
+    }
+    folder
+}
+
+/// The corners name the patient and the study from the DICOM headers, Info
+/// hides and shows them, and the server's notice shows over the image.
+async fn context(client: &Client, server: &TestServer) -> Result<(), String> {
+    client
+        .goto(&server.url("/"))
+        .await
+        .map_err(|e| format!("loading the page: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    let corners = text(
+        client,
+        "the corners",
+        "return document.getElementById('context-patient').textContent + '|' +
+                document.getElementById('context-study').textContent;",
+    )
+    .await?;
+    println!("corners: {corners:?}");
+    for part in [
+        "Doe, Jane",
+        "ID MRN-0042",
+        "born 1970-01-31",
+        "2026-11-24",
+        "CT HEAD WO",
+        "AXIAL 1.0",
+        "CT · 1 mm slices",
+    ] {
+        if !corners.contains(part) {
+            return Err(format!("the corners read {corners:?}: no {part:?}"));
+        }
+    }
+    let notice = text(
+        client,
+        "the notice",
+        "const n = document.getElementById('notice'); return n.hidden ? '' : n.textContent;",
+    )
+    .await?;
+    if notice != "Not for diagnostic use" {
+        return Err(format!("the notice reads {notice:?}"));
+    }
+    keep_screenshot(client, "context-corners").await?;
+    let shown = "return document.getElementById('context').hidden ? 0 : 1;";
+    run(
+        client,
+        "Info",
+        "document.getElementById('context-toggle').click();",
+    )
+    .await?;
+    if number(client, "the corners", shown).await? != 0.0 {
+        return Err("Info did not hide the corners".into());
+    }
+    client
+        .refresh()
+        .await
+        .map_err(|e| format!("reloading: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    if number(client, "the corners", shown).await? != 0.0 {
+        return Err("hidden corners show again after a reload".into());
+    }
+    run(
+        client,
+        "Info",
+        "document.getElementById('context-toggle').click();",
+    )
+    .await?;
+    if number(client, "the corners", shown).await? != 1.0 {
+        return Err("Info did not show the corners again".into());
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn the_corners_name_the_patient_and_study_and_the_notice_shows() {
+    let test = "the_corners_name_the_patient_and_study_and_the_notice_shows";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let series = dicom_series(dir.path());
+    let dataset = server::Dataset::load(&series, &Default::default(), 64 << 20)
+        .unwrap_or_else(|e| panic!("the series: {e}"));
+    let renderer =
+        server::RenderService::start(shaders::Backend::Cpu, 512 << 20, 1).expect("render worker");
+    let state = server::AppState::new(vec![dataset], renderer, StreamSettings::default())
+        .with_notice(Some("Not for diagnostic use".into()));
+    let server = TestServer::serving(state).await;
+    let result = context(&client, &server).await;
     finish(test, client, result).await;
 }

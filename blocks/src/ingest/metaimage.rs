@@ -73,6 +73,7 @@ pub fn open(path: &Path, allow_data_outside: bool) -> Result<StreamSource, Error
             .get("Modality")
             .map(|m| m.trim_start_matches("MET_MOD_").to_owned()),
         description: None,
+        study: crate::ingest::Study::default(),
         notes,
     };
     StreamSource::new(

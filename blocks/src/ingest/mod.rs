@@ -82,6 +82,39 @@ impl fmt::Display for Format {
     }
 }
 
+/// The most characters kept of each text of a [`Study`] (DICOM's long
+/// strings hold 64).
+pub const STUDY_TEXT_MAX: usize = 128;
+
+/// Who and what was scanned, from DICOM headers: what a viewer shows in its
+/// corners. Each text at most [`STUDY_TEXT_MAX`] characters; absent where the
+/// source says nothing (files other than DICOM say nothing).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct Study {
+    /// PatientName (0010,0010) as stored: family^given^middle^prefix^suffix.
+    pub patient_name: Option<String>,
+    /// PatientID (0010,0020).
+    pub patient_id: Option<String>,
+    /// PatientBirthDate (0010,0030), YYYYMMDD.
+    pub patient_birth_date: Option<String>,
+    /// StudyDate (0008,0020), YYYYMMDD.
+    pub study_date: Option<String>,
+    /// StudyDescription (0008,1030).
+    pub study_description: Option<String>,
+    /// SeriesDescription (0008,103E).
+    pub series_description: Option<String>,
+    /// SliceThickness (0018,0050), mm.
+    pub slice_thickness_mm: Option<f64>,
+}
+
+impl Study {
+    /// `text` cut to [`STUDY_TEXT_MAX`] characters.
+    pub fn text(text: &str) -> String {
+        text.chars().take(STUDY_TEXT_MAX).collect()
+    }
+}
+
 /// What a reader learnt about a volume from its headers.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VolumeInfo {
@@ -101,6 +134,8 @@ pub struct VolumeInfo {
     pub modality: Option<String>,
     /// A description from the header, when there is one.
     pub description: Option<String>,
+    /// Patient and study, from DICOM headers.
+    pub study: Study,
     /// Things the reader assumed or corrected, for the user to see.
     pub notes: Vec<String>,
 }
@@ -539,6 +574,7 @@ impl MemorySource {
                 unit: volume.unit.clone(),
                 modality: volume.modality.clone(),
                 description: None,
+                study: Study::default(),
                 notes: Vec::new(),
             },
             volume,

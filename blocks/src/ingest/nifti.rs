@@ -87,6 +87,7 @@ pub fn open(path: &Path, allow_data_outside: bool) -> Result<StreamSource, Error
         unit: None,
         modality: None,
         description: (!description.is_empty()).then_some(description),
+        study: crate::ingest::Study::default(),
         notes,
     };
     StreamSource::new(

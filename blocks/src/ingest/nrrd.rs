@@ -77,6 +77,7 @@ pub fn open(path: &Path, allow_data_outside: bool) -> Result<StreamSource, Error
         unit: None,
         modality: None,
         description: fields.get("content").map(str::to_owned),
+        study: crate::ingest::Study::default(),
         notes,
     };
     StreamSource::new(

@@ -142,6 +142,7 @@ pub fn open(path: &Path, options: &RawOptions) -> Result<StreamSource, Error> {
         unit: None,
         modality: None,
         description: None,
+        study: crate::ingest::Study::default(),
         notes,
     };
     StreamSource::new(

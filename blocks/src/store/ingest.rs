@@ -485,6 +485,7 @@ fn store_root_metadata(
         unit: info.unit.clone(),
         modality: info.modality.clone(),
         description: info.description.clone(),
+        study: info.study.clone(),
         stored_range: range,
         block_size: BLOCK,
         levels: LEVELS as u32,

@@ -102,6 +102,10 @@ pub struct StoreMeta {
     pub modality: Option<String>,
     /// Description from the source.
     pub description: Option<String>,
+    /// Patient and study, from DICOM headers (stores written before it have
+    /// none).
+    #[serde(default)]
+    pub study: crate::ingest::Study,
     /// Smallest and largest stored value (NaNs left out); the histogram range.
     pub stored_range: [f64; 2],
     /// Block edge (16).

@@ -35,6 +35,7 @@ impl Memory {
                 unit: Some("HU".into()),
                 modality: Some("CT".into()),
                 description: None,
+                study: ingest::Study::default(),
                 notes: vec![],
             },
             voxels,

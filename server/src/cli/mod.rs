@@ -253,6 +253,23 @@ pub struct InfoArgs {
     pub input: InputArgs,
 }
 
+/// The most characters of `--notice`.
+pub const MAX_NOTICE: usize = 200;
+
+/// `--notice`: one line of at most [`MAX_NOTICE`] characters.
+fn parse_notice(text: &str) -> Result<String, String> {
+    if text.chars().count() > MAX_NOTICE {
+        return Err(format!(
+            "{} characters: expected at most {MAX_NOTICE}",
+            text.chars().count()
+        ));
+    }
+    if text.chars().any(char::is_control) {
+        return Err("a control character: expected one line of text".into());
+    }
+    Ok(text.trim().to_owned())
+}
+
 /// `voxserve serve`.
 #[derive(Debug, Args)]
 pub struct ServeArgs {
@@ -285,6 +302,10 @@ pub struct ServeArgs {
     /// authenticates every request.
     #[arg(long)]
     pub insecure_allow_anonymous: bool,
+    /// A line every viewer shows over the image, e.g. "Not for diagnostic
+    /// use" (at most 200 characters, no control characters).
+    #[arg(long, value_name = "TEXT", value_parser = parse_notice)]
+    pub notice: Option<String>,
     #[command(flatten)]
     pub auth: AuthArgs,
     #[command(flatten)]
@@ -616,6 +637,30 @@ mod tests {
     struct Cli {
         #[command(subcommand)]
         command: Command,
+    }
+
+    #[test]
+    fn a_notice_is_one_line_of_at_most_200_characters() {
+        let serve = |notice: &str| {
+            Cli::try_parse_from(["voxserve", "serve", "--notice", notice]).map(|c| {
+                match c.command {
+                    Command::Serve(args) => args.notice,
+                    _ => None,
+                }
+            })
+        };
+        assert_eq!(
+            serve(" Not for diagnostic use ").ok().flatten().as_deref(),
+            Some("Not for diagnostic use")
+        );
+        let long = "x".repeat(MAX_NOTICE + 1);
+        let refused = serve(&long).expect_err("too long").to_string();
+        assert!(
+            refused.contains("--notice") && refused.contains("at most 200"),
+            "{refused}"
+        );
+        let refused = serve("two\nlines").expect_err("a newline").to_string();
+        assert!(refused.contains("one line"), "{refused}");
     }
 
     #[test]

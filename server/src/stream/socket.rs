@@ -220,6 +220,7 @@ fn hello(state: &AppState, datasets: &[Dataset]) -> String {
         "datasets": datasets.iter().map(Dataset::info).collect::<Vec<_>>(),
         "renderer": state.renderer.describe(),
         "settings": state.stream,
+        "notice": state.notice.as_deref(),
     })
     .to_string()
 }

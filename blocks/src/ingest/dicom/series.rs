@@ -8,7 +8,9 @@ use rayon::prelude::*;
 use super::geometry;
 use super::pixels::{self, PixelFormat};
 use super::slice_header::SliceHeader;
-use crate::ingest::{Format, VolumeInfo, VolumeSource, check_dims, check_slab, check_value_map};
+use crate::ingest::{
+    Format, Study, VolumeInfo, VolumeSource, check_dims, check_slab, check_value_map,
+};
 use crate::{Error, ValueMap, VoxelData, VoxelType};
 
 /// A DICOM series as a [`VolumeSource`].
@@ -82,6 +84,7 @@ impl DicomSeries {
             unit: unit(&first),
             modality: first.modality.clone(),
             description: first.series_description.clone(),
+            study: study(&first),
             notes,
         };
         let mut series = DicomSeries {
@@ -127,6 +130,20 @@ impl DicomSeries {
             self.padding_replacement.unwrap_or(0.0),
             self.info.voxel_type,
         )
+    }
+}
+
+/// Patient and study as the first slice names them.
+fn study(first: &SliceHeader) -> Study {
+    let text = |t: &Option<String>| t.as_deref().map(Study::text);
+    Study {
+        patient_name: text(&first.patient_name),
+        patient_id: text(&first.patient_id),
+        patient_birth_date: text(&first.patient_birth_date),
+        study_date: text(&first.study_date),
+        study_description: text(&first.study_description),
+        series_description: text(&first.series_description),
+        slice_thickness_mm: first.slice_thickness,
     }
 }
 
