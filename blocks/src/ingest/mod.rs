@@ -109,6 +109,11 @@ pub struct Study {
 }
 
 impl Study {
+    /// Whether nothing is known.
+    pub fn is_empty(&self) -> bool {
+        *self == Study::default()
+    }
+
     /// `text` cut to [`STUDY_TEXT_MAX`] characters.
     pub fn text(text: &str) -> String {
         text.chars().take(STUDY_TEXT_MAX).collect()

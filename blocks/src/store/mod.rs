@@ -103,8 +103,9 @@ pub struct StoreMeta {
     /// Description from the source.
     pub description: Option<String>,
     /// Patient and study, from DICOM headers (stores written before it have
-    /// none).
-    #[serde(default)]
+    /// none; written only when something is known, so the record of a store
+    /// without one stays as older versions wrote it).
+    #[serde(default, skip_serializing_if = "crate::ingest::Study::is_empty")]
     pub study: crate::ingest::Study,
     /// Smallest and largest stored value (NaNs left out); the histogram range.
     pub stored_range: [f64; 2],
