@@ -31,6 +31,7 @@ const lightPanel = document.getElementById('light-panel');
 const errorBox = document.getElementById('error');
 const fidelity = document.getElementById('fidelity');
 const statusLine = document.getElementById('status');
+const saveButton = document.getElementById('save');
 const hint = document.getElementById('hint');
 const lightInputs = Object.fromEntries(
   ['kind', 'drag', 'azimuth', 'elevation', 'distance', 'spot']
@@ -108,7 +109,7 @@ function plainStatus(info) {
 function drawFrame(bitmap, info, blob) {
   errorBox.hidden = true;
   if (info.latest && info.lossless) savedFrame = { blob, info };
-  document.getElementById('save').disabled = !savedFrame;
+  saveButton.disabled = !savedFrame;
   context.imageSmoothingEnabled = true;
   context.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
   bitmap.close();
@@ -270,17 +271,25 @@ function defaultLights() {
     colour: schema.default('light_colour'),
     intensity: schema.default('light_intensity'),
   };
-  // The first light of `lights` (`kind:position[:axis:angle]:rrggbb:intensity`).
-  const first = schema.default('lights').split(';')[0];
-  const parts = first ? first.split(':') : [];
+  modes.extinction.light = firstLight(schema.default('lights'), {
+    colour: schema.default('light_colour'),
+    intensity: schema.default('light_intensity'),
+  }) || { ...modes.global.light };
+}
+
+// The panel's state of the first light of a `lights` text
+// (`kind:position[:axis:angle]:rrggbb:intensity;…`), its colour and
+// intensity from `fallback` where it gives none; null when it has none.
+function firstLight(lights, fallback) {
+  const first = lights.split(';')[0];
+  if (!first) return null;
+  const parts = first.split(':');
   const fields = parts[0] === 'spot' ? 4 : 2;
-  modes.extinction.light = first
-    ? {
-      ...placement(parts.slice(0, fields).join(':')),
-      colour: parts[fields] || schema.default('light_colour'),
-      intensity: parts[fields + 1] === undefined ? schema.default('light_intensity') : Number(parts[fields + 1]),
-    }
-    : { ...modes.global.light };
+  return {
+    ...placement(parts.slice(0, fields).join(':')),
+    colour: parts[fields] || fallback.colour,
+    intensity: parts[fields + 1] === undefined ? fallback.intensity : Number(parts[fields + 1]),
+  };
 }
 
 // The current lit mode's entry of `modes`, or null for unlit shading.
@@ -439,7 +448,7 @@ function requestFrame() {
   if (sent) {
     fidelity.classList.add('busy');
     savedFrame = null;
-    document.getElementById('save').disabled = true;
+    saveButton.disabled = true;
   }
   linkView(view);
   showOrientation();
@@ -517,15 +526,7 @@ function applyLink() {
       intensity: get('light_intensity') !== null ? Number(get('light_intensity')) : modes.global.light.intensity,
     };
   }
-  if (get('lights')) {
-    const parts = get('lights').split(';')[0].split(':');
-    const fields = parts[0] === 'spot' ? 4 : 2;
-    modes.extinction.light = {
-      ...placement(parts.slice(0, fields).join(':')),
-      colour: parts[fields] || modes.extinction.light.colour,
-      intensity: parts[fields + 1] === undefined ? modes.extinction.light.intensity : Number(parts[fields + 1]),
-    };
-  }
+  if (get('lights')) modes.extinction.light = firstLight(get('lights'), modes.extinction.light);
   for (const mode of Object.values(modes)) {
     for (const c of mode.controls) {
       const value = get(c.dataset.setting);
@@ -639,6 +640,23 @@ function showContext() {
   document.getElementById('context-study').textContent = study.filter(Boolean).join('\n');
 }
 
+// What this browser remembers for the page (null when storage is off: then
+// nothing is remembered, and every visit starts afresh).
+function recalled(key) {
+  try {
+    return localStorage.getItem(key);
+  } catch {
+    return null;
+  }
+}
+function remember(key, value) {
+  try {
+    localStorage.setItem(key, value);
+  } catch {
+    // Storage is off: see `recalled`.
+  }
+}
+
 // The Info button shows or hides the corners (remembered in this browser).
 const CONTEXT_SHOWN = 'voxserve.context';
 function attachContext() {
@@ -648,21 +666,11 @@ function attachContext() {
     box.hidden = !on;
     button.setAttribute('aria-pressed', String(on));
   };
-  let on = true;
-  try {
-    on = localStorage.getItem(CONTEXT_SHOWN) !== '0';
-  } catch {
-    // Storage may be off: shown.
-  }
-  show(on);
+  show(recalled(CONTEXT_SHOWN) !== '0');
   button.addEventListener('click', () => {
-    on = box.hidden;
+    const on = box.hidden;
     show(on);
-    try {
-      localStorage.setItem(CONTEXT_SHOWN, on ? '1' : '0');
-    } catch {
-      // As above.
-    }
+    remember(CONTEXT_SHOWN, on ? '1' : '0');
   });
 }
 
@@ -777,7 +785,7 @@ function attachControls() {
     showLightPanel();
     requestFrame();
   });
-  document.getElementById('save').addEventListener('click', saveImage);
+  saveButton.addEventListener('click', saveImage);
   // A link pasted into this tab's address bar changes only the hash.
   window.addEventListener('hashchange', () => {
     applyLink();
@@ -799,20 +807,10 @@ function attachControls() {
 // it (remembered in this browser); the toolbar's "?" shows it again.
 const HINTED = 'voxserve.hinted';
 function attachHint() {
-  let seen = false;
-  try {
-    seen = localStorage.getItem(HINTED) === '1';
-  } catch {
-    // Storage may be off: the hint shows on every visit.
-  }
-  hint.hidden = seen;
+  hint.hidden = recalled(HINTED) === '1';
   const dismiss = () => {
     hint.hidden = true;
-    try {
-      localStorage.setItem(HINTED, '1');
-    } catch {
-      // As above.
-    }
+    remember(HINTED, '1');
   };
   document.getElementById('hint-close').addEventListener('click', dismiss);
   canvas.addEventListener('pointerdown', dismiss);

@@ -159,6 +159,13 @@ impl Rows {
     }
 }
 
+/// The numbers of a comma-separated list, or `None` when any is not one.
+fn comma_numbers(text: &str) -> Option<Vec<f32>> {
+    text.split(',')
+        .map(|v| v.trim().parse::<f32>().ok())
+        .collect()
+}
+
 /// An axis-aligned clip box in the volume's index space, as fractions of its
 /// extent along x, y, z (0..1 keeps everything).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -189,11 +196,7 @@ impl TextSetting for ClipBox {
     }
 
     fn parse_text(text: &str) -> Result<ClipBox, Expected> {
-        let values: Vec<f32> = text
-            .split(',')
-            .map(|v| v.trim().parse::<f32>())
-            .collect::<Result<_, _>>()
-            .map_err(|_| Expected(Self::expected()))?;
+        let values = comma_numbers(text).ok_or_else(|| Expected(Self::expected()))?;
         let [x0, y0, z0, x1, y1, z1] = values[..] else {
             return Err(Expected(Self::expected()));
         };
@@ -265,11 +268,7 @@ impl TextSetting for Window {
     }
 
     fn parse_text(text: &str) -> Result<Window, Expected> {
-        let values: Vec<f32> = text
-            .split(',')
-            .map(|v| v.trim().parse::<f32>())
-            .collect::<Result<_, _>>()
-            .map_err(|_| Expected(Self::expected()))?;
+        let values = comma_numbers(text).ok_or_else(|| Expected(Self::expected()))?;
         let [centre, width] = values[..] else {
             return Err(Expected(Self::expected()));
         };

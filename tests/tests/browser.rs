@@ -795,6 +795,37 @@ async fn run(client: &Client, what: &str, script: &str) -> Result<(), String> {
         .map_err(|e| format!("{what}: {e}"))
 }
 
+/// Loads `url` and waits for its first frame.
+async fn open_page(client: &Client, url: &str) -> Result<(), String> {
+    client
+        .goto(url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    Ok(())
+}
+
+/// Reloads the page and waits for its first frame.
+async fn reload(client: &Client) -> Result<(), String> {
+    client
+        .refresh()
+        .await
+        .map_err(|e| format!("reloading: {e}"))?;
+    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    Ok(())
+}
+
+/// What `GET /api/datasets` of `server` says.
+async fn datasets_json(server: &TestServer) -> Result<serde_json::Value, String> {
+    let body = reqwest::get(server.url("/api/datasets"))
+        .await
+        .map_err(|e| format!("GET /api/datasets: {e}"))?
+        .bytes()
+        .await
+        .map_err(|e| format!("/api/datasets: {e}"))?;
+    serde_json::from_slice(&body).map_err(|e| format!("/api/datasets: {e}"))
+}
+
 /// Keeps a screenshot of the page as a test artifact, `target/tmp/NAME.png`.
 async fn keep_screenshot(client: &Client, name: &str) -> Result<(), String> {
     let png = client
@@ -858,21 +889,11 @@ const EDITED_TF: &str = "return document.getElementById('tf').dataset.tf || '';"
 /// histogram, the menu says it was edited, and choosing the preset again
 /// restores it.
 async fn tf_drag(client: &Client, server: &TestServer) -> Result<(), String> {
-    client
-        .goto(&server.url("/"))
-        .await
-        .map_err(|e| format!("loading the page: {e}"))?;
+    open_page(client, &server.url("/")).await?;
     wait_for(client, "a lit canvas", PIXELS, |v| v >= 1e9).await?;
     wait_for(client, "the view finished", FINISHED, |v| v == 1.0).await?;
     let first = pixels(client).await?;
-    let body = reqwest::get(server.url("/api/datasets"))
-        .await
-        .map_err(|e| format!("GET /api/datasets: {e}"))?
-        .bytes()
-        .await
-        .map_err(|e| format!("/api/datasets: {e}"))?;
-    let datasets: serde_json::Value =
-        serde_json::from_slice(&body).map_err(|e| format!("/api/datasets: {e}"))?;
+    let datasets = datasets_json(server).await?;
     let range = [
         datasets[0]["histogram_range"][0]
             .as_f64()
@@ -993,10 +1014,7 @@ const SILENT_SLIDERS: &str = "return JSON.stringify([...document.querySelectorAl
 /// panels over the image that leave the toolbar's height alone, one open at
 /// a time, sliders that show their values and apply as they move.
 async fn desktop_layout(client: &Client, server: &TestServer) -> Result<(), String> {
-    client
-        .goto(&server.url("/"))
-        .await
-        .map_err(|e| format!("loading the page: {e}"))?;
+    open_page(client, &server.url("/")).await?;
     if number(client, "the hint", HINT_SHOWN).await? != 1.0 {
         return Err("no interaction hint on a first visit".into());
     }
@@ -1009,7 +1027,6 @@ async fn desktop_layout(client: &Client, server: &TestServer) -> Result<(), Stri
     if !hint.contains("Drag") || !hint.contains("zoom") || hint.contains("pinch") {
         return Err(format!("the hint for a mouse says '{hint}'"));
     }
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
     wait_for(client, "the view finished", FINISHED, |v| v == 1.0).await?;
     let status = text(client, "the status line", STATUS).await?;
     let figures = text(client, "the figures", FIDELITY).await?;
@@ -1030,11 +1047,7 @@ async fn desktop_layout(client: &Client, server: &TestServer) -> Result<(), Stri
     if number(client, "the hint", HINT_SHOWN).await? != 0.0 {
         return Err("the hint still shows after the view was moved".into());
     }
-    client
-        .refresh()
-        .await
-        .map_err(|e| format!("reloading: {e}"))?;
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    reload(client).await?;
     if number(client, "the hint", HINT_SHOWN).await? != 0.0 {
         return Err("the hint shows again after a reload".into());
     }
@@ -1140,11 +1153,7 @@ async fn the_status_speaks_plainly_a_hint_shows_how_to_move_and_panels_open_over
 /// bottom, every control is at least 40 px tall, nothing is wider than the
 /// screen, and the hint speaks of fingers.
 async fn phone_layout(client: &Client, server: &TestServer) -> Result<(), String> {
-    client
-        .goto(&server.url("/"))
-        .await
-        .map_err(|e| format!("loading the page: {e}"))?;
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    open_page(client, &server.url("/")).await?;
     let coarse = number(
         client,
         "the pointer",
@@ -1282,11 +1291,7 @@ async fn press(client: &Client, keys: &str) -> Result<(), String> {
 /// The wheel zooms towards the cursor, a right drag pans, and the view
 /// works from the keyboard: Tab focuses it, + zooms, arrows orbit, R resets.
 async fn pan_zoom_keys(client: &Client, url: &str) -> Result<(), String> {
-    client
-        .goto(url)
-        .await
-        .map_err(|e| format!("loading {url}: {e}"))?;
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    open_page(client, url).await?;
     let (x0, y0, e0) = ball_place(client, "the first view").await?;
     println!("first view: ball at ({x0:.3}, {y0:.3}), extent {e0:.3}");
     // Zoom in with the cursor a quarter of the width left of the centre:
@@ -1415,11 +1420,7 @@ const ORIENTATION: &str = "return ['left', 'right', 'top', 'bottom']
 /// pixel for pixel; Save image gives that frame as a PNG of its size; the
 /// view's edges name the patient's directions; the scale bar measures mm.
 async fn sharing(client: &Client, server: &TestServer) -> Result<(), String> {
-    client
-        .goto(&server.url("/"))
-        .await
-        .map_err(|e| format!("loading the page: {e}"))?;
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    open_page(client, &server.url("/")).await?;
     wait_for(client, "the first view", FINISHED, |v| v == 1.0).await?;
     drag_across(client).await?;
     let frames = number(client, "frames", FRAMES).await?;
@@ -1511,11 +1512,7 @@ async fn sharing(client: &Client, server: &TestServer) -> Result<(), String> {
         .switch_to_window(tab.handle)
         .await
         .map_err(|e| format!("switching tabs: {e}"))?;
-    client
-        .goto(&href)
-        .await
-        .map_err(|e| format!("opening the link: {e}"))?;
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    open_page(client, &href).await?;
     wait_for(client, "the linked view", FINISHED, |v| v == 1.0).await?;
     let again = number(client, "the linked image", CANVAS_HASH).await?;
     let controls = text(
@@ -1544,11 +1541,7 @@ async fn sharing(client: &Client, server: &TestServer) -> Result<(), String> {
     // Facing the patient (azimuth 0): their right on the image's left.
     for (camera, expected) in [("az=0&el=0", "R L S I"), ("az=90&el=0", "A P S I")] {
         let url = server.url(&format!("/#dataset=phantom&{camera}&dist=3&tx=0&ty=0&tz=0"));
-        client
-            .goto(&url)
-            .await
-            .map_err(|e| format!("loading {url}: {e}"))?;
-        wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+        open_page(client, &url).await?;
         let labels = text(client, "the orientation", ORIENTATION).await?;
         if labels != expected {
             return Err(format!(
@@ -1567,14 +1560,7 @@ async fn sharing(client: &Client, server: &TestServer) -> Result<(), String> {
          return `${s.querySelector('span').textContent}|${parseFloat(s.querySelector('div').style.width)}|${document.getElementById('view').clientHeight}`;",
     )
     .await?;
-    let body = reqwest::get(server.url("/api/datasets"))
-        .await
-        .map_err(|e| format!("GET /api/datasets: {e}"))?
-        .bytes()
-        .await
-        .map_err(|e| format!("/api/datasets: {e}"))?;
-    let datasets: serde_json::Value =
-        serde_json::from_slice(&body).map_err(|e| format!("/api/datasets: {e}"))?;
+    let datasets = datasets_json(server).await?;
     let radius = datasets[0]["radius_mm"].as_f64().unwrap_or(f64::NAN);
     let parts: Vec<&str> = scale.split('|').collect();
     let mm: f64 = parts[0].trim_end_matches(" mm").parse().unwrap_or(f64::NAN);
@@ -1670,11 +1656,7 @@ fn dicom_series(dir: &std::path::Path) -> PathBuf {
 /// The corners name the patient and the study from the DICOM headers, Info
 /// hides and shows them, and the server's notice shows over the image.
 async fn context(client: &Client, server: &TestServer) -> Result<(), String> {
-    client
-        .goto(&server.url("/"))
-        .await
-        .map_err(|e| format!("loading the page: {e}"))?;
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    open_page(client, &server.url("/")).await?;
     let corners = text(
         client,
         "the corners",
@@ -1716,11 +1698,7 @@ async fn context(client: &Client, server: &TestServer) -> Result<(), String> {
     if number(client, "the corners", shown).await? != 0.0 {
         return Err("Info did not hide the corners".into());
     }
-    client
-        .refresh()
-        .await
-        .map_err(|e| format!("reloading: {e}"))?;
-    wait_for(client, "frames drawn", FRAMES, |n| n >= 1.0).await?;
+    reload(client).await?;
     if number(client, "the corners", shown).await? != 0.0 {
         return Err("hidden corners show again after a reload".into());
     }
