@@ -6,6 +6,7 @@
 import { authFetch, logIn } from './auth.js';
 import { OrbitCamera, attachGestures } from './camera.js';
 import { Schema, control } from './settings.js';
+import { PLANES, SliceViews, directionLetters } from './slices.js';
 import { ViewStream } from './stream.js';
 import { TfEditor } from './tf-editor.js';
 
@@ -44,6 +45,7 @@ const toolbarSelects = Object.fromEntries(
 
 let schema = null;
 let camera = null;
+let slices = null;
 let dataset = null;
 let stream = null;
 // The edited transfer function (the `tf` text), or null for the preset's.
@@ -107,6 +109,10 @@ function plainStatus(info) {
 }
 
 function drawFrame(bitmap, info, blob) {
+  if (info.pane !== '3d') {
+    slices.draw(bitmap, info);
+    return;
+  }
   errorBox.hidden = true;
   if (info.latest && info.lossless) savedFrame = { blob, info };
   saveButton.disabled = !savedFrame;
@@ -444,14 +450,177 @@ function currentView() {
 function requestFrame() {
   if (!dataset || !stream) return;
   const view = currentView();
-  const sent = stream.update(view, viewport().dpr);
+  const { dpr } = viewport();
+  const sent = stream.update(view, dpr);
   if (sent) {
     fidelity.classList.add('busy');
     savedFrame = null;
     saveButton.disabled = true;
   }
+  for (const [plane, sliceView] of Object.entries(slices.views())) {
+    if (stream.update(sliceView, dpr, plane)) slices.markBusy([plane]);
+  }
+  slices.redraw();
   linkView(view);
   showOrientation();
+}
+
+// The layouts, by the key that chooses them: the views each shows.
+const LAYOUTS = {
+  1: ['3d'],
+  2: ['axial', '3d', 'coronal', 'sagittal'],
+  3: ['3d', 'axial', 'coronal', 'sagittal'],
+  4: ['axial'],
+};
+const layoutSelect = document.getElementById('layout');
+const orientationBox = document.getElementById('orientation');
+
+// Each shown view's rectangle (CSS pixels) in layout `key` of a window
+// `width` × `height` whose views start `top` pixels down (below the
+// toolbar, except the 3D view alone, which fills the window).
+function layoutRects(key, width, height, top) {
+  const panes = LAYOUTS[key];
+  const gap = 2;
+  if (panes.length === 1) {
+    const y = panes[0] === '3d' ? 0 : top;
+    return { [panes[0]]: { left: 0, top: y, width, height: height - y } };
+  }
+  const h = height - top;
+  const rects = {};
+  if (key === '2') {
+    const w2 = (width - gap) / 2;
+    const h2 = (h - gap) / 2;
+    panes.forEach((pane, i) => {
+      rects[pane] = { left: (i % 2) * (w2 + gap), top: top + Math.floor(i / 2) * (h2 + gap), width: w2, height: h2 };
+    });
+    return rects;
+  }
+  // 1+3: the 3D view large, the slices beside it (below it on a tall screen).
+  if (width >= h) {
+    const side = Math.round(width / 3);
+    rects['3d'] = { left: 0, top, width: width - side - gap, height: h };
+    const each = (h - 2 * gap) / 3;
+    PLANES.forEach((pane, i) => {
+      rects[pane] = { left: width - side, top: top + i * (each + gap), width: side, height: each };
+    });
+  } else {
+    const strip = Math.round(h / 3);
+    rects['3d'] = { left: 0, top, width, height: h - strip - gap };
+    const each = (width - 2 * gap) / 3;
+    PLANES.forEach((pane, i) => {
+      rects[pane] = { left: i * (each + gap), top: top + h - strip, width: each, height: strip };
+    });
+  }
+  return rects;
+}
+
+// Lays the views out as the layout menu says, and tells the server which to render.
+function applyLayout() {
+  const key = layoutSelect.value;
+  // The slices' controls only while slices show.
+  for (const el of toolbar.querySelectorAll('[data-slices]')) el.hidden = key === '1';
+  const top = Math.round(toolbar.getBoundingClientRect().bottom + 4);
+  const rects = layoutRects(key, window.innerWidth, window.innerHeight, top);
+  const three = rects['3d'];
+  canvas.hidden = !three;
+  orientationBox.hidden = !three;
+  if (three) {
+    for (const el of [canvas, orientationBox]) {
+      Object.assign(el.style, {
+        left: `${three.left}px`, top: `${three.top}px`, width: `${three.width}px`, height: `${three.height}px`,
+      });
+    }
+    // The top letter clears the toolbar when the view starts under it.
+    const below = Math.max(6, Math.round(toolbar.getBoundingClientRect().bottom + 6 - three.top));
+    document.getElementById('orient-top').style.top = `${below}px`;
+  }
+  document.body.dataset.layout = key;
+  resizeCanvas();
+  slices.place(rects, viewport().dpr);
+  if (stream) stream.setLayout(LAYOUTS[key]);
+}
+
+function chooseLayout(key) {
+  if (!(key in LAYOUTS)) return;
+  layoutSelect.value = key;
+  applyLayout();
+  requestFrame();
+}
+
+// The slice views' window menu: the dataset's default, then its named
+// windows by number (Shift+1 … on the keyboard), and "custom" once dragged.
+const windowSelect = document.getElementById('window-preset');
+function fillWindows() {
+  windowSelect.replaceChildren();
+  const d = dataset.default_window;
+  windowSelect.add(new Option(`default (${d.name} ${round1(d.centre)}/${round1(d.width)})`, ''));
+  dataset.windows.forEach((w, i) => {
+    windowSelect.add(new Option(`${i + 1} ${w.name} (${w.centre}/${w.width})`, String(i + 1)));
+  });
+  const custom = new Option('custom (dragged)', 'custom');
+  custom.disabled = true;
+  windowSelect.add(custom);
+  windowSelect.value = '';
+}
+function round1(v) {
+  return Number(v.toPrecision(4));
+}
+function chooseWindow(number) {
+  const w = dataset.windows[number - 1];
+  if (!w) return;
+  windowSelect.value = String(number);
+  slices.setWindow({ centre: w.centre, width: w.width });
+}
+
+// The measurements' list, with each one's slice.
+function listMeasurements() {
+  const list = document.getElementById('measurements');
+  list.replaceChildren();
+  for (const m of slices.measurements) {
+    const item = document.createElement('li');
+    item.textContent = `${m.kind} ${slices.describe(m)} (${m.plane})`;
+    item.dataset.value = String(m.value);
+    list.append(item);
+  }
+  document.getElementById('measure-panel').querySelector('summary').textContent =
+    `Measure${slices.measurements.length ? ` (${slices.measurements.length})` : ''}`;
+}
+
+// A click on the 3D view (a press and release without a drag) moves the
+// crosshair to the first point the view shows there, when slices are shown.
+function attachPick() {
+  let down = null;
+  canvas.addEventListener('pointerdown', (e) => {
+    down = e.button === 0 && !e.ctrlKey && !e.shiftKey ? { x: e.clientX, y: e.clientY, t: performance.now() } : null;
+  });
+  canvas.addEventListener('pointerup', async (e) => {
+    if (!down || Math.hypot(e.clientX - down.x, e.clientY - down.y) > 4 || performance.now() - down.t > 600) return;
+    down = null;
+    if (LAYOUTS[layoutSelect.value].length === 1) return;
+    const r = canvas.getBoundingClientRect();
+    const answer = await stream.ask('pick', { xy: [e.clientX - r.left, e.clientY - r.top] });
+    if (answer && answer.at) slices.moveCrosshair(answer.at);
+    else if (answer) showError('nothing visible under that point to put the crosshair on');
+  });
+}
+
+// Keys anywhere but in a control: 1–4 choose the layout, Shift+1… the
+// slice window by number, R resets every view.
+function attachKeys() {
+  document.addEventListener('keydown', (e) => {
+    if (e.altKey || e.ctrlKey || e.metaKey) return;
+    if (e.target.closest && e.target.closest('input, select, textarea, summary, button')) return;
+    const digit = /^Digit([1-9])$/.exec(e.code);
+    if (digit && e.shiftKey) chooseWindow(Number(digit[1]));
+    else if (digit && digit[1] in LAYOUTS) chooseLayout(digit[1]);
+    else if (e.key === 'r' || e.key === 'R') {
+      camera.reset();
+      slices.reset();
+      windowSelect.value = '';
+      requestFrame();
+    } else return;
+    e.preventDefault();
+  });
 }
 
 // The view in the address, so a link reproduces it: every setting sent but
@@ -465,6 +634,8 @@ function linkView(view) {
   for (const [name, value] of Object.entries(view)) {
     if (!UNLINKED.has(name) && !unsettled.has(name)) params.set(name, String(value));
   }
+  if (layoutSelect.value !== '1') params.set('layout', layoutSelect.value);
+  slices.linkParams(params);
   const address = `${location.pathname}${location.search}#${params}`;
   if (address !== `${location.pathname}${location.search}${location.hash}`) {
     history.replaceState(null, '', address);
@@ -485,8 +656,11 @@ function typed(name, text) {
 function applyLink() {
   const params = new URLSearchParams(location.hash.slice(1));
   const get = (name) => params.get(name);
-  if (![...params.keys()].some((name) => schema.settings.has(name))) return;
+  if (![...params.keys()].some((name) => schema.settings.has(name) || name === 'layout')) return;
   if (get('dataset') !== null) chooseDataset(get('dataset'));
+  if (get('layout') !== null && get('layout') in LAYOUTS) layoutSelect.value = get('layout');
+  slices.applyLink(params);
+  if (get('swindow') !== null) windowSelect.value = '';
   if (get('preset') !== null && dataset.presets.some((p) => p.name === get('preset'))) {
     presetSelect.value = get('preset');
     loadPreset();
@@ -533,17 +707,6 @@ function applyLink() {
       if (value !== null) c.setting.value = typed(c.dataset.setting, value);
     }
   }
-}
-
-// The patient's directions (LPS: +x left, +y posterior, +z superior) as
-// letters, and the labels of each edge of the view: the one or two
-// directions a screen direction is closest to (two when it is oblique).
-const DIRECTIONS = [['L', 'R'], ['P', 'A'], ['S', 'I']];
-function directionLetters(v) {
-  const order = [0, 1, 2].sort((a, b) => Math.abs(v[b]) - Math.abs(v[a]));
-  const letter = (axis) => DIRECTIONS[axis][v[axis] >= 0 ? 0 : 1];
-  const first = letter(order[0]);
-  return Math.abs(v[order[1]]) > 0.38 ? first + letter(order[1]) : first;
 }
 
 // Orientation labels at the view's edges and a scale bar in mm (at the
@@ -688,6 +851,8 @@ function chooseDataset(id) {
   }
   presetSelect.value = dataset.default_preset;
   loadPreset();
+  slices.setDataset(dataset);
+  fillWindows();
 }
 
 function fillDatasetPicker(list) {
@@ -789,18 +954,54 @@ function attachControls() {
   // A link pasted into this tab's address bar changes only the hash.
   window.addEventListener('hashchange', () => {
     applyLink();
+    applyLayout();
     showLight();
     showLightPanel();
     requestFrame();
   });
   document.getElementById('reset').addEventListener('click', () => {
     camera.reset();
+    slices.reset();
+    windowSelect.value = '';
     requestFrame();
   });
   window.addEventListener('resize', () => {
-    resizeCanvas();
+    applyLayout();
     requestFrame();
   });
+  layoutSelect.addEventListener('change', () => chooseLayout(layoutSelect.value));
+  windowSelect.addEventListener('change', () => {
+    if (windowSelect.value === '') slices.setWindow(null);
+    else chooseWindow(Number(windowSelect.value));
+  });
+  const slab = document.getElementById('slab');
+  const slabMode = document.getElementById('slab-mode');
+  const slabSetting = schema.slice.get('slab');
+  slab.min = slabSetting.min;
+  slab.max = Math.min(slabSetting.max, 100);
+  slab.step = 'any';
+  slab.value = slabSetting.default;
+  slab.title = slabSetting.doc;
+  fillChoices(slabMode, schema.slice.get('slab_mode'));
+  const showSlab = () => {
+    slab.nextElementSibling.textContent = `${Number(Number(slab.value).toFixed(1))} mm`;
+  };
+  showSlab();
+  slab.addEventListener('input', () => {
+    slices.slab = Number(Number(slab.value).toFixed(1));
+    showSlab();
+    requestFrame();
+  });
+  slabMode.addEventListener('change', () => {
+    slices.slabMode = slabMode.value;
+    requestFrame();
+  });
+  const measure = document.getElementById('measure');
+  measure.addEventListener('change', () => {
+    slices.measure = measure.value;
+    slices.pendingPoints = null;
+  });
+  document.getElementById('measure-clear').addEventListener('click', () => slices.clearMeasurements());
 }
 
 // The interaction hint shows until the user first moves the view or closes
@@ -840,6 +1041,19 @@ async function start() {
     return;
   }
   camera = new OrbitCamera(schema);
+  slices = new SliceViews(schema.slice, {
+    ask: (type, fields) => (stream ? stream.ask(type, fields) : Promise.resolve(null)),
+  }, {
+    onChange: () => {
+      if (windowSelect.value !== '' && slices.window) {
+        const w = dataset.windows[Number(windowSelect.value) - 1];
+        if (!w || w.centre !== slices.window.centre || w.width !== slices.window.width) windowSelect.value = 'custom';
+      }
+      requestFrame();
+    },
+    onMeasure: () => listMeasurements(),
+    onError: (message) => showError(message),
+  });
   for (const [name, select] of Object.entries(toolbarSelects)) fillChoices(select, schema.get(name));
   fillReductions(schema.get('reduction'));
   clipSliders = buildClipSliders(schema.get('clip'));
@@ -860,7 +1074,10 @@ async function start() {
   attachPanels();
   attachContext();
   attachGestures(canvas, camera, () => requestFrame());
+  attachPick();
+  attachKeys();
   attachControls();
+  applyLayout();
   showLight();
   showLightPanel();
   requestFrame();

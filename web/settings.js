@@ -11,6 +11,8 @@ export class Schema {
   constructor(description) {
     this.groups = description.groups;
     this.settings = new Map(description.settings.map((s) => [s.name, s]));
+    // A slice view's own settings (w, h, cx, window, slab, …), alike.
+    this.slice = description.slice ? new Schema(description.slice) : null;
   }
 
   static async load() {

@@ -1,7 +1,13 @@
 // A view session over WebSocket (GET /api/stream). The protocol is documented
 // in server/src/protocol.rs (keep in sync): JSON `view` messages carry only
-// the settings that changed, each with a rising id; binary frames come back
-// with a 44-byte little-endian header; every drawn frame is acknowledged, and
+// the settings that changed, each with a rising id, for one of the views
+// (`pane`: the 3D view `3d`, or the slice views `axial`, `coronal`,
+// `sagittal`, each with settings of its own); a `layout` message says which
+// views are shown (only they are rendered); binary frames come back with a
+// 48-byte little-endian header naming their view, a slice frame after a
+// `slice` message saying where it lies; `probe` (the voxel at a point) and
+// `pick` (the first visible point under a pixel of the 3D view) are
+// answered by messages of their type with the same id (`ask`); every drawn frame is acknowledged, and
 // the server sends nothing more until it is, so a slow link drops frames
 // instead of building lag. The server decides the quality: small JPEG frames
 // while views keep coming, then the lossless full frame, then light
@@ -29,7 +35,9 @@
 
 import { authFetch, logInAgain, socketProtocols } from './auth.js';
 
-export const HEADER_LEN = 44;
+export const HEADER_LEN = 48;
+// The views by their number in frame headers.
+export const PANES = ['3d', 'axial', 'coronal', 'sagittal'];
 // The close code of a session closed for being idle (protocol.rs CLOSE_IDLE).
 const CLOSE_IDLE = 4408;
 // The close code of a session whose access token expired (CLOSE_EXPIRED).
@@ -60,6 +68,7 @@ export function parseHeader(buffer) {
     reduction: v.getFloat32(32, true),
     queueMs: v.getFloat32(36, true),
     emptyShare: v.getFloat32(40, true),
+    pane: PANES[v.getUint8(44)],
   };
 }
 
@@ -78,11 +87,20 @@ export class ViewStream {
     this.attempts = 0;
     // Tries in a row that did not open a session.
     this.refusals = 0;
-    this.view = null;
-    this.dpr = 1;
+    // Per view: the settings it should have, and those the server has.
+    this.views = {};
     this.sent = {};
+    this.dpr = 1;
     this.sentDpr = null;
+    this.layout = ['3d'];
+    this.sentLayout = null;
     this.id = 0;
+    // The last view message id sent per view, and the placements of slice
+    // frames by frame id (from the `slice` message before each).
+    this.lastIds = {};
+    this.placements = new Map();
+    // Probes and picks awaiting their answer, by id.
+    this.asked = new Map();
     this.sentAt = new Map();
     // The names each view message not yet reflected by a frame set, by id:
     // a refused message changed nothing on the server, so they are sent
@@ -106,6 +124,7 @@ export class ViewStream {
       // differ, and a view naming one that is gone would be refused whole).
       this.sent = {};
       this.sentDpr = null;
+      this.sentLayout = null;
       this.greeted = false;
       this.messages.clear();
     };
@@ -157,47 +176,81 @@ export class ViewStream {
     setTimeout(() => this.connect(), delay * 1000);
   }
 
-  // Sets the whole view (settings as in GET /api/render; w and h in CSS
-  // pixels). Whether a view message went (false: nothing changed, or it goes
-  // once the session is open).
-  update(view, dpr) {
-    this.view = { ...view };
+  // Sets the whole view of `pane` (settings as GET /api/settings lists
+  // them for it; w and h in CSS pixels). Whether a view message went
+  // (false: nothing changed, or it goes once the session is open).
+  update(view, dpr, pane = '3d') {
+    this.views[pane] = { ...view };
     this.dpr = dpr;
     if (this.socket.readyState === WebSocket.CLOSED && this.socket.idleClosed) {
       this.connect();
       return false;
     }
-    return this.flush();
+    return this.flush().includes(pane);
   }
 
+  // Shows these views (the others are not rendered).
+  setLayout(panes) {
+    this.layout = [...panes];
+    this.flush();
+  }
+
+  // Sends what changed; the views a message went for.
   flush() {
-    if (!this.view || !this.greeted || this.socket.readyState !== WebSocket.OPEN) return false;
-    const set = {};
-    for (const [name, value] of Object.entries(this.view)) {
-      if (this.sent[name] !== value) set[name] = value;
+    if (!this.greeted || this.socket.readyState !== WebSocket.OPEN) return [];
+    if (String(this.sentLayout) !== String(this.layout)) {
+      this.socket.send(JSON.stringify({ type: 'layout', panes: this.layout }));
+      this.sentLayout = [...this.layout];
     }
-    // A setting no longer in the view goes back to its default.
-    for (const name of Object.keys(this.sent)) {
-      if (!(name in this.view)) set[name] = null;
+    const went = [];
+    for (const [pane, view] of Object.entries(this.views)) {
+      const sent = this.sent[pane] || {};
+      const set = {};
+      for (const [name, value] of Object.entries(view)) {
+        if (sent[name] !== value) set[name] = value;
+      }
+      // A setting no longer in the view goes back to its default.
+      for (const name of Object.keys(sent)) {
+        if (!(name in view)) set[name] = null;
+      }
+      if (Object.keys(set).length === 0 && this.sentDpr === this.dpr) continue;
+      this.id += 1;
+      this.sentAt.set(this.id, { pane, at: performance.now() });
+      this.lastIds[pane] = this.id;
+      this.messages.set(this.id, { pane, names: Object.keys(set), dpr: this.sentDpr !== this.dpr });
+      this.socket.send(JSON.stringify({ type: 'view', id: this.id, pane, set, dpr: this.dpr }));
+      this.sent[pane] = { ...view };
+      this.sentDpr = this.dpr;
+      went.push(pane);
     }
-    if (Object.keys(set).length === 0 && this.sentDpr === this.dpr) return false;
+    return went;
+  }
+
+  // Asks a `probe` or `pick` (`fields` besides type and id); resolves with
+  // the answer, or null when the session cannot ask now or the server
+  // refused (its error is shown).
+  ask(type, fields) {
+    if (!this.greeted || this.socket.readyState !== WebSocket.OPEN) return Promise.resolve(null);
     this.id += 1;
-    this.sentAt.set(this.id, performance.now());
-    this.messages.set(this.id, { names: Object.keys(set), dpr: this.sentDpr !== this.dpr });
-    this.socket.send(JSON.stringify({ type: 'view', id: this.id, set, dpr: this.dpr }));
-    this.sent = { ...this.view };
-    this.sentDpr = this.dpr;
-    return true;
+    const id = this.id;
+    this.socket.send(JSON.stringify({ type, id, ...fields }));
+    return new Promise((resolve) => this.asked.set(id, resolve));
   }
 
   // The server refused view message `id` and kept its settings as they were:
   // what it set is no longer taken as sent (not sent again at once: the
   // refused value may still be in the view; the next view carries them).
   forget(id) {
+    const asked = this.asked.get(id);
+    if (asked) {
+      this.asked.delete(id);
+      asked(null);
+    }
     const message = this.messages.get(id);
     if (!message) return;
     this.messages.delete(id);
-    for (const name of message.names) delete this.sent[name];
+    const sent = this.sent[message.pane] || {};
+    for (const name of message.names) delete sent[name];
     if (message.dpr) this.sentDpr = null;
   }
 
@@ -214,8 +267,14 @@ export class ViewStream {
       }
       else if (message.type === 'camera') {
         const held = this.camera(message.set);
-        Object.assign(this.sent, held);
-        if (this.view) Object.assign(this.view, held);
+        this.sent['3d'] = { ...(this.sent['3d'] || {}), ...held };
+        if (this.views['3d']) Object.assign(this.views['3d'], held);
+      } else if (message.type === 'slice') {
+        this.placements.set(message.frame, message);
+      } else if (message.type === 'probe' || message.type === 'pick') {
+        const asked = this.asked.get(message.id);
+        this.asked.delete(message.id);
+        if (asked) asked(message);
       }
       return;
     }
@@ -229,14 +288,22 @@ export class ViewStream {
     const type = ENCODINGS[header.encoding] || 'application/octet-stream';
     const blob = new Blob([new Uint8Array(data, HEADER_LEN)], { type });
     const bitmap = await createImageBitmap(blob);
-    const sentAt = this.sentAt.get(header.messageId);
-    for (const id of this.sentAt.keys()) if (id < header.messageId) this.sentAt.delete(id);
-    for (const id of this.messages.keys()) if (id <= header.messageId) this.messages.delete(id);
+    const sentAt = this.sentAt.get(header.messageId)?.at;
+    for (const [id, sent] of this.sentAt) {
+      if (id < header.messageId && sent.pane === header.pane) this.sentAt.delete(id);
+    }
+    // Ids rise across views: those below the frame's are done only for its own.
+    for (const [id, message] of this.messages) {
+      if (id <= header.messageId && message.pane === header.pane) this.messages.delete(id);
+    }
+    const placement = this.placements.get(header.frameId) || null;
+    this.placements.delete(header.frameId);
     this.draw(bitmap, {
       ...header,
+      placement,
       latencyMs: sentAt === undefined ? NaN : performance.now() - sentAt,
-      // Whether it shows the last view sent (later ones may be on their way).
-      latest: header.messageId >= this.id,
+      // Whether it shows the last view sent for its view (later ones may be on their way).
+      latest: header.messageId >= (this.lastIds[header.pane] || 0),
     }, blob);
     if (this.socket.readyState === WebSocket.OPEN) {
       this.socket.send(JSON.stringify({ type: 'ack', frame: header.frameId }));

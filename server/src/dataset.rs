@@ -48,6 +48,17 @@ pub struct PresetInfo {
     pub tf: String,
 }
 
+/// A named greyscale window of slice views.
+#[derive(Debug, Clone, Serialize)]
+pub struct WindowInfo {
+    /// The name (`brain`, `lung`, …).
+    pub name: &'static str,
+    /// The value shown mid-grey, physical units.
+    pub centre: f32,
+    /// From black to white, physical units.
+    pub width: f32,
+}
+
 /// What `GET /api/datasets` says about a dataset.
 #[derive(Debug, Clone, Serialize)]
 pub struct DatasetInfo {
@@ -78,6 +89,12 @@ pub struct DatasetInfo {
     pub presets: Vec<PresetInfo>,
     /// The preset a client should start with.
     pub default_preset: &'static str,
+    /// Slice views' named greyscale windows (CT's in HU: brain, subdural,
+    /// stroke, bone, lung, abdomen; none for other data), in the order
+    /// clients number them.
+    pub windows: Vec<WindowInfo>,
+    /// The window slice views open with.
+    pub default_window: WindowInfo,
     /// The level-0 voxels' histogram: counts in equal bins over
     /// `histogram_range` (physical units), for transfer-function editors.
     pub histogram: Vec<u64>,
@@ -194,6 +211,18 @@ impl Dataset {
         self.presets()[0]
     }
 
+    /// Whether the values are CT in Hounsfield units (CT presets and windows suit it).
+    pub fn is_ct_in_hu(&self) -> bool {
+        let m = self.store.meta();
+        m.modality.as_deref() == Some("CT") && m.unit.as_deref() == Some("HU")
+    }
+
+    /// The window slice views open with: soft tissue for CT in HU, else the
+    /// value range ([`shaders::slice::default_window`]).
+    pub fn default_window(&self) -> (&'static str, shaders::frame::Window) {
+        shaders::slice::default_window(self.is_ct_in_hu(), self.value_range())
+    }
+
     /// Refuses a preset that does not suit this dataset (a CT preset in
     /// Hounsfield units on 8-bit engine data is an opaque box).
     ///
@@ -249,6 +278,26 @@ impl Dataset {
                 })
                 .collect(),
             default_preset: self.default_preset().name(),
+            windows: if self.is_ct_in_hu() {
+                shaders::slice::CT_WINDOWS
+                    .iter()
+                    .map(|&(name, w)| WindowInfo {
+                        name,
+                        centre: w.centre,
+                        width: w.width,
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            },
+            default_window: {
+                let (name, w) = self.default_window();
+                WindowInfo {
+                    name,
+                    centre: w.centre,
+                    width: w.width,
+                }
+            },
             histogram,
             histogram_range,
         }

@@ -319,6 +319,12 @@ pub async fn serve(
                 continue;
             }
         };
+        // Frames go out at once: a slice view's placement and its frame are
+        // two writes, and Nagle's algorithm would hold the second until the
+        // peer's (delayed) acknowledgement of the first, tens of ms.
+        if let Err(e) = stream.set_nodelay(true) {
+            tracing::debug!("TCP_NODELAY on a connection from {client}: {e}");
+        }
         let (id, activity, close) = connections.lock().admit(client.ip(), &limits);
         let tracked = Tracked {
             stream,

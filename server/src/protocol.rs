@@ -73,9 +73,11 @@
 //! (protocol error) and the reason.
 
 use serde_json::{Map, Value};
+use shaders::frame::Window;
+use shaders::slice::{Plane, SlicePlacement};
 
 /// The protocol's version, sent in `hello`.
-pub const PROTOCOL: u32 = 2;
+pub const PROTOCOL: u32 = 3;
 /// The longest message a client may send, in bytes: views, acknowledgements
 /// and status requests are far shorter.
 pub const MAX_MESSAGE_BYTES: usize = 64 << 10;
@@ -95,11 +97,65 @@ pub const PING_INTERVAL: u64 = 20;
 pub const PEER_PATIENCE: u64 = 3 * PING_INTERVAL;
 
 /// Bytes of a [`FrameHeader`].
-pub const HEADER_LEN: usize = 44;
+pub const HEADER_LEN: usize = 48;
 /// The first four bytes of every frame.
 pub const MAGIC: [u8; 4] = *b"VXF1";
 /// Device pixel ratios accepted.
 pub const DPR_RANGE: (f64, f64) = (0.25, 4.0);
+
+/// A session's views: the 3D view and the three slice views, each with its
+/// own settings and frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Pane {
+    /// The volume rendering.
+    Volume,
+    /// A slice view of this plane.
+    Slice(Plane),
+}
+
+impl Pane {
+    /// Every pane, in the order of their numbers in frame headers.
+    pub const ALL: [Pane; 4] = [
+        Pane::Volume,
+        Pane::Slice(Plane::Axial),
+        Pane::Slice(Plane::Coronal),
+        Pane::Slice(Plane::Sagittal),
+    ];
+
+    /// The name in messages: `3d`, `axial`, `coronal`, `sagittal`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Pane::Volume => "3d",
+            Pane::Slice(plane) => shaders::settings::Choice::name(plane),
+        }
+    }
+
+    /// The pane of a name.
+    pub fn named(name: &str) -> Option<Pane> {
+        Pane::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// Its number in frame headers (0 to 3), and its place in [`Pane::ALL`].
+    pub fn index(self) -> usize {
+        match self {
+            Pane::Volume => 0,
+            Pane::Slice(Plane::Axial) => 1,
+            Pane::Slice(Plane::Coronal) => 2,
+            Pane::Slice(Plane::Sagittal) => 3,
+        }
+    }
+
+    fn expected() -> String {
+        let names: Vec<&str> = Pane::ALL.iter().map(|p| p.name()).collect();
+        format!("one of {}", names.join(", "))
+    }
+}
+
+impl serde::Serialize for Pane {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
 
 /// How a frame's image is encoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -148,6 +204,8 @@ pub struct FrameHeader {
     pub queue_ms: f32,
     /// The share of blocks the transfer function leaves empty (0 to 1).
     pub empty_share: f32,
+    /// The view it is of.
+    pub pane: Pane,
 }
 
 /// A frame header [`FrameHeader::parse`] refuses.
@@ -162,6 +220,9 @@ pub enum HeaderError {
     /// An encoding this version does not know.
     #[error("frame encoding {0}: expected 1 (JPEG), 2 (PNG) or 3 (WebP)")]
     Encoding(u8),
+    /// A pane this version does not know.
+    #[error("frame pane {0}: expected 0 (3d), 1 (axial), 2 (coronal) or 3 (sagittal)")]
+    Pane(u8),
 }
 
 impl FrameHeader {
@@ -185,6 +246,7 @@ impl FrameHeader {
         b[32..36].copy_from_slice(&self.reduction.to_le_bytes());
         b[36..40].copy_from_slice(&self.queue_ms.to_le_bytes());
         b[40..44].copy_from_slice(&self.empty_share.to_le_bytes());
+        b[44] = self.pane.index() as u8;
         b
     }
 
@@ -209,6 +271,9 @@ impl FrameHeader {
             3 => Encoding::Webp,
             other => return Err(HeaderError::Encoding(other)),
         };
+        let pane = *Pane::ALL
+            .get(usize::from(bytes[44]))
+            .ok_or(HeaderError::Pane(bytes[44]))?;
         Ok(FrameHeader {
             encoding,
             lossless: bytes[5] & 1 != 0,
@@ -226,6 +291,7 @@ impl FrameHeader {
             reduction: f32_at(32),
             queue_ms: f32_at(36),
             empty_share: f32_at(40),
+            pane,
         })
     }
 }
@@ -238,6 +304,8 @@ pub enum ClientMessage {
     View {
         /// The message's id.
         id: u32,
+        /// The view it changes.
+        pane: Pane,
         /// Settings to merge into the view (checked when merged).
         set: Map<String, Value>,
         /// Device pixel ratio, if given.
@@ -252,6 +320,28 @@ pub enum ClientMessage {
     Status {
         /// The message's id, echoed in the reply.
         id: Option<u32>,
+    },
+    /// Show these views (and render only them).
+    Layout {
+        /// The views shown, at least one, each once.
+        panes: Vec<Pane>,
+    },
+    /// The voxel at a point: answered by a [`Reply::Probe`].
+    Probe {
+        /// The message's id, echoed.
+        id: u32,
+        /// Model mm (from the volume's centre).
+        at: [f32; 3],
+    },
+    /// The first visible point under a pixel of the 3D view: answered by a
+    /// [`Reply::Pick`].
+    Pick {
+        /// The message's id, echoed.
+        id: u32,
+        /// CSS pixels from the 3D view's top left.
+        x: f32,
+        /// See `x`.
+        y: f32,
     },
 }
 
@@ -275,6 +365,46 @@ pub enum Reply {
         /// The camera's settings by name, as a view message sets them.
         set: Map<String, Value>,
     },
+    /// Where the slice frame that follows lies, and its window.
+    Slice {
+        /// The view.
+        pane: Pane,
+        /// The frame's id.
+        frame: u32,
+        /// Pixel (x, y)'s centre is `corner + x·right + y·down`, model mm
+        /// (device pixels), and `level` the detail it wants.
+        placement: SlicePlacement,
+        /// Greyscale window: centre and width, physical units.
+        window: [f32; 2],
+    },
+    /// The voxel at a probed point.
+    Probe {
+        /// The probe's id.
+        id: u32,
+        /// The voxel (index, centre and physical value), `null` outside the volume.
+        voxel: Option<shaders::slice::Probe>,
+        /// The unit of the value, when known.
+        unit: Option<String>,
+    },
+    /// The first visible point under a picked pixel.
+    Pick {
+        /// The pick's id.
+        id: u32,
+        /// Model mm, `null` when the ray meets nothing the transfer function shows.
+        at: Option<[f32; 3]>,
+    },
+}
+
+impl Reply {
+    /// The reply before a slice frame.
+    pub fn slice(pane: Pane, frame: u32, placement: SlicePlacement, window: Window) -> Reply {
+        Reply::Slice {
+            pane,
+            frame,
+            placement,
+            window: [window.centre, window.width],
+        }
+    }
 }
 
 /// Where a session stands, the answer to a `status` message.
@@ -360,17 +490,36 @@ pub fn parse_client_message(text: &str) -> Result<ClientMessage, Refusal> {
         "ack" => Ok(ClientMessage::Ack {
             frame: fields.whole("frame")?,
         }),
+        "layout" => fields.layout(),
+        "probe" => Ok(ClientMessage::Probe {
+            id: fields.whole("id")?,
+            at: fields.numbers::<3>("at", MAX_PROBE_MM)?,
+        }),
+        "pick" => {
+            let [x, y] = fields.numbers::<2>("xy", shaders::frame::MAX_IMAGE_EDGE as f32)?;
+            Ok(ClientMessage::Pick {
+                id: fields.whole("id")?,
+                x,
+                y,
+            })
+        }
         _ => Ok(ClientMessage::Status {
             id: fields.optional_whole("id")?,
         }),
     }
 }
 
+/// The farthest from the volume's centre a probe may ask, mm.
+pub const MAX_PROBE_MM: f32 = shaders::slice::MAX_OFFSET_MM as f32;
+
 /// The message types, and the fields each may have.
-const FIELDS: [(&str, &[&str]); 3] = [
-    ("view", &["type", "id", "set", "dpr"]),
+const FIELDS: [(&str, &[&str]); 6] = [
+    ("view", &["type", "id", "pane", "set", "dpr"]),
     ("ack", &["type", "frame"]),
     ("status", &["type", "id"]),
+    ("layout", &["type", "panes"]),
+    ("probe", &["type", "id", "at"]),
+    ("pick", &["type", "id", "xy"]),
 ];
 
 /// A message's fields, its type known and every field one it may have.
@@ -389,7 +538,7 @@ impl<'a> Fields<'a> {
             .and_then(Value::as_u64)
             .and_then(|i| u32::try_from(i).ok());
         let refuse = |message: String| Refusal { id, message };
-        let types = "expected \"view\", \"ack\" or \"status\"";
+        let types = "expected \"view\", \"ack\", \"status\", \"layout\", \"probe\" or \"pick\"";
         let kind = fields
             .get("type")
             .and_then(Value::as_str)
@@ -440,9 +589,69 @@ impl<'a> Fields<'a> {
         ))
     }
 
+    /// `N` finite numbers within ±`limit` in the array `name`.
+    fn numbers<const N: usize>(&self, name: &str, limit: f32) -> Result<[f32; N], Refusal> {
+        let refuse = || {
+            self.refuse(format!(
+                "{} message field '{name}': expected an array of {N} numbers within ±{limit}",
+                self.kind
+            ))
+        };
+        let values = self
+            .fields
+            .get(name)
+            .and_then(Value::as_array)
+            .filter(|a| a.len() == N)
+            .ok_or_else(refuse)?;
+        let mut out = [0.0f32; N];
+        for (o, v) in out.iter_mut().zip(values) {
+            *o = v
+                .as_f64()
+                .map(|v| v as f32)
+                .filter(|v| v.is_finite() && v.abs() <= limit)
+                .ok_or_else(refuse)?;
+        }
+        Ok(out)
+    }
+
+    /// A `layout` message.
+    fn layout(&self) -> Result<ClientMessage, Refusal> {
+        let refuse = || {
+            self.refuse(format!(
+                "layout message field 'panes': expected an array of 1 to 4 different views, \
+                 each {}",
+                Pane::expected()
+            ))
+        };
+        let names = self
+            .fields
+            .get("panes")
+            .and_then(Value::as_array)
+            .filter(|a| (1..=Pane::ALL.len()).contains(&a.len()))
+            .ok_or_else(refuse)?;
+        let mut panes = Vec::with_capacity(names.len());
+        for name in names {
+            let pane = name.as_str().and_then(Pane::named).ok_or_else(refuse)?;
+            if panes.contains(&pane) {
+                return Err(refuse());
+            }
+            panes.push(pane);
+        }
+        Ok(ClientMessage::Layout { panes })
+    }
+
     /// A `view` message.
     fn view(&self) -> Result<ClientMessage, Refusal> {
         let id = self.whole("id")?;
+        let pane = match self.fields.get("pane") {
+            None => Pane::Volume,
+            Some(v) => v.as_str().and_then(Pane::named).ok_or_else(|| {
+                self.refuse(format!(
+                    "view message field 'pane' = {v}: expected {}",
+                    Pane::expected()
+                ))
+            })?,
+        };
         let set = match self.fields.get("set") {
             None => Map::new(),
             Some(Value::Object(map)) => map.clone(),
@@ -466,7 +675,7 @@ impl<'a> Fields<'a> {
                     })?,
             ),
         };
-        Ok(ClientMessage::View { id, set, dpr })
+        Ok(ClientMessage::View { id, pane, set, dpr })
     }
 }
 
@@ -493,6 +702,7 @@ mod tests {
             reduction: 8.9,
             queue_ms: 0.5,
             empty_share: 0.625,
+            pane: Pane::Slice(Plane::Coronal),
         };
         let mut bytes = header.to_bytes().to_vec();
         bytes.extend_from_slice(b"image");
@@ -516,6 +726,7 @@ mod tests {
             ),
             Ok(ClientMessage::View {
                 id: 3,
+                pane: Pane::Volume,
                 set: serde_json::json!({"az": 30, "shading": "global", "preset": null})
                     .as_object()
                     .cloned()
@@ -552,6 +763,28 @@ mod tests {
             (r#"{"type":"ack"}"#, "ack message field 'frame'"),
             (r#"{"type":"status","id":1.5}"#, "status message field 'id'"),
             (r#"{"type":"status","frame":1}"#, "field 'frame': unknown"),
+            (
+                r#"{"type":"view","id":1,"pane":"oblique"}"#,
+                "field 'pane' = \"oblique\"",
+            ),
+            (r#"{"type":"layout","panes":[]}"#, "1 to 4 different views"),
+            (
+                r#"{"type":"layout","panes":["3d","3d"]}"#,
+                "1 to 4 different views",
+            ),
+            (
+                r#"{"type":"layout","panes":["3d","x"]}"#,
+                "each one of 3d, axial",
+            ),
+            (
+                r#"{"type":"probe","id":1,"at":[1,2]}"#,
+                "field 'at': expected an array of 3",
+            ),
+            (
+                r#"{"type":"probe","id":1,"at":[1,2,1e9]}"#,
+                "within ±100000",
+            ),
+            (r#"{"type":"pick","id":1,"xy":[1,"a"]}"#, "field 'xy'"),
         ] {
             let refusal = parse_client_message(text).expect_err(text);
             assert!(
@@ -560,6 +793,27 @@ mod tests {
                 refusal.message
             );
         }
+        assert_eq!(
+            parse_client_message(r#"{"type":"layout","panes":["axial","3d"]}"#),
+            Ok(ClientMessage::Layout {
+                panes: vec![Pane::Slice(Plane::Axial), Pane::Volume]
+            })
+        );
+        assert_eq!(
+            parse_client_message(r#"{"type":"pick","id":2,"xy":[10.5,20]}"#),
+            Ok(ClientMessage::Pick {
+                id: 2,
+                x: 10.5,
+                y: 20.0
+            })
+        );
+        assert_eq!(
+            parse_client_message(r#"{"type":"probe","id":4,"at":[1,-2,3.5]}"#),
+            Ok(ClientMessage::Probe {
+                id: 4,
+                at: [1.0, -2.0, 3.5]
+            })
+        );
         assert_eq!(
             parse_client_message(r#"{"type":"view","id":5,"colour":1}"#)
                 .expect_err("unknown field")

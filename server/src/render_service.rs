@@ -36,7 +36,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
+use shaders::frame::Window;
 use shaders::raycast::samples_per_ray;
+use shaders::slice::{SlicePlacement, SliceRequest};
 use shaders::{AnyRenderer, Backend, Frame, FrameRequest, GpuError, RenderStats, Rows};
 use tokio::sync::oneshot;
 
@@ -82,11 +84,16 @@ pub struct RenderedFrame {
     /// pending blocks can wait for arrivals after these
     /// ([`Dataset::settle`]).
     pub arrivals: u64,
+    /// For a slice view's frame: where it lies and its window.
+    pub slice: Option<(SlicePlacement, Window)>,
 }
 
 struct Job {
     dataset: Dataset,
+    /// The frame; for a slice, only its size counts.
     request: FrameRequest,
+    /// A slice view's frame (drawn whole, in one turn) and its window.
+    slice: Option<(SliceRequest, Window)>,
     queued: Instant,
     reply: Reply,
     /// Samples a ray may take ([`samples_per_ray`]).
@@ -339,6 +346,7 @@ impl Job {
         let job = Job {
             dataset: dataset.clone(),
             request,
+            slice: None,
             queued: Instant::now(),
             reply,
             samples,
@@ -348,9 +356,66 @@ impl Job {
         Ok((job, answer))
     }
 
+    /// A slice view's frame of `dataset` queued now (drawn whole in one
+    /// turn: a slab of [`shaders::slice::MAX_SLAB_SAMPLES`] on a 4096² image
+    /// costs 16 turns at most), and where it will come.
+    fn slice(
+        dataset: &Dataset,
+        slice: SliceRequest,
+        window: Window,
+    ) -> (Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>) {
+        let samples = u64::from(slice.slab_samples(&dataset.store.meta().geometry));
+        let request = FrameRequest {
+            width: slice.width,
+            height: slice.height,
+            ..FrameRequest::default()
+        };
+        let (reply, answer) = oneshot::channel();
+        let job = Job {
+            dataset: dataset.clone(),
+            rows_per_turn: request.height,
+            request,
+            slice: Some((slice, window)),
+            queued: Instant::now(),
+            reply,
+            samples,
+            drawn: None,
+        };
+        (job, answer)
+    }
+
+    /// Draws a slice view's frame on the CPU from the dataset's block cache.
+    fn draw_slice(self, slice: &SliceRequest, window: Window) -> Result<Turn, (Reply, GpuError)> {
+        let start = Instant::now();
+        let arrivals = self.dataset.cache.arrivals();
+        let drawn = match shaders::slice::render(&self.dataset.cache, slice, window) {
+            Ok(drawn) => drawn,
+            Err(e) => return Err((self.reply, GpuError::Data(e))),
+        };
+        let render_ms = start.elapsed().as_secs_f64() * 1e3;
+        let frame = RenderedFrame {
+            frame: drawn.frame,
+            render_ms,
+            stats: RenderStats {
+                pending_blocks: drawn.pending_chunks,
+                draw_ms: render_ms,
+                ..RenderStats::default()
+            },
+            queue_ms: (start - self.queued).as_secs_f64() * 1e3,
+            bands: 1,
+            longest_band_ms: render_ms,
+            arrivals,
+            slice: Some((drawn.placement, drawn.window)),
+        };
+        Ok(Turn::Done(self.reply, frame))
+    }
+
     /// Draws the job's next band: the frame when it was the last (or the
     /// only) one, else the job with the band added.
     fn draw_band(mut self, renderers: &mut Renderers) -> Result<Turn, (Reply, GpuError)> {
+        if let Some((slice, window)) = self.slice.take() {
+            return self.draw_slice(&slice, window);
+        }
         let start = Instant::now();
         let rows = self.next_rows();
         let whole = rows.count == self.request.height;
@@ -422,6 +487,7 @@ impl Job {
             bands: drawn.bands,
             longest_band_ms: drawn.longest_band_ms,
             arrivals: drawn.arrivals,
+            slice: None,
         };
         Ok(Turn::Done(self.reply, frame))
     }
@@ -626,6 +692,21 @@ impl RenderService {
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
         let (job, answer) = Job::new(dataset, request, self.max_frame_cost())?;
+        self.shared.lock().push(client.clone(), job);
+        self.shared.ready.notify_one();
+        Self::answer(answer).await
+    }
+
+    /// Renders a slice view's frame of `dataset` through `window` for
+    /// `client`, always queued, in turn with every frame (view sessions).
+    pub async fn render_slice_waiting(
+        &self,
+        client: &Client,
+        dataset: &Dataset,
+        slice: SliceRequest,
+        window: Window,
+    ) -> Result<RenderedFrame, AppError> {
+        let (job, answer) = Job::slice(dataset, slice, window);
         self.shared.lock().push(client.clone(), job);
         self.shared.ready.notify_one();
         Self::answer(answer).await

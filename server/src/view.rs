@@ -214,9 +214,11 @@ impl View {
 
 /// `GET /api/settings`: every view setting (name, flag, group, kind, range
 /// or choices, unit, default, doc, what it takes), grouped; the dataset's
-/// choices are `datasets` (none listed when empty).
+/// choices are `datasets` (none listed when empty). Under `slice`, the
+/// settings of a slice view (`shaders::slice::SliceRequest`), described alike.
 pub fn describe(datasets: &[Dataset]) -> Json {
     let mut description = shaders::settings::describe_all::<View>();
+    description["slice"] = shaders::settings::describe_all::<shaders::slice::SliceRequest>();
     let entry = description["settings"]
         .as_array_mut()
         .and_then(|all| all.iter_mut().find(|s| s["name"] == "dataset"));

@@ -77,6 +77,7 @@ pub mod raycast;
 pub mod renderer;
 pub mod residency;
 pub mod settings;
+pub mod slice;
 pub mod volume_texture;
 pub mod wgsl;
 

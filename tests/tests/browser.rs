@@ -1732,3 +1732,368 @@ async fn the_corners_name_the_patient_and_study_and_the_notice_shows() {
     let result = context(&client, &server).await;
     finish(test, client, result).await;
 }
+
+/// The slice view of `plane`, in the page's script.
+fn pane_js(plane: &str) -> String {
+    format!("document.querySelector('.slice-pane[data-pane=\"{plane}\"]')")
+}
+
+/// Frames the slice view of `plane` has drawn.
+async fn pane_frames(client: &Client, plane: &str) -> Result<f64, String> {
+    number(
+        client,
+        &format!("{plane} frames"),
+        &format!("return Number({}.dataset.frames || 0);", pane_js(plane)),
+    )
+    .await
+}
+
+/// Waits until the slice view of `plane` shows its view losslessly, done.
+async fn pane_settled(client: &Client, plane: &str) -> Result<(), String> {
+    wait_for(
+        client,
+        &format!("the {plane} view settled"),
+        &format!(
+            "const p = {}; return p.dataset.lossless === 'true' && !p.querySelector('.pane-busy').classList.contains('on') ? 1 : 0;",
+            pane_js(plane)
+        ),
+        |v| v == 1.0,
+    )
+    .await
+    .map(|_| ())
+}
+
+/// A number of the address's hash (`fallback` when it has none).
+async fn hash_number(client: &Client, name: &str, fallback: f64) -> Result<f64, String> {
+    number(
+        client,
+        name,
+        &format!(
+            "const v = new URLSearchParams(location.hash.slice(1)).get('{name}'); return v === null ? {fallback} : Number(v);"
+        ),
+    )
+    .await
+}
+
+/// Moves the mouse to (`x`, `y`) CSS pixels from the centre of the element
+/// `css`, and with `click` presses and releases the left button there.
+async fn point_at(client: &Client, css: &str, x: f64, y: f64, click: bool) -> Result<(), String> {
+    let element = client
+        .find(Locator::Css(css))
+        .await
+        .map_err(|e| format!("{css}: {e}"))?;
+    let mut actions = MouseActions::new("mouse".into()).then(PointerAction::MoveToElement {
+        element,
+        duration: None,
+        x,
+        y,
+    });
+    if click {
+        actions = actions
+            .then(PointerAction::Down { button: 0 })
+            .then(PointerAction::Up { button: 0 });
+    }
+    client
+        .perform_actions(actions)
+        .await
+        .map_err(|e| format!("pointing at {css}: {e}"))
+}
+
+/// The voxel under (`x`, `y`) of the axial view, as the page reads it out:
+/// its index and value.
+async fn probed(client: &Client, x: f64, y: f64) -> Result<([u32; 3], f64), String> {
+    run(
+        client,
+        "clearing the readout",
+        &format!(
+            "{}.querySelector('.pane-probe').dataset.index = '';",
+            pane_js("axial")
+        ),
+    )
+    .await?;
+    point_at(client, ".slice-pane[data-pane=\"axial\"]", x, y, false).await?;
+    let probe = format!("{}.querySelector('.pane-probe')", pane_js("axial"));
+    wait_for(
+        client,
+        "the value under the cursor",
+        &format!("return {probe}.dataset.index ? 1 : 0;"),
+        |v| v == 1.0,
+    )
+    .await?;
+    let index = text(
+        client,
+        "the voxel",
+        &format!("return {probe}.dataset.index;"),
+    )
+    .await?;
+    let value = number(
+        client,
+        "the value",
+        &format!("return Number({probe}.dataset.value);"),
+    )
+    .await?;
+    let index: Vec<u32> = index.split(',').filter_map(|v| v.parse().ok()).collect();
+    let [i, j, k] = index[..] else {
+        return Err(format!("the voxel index {index:?}"));
+    };
+    Ok(([i, j, k], value))
+}
+
+/// Presses `key` with the focus where it is, and waits for `plane`'s
+/// view to draw again.
+async fn layout_key(client: &Client, key: &str, planes: &[&str]) -> Result<(), String> {
+    let before: Vec<f64> = {
+        let mut v = Vec::new();
+        for plane in planes {
+            v.push(pane_frames(client, plane).await?);
+        }
+        v
+    };
+    press(client, key).await?;
+    for (plane, before) in planes.iter().zip(before) {
+        wait_for(
+            client,
+            &format!("the {plane} view after key {key}"),
+            &format!("return Number({}.dataset.frames || 0);", pane_js(plane)),
+            |n| n > before,
+        )
+        .await?;
+        pane_settled(client, plane).await?;
+    }
+    Ok(())
+}
+
+/// The slice views on `volume` (the dataset served): the 2×2 layout shows
+/// three slices and 3D, oriented as radiologists read them; scrolling the
+/// axial view moves its slice and the crosshair in the coronal one; the
+/// value under the cursor is the voxel's; a distance between two voxels is
+/// their distance within one voxel; a click on the 3D view moves the
+/// crosshair to what it shows there; every layout is kept as a screenshot.
+async fn slice_views(
+    client: &Client,
+    server: &TestServer,
+    volume: &blocks::Volume,
+    name: &str,
+) -> Result<(), String> {
+    open_page(client, &server.url("/")).await?;
+    wait_for(client, "the 3D view finished", FINISHED, |v| v == 1.0).await?;
+    keep_screenshot(client, &format!("slices-{name}-layout-1x1")).await?;
+    layout_key(client, "2", &["axial", "coronal", "sagittal"]).await?;
+    keep_screenshot(client, &format!("slices-{name}-layout-2x2")).await?;
+    let letters = |plane: &str| {
+        format!(
+            "const p = {}; return ['top','bottom','left','right'].map((e) => p.querySelector('.pane-orient-' + e).textContent).join('');",
+            pane_js(plane)
+        )
+    };
+    for (plane, expected) in [("axial", "APRL"), ("coronal", "SIRL"), ("sagittal", "SIAP")] {
+        let got = text(client, "orientation letters", &letters(plane)).await?;
+        if got != expected {
+            return Err(format!(
+                "the {plane} view's edges read {got} (top, bottom, left, right): expected {expected}"
+            ));
+        }
+    }
+    // Scrolling the axial view: its slice moves, and so does the crosshair's
+    // axial line in the coronal view (superior is up there).
+    let line = format!(
+        "return Number({}.querySelector('svg').dataset.crosshair.split(',')[1]);",
+        pane_js("coronal")
+    );
+    let y0 = number(client, "the coronal crosshair", &line).await?;
+    let cz0 = hash_number(client, "cz", 0.0).await?;
+    let frames = pane_frames(client, "axial").await?;
+    run(
+        client,
+        "scrolling the axial view",
+        &format!(
+            "const p = {}; for (let i = 0; i < 5; i += 1) p.dispatchEvent(new WheelEvent('wheel', {{ deltaY: -100, cancelable: true, bubbles: true }}));",
+            pane_js("axial")
+        ),
+    )
+    .await?;
+    wait_for(
+        client,
+        "the axial view after scrolling",
+        &format!("return Number({}.dataset.frames || 0);", pane_js("axial")),
+        |n| n > frames,
+    )
+    .await?;
+    pane_settled(client, "axial").await?;
+    pane_settled(client, "coronal").await?;
+    let cz1 = hash_number(client, "cz", 0.0).await?;
+    let y1 = number(client, "the coronal crosshair", &line).await?;
+    let spacing = volume.geometry.spacing;
+    println!("scrolled: cz {cz0} → {cz1} mm, coronal line y {y0} → {y1}");
+    if ((cz0 - cz1).abs() - 5.0 * spacing[2]).abs() > 1e-3 || y1 >= y0 {
+        return Err(format!(
+            "five wheel steps moved the axial slice from {cz0} to {cz1} mm (expected 5 × {} mm) \
+             and the coronal view's line from y {y0} to {y1}",
+            spacing[2]
+        ));
+    }
+    // The value under the cursor is the voxel's, in the slice shown.
+    let (a, va) = probed(client, -60.0, 10.0).await?;
+    let expected = volume.physical_at(a[0], a[1], a[2]);
+    let centre_k = (f64::from(volume.geometry.dims[2]) - 1.0) / 2.0;
+    let k_expected = (centre_k + cz1 / spacing[2]).round();
+    println!("under the cursor: voxel {a:?} = {va}, the volume has {expected}");
+    if va != expected || f64::from(a[2]) != k_expected {
+        return Err(format!(
+            "the readout says voxel {a:?} = {va}; the volume holds {expected} there, and the slice is k = {k_expected}"
+        ));
+    }
+    // A distance between two voxels: their distance within one voxel.
+    let (b, _) = probed(client, 70.0, -40.0).await?;
+    let known = (0..3)
+        .map(|i| ((f64::from(a[i]) - f64::from(b[i])) * spacing[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    run(
+        client,
+        "measure mode",
+        "const m = document.getElementById('measure'); m.value = 'distance'; m.dispatchEvent(new Event('change'));",
+    )
+    .await?;
+    point_at(
+        client,
+        ".slice-pane[data-pane=\"axial\"]",
+        -60.0,
+        10.0,
+        true,
+    )
+    .await?;
+    point_at(
+        client,
+        ".slice-pane[data-pane=\"axial\"]",
+        70.0,
+        -40.0,
+        true,
+    )
+    .await?;
+    let measured = wait_for(
+        client,
+        "the distance listed",
+        "const li = document.querySelector('#measurements li'); return li ? Number(li.dataset.value) : -1;",
+        |v| v >= 0.0,
+    )
+    .await?;
+    let voxel = spacing.iter().copied().fold(0.0, f64::max);
+    println!("distance {measured:.2} mm between voxels {a:?} and {b:?}, {known:.2} mm apart");
+    if (measured - known).abs() > voxel {
+        return Err(format!(
+            "the distance measured is {measured} mm; the voxels are {known} mm apart"
+        ));
+    }
+    let drawn = number(
+        client,
+        "the measurement drawn",
+        &format!(
+            "return {}.querySelectorAll('svg .measure-label').length;",
+            pane_js("axial")
+        ),
+    )
+    .await?;
+    if drawn != 1.0 {
+        return Err(format!("{drawn} measurement labels on the axial view"));
+    }
+    run(
+        client,
+        "crosshair mode",
+        "const m = document.getElementById('measure'); m.value = 'off'; m.dispatchEvent(new Event('change'));",
+    )
+    .await?;
+    // A click on the 3D view's forehead (a quarter of its height above the
+    // middle) puts the crosshair on the bone it shows there.
+    let frames = pane_frames(client, "axial").await?;
+    let height = number(
+        client,
+        "the 3D view's height",
+        "return document.getElementById('view').clientHeight;",
+    )
+    .await?;
+    point_at(client, "#view", 0.0, -0.25 * height, true).await?;
+    wait_for(
+        client,
+        "the slices after a pick",
+        &format!("return Number({}.dataset.frames || 0);", pane_js("axial")),
+        |n| n > frames,
+    )
+    .await?;
+    pane_settled(client, "axial").await?;
+    let picked: Vec<f64> = {
+        let mut v = Vec::new();
+        for name in ["cx", "cy", "cz"] {
+            v.push(hash_number(client, name, 0.0).await?);
+        }
+        v
+    };
+    // The voxels within one of the point: bone among them.
+    let g = &volume.geometry;
+    let index: Vec<f64> = (0..3)
+        .map(|a| {
+            let along: f64 = (0..3).map(|r| g.direction[a][r] * picked[r]).sum();
+            along / g.spacing[a] + (f64::from(g.dims[a]) - 1.0) / 2.0
+        })
+        .collect();
+    let mut value = f64::MIN;
+    for dz in -1i64..=1 {
+        for dy in -1i64..=1 {
+            for dx in -1i64..=1 {
+                let v: Vec<u32> = [dx, dy, dz]
+                    .iter()
+                    .zip(&index)
+                    .zip(g.dims)
+                    .map(|((d, &i), n)| (i.round() as i64 + d).clamp(0, i64::from(n) - 1) as u32)
+                    .collect();
+                value = value.max(volume.physical_at(v[0], v[1], v[2]));
+            }
+        }
+    }
+    println!("picked {picked:?} mm, voxel {index:?}; the most within a voxel is {value}");
+    // Looking from the front, the bone shown is in front of the centre and above it.
+    if picked[1] >= 0.0 || picked[2] <= 0.0 || value < 150.0 {
+        return Err(format!(
+            "a click on the 3D view's forehead put the crosshair at {picked:?} mm, on a voxel of {value}"
+        ));
+    }
+    layout_key(client, "3", &["axial", "coronal", "sagittal"]).await?;
+    keep_screenshot(client, &format!("slices-{name}-layout-1+3")).await?;
+    layout_key(client, "4", &["axial"]).await?;
+    keep_screenshot(client, &format!("slices-{name}-layout-axial")).await?;
+    Ok(())
+}
+
+/// The dataset of the slice tests and its voxels: the VHF head when the
+/// shared datasets are there, else the phantom.
+fn slice_dataset(test: &str) -> (server::Dataset, blocks::Volume, &'static str) {
+    if let Some(data) = voxserve_tests::data::shared_data(test) {
+        let path = data.join("dicom/vhf_head");
+        let mut source = blocks::ingest::open(&path, &Default::default()).expect("the VHF head");
+        let volume = blocks::ingest::load(source.as_mut()).expect("its voxels");
+        let dataset = server::Dataset::load(&path, &Default::default(), 256 << 20)
+            .expect("the VHF head's store");
+        return (dataset, volume, "vhf");
+    }
+    let volume = blocks::phantom::head(64).expect("phantom");
+    let dataset = server::Dataset::phantom(64, 64 << 20).expect("phantom");
+    (dataset, volume, "phantom")
+}
+
+#[tokio::test]
+async fn slice_views_scroll_probe_measure_and_follow_a_pick_in_every_layout() {
+    let test = "slice_views_scroll_probe_measure_and_follow_a_pick_in_every_layout";
+    let Some((_driver, client)) = open_browser_as(test, 1400, 900, false).await else {
+        return;
+    };
+    let (dataset, volume, name) = slice_dataset(test);
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![dataset],
+        1,
+        StreamSettings::default(),
+    )
+    .await;
+    let result = slice_views(&client, &server, &volume, name).await;
+    finish(test, client, result).await;
+}

@@ -42,6 +42,12 @@ pub enum BenchCommand {
     /// frames wait while another changes to a transfer function whose blocks
     /// are not in memory.
     Stream(Box<BenchStreamArgs>),
+    /// Slice views on loopback: the time from a scroll (a `view` message
+    /// moving an axial slice by one voxel) to the frame that shows it, p50
+    /// and p95, while scrolling (JPEG) and still (lossless), with the render
+    /// and encode milliseconds and the frames drawn coarser while blocks
+    /// were read.
+    Slice(Box<BenchSliceArgs>),
     /// Extinction-based illumination as its paper reports it: summed-area-table
     /// build time per grid size, ambient occlusion per shell count against
     /// explicit sampling, soft shadows per cone sampling against one shadow
@@ -183,6 +189,27 @@ pub struct BenchStreamArgs {
           value_parser = clap::value_parser!(u32).range(
               i64::from(blocks::phantom::MIN_SIZE)..=i64::from(blocks::phantom::MAX_SIZE)))]
     pub cold_phantom: u32,
+    #[command(flatten)]
+    pub renderer: RendererArgs,
+    #[command(flatten)]
+    pub data: DataArgs,
+}
+
+/// `voxserve bench slice`.
+#[derive(Debug, Args)]
+pub struct BenchSliceArgs {
+    /// The dataset: `phantom`, a brick store, a volume file or a DICOM folder.
+    #[arg(default_value = PHANTOM_ID)]
+    pub dataset: String,
+    /// Image edge in pixels (square).
+    #[arg(long, default_value_t = 512, value_parser = setting_value::<u32>("w"))]
+    pub size: u32,
+    /// Scroll events timed per run.
+    #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub events: u32,
+    /// Slab thickness in mm (0: one plane).
+    #[arg(long, default_value_t = 0.0, value_parser = finite_in(0.0, 500.0))]
+    pub slab: f32,
     #[command(flatten)]
     pub renderer: RendererArgs,
     #[command(flatten)]

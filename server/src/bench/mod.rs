@@ -2,7 +2,7 @@
 //! that produced it. Speed and memory targets are checked here, never by tests.
 //!
 //! One module per benchmark (`render`, `read`, `blocks`, `light`, `stream`,
-//! `extinction`, `peer`), its flags in `args`, the real datasets in `reference_data`;
+//! `slice`, `extinction`, `peer`), its flags in `args`, the real datasets in `reference_data`;
 //! this module dispatches and holds what several benchmarks share.
 
 use std::io::Write as _;
@@ -25,6 +25,7 @@ mod peer;
 mod read;
 pub mod reference_data;
 mod render;
+mod slice;
 mod stream;
 
 use blocks::blocks;
@@ -33,6 +34,7 @@ use light::light;
 use peer::peer;
 use read::read;
 use render::render;
+use slice::slice;
 use stream::stream;
 
 /// Runs the benchmark `args` names.
@@ -43,6 +45,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Blocks(a) => blocks(a),
         BenchCommand::Light(a) => light(a),
         BenchCommand::Stream(a) => stream(a),
+        BenchCommand::Slice(a) => slice(a),
         BenchCommand::Extinction(a) => extinction(a),
         BenchCommand::Peer(a) => peer(a),
     }

@@ -42,7 +42,7 @@ use server::protocol::FrameHeader;
 use server::stream::StreamSettings;
 use server::{AppState, Dataset, RenderService};
 
-type Socket =
+pub(super) type Socket =
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
 /// How long one frame may take before the benchmark gives up.
@@ -54,7 +54,7 @@ pub fn stream(args: &BenchStreamArgs) -> anyhow::Result<()> {
 }
 
 /// A server on 127.0.0.1 port 0; dropping the sender stops it.
-async fn start_server(
+pub(super) async fn start_server(
     datasets: Vec<Dataset>,
     renderer: RenderService,
     settings: StreamSettings,
@@ -74,8 +74,9 @@ async fn start_server(
     Ok((url, stop))
 }
 
-async fn connect(url: &str) -> anyhow::Result<Socket> {
-    let (mut socket, _) = tokio_tungstenite::connect_async(url)
+pub(super) async fn connect(url: &str) -> anyhow::Result<Socket> {
+    // No Nagle on the viewer's side either, as browsers do.
+    let (mut socket, _) = tokio_tungstenite::connect_async_with_config(url, None, true)
         .await
         .with_context(|| format!("connecting to {url}"))?;
     // The hello.
@@ -119,14 +120,17 @@ async fn connect_from(url: &str, from: std::net::IpAddr) -> anyhow::Result<Socke
 
 /// Waits for the frame reflecting message `id` (any frame for `None`, which
 /// also accepts the hello); acknowledges it.
-async fn next_frame(socket: &mut Socket, id: Option<u32>) -> anyhow::Result<Option<FrameHeader>> {
+pub(super) async fn next_frame(
+    socket: &mut Socket,
+    id: Option<u32>,
+) -> anyhow::Result<Option<FrameHeader>> {
     Ok(next_frame_sized(socket, id)
         .await?
         .map(|(header, _)| header))
 }
 
 /// [`next_frame`] with the frame's size in bytes (header included).
-async fn next_frame_sized(
+pub(super) async fn next_frame_sized(
     socket: &mut Socket,
     id: Option<u32>,
 ) -> anyhow::Result<Option<(FrameHeader, usize)>> {
@@ -165,7 +169,7 @@ async fn send_view(socket: &mut Socket, id: u32, set: serde_json::Value) -> anyh
 }
 
 /// The `q` quantile (0..=1) of `values` (sorted in place).
-fn quantile(values: &mut [f64], q: f64) -> f64 {
+pub(super) fn quantile(values: &mut [f64], q: f64) -> f64 {
     values.sort_by(f64::total_cmp);
     let i = ((values.len() as f64 * q).ceil() as usize).saturating_sub(1);
     values.get(i).copied().unwrap_or(f64::NAN)

@@ -3,26 +3,32 @@
 //! that have come (see [`super`]'s docs for the rules). No I/O and no clock:
 //! every event brings its `now`, so the rules are tested with explicit
 //! instants; [`super::socket`] feeds it a socket and runs its actions.
+//!
+//! A session has four views ([`Pane`]): the 3D view and three slice views,
+//! each with its own settings, message id and progress, rendered under the
+//! same rules; the layout says which are shown. One render at a time for the
+//! whole session: the view changed last goes first.
 
 use std::sync::Arc;
 use std::time::Duration;
 
 use serde_json::{Map, Value};
-use shaders::frame::MAX_IMAGE_EDGE;
+use shaders::frame::{MAX_IMAGE_EDGE, Window};
 use shaders::illumination::Mode;
-use shaders::settings::Settings;
+use shaders::settings::{Raw, Settings};
+use shaders::slice::{Plane, SliceRequest};
 use shaders::{Camera, FrameRequest};
 use tokio::time::Instant;
 
 use super::StreamSettings;
 use crate::Dataset;
-use crate::protocol::{self, ClientMessage, Reply, Status, Waiting};
+use crate::protocol::{self, ClientMessage, Pane, Reply, Status, Waiting};
 use crate::view::{Origin, ViewError};
 
 /// How a frame is rendered and sent.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Quality {
-    /// Smaller, coarser, JPEG.
+    /// Smaller, coarser, JPEG (slices: full size and detail, JPEG).
     Interactive,
     /// Full size and detail, lossless.
     Full,
@@ -35,8 +41,13 @@ pub struct Render {
     pub quality: Quality,
     /// The dataset.
     pub dataset: Dataset,
-    /// The frame, in device pixels, scaled and reduced for `quality`.
+    /// The view it is of.
+    pub pane: Pane,
+    /// The 3D frame, in device pixels, scaled and reduced for `quality`
+    /// (for a slice view, only its size counts).
     pub request: FrameRequest,
+    /// A slice view's frame, in device pixels, and its window.
+    pub slice: Option<(SliceRequest, Window)>,
     /// The id the frame is sent with.
     pub frame_id: u32,
     /// The last view message the frame reflects.
@@ -69,7 +80,7 @@ pub enum Action {
     Close,
 }
 
-/// Where the frames of the current view stand.
+/// Where the frames of a view stand.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Progress {
     /// No view yet.
@@ -90,7 +101,7 @@ enum Progress {
     Failed,
 }
 
-/// What the view asks for next, before the window and the render in flight
+/// What a view asks for next, before the window and the render in flight
 /// are considered.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Want {
@@ -100,19 +111,48 @@ enum Want {
     Frame(Quality),
 }
 
+/// One view's progress.
+#[derive(Debug, Clone, Copy)]
+struct PaneState {
+    /// The last view message applied to it.
+    message_id: u32,
+    progress: Progress,
+    /// In the layout.
+    shown: bool,
+    /// When it last changed (the view changed last renders first).
+    changed: Option<Instant>,
+}
+
+impl PaneState {
+    const NEW: PaneState = PaneState {
+        message_id: 0,
+        progress: Progress::Empty,
+        shown: false,
+        changed: None,
+    };
+
+    fn change(&mut self, now: Instant) {
+        self.progress = Progress::Changed { at: now };
+        self.changed = Some(now);
+    }
+}
+
 /// One view session's state; see the module docs.
 #[derive(Debug)]
 pub struct Session {
     datasets: Arc<[Dataset]>,
     settings: StreamSettings,
-    /// The settings merged so far (`w` and `h` in CSS pixels).
+    /// The 3D view's settings and the dataset (`w` and `h` in CSS pixels).
     view: crate::View,
+    /// The slice views' settings (`w` and `h` in CSS pixels), by plane as
+    /// in [`Pane::ALL`]'s slices.
+    slices: [SliceRequest; 3],
     dpr: f64,
-    /// The last view message applied.
+    /// The last view message applied, to any view.
     message_id: u32,
-    progress: Progress,
-    /// The quality of the render in flight, if one is.
-    rendering: Option<Quality>,
+    panes: [PaneState; 4],
+    /// The view and quality of the render in flight, if one is.
+    rendering: Option<(Pane, Quality)>,
     /// The last frame id handed out (frame ids start at 1).
     last_id: u32,
     /// The last frame sent.
@@ -124,15 +164,22 @@ pub struct Session {
 }
 
 impl Session {
-    /// A session without a view yet, offering `datasets`.
+    /// A session without a view yet, offering `datasets`; the layout shows
+    /// the 3D view alone.
     pub fn new(datasets: Arc<[Dataset]>, settings: StreamSettings) -> Session {
+        let mut panes = [PaneState::NEW; 4];
+        panes[Pane::Volume.index()].shown = true;
         Session {
             datasets,
             settings,
             view: crate::View::default(),
+            slices: [Plane::Axial, Plane::Coronal, Plane::Sagittal].map(|plane| SliceRequest {
+                plane,
+                ..SliceRequest::default()
+            }),
             dpr: 1.0,
             message_id: 0,
-            progress: Progress::Empty,
+            panes,
             rendering: None,
             last_id: 0,
             sent: 0,
@@ -141,42 +188,94 @@ impl Session {
         }
     }
 
-    /// A text message arrived at `now`; the reply to send, if any.
+    /// A text message arrived at `now`; the reply to send, if any. Probes
+    /// and picks are answered by the loop ([`Session::probe_target`],
+    /// [`Session::pick_target`]).
     pub fn on_text(&mut self, now: Instant, text: &str) -> Option<Reply> {
         match protocol::parse_client_message(text) {
-            Ok(ClientMessage::View { id, set, dpr }) => self.on_view(now, id, &set, dpr),
-            Ok(ClientMessage::Ack { frame }) => {
-                self.on_ack(frame);
-                None
-            }
-            Ok(ClientMessage::Status { id }) => Some(Reply::Status(self.status(now, id))),
+            Ok(message) => self.on_message(now, message),
             Err(refusal) => Some(Reply::error(refusal.id, refusal.message)),
         }
     }
 
-    /// View message `id` arrived at `now`: `set` and `dpr` are merged into
-    /// the view, or, when any is refused, the view stays and the error is
-    /// the reply.
+    /// A message read; the reply to send, if any.
+    pub fn on_message(&mut self, now: Instant, message: ClientMessage) -> Option<Reply> {
+        match message {
+            ClientMessage::View { id, pane, set, dpr } => self.on_view(now, id, pane, &set, dpr),
+            ClientMessage::Ack { frame } => {
+                self.on_ack(frame);
+                None
+            }
+            ClientMessage::Status { id } => Some(Reply::Status(self.status(now, id))),
+            ClientMessage::Layout { panes } => {
+                self.on_layout(now, &panes);
+                None
+            }
+            ClientMessage::Probe { id, .. } | ClientMessage::Pick { id, .. } => Some(Reply::error(
+                Some(id),
+                "probes and picks are answered by the session's loop",
+            )),
+        }
+    }
+
+    /// View message `id` for `pane` arrived at `now`: `set` and `dpr` are
+    /// merged into that view, or, when any is refused, the view stays and
+    /// the error is the reply.
     pub fn on_view(
         &mut self,
         now: Instant,
         id: u32,
+        pane: Pane,
         set: &Map<String, Value>,
         dpr: Option<f64>,
     ) -> Option<Reply> {
-        let mut view = self.view.clone();
         let dpr = dpr.unwrap_or(self.dpr);
-        let checked = view
-            .patch(set, &self.datasets)
-            .and_then(|()| device_size(&view.frame, dpr));
+        let dataset_before = self.view.dataset.clone();
+        let checked = match pane {
+            Pane::Volume => {
+                let mut view = self.view.clone();
+                view.patch(set, &self.datasets)
+                    .and_then(|()| device_size(view.frame.width, view.frame.height, dpr))
+                    .map(|_| self.view = view)
+            }
+            Pane::Slice(_) => {
+                let slot = pane.index() - 1;
+                let mut slice = self.slices[slot].clone();
+                patch_slice(&mut slice, set)
+                    .and_then(|()| device_size(slice.width, slice.height, dpr))
+                    .map(|_| self.slices[slot] = slice)
+            }
+        };
         if let Err(error) = checked {
             return Some(Reply::error(Some(id), error.to_string()));
         }
-        self.view = view;
+        let rescaled = dpr != self.dpr;
         self.dpr = dpr;
         self.message_id = id;
-        self.progress = Progress::Changed { at: now };
+        let state = &mut self.panes[pane.index()];
+        state.message_id = id;
+        state.change(now);
+        // Every view shows the dataset and is drawn at the pixel ratio.
+        if rescaled || self.view.dataset != dataset_before {
+            for other in &mut self.panes {
+                if other.progress != Progress::Empty {
+                    other.change(now);
+                }
+            }
+        }
         None
+    }
+
+    /// The layout shows `panes` (a view shown again goes on where it was).
+    pub fn on_layout(&mut self, now: Instant, panes: &[Pane]) {
+        for pane in Pane::ALL {
+            let state = &mut self.panes[pane.index()];
+            let shown = panes.contains(&pane);
+            if shown && !state.shown && state.progress != Progress::Empty {
+                state.change(now);
+            }
+            state.shown = shown;
+        }
     }
 
     /// The client has drawn `frame` (and so every frame before it).
@@ -188,18 +287,19 @@ impl Session {
     /// `loading`: some blocks were shown coarser, their data read since the
     /// dataset's arrivals were `seen`.
     pub fn on_frame_sent(&mut self, converged: bool, loading: Option<u64>) {
-        let Some(quality) = self.rendering.take() else {
+        let Some((pane, quality)) = self.rendering.take() else {
             return;
         };
         self.sent = self.last_id;
+        let state = &mut self.panes[pane.index()];
         // A view that changed meanwhile starts over; this frame was of the old one.
         if quality == Quality::Full
             && matches!(
-                self.progress,
+                state.progress,
                 Progress::Interactive { .. } | Progress::Refining
             )
         {
-            self.progress = match (converged, loading) {
+            state.progress = match (converged, loading) {
                 (true, _) => Progress::Converged,
                 (false, Some(seen)) => Progress::Loading { seen },
                 (false, None) => Progress::Refining,
@@ -229,20 +329,24 @@ impl Session {
     }
 
     /// The frame being rendered failed; the error to send. Nothing more is
-    /// rendered for this view.
+    /// rendered for its view until it changes.
     pub fn on_render_failed(&mut self, message: String) -> Reply {
-        self.rendering = None;
-        if !matches!(self.progress, Progress::Changed { .. }) {
-            self.progress = Progress::Failed;
+        if let Some((pane, _)) = self.rendering.take() {
+            let state = &mut self.panes[pane.index()];
+            if !matches!(state.progress, Progress::Changed { .. }) {
+                state.progress = Progress::Failed;
+            }
         }
         Reply::error(None, message)
     }
 
-    /// Blocks the last frame waited for have arrived: the next full frame
-    /// shows them.
+    /// Blocks the last frames waited for have arrived: the next full frames
+    /// show them.
     pub fn on_blocks_arrived(&mut self) {
-        if matches!(self.progress, Progress::Loading { .. }) {
-            self.progress = Progress::Refining;
+        for state in &mut self.panes {
+            if matches!(state.progress, Progress::Loading { .. }) {
+                state.progress = Progress::Refining;
+            }
         }
     }
 
@@ -260,24 +364,24 @@ impl Session {
             return Action::WaitForInput;
         }
         match self.want(now) {
-            Want::Nothing => Action::WaitForInput,
+            (_, Want::Nothing) => Action::WaitForInput,
             // The ack wakes the loop; waking at the still instant would only spin.
             _ if self.window_full() => Action::WaitForInput,
-            Want::StillAt(at) => Action::WaitUntil(at),
-            Want::Blocks(seen) => match self.view.dataset(&self.datasets) {
+            (_, Want::StillAt(at)) => Action::WaitUntil(at),
+            (_, Want::Blocks(seen)) => match self.view.dataset(&self.datasets) {
                 Ok(dataset) => Action::WaitForBlocks {
                     dataset: dataset.clone(),
                     seen,
                 },
                 Err(_) => Action::WaitForInput,
             },
-            Want::Frame(quality) => self.begin(quality),
+            (pane, Want::Frame(quality)) => self.begin(pane, quality),
         }
     }
 
     /// Where the session stands at `now`, the answer to status message `id`.
     pub fn status(&self, now: Instant, id: Option<u32>) -> Status {
-        let waiting = match self.want(now) {
+        let waiting = match self.want(now).1 {
             _ if self.rendering.is_some() => Waiting::Render,
             Want::Nothing => Waiting::Message,
             _ if self.window_full() => Waiting::Ack,
@@ -286,6 +390,7 @@ impl Session {
             // Only seen between an event and the loop's next action, which begins it.
             Want::Frame(_) => Waiting::Render,
         };
+        let shown = self.panes.iter().filter(|p| p.shown);
         Status {
             id,
             view_id: self.message_id,
@@ -293,8 +398,37 @@ impl Session {
             acked: self.acked,
             rendering: self.rendering.is_some(),
             waiting,
-            converged: self.progress == Progress::Converged,
+            converged: shown.clone().any(|p| p.progress == Progress::Converged)
+                && shown
+                    .clone()
+                    .all(|p| matches!(p.progress, Progress::Converged | Progress::Empty)),
         }
+    }
+
+    /// The dataset shown, for probes.
+    ///
+    /// # Errors
+    /// When the view's dataset is not offered.
+    pub fn probe_target(&self) -> Result<Dataset, ViewError> {
+        self.view
+            .dataset(&self.datasets)
+            .cloned()
+            .map_err(|e| ViewError::setting(Origin::Session, e))
+    }
+
+    /// What a pick at CSS pixel (`x`, `y`) of the 3D view needs: the
+    /// dataset, the 3D view's frame (size in CSS pixels) and its transfer
+    /// function.
+    ///
+    /// # Errors
+    /// When the view's dataset is not offered.
+    pub fn pick_target(
+        &self,
+    ) -> Result<(Dataset, FrameRequest, blocks::TransferFunction), ViewError> {
+        let dataset = self.probe_target()?;
+        let frame = self.view.frame.clone();
+        let tf = frame.transfer_function(dataset.value_range(), dataset.default_preset());
+        Ok((dataset, frame, tf))
     }
 
     /// At most `frames_in_flight` frames are sent and unacknowledged.
@@ -302,9 +436,46 @@ impl Session {
         self.sent - self.acked >= self.settings.frames_in_flight
     }
 
-    fn want(&self, now: Instant) -> Want {
+    /// What the shown views ask for, the most pressing first: a frame (of
+    /// the view changed last), the earliest still instant, blocks (the
+    /// earliest arrivals count), else nothing.
+    fn want(&self, now: Instant) -> (Pane, Want) {
+        let mut best = (Pane::Volume, Want::Nothing);
+        let mut frame_changed: Option<Option<Instant>> = None;
+        for pane in Pane::ALL {
+            let state = &self.panes[pane.index()];
+            if !state.shown {
+                continue;
+            }
+            let want = self.want_of(state, now);
+            best = match (best.1, want) {
+                (_, Want::Nothing) => best,
+                (Want::Frame(_), Want::Frame(_)) => {
+                    if frame_changed.is_some_and(|c| state.changed > c) {
+                        frame_changed = Some(state.changed);
+                        (pane, want)
+                    } else {
+                        best
+                    }
+                }
+                (Want::Frame(_), _) => best,
+                (_, Want::Frame(_)) => {
+                    frame_changed = Some(state.changed);
+                    (pane, want)
+                }
+                (Want::StillAt(a), Want::StillAt(b)) => (pane, Want::StillAt(a.min(b))),
+                (Want::StillAt(_), _) => best,
+                (_, Want::StillAt(_)) => (pane, want),
+                (Want::Blocks(a), Want::Blocks(b)) => (pane, Want::Blocks(a.min(b))),
+                (Want::Nothing, _) => (pane, want),
+            };
+        }
+        best
+    }
+
+    fn want_of(&self, state: &PaneState, now: Instant) -> Want {
         let idle = Duration::from_millis(self.settings.idle_ms);
-        match self.progress {
+        match state.progress {
             Progress::Empty | Progress::Converged | Progress::Failed => Want::Nothing,
             Progress::Changed { at } if now >= at + idle => Want::Frame(Quality::Full),
             Progress::Changed { .. } => Want::Frame(Quality::Interactive),
@@ -318,39 +489,60 @@ impl Session {
         }
     }
 
-    /// Begins a render at `quality`, or gives up on a view that can no longer be rendered.
-    fn begin(&mut self, quality: Quality) -> Action {
-        if let Progress::Changed { at } = self.progress {
-            self.progress = Progress::Interactive { changed_at: at };
+    /// Begins a render of `pane` at `quality`, or gives up on a view that
+    /// can no longer be rendered.
+    fn begin(&mut self, pane: Pane, quality: Quality) -> Action {
+        let state = &mut self.panes[pane.index()];
+        if let Progress::Changed { at } = state.progress {
+            state.progress = Progress::Interactive { changed_at: at };
         }
-        match self.request(quality) {
-            Ok((dataset, request)) => {
+        let message_id = state.message_id;
+        match self.request(pane, quality) {
+            Ok((dataset, request, slice)) => {
                 self.last_id += 1;
-                self.rendering = Some(quality);
+                self.rendering = Some((pane, quality));
                 Action::Render(Box::new(Render {
                     quality,
                     dataset,
+                    pane,
                     request,
+                    slice,
                     frame_id: self.last_id,
-                    message_id: self.message_id,
+                    message_id,
                 }))
             }
             Err(error) => {
                 // Checked when the message came; only the datasets can change this.
-                self.progress = Progress::Failed;
+                self.panes[pane.index()].progress = Progress::Failed;
                 Action::Send(Reply::error(None, error.to_string()))
             }
         }
     }
 
-    /// The dataset and frame request of the view at `quality`, checked.
-    fn request(&self, quality: Quality) -> Result<(Dataset, FrameRequest), ViewError> {
+    /// The dataset and frame request of `pane` at `quality`, checked.
+    #[expect(clippy::type_complexity, reason = "one private use")]
+    fn request(
+        &self,
+        pane: Pane,
+        quality: Quality,
+    ) -> Result<(Dataset, FrameRequest, Option<(SliceRequest, Window)>), ViewError> {
         let dataset = self
             .view
             .dataset(&self.datasets)
             .map_err(|e| ViewError::setting(Origin::Session, e))?;
+        if let Pane::Slice(_) = pane {
+            let mut slice = self.slices[pane.index() - 1].clone();
+            (slice.width, slice.height) = device_size(slice.width, slice.height, self.dpr)?;
+            let window = slice.window.unwrap_or_else(|| dataset.default_window().1);
+            let request = FrameRequest {
+                width: slice.width,
+                height: slice.height,
+                ..FrameRequest::default()
+            };
+            return Ok((dataset.clone(), request, Some((slice, window))));
+        }
         let mut request = self.view.frame.clone();
-        (request.width, request.height) = device_size(&request, self.dpr)?;
+        (request.width, request.height) = device_size(request.width, request.height, self.dpr)?;
         if quality == Quality::Interactive {
             let s = self.settings.interactive_scale;
             request.width = ((request.width as f32 * s).round() as u32).max(1);
@@ -363,20 +555,36 @@ impl Session {
                     .min(shaders::frame::MAX_REDUCTION as f32);
             }
         }
-        Ok((dataset.clone(), request))
+        Ok((dataset.clone(), request, None))
     }
 }
 
-/// The frame size in device pixels of a viewport of `request.width` ×
-/// `request.height` CSS pixels at device pixel ratio `dpr`.
-fn device_size(request: &FrameRequest, dpr: f64) -> Result<(u32, u32), ViewError> {
-    let (w, h) = (f64::from(request.width), f64::from(request.height));
+/// `slice` with `set` merged in (`null` back to the default), each setting
+/// checked; unchanged when any is refused.
+fn patch_slice(slice: &mut SliceRequest, set: &Map<String, Value>) -> Result<(), ViewError> {
+    let origin = Origin::Session;
+    let mut next = slice.clone();
+    for (name, value) in set {
+        let applied = match value {
+            Value::Null => next.reset_named(name),
+            value => next.set_named(name, &Raw::Json(value)),
+        };
+        applied.map_err(|e| ViewError::setting(origin, e))?;
+    }
+    *slice = next;
+    Ok(())
+}
+
+/// The frame size in device pixels of a viewport of `width` × `height`
+/// CSS pixels at device pixel ratio `dpr`.
+fn device_size(width: u32, height: u32, dpr: f64) -> Result<(u32, u32), ViewError> {
+    let (w, h) = (f64::from(width), f64::from(height));
     let (pw, ph) = ((w * dpr).round(), (h * dpr).round());
     let max = f64::from(MAX_IMAGE_EDGE);
     if pw > max || ph > max {
         return Err(ViewError::Viewport {
-            width: request.width,
-            height: request.height,
+            width,
+            height,
             dpr,
             pixels_wide: pw,
             pixels_high: ph,
@@ -695,5 +903,89 @@ mod tests {
         s.shut_down();
         assert!(matches!(s.next_action(t0), Action::Close));
         assert!(matches!(s.next_action(t0 + ms(1)), Action::Close));
+    }
+
+    /// View message `id` for `pane` setting `set`, at `now`; the reply.
+    fn pane_view(s: &mut Session, now: Instant, id: u32, pane: &str, set: Value) -> Option<Reply> {
+        let mut message = serde_json::json!({"type": "view", "id": id, "pane": pane});
+        message["set"] = set;
+        s.on_text(now, &message.to_string())
+    }
+
+    #[test]
+    fn slice_views_render_when_shown_the_view_changed_last_first() {
+        let mut s = session();
+        let t0 = Instant::now();
+        view(&mut s, t0, 1, serde_json::json!({"w": 64, "h": 64}));
+        assert_eq!(
+            pane_view(
+                &mut s,
+                t0,
+                2,
+                "axial",
+                serde_json::json!({"w": 32, "h": 48, "cz": 5})
+            ),
+            None
+        );
+        // Not in the layout: only the 3D view renders.
+        let first = render(s.next_action(t0));
+        assert_eq!((first.pane, first.slice.is_none()), (Pane::Volume, true));
+        sent_and_acked(&mut s, false);
+        s.on_text(t0, r#"{"type":"layout","panes":["3d","axial","coronal"]}"#);
+        let axial = render(s.next_action(t0 + ms(1)));
+        let (slice, window) = axial.slice.clone().expect("a slice");
+        assert_eq!(axial.pane, Pane::Slice(Plane::Axial));
+        assert_eq!((slice.width, slice.height, slice.cz), (32, 48, 5.0));
+        assert_eq!(axial.message_id, 2);
+        // The phantom is not CT in HU: the window spans its values.
+        assert_eq!(window, s.datasets[0].default_window().1);
+        sent_and_acked(&mut s, false);
+        // The coronal view has had no message: nothing; then scrolling the
+        // axial view while the 3D view waits for still renders the axial first.
+        pane_view(&mut s, t0 + ms(2), 3, "axial", serde_json::json!({"cz": 6}));
+        let next = render(s.next_action(t0 + ms(2)));
+        assert_eq!(
+            (next.pane, next.quality),
+            (Pane::Slice(Plane::Axial), Quality::Interactive)
+        );
+        sent_and_acked(&mut s, false);
+        // Still: both full frames follow, the axial (changed last) first.
+        let later = t0 + ms(1000);
+        let full = render(s.next_action(later));
+        assert_eq!(
+            (full.pane, full.quality),
+            (Pane::Slice(Plane::Axial), Quality::Full)
+        );
+        s.on_frame_sent(true, None);
+        s.on_ack(s.sent);
+        let full = render(s.next_action(later));
+        assert_eq!((full.pane, full.quality), (Pane::Volume, Quality::Full));
+        s.on_frame_sent(true, None);
+        s.on_ack(s.sent);
+        assert!(waits_for_input(&s.next_action(later)));
+        assert!(s.status(later, None).converged);
+        // A refused slice setting names it and changes nothing.
+        let refused = pane_view(
+            &mut s,
+            later,
+            4,
+            "coronal",
+            serde_json::json!({"slab": 9999}),
+        );
+        match refused {
+            Some(Reply::Error {
+                id: Some(4),
+                message,
+            }) => {
+                assert!(message.starts_with("view setting slab=9999"), "{message}");
+            }
+            other => panic!("expected an error, got {other:?}"),
+        }
+        let refused = pane_view(&mut s, later, 5, "coronal", serde_json::json!({"az": 3}));
+        assert!(
+            matches!(refused, Some(Reply::Error { id: Some(5), .. })),
+            "{refused:?}"
+        );
+        assert!(waits_for_input(&s.next_action(later)));
     }
 }

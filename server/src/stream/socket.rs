@@ -20,7 +20,7 @@ use super::Place;
 use super::session::{Action, Quality, Render, Session};
 use crate::audit::{Event as Audited, Outcome};
 use crate::client::Client;
-use crate::protocol::{self, Encoding, FrameHeader, Reply};
+use crate::protocol::{self, ClientMessage, Encoding, FrameHeader, Reply};
 use crate::{AppState, Dataset, encode, metrics};
 
 /// How long a session closed by the server waits for the client's close
@@ -36,6 +36,8 @@ struct Encoded {
     arrivals: u64,
     /// The camera a fit chose, when the view asked for one.
     camera: Option<Camera>,
+    /// Where a slice frame lies: sent before it.
+    slice: Option<Reply>,
 }
 
 /// A frame ready to send, or why there is none.
@@ -341,13 +343,25 @@ where
         Event::Timer => None,
         Event::Broken(error) => return Some(broken(&error)),
         Event::Received(Message::Close(_)) => return Some(End::Client),
-        Event::Received(Message::Text(text)) => session.on_text(Instant::now(), text.as_str()),
+        Event::Received(Message::Text(text)) => {
+            match protocol::parse_client_message(text.as_str()) {
+                Ok(ClientMessage::Probe { id, at }) => Some(probe(session, id, at).await),
+                Ok(ClientMessage::Pick { id, x, y }) => Some(pick(session, id, x, y).await),
+                Ok(message) => session.on_message(Instant::now(), message),
+                Err(refusal) => Some(Reply::error(refusal.id, refusal.message)),
+            }
+        }
         Event::Received(Message::Binary(_)) => {
             Some(Reply::error(None, "binary message: expected JSON text"))
         }
         Event::Rendered(Ok(frame)) => {
             if let Some(reply) = frame.camera.and_then(|c| session.on_fitted(c))
                 && send_reply(sink, &reply).await.is_err()
+            {
+                return Some(End::Gone);
+            }
+            if let Some(reply) = &frame.slice
+                && send_reply(sink, reply).await.is_err()
             {
                 return Some(End::Gone);
             }
@@ -372,6 +386,51 @@ where
     match reply {
         Some(reply) if send_reply(sink, &reply).await.is_err() => Some(End::Gone),
         _ => None,
+    }
+}
+
+/// Answers probe `id` of model point `at`: the voxel there, read off the
+/// loop's thread (a chunk not in memory is read now).
+async fn probe(session: &Session, id: u32, at: [f32; 3]) -> Reply {
+    let dataset = match session.probe_target() {
+        Ok(dataset) => dataset,
+        Err(e) => return Reply::error(Some(id), e.to_string()),
+    };
+    let unit = dataset.store.meta().unit.clone();
+    let cache = dataset.cache.clone();
+    let read = tokio::task::spawn_blocking(move || shaders::slice::probe(&cache, at)).await;
+    match read {
+        Ok(Ok(voxel)) => Reply::Probe { id, voxel, unit },
+        Ok(Err(e)) => Reply::error(Some(id), format!("probe of '{}': {e}", dataset.id)),
+        Err(e) => Reply::error(Some(id), format!("the probe failed: {e}")),
+    }
+}
+
+/// Answers pick `id` at CSS pixel (`x`, `y`) of the 3D view: the first
+/// point along its ray where the view turns opaque, read off the loop's
+/// thread.
+async fn pick(session: &Session, id: u32, x: f32, y: f32) -> Reply {
+    let (dataset, frame, tf) = match session.pick_target() {
+        Ok(target) => target,
+        Err(e) => return Reply::error(Some(id), e.to_string()),
+    };
+    let cache = dataset.cache.clone();
+    let read = tokio::task::spawn_blocking(move || {
+        let ray = shaders::slice::PickRay {
+            camera: &frame.camera,
+            width: frame.width,
+            height: frame.height,
+            x,
+            y,
+            clip: frame.clip,
+        };
+        shaders::slice::pick(&cache, &ray, &tf)
+    })
+    .await;
+    match read {
+        Ok(Ok(at)) => Reply::Pick { id, at },
+        Ok(Err(e)) => Reply::error(Some(id), format!("pick in '{}': {e}", dataset.id)),
+        Err(e) => Reply::error(Some(id), format!("the pick failed: {e}")),
     }
 }
 
@@ -486,15 +545,25 @@ fn render_job(state: &AppState, client: Client, render: Render) -> Job {
     let Render {
         quality,
         dataset,
+        pane,
         request,
+        slice,
         frame_id,
         message_id,
     } = render;
     Box::pin(async move {
-        let rendered = renderer
-            .render_waiting(&client, &dataset, request)
-            .await
-            .map_err(|e| e.logged().to_string())?;
+        let rendered = match slice {
+            None => renderer.render_waiting(&client, &dataset, request).await,
+            Some((slice, window)) => {
+                renderer
+                    .render_slice_waiting(&client, &dataset, slice, window)
+                    .await
+            }
+        }
+        .map_err(|e| e.logged().to_string())?;
+        let slice = rendered
+            .slice
+            .map(|(placement, window)| Reply::slice(pane, frame_id, placement, window));
         let converged = rendered.stats.converged();
         let light = rendered.stats.light().copied();
         let frame = rendered.frame;
@@ -527,6 +596,7 @@ fn render_job(state: &AppState, client: Client, render: Render) -> Job {
             reduction: rendered.stats.reduction as f32,
             queue_ms: rendered.queue_ms as f32,
             empty_share: rendered.stats.empty_share as f32,
+            pane,
         };
         let mut bytes = Vec::with_capacity(protocol::HEADER_LEN + image.len());
         bytes.extend_from_slice(&header.to_bytes());
@@ -536,6 +606,7 @@ fn render_job(state: &AppState, client: Client, render: Render) -> Job {
             bytes,
             arrivals: rendered.arrivals,
             camera: rendered.stats.camera,
+            slice,
         })
     })
 }

@@ -65,11 +65,13 @@ pub enum Group {
     GlobalLight,
     /// Extinction-based illumination (`shading=extinction`).
     Extinction,
+    /// Slice views (`shaders::slice`): their own settings, per view.
+    Slice,
 }
 
 impl Group {
     /// Every group, in the order the docs list them.
-    pub const ALL: [Group; 9] = [
+    pub const ALL: [Group; 10] = [
         Group::Data,
         Group::Camera,
         Group::Image,
@@ -79,6 +81,7 @@ impl Group {
         Group::Clip,
         Group::GlobalLight,
         Group::Extinction,
+        Group::Slice,
     ];
 
     /// The group's name in `GET /api/settings`.
@@ -93,6 +96,7 @@ impl Group {
             Group::Clip => "clip",
             Group::GlobalLight => "global_light",
             Group::Extinction => "extinction",
+            Group::Slice => "slice",
         }
     }
 
@@ -108,6 +112,7 @@ impl Group {
             Group::Clip => "Clip",
             Group::GlobalLight => "Global light (shading=global)",
             Group::Extinction => "Extinction-based illumination (shading=extinction)",
+            Group::Slice => "Slice views",
         }
     }
 }
