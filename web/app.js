@@ -534,6 +534,14 @@ function applyLayout() {
     const below = Math.max(6, Math.round(toolbar.getBoundingClientRect().bottom + 6 - three.top));
     document.getElementById('orient-top').style.top = `${below}px`;
   }
+  // The patient and study over the 3D view, else over the first view.
+  const host = three || rects[LAYOUTS[key][0]];
+  const context = document.getElementById('context');
+  Object.assign(context.style, {
+    left: `${host.left}px`, top: `${host.top}px`, width: `${host.width}px`, height: `${host.height}px`,
+  });
+  const clear = Math.max(22, Math.round(toolbar.getBoundingClientRect().bottom + 22 - host.top));
+  context.style.setProperty('--context-top', `${clear}px`);
   document.body.dataset.layout = key;
   resizeCanvas();
   slices.place(rects, viewport().dpr);
@@ -713,6 +721,18 @@ function applyLink() {
 // camera's target, the depth the view turns about).
 const SCALE_STEPS = [1, 2, 5];
 function showOrientation() {
+  // The cube turns with the camera: about the patient's long axis by the
+  // azimuth, then tilted by the elevation (CSS: x right, y down, z out).
+  document.getElementById('cube-body').style.transform = `rotateX(${-camera.el}deg) rotateY(${-camera.az}deg)`;
+  const marker = document.getElementById('crosshair-3d');
+  const at = LAYOUTS[layoutSelect.value].length > 1 && slices
+    ? camera.project(slices.crosshair, canvas.clientWidth, canvas.clientHeight, toolbarSelects.proj.value === 'orthographic')
+    : null;
+  marker.hidden = !at;
+  if (at) {
+    marker.style.left = `${at[0]}px`;
+    marker.style.top = `${at[1]}px`;
+  }
   const { right, up } = camera.axes();
   const neg = (v) => v.map((c) => -c);
   const edges = { right, left: neg(right), top: up, bottom: neg(up) };

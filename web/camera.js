@@ -58,6 +58,27 @@ export class OrbitCamera {
     return { right, up };
   }
 
+  // Where model point `p` (mm) shows in a view of `width` × `height` pixels
+  // ([x, y] from the top left), as the server's `Camera::view_proj`
+  // projects it; null behind the eye.
+  project(p, width, height, orthographic) {
+    const az = (this.az * Math.PI) / 180;
+    const el = (this.el * Math.PI) / 180;
+    const towardEye = [Math.sin(az) * Math.cos(el), -Math.cos(az) * Math.cos(el), Math.sin(el)];
+    const { right, up } = this.axes();
+    const eye = this.target.map((t, i) => t + towardEye[i] * this.dist * this.radius);
+    const d = p.map((v, i) => v - eye[i]);
+    const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    const depth = -dot(d, towardEye);
+    const tan = Math.tan(((this.fov / 2) * Math.PI) / 180);
+    const aspect = width / Math.max(1, height);
+    const half = orthographic ? this.dist * this.radius * tan : depth * tan;
+    if (!orthographic && depth <= 0) return null;
+    const x = dot(d, right) / (half * aspect);
+    const y = dot(d, up) / half;
+    return [((x + 1) / 2) * width, ((1 - y) / 2) * height];
+  }
+
   // Millimetres per pixel at the target, for a view `heightPixels` tall.
   mmPerPixel(heightPixels) {
     const halfHeight = this.dist * this.radius * Math.tan(((this.fov / 2) * Math.PI) / 180);

@@ -376,6 +376,14 @@ export class SliceViews {
     for (const pane of Object.values(this.panes)) if (!pane.section.hidden) this.drawOverlay(pane);
   }
 
+  // The volume's centre in patient coordinates (LPS mm; model space is
+  // patient space shifted to put it at 0).
+  patientCentre() {
+    const d = this.dataset;
+    return [0, 1, 2].map((r) => d.origin[r] +
+      [0, 1, 2].reduce((s, a) => s + d.direction[a][r] * d.spacing[a] * (d.dims[a] - 1) / 2, 0));
+  }
+
   // Whether model point `p` lies in a view's current plane (within half a slice).
   inPlane(pane, p) {
     const n = pane.placement.normal;
@@ -395,10 +403,14 @@ export class SliceViews {
     const neg = (v) => scale(v, -1);
     const edges = { right, left: neg(right), top: up, bottom: neg(up) };
     for (const [edge, v] of Object.entries(edges)) pane.letters[edge].textContent = directionLetters(v);
-    const position = dot(this.crosshair, p.normal);
+    // The slice's place in the patient's coordinates (the scanner's, from
+    // the dataset's origin), along the way scrolling goes: "S 74.4 mm".
+    const deeper = neg(p.normal);
+    const along = dot(add(this.crosshair, this.patientCentre()), deeper);
+    const side = directionLetters(along >= 0 ? deeper : p.normal);
     const w = this.currentWindow();
     const slab = this.slab > 0 ? ` · ${this.slabMode} ${round(this.slab, 1)} mm` : '';
-    pane.info.textContent = `${position.toFixed(1)} mm · W ${round(w.width, 0)} L ${round(w.centre, 0)}${slab}`;
+    pane.info.textContent = `${side} ${Math.abs(along).toFixed(1)} mm · W ${round(w.width, 0)} L ${round(w.centre, 0)}${slab}`;
     const centre = this.toScreen(pane, this.crosshair);
     if (centre) {
       PLANES.forEach((other, i) => {
@@ -419,6 +431,29 @@ export class SliceViews {
         svg.append(line);
       });
       svg.dataset.crosshair = centre.map((v) => v.toFixed(1)).join(',');
+    }
+    // A scale bar: the longest 1, 2 or 5 × 10^k mm within a quarter of the width.
+    const mm = this.mmPerPixel(pane);
+    const width = pane.section.clientWidth;
+    const height = pane.section.clientHeight;
+    let bar = 0;
+    for (let k = -3; k <= 5 && mm > 0; k += 1) {
+      for (const step of [1, 2, 5]) if ((step * 10 ** k) / mm <= width / 4) bar = step * 10 ** k;
+    }
+    if (bar > 0) {
+      const x1 = width - 22;
+      const x0 = x1 - bar / mm;
+      const line = document.createElementNS(SVG, 'polyline');
+      line.setAttribute('points', `${x0},${height - 24} ${x0},${height - 20} ${x1},${height - 20} ${x1},${height - 24}`);
+      line.classList.add('scale-bar');
+      const label = document.createElementNS(SVG, 'text');
+      label.setAttribute('x', (x0 + x1) / 2);
+      label.setAttribute('y', height - 27);
+      label.setAttribute('text-anchor', 'middle');
+      label.textContent = `${Number(bar.toPrecision(2))} mm`;
+      label.classList.add('scale-label');
+      svg.append(line, label);
+      svg.dataset.scaleMm = String(bar);
     }
     const shapes = [...this.measurements];
     if (this.pendingPoints && this.pendingPoints.plane === pane.plane) shapes.push(this.pendingPoints);

@@ -137,7 +137,7 @@ pub fn settings(args: &SettingsArgs) -> anyhow::Result<()> {
     if args.json {
         say(&serde_json::to_string_pretty(&crate::view::describe(&[]))?)
     } else {
-        say(shaders::settings::markdown::<crate::View>().trim())
+        say(crate::view::settings_tables().trim())
     }
 }
 

@@ -212,6 +212,17 @@ impl View {
     }
 }
 
+/// Every view setting as Markdown tables, one per group, the slice views'
+/// settings last, without a command-line column: view sessions alone take
+/// them (`voxserve settings`, the README).
+pub fn settings_tables() -> String {
+    format!(
+        "{}\n{}",
+        shaders::settings::markdown::<View>().trim_end(),
+        shaders::settings::describe::markdown_session::<shaders::slice::SliceRequest>().trim_end()
+    )
+}
+
 /// `GET /api/settings`: every view setting (name, flag, group, kind, range
 /// or choices, unit, default, doc, what it takes), grouped; the dataset's
 /// choices are `datasets` (none listed when empty). Under `slice`, the

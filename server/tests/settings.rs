@@ -343,7 +343,7 @@ const TABLE_END: &str = "<!-- view settings: end -->";
 fn the_readme_lists_every_setting_as_the_schema_declares_it() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md");
     let readme = std::fs::read_to_string(&path).expect("README.md");
-    let tables = shaders::settings::markdown::<View>();
+    let tables = server::view::settings_tables();
     let generated = format!("{TABLE_START}\n{}\n{TABLE_END}", tables.trim());
     let (Some(start), Some(end)) = (readme.find(TABLE_START), readme.find(TABLE_END)) else {
         panic!("README.md lacks the markers {TABLE_START} … {TABLE_END}");

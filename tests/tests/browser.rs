@@ -1738,14 +1738,18 @@ fn pane_js(plane: &str) -> String {
     format!("document.querySelector('.slice-pane[data-pane=\"{plane}\"]')")
 }
 
+/// The script counting the frames the slice view of `plane` has drawn (0
+/// before the page has built it).
+fn frames_js(plane: &str) -> String {
+    format!(
+        "const p = {}; return p ? Number(p.dataset.frames || 0) : 0;",
+        pane_js(plane)
+    )
+}
+
 /// Frames the slice view of `plane` has drawn.
 async fn pane_frames(client: &Client, plane: &str) -> Result<f64, String> {
-    number(
-        client,
-        &format!("{plane} frames"),
-        &format!("return Number({}.dataset.frames || 0);", pane_js(plane)),
-    )
-    .await
+    number(client, &format!("{plane} frames"), &frames_js(plane)).await
 }
 
 /// Waits until the slice view of `plane` shows its view losslessly, done.
@@ -1854,7 +1858,7 @@ async fn layout_key(client: &Client, key: &str, planes: &[&str]) -> Result<(), S
         wait_for(
             client,
             &format!("the {plane} view after key {key}"),
-            &format!("return Number({}.dataset.frames || 0);", pane_js(plane)),
+            &frames_js(plane),
             |n| n > before,
         )
         .await?;
@@ -1880,6 +1884,18 @@ async fn slice_views(
     keep_screenshot(client, &format!("slices-{name}-layout-1x1")).await?;
     layout_key(client, "2", &["axial", "coronal", "sagittal"]).await?;
     keep_screenshot(client, &format!("slices-{name}-layout-2x2")).await?;
+    // The crosshair shows in the 3D view too, within it.
+    let marked = number(
+        client,
+        "the crosshair in 3D",
+        "const m = document.getElementById('crosshair-3d'); const v = document.getElementById('view').getBoundingClientRect();
+         const r = m.getBoundingClientRect(); const x = r.left + r.width / 2, y = r.top + r.height / 2;
+         return !m.hidden && x > v.left && x < v.right && y > v.top && y < v.bottom ? 1 : 0;",
+    )
+    .await?;
+    if marked != 1.0 {
+        return Err("the 2×2 layout's 3D view does not mark the crosshair".into());
+    }
     let letters = |plane: &str| {
         format!(
             "const p = {}; return ['top','bottom','left','right'].map((e) => p.querySelector('.pane-orient-' + e).textContent).join('');",
@@ -1915,7 +1931,7 @@ async fn slice_views(
     wait_for(
         client,
         "the axial view after scrolling",
-        &format!("return Number({}.dataset.frames || 0);", pane_js("axial")),
+        &frames_js("axial"),
         |n| n > frames,
     )
     .await?;
@@ -2016,7 +2032,7 @@ async fn slice_views(
     wait_for(
         client,
         "the slices after a pick",
-        &format!("return Number({}.dataset.frames || 0);", pane_js("axial")),
+        &frames_js("axial"),
         |n| n > frames,
     )
     .await?;
@@ -2061,6 +2077,34 @@ async fn slice_views(
     keep_screenshot(client, &format!("slices-{name}-layout-1+3")).await?;
     layout_key(client, "4", &["axial"]).await?;
     keep_screenshot(client, &format!("slices-{name}-layout-axial")).await?;
+    // The address reproduces the slice view, pixel for pixel, in a fresh page.
+    let canvas_hash = format!(
+        "const c = {}.querySelector('canvas'); const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+         let h = 0; for (let i = 0; i < d.length; i += 1) h = (h * 31 + d[i]) % 1000000007; return h;",
+        pane_js("axial")
+    );
+    let before = number(client, "the axial image", &canvas_hash).await?;
+    let href = text(client, "the address", "return location.href;").await?;
+    println!("slice link: {href}");
+    client
+        .goto("about:blank")
+        .await
+        .map_err(|e| format!("leaving the page: {e}"))?;
+    client
+        .goto(&href)
+        .await
+        .map_err(|e| format!("loading {href}: {e}"))?;
+    wait_for(client, "the linked axial view", &frames_js("axial"), |n| {
+        n >= 1.0
+    })
+    .await?;
+    pane_settled(client, "axial").await?;
+    let after = number(client, "the linked axial image", &canvas_hash).await?;
+    if after != before {
+        return Err(format!(
+            "the link {href} shows another axial image ({after} against {before})"
+        ));
+    }
     Ok(())
 }
 
@@ -2095,5 +2139,190 @@ async fn slice_views_scroll_probe_measure_and_follow_a_pick_in_every_layout() {
     )
     .await;
     let result = slice_views(&client, &server, &volume, name).await;
+    finish(test, client, result).await;
+}
+
+/// The Tab key, Shift, and the keys that scroll (WebDriver's codes).
+const TAB: &str = "\u{E004}";
+const SHIFT_TAB: &str = "\u{E008}\u{E004}\u{E000}";
+const ARROW_DOWN: &str = "\u{E015}";
+const PAGE_UP: &str = "\u{E00E}";
+
+/// Presses `key` until the focused element answers `script` with 1 (at most 40 times).
+async fn tab_to(client: &Client, key: &str, what: &str, script: &str) -> Result<(), String> {
+    for _ in 0..40 {
+        if number(client, what, script).await? == 1.0 {
+            return Ok(());
+        }
+        press(client, key).await?;
+    }
+    Err(format!(
+        "{what}: not reached with the keyboard in 40 presses"
+    ))
+}
+
+/// From the keyboard alone: choose the second dataset, the 2×2 layout,
+/// scroll the axial slice ten slices up, and reset.
+async fn keyboard_path(client: &Client, server: &TestServer) -> Result<(), String> {
+    open_page(client, &server.url("/")).await?;
+    wait_for(client, "the first view finished", FINISHED, |v| v == 1.0).await?;
+    tab_to(
+        client,
+        TAB,
+        "the dataset picker focused",
+        "return document.activeElement.id === 'dataset' ? 1 : 0;",
+    )
+    .await?;
+    let frames = number(client, "frames", FRAMES).await?;
+    press(client, ARROW_DOWN).await?;
+    wait_for(client, "a frame of the second dataset", FRAMES, |n| {
+        n > frames
+    })
+    .await?;
+    let chosen = text(
+        client,
+        "the dataset",
+        "return new URLSearchParams(location.hash.slice(1)).get('dataset');",
+    )
+    .await?;
+    if chosen != "small" {
+        return Err(format!("the arrow key chose dataset {chosen:?}, not small"));
+    }
+    tab_to(
+        client,
+        SHIFT_TAB,
+        "the 3D view focused",
+        "return document.activeElement.id === 'view' ? 1 : 0;",
+    )
+    .await?;
+    layout_key(client, "2", &["axial", "coronal", "sagittal"]).await?;
+    press(client, TAB).await?;
+    let focused = text(
+        client,
+        "the focused view",
+        "return document.activeElement.dataset.pane || document.activeElement.id;",
+    )
+    .await?;
+    if focused != "axial" {
+        return Err(format!(
+            "Tab from the 3D view went to {focused:?}, not the axial view"
+        ));
+    }
+    let frames = pane_frames(client, "axial").await?;
+    press(client, PAGE_UP).await?;
+    wait_for(
+        client,
+        "the axial view after Page Up",
+        &frames_js("axial"),
+        |n| n > frames,
+    )
+    .await?;
+    let cz = hash_number(client, "cz", 0.0).await?;
+    let spacing = datasets_json(server).await?[1]["spacing"][2]
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    if (cz - 10.0 * spacing).abs() > 0.02 {
+        return Err(format!(
+            "Page Up put the axial slice at {cz} mm: expected 10 × {spacing} mm"
+        ));
+    }
+    // Shift+1: the first of the dataset's named windows (brain for CT).
+    let first = datasets_json(server).await?[1]["windows"][0].clone();
+    press(client, "\u{E008}1\u{E000}").await?;
+    let window = text(
+        client,
+        "the slices' window",
+        "return new URLSearchParams(location.hash.slice(1)).get('swindow') || '';",
+    )
+    .await?;
+    let number_text = |v: &serde_json::Value| v.as_f64().map(|x| x.to_string()).unwrap_or_default();
+    if window
+        != format!(
+            "{},{}",
+            number_text(&first["centre"]),
+            number_text(&first["width"])
+        )
+    {
+        return Err(format!(
+            "Shift+1 set the window {window:?}; the first is {first}"
+        ));
+    }
+    press(client, "r").await?;
+    wait_for(
+        client,
+        "the crosshair back at the centre",
+        "return new URLSearchParams(location.hash.slice(1)).get('cz') === null ? 1 : 0;",
+        |v| v == 1.0,
+    )
+    .await?;
+    pane_settled(client, "axial").await?;
+    Ok(())
+}
+
+#[tokio::test]
+async fn the_main_path_works_from_the_keyboard_alone() {
+    let test = "the_main_path_works_from_the_keyboard_alone";
+    let Some((_driver, client)) = open_browser_as(test, 1400, 900, false).await else {
+        return;
+    };
+    let phantom = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let volume = std::sync::Arc::new(blocks::phantom::head(24).expect("small phantom"));
+    let mut source = blocks::ingest::MemorySource::new(volume, "small");
+    let store = blocks::store::ingest_in_memory(&mut source, &Default::default()).expect("store");
+    let small = server::Dataset::new("small".into(), store, 64 << 20).expect("small");
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![phantom, small],
+        2,
+        StreamSettings::default(),
+    )
+    .await;
+    let result = keyboard_path(&client, &server).await;
+    finish(test, client, result).await;
+}
+
+/// On a phone (390×844, touch) the 2×2 layout shows three slices and 3D,
+/// each within the screen and drawn.
+async fn phone_slices(client: &Client, server: &TestServer) -> Result<(), String> {
+    open_page(client, &server.url("/")).await?;
+    run(
+        client,
+        "choosing the 2×2 layout",
+        "const s = document.getElementById('layout'); s.value = '2'; s.dispatchEvent(new Event('change'));",
+    )
+    .await?;
+    for plane in ["axial", "coronal", "sagittal"] {
+        wait_for(
+            client,
+            &format!("the {plane} view"),
+            &frames_js(plane),
+            |n| n >= 1.0,
+        )
+        .await?;
+        pane_settled(client, plane).await?;
+    }
+    let inside = number(
+        client,
+        "the views' places",
+        "const views = [document.getElementById('view'), ...document.querySelectorAll('.slice-pane')];
+         return views.every((v) => { const r = v.getBoundingClientRect();
+           return r.width > 100 && r.height > 100 && r.left >= 0 && r.top >= 0 && r.right <= innerWidth + 1 && r.bottom <= innerHeight + 1; }) ? 1 : 0;",
+    )
+    .await?;
+    if inside != 1.0 {
+        return Err("a view of the 2×2 layout is outside the phone's screen or tiny".into());
+    }
+    keep_screenshot(client, "slices-phone-layout-2x2").await?;
+    Ok(())
+}
+
+#[tokio::test]
+async fn on_a_phone_the_two_by_two_layout_shows_three_slices_and_3d() {
+    let test = "on_a_phone_the_two_by_two_layout_shows_three_slices_and_3d";
+    let Some((_driver, client)) = open_browser_as(test, 390, 844, true).await else {
+        return;
+    };
+    let server = phantom_on_cpu(StreamSettings::default()).await;
+    let result = phone_slices(&client, &server).await;
     finish(test, client, result).await;
 }

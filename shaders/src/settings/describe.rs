@@ -59,6 +59,16 @@ pub fn by_group<S: Settings>() -> impl Iterator<Item = &'static dyn Setting<S>> 
 
 /// The settings of `S` as a Markdown table per group, for the README.
 pub fn markdown<S: Settings>() -> String {
+    tables::<S>(true)
+}
+
+/// [`markdown`] without the command-line column: settings that only view
+/// sessions take (the slice views').
+pub fn markdown_session<S: Settings>() -> String {
+    tables::<S>(false)
+}
+
+fn tables<S: Settings>(flags: bool) -> String {
     let mut out = String::new();
     for group in Group::ALL {
         let rows: Vec<String> = by_group::<S>()
@@ -69,10 +79,14 @@ pub fn markdown<S: Settings>() -> String {
                     t if t.is_empty() => "—".to_owned(),
                     t => format!("`{t}`"),
                 };
+                let flag = if flags {
+                    format!(" `{}` |", spec.command_line())
+                } else {
+                    String::new()
+                };
                 format!(
-                    "| `{}` | `{}` | {} | {} | {default} |",
+                    "| `{}` |{flag} {} | {} | {default} |",
                     spec.name,
-                    spec.command_line(),
                     spec.doc_line().replace('|', "\\|"),
                     s.expected().replace('|', "\\|"),
                 )
@@ -81,10 +95,12 @@ pub fn markdown<S: Settings>() -> String {
         if rows.is_empty() {
             continue;
         }
-        out.push_str(&format!(
-            "\n**{}**\n\n| setting | command line | meaning | takes | default |\n|---|---|---|---|---|\n",
-            group.title()
-        ));
+        let header = if flags {
+            "| setting | command line | meaning | takes | default |\n|---|---|---|---|---|"
+        } else {
+            "| setting | meaning | takes | default |\n|---|---|---|---|"
+        };
+        out.push_str(&format!("\n**{}**\n\n{header}\n", group.title()));
         for row in rows {
             out.push_str(&row);
             out.push('\n');
