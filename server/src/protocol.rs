@@ -5,7 +5,10 @@
 //!
 //! | message | meaning |
 //! |---|---|
-//! | `{"type":"view","id":N,"set":{…},"dpr":D}` | change the view. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds view settings (those of `GET /api/render`, as `GET /api/settings` lists them: [`crate::view`]), typed: numbers as JSON numbers, switches as `true`/`false`, choices and text forms (`clip`, `light`, `tf`, …) as strings; they are merged into the session's view, so a camera move sends only `az` and `el`. A setting given as `null` goes back to its default (e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio: frames are `w·dpr` × `h·dpr`. |
+//! | `{"type":"view","id":N,"pane":P,"set":{…},"dpr":D}` | change a view. `pane` (optional, default `3d`) is the view: `3d`, or a slice view `axial`, `coronal` or `sagittal` ([`Pane`]), each with settings of its own. `id` (a whole number the client increases) names the message; the frames rendered from it carry it back. `set` holds settings, for the 3D view those of `GET /api/render` (as `GET /api/settings` lists them: [`crate::view`]), for a slice view those `GET /api/settings` lists under `slice` (`shaders::slice::SliceRequest`: the crosshair `cx`, `cy`, `cz`, `orient`, `zoom`, `px`, `py`, `window`, `slab`, `slab_mode`, `w`, `h`; the dataset is the 3D view's), typed: numbers as JSON numbers, switches as `true`/`false`, choices and text forms (`clip`, `light`, `tf`, …) as strings; they are merged into the view, so a camera move sends only `az` and `el`. A setting given as `null` goes back to its default (e.g. `"preset":null` with a `tf`). `w` and `h` are the viewport in CSS pixels and `dpr` (optional, 0.25 to 4, default 1) the device pixel ratio of every view: frames are `w·dpr` × `h·dpr`. |
+//! | `{"type":"layout","panes":[P,…]}` | the views shown (1 to 4 different ones; `["3d"]` until said): only they are rendered, one render at a time for the session, the view changed last first. |
+//! | `{"type":"probe","id":N,"at":[X,Y,Z]}` | the level-0 voxel at a point (model mm, from the volume's centre, within ±[`MAX_PROBE_MM`]): answered by a `probe` message. |
+//! | `{"type":"pick","id":N,"xy":[X,Y]}` | the first point along the 3D view's ray through CSS pixel (X, Y) where what the transfer function shows turns half opaque ([`shaders::slice::pick`]): answered by a `pick` message. |
 //! | `{"type":"ack","frame":F}` | the client has drawn frame `F`; the server sends at most [`crate::stream::StreamSettings::frames_in_flight`] frames ahead of the last acknowledged one. |
 //! | `{"type":"status","id":N}` | asks where the session stands (`id` optional, echoed); answered by a `status` message, in order with everything else the server sends. |
 //!
@@ -15,7 +18,7 @@
 //!
 //! # Server → client
 //!
-//! JSON text: `{"type":"hello","protocol":2,"datasets":[…],"renderer":{"kind":…,"device":…},"settings":{…},"notice":…}` once
+//! JSON text: `{"type":"hello","protocol":3,"datasets":[…],"renderer":{"kind":…,"device":…},"settings":{…},"notice":…}` once
 //! at the start (the datasets' descriptions as `GET /api/datasets` gives them,
 //! the stream settings, and the line every viewer shows over the image,
 //! `--notice`, or `null`), `{"type":"error","id":N,"message":"…"}` for a
@@ -24,7 +27,15 @@
 //! when the view asked for a fit (`"fit":true`): the camera the server chose
 //! (the target at the centre of what the transfer function shows, the
 //! distance framing it), now the session's view, sent before the frame drawn
-//! with it; and a [`Status`] for each `status` message:
+//! with it; `{"type":"slice","pane":P,"frame":F,"placement":{…},"window":[C,W]}`
+//! before each slice view's frame F (where its pixels lie: pixel (x, y)'s
+//! centre is `corner + x·right + y·down`, model mm; the unit `normal`
+//! towards the viewer, the `level` sampled, the `crosshair` and the
+//! `normals` of its three planes; the window drawn through);
+//! `{"type":"probe","id":N,"voxel":{"index":[I,J,K],"at":[X,Y,Z],"value":V}|null,"unit":U}`
+//! and `{"type":"pick","id":N,"at":[X,Y,Z]|null}` answering those
+//! messages (`null`: outside the volume, nothing visible); and a [`Status`]
+//! for each `status` message (`converged`: every view shown is):
 //!
 //! | field | meaning |
 //! |---|---|

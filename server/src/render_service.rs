@@ -92,7 +92,7 @@ struct Job {
     dataset: Dataset,
     /// The frame; for a slice, only its size counts.
     request: FrameRequest,
-    /// A slice view's frame (drawn whole, in one turn) and its window.
+    /// A slice view's frame and its window.
     slice: Option<(SliceRequest, Window)>,
     queued: Instant,
     reply: Reply,
@@ -116,6 +116,8 @@ struct Drawn {
     longest_band_ms: f64,
     stats: RenderStats,
     arrivals: u64,
+    /// A slice's placement and window.
+    placed: Option<(SlicePlacement, Window)>,
 }
 
 impl Job {
@@ -356,15 +358,25 @@ impl Job {
         Ok((job, answer))
     }
 
-    /// A slice view's frame of `dataset` queued now (drawn whole in one
-    /// turn: a slab of [`shaders::slice::MAX_SLAB_SAMPLES`] on a 4096² image
-    /// costs 16 turns at most), and where it will come.
+    /// A slice view's frame of `dataset` queued now, and where it will
+    /// come: priced and drawn band by band as frames are (pixels × the
+    /// slab's samples).
     fn slice(
         dataset: &Dataset,
         slice: SliceRequest,
         window: Window,
-    ) -> (Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>) {
+        max_cost: u64,
+    ) -> Result<(Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>), AppError> {
         let samples = u64::from(slice.slab_samples(&dataset.store.meta().geometry));
+        let cost = u64::from(slice.width) * u64::from(slice.height) * samples;
+        if cost > max_cost {
+            return Err(AppError::BadRequest(format!(
+                "a {}x{} slice of '{}' with a slab of {samples} samples costs {cost} \
+                 pixel-samples, more than this server's limit of {max_cost}: ask for fewer \
+                 pixels (w, h) or a thinner slab",
+                slice.width, slice.height, dataset.id
+            )));
+        }
         let request = FrameRequest {
             width: slice.width,
             height: slice.height,
@@ -373,7 +385,7 @@ impl Job {
         let (reply, answer) = oneshot::channel();
         let job = Job {
             dataset: dataset.clone(),
-            rows_per_turn: request.height,
+            rows_per_turn: Job::rows_per_turn(&request, samples),
             request,
             slice: Some((slice, window)),
             queued: Instant::now(),
@@ -381,41 +393,12 @@ impl Job {
             samples,
             drawn: None,
         };
-        (job, answer)
-    }
-
-    /// Draws a slice view's frame on the CPU from the dataset's block cache.
-    fn draw_slice(self, slice: &SliceRequest, window: Window) -> Result<Turn, (Reply, GpuError)> {
-        let start = Instant::now();
-        let arrivals = self.dataset.cache.arrivals();
-        let drawn = match shaders::slice::render(&self.dataset.cache, slice, window) {
-            Ok(drawn) => drawn,
-            Err(e) => return Err((self.reply, GpuError::Data(e))),
-        };
-        let render_ms = start.elapsed().as_secs_f64() * 1e3;
-        let frame = RenderedFrame {
-            frame: drawn.frame,
-            render_ms,
-            stats: RenderStats {
-                pending_blocks: drawn.pending_chunks,
-                draw_ms: render_ms,
-                ..RenderStats::default()
-            },
-            queue_ms: (start - self.queued).as_secs_f64() * 1e3,
-            bands: 1,
-            longest_band_ms: render_ms,
-            arrivals,
-            slice: Some((drawn.placement, drawn.window)),
-        };
-        Ok(Turn::Done(self.reply, frame))
+        Ok((job, answer))
     }
 
     /// Draws the job's next band: the frame when it was the last (or the
     /// only) one, else the job with the band added.
     fn draw_band(mut self, renderers: &mut Renderers) -> Result<Turn, (Reply, GpuError)> {
-        if let Some((slice, window)) = self.slice.take() {
-            return self.draw_slice(&slice, window);
-        }
         let start = Instant::now();
         let rows = self.next_rows();
         let whole = rows.count == self.request.height;
@@ -430,11 +413,30 @@ impl Job {
         // Never waits for storage: blocks still being read are shown
         // coarser and later frames refine them.
         let arrivals = self.dataset.cache.arrivals();
-        let drawn_band = renderers.get(&self.dataset).and_then(|renderer| {
-            let band = renderer.render_now(&request)?;
-            Ok((band, renderer.last_stats().clone()))
-        });
-        let (band, stats) = match drawn_band {
+        let drawn_band = match &self.slice {
+            // Slices are sampled on the CPU from the dataset's block cache.
+            Some((slice, window)) => {
+                let band = SliceRequest {
+                    rows: (!whole).then_some(rows),
+                    ..slice.clone()
+                };
+                shaders::slice::render(&self.dataset.cache, &band, *window)
+                    .map(|drawn| {
+                        let stats = RenderStats {
+                            pending_blocks: drawn.pending_chunks,
+                            draw_ms: start.elapsed().as_secs_f64() * 1e3,
+                            ..RenderStats::default()
+                        };
+                        (drawn.frame, stats, Some((drawn.placement, drawn.window)))
+                    })
+                    .map_err(GpuError::Data)
+            }
+            None => renderers.get(&self.dataset).and_then(|renderer| {
+                let band = renderer.render_now(&request)?;
+                Ok((band, renderer.last_stats().clone(), None))
+            }),
+        };
+        let (band, stats, placed) = match drawn_band {
             Ok(drawn) => drawn,
             Err(e) => return Err((self.reply, e)),
         };
@@ -468,6 +470,7 @@ impl Job {
                     longest_band_ms: render_ms,
                     stats,
                     arrivals,
+                    placed,
                 }
             }
         };
@@ -487,7 +490,7 @@ impl Job {
             bands: drawn.bands,
             longest_band_ms: drawn.longest_band_ms,
             arrivals: drawn.arrivals,
-            slice: None,
+            slice: drawn.placed,
         };
         Ok(Turn::Done(self.reply, frame))
     }
@@ -706,7 +709,7 @@ impl RenderService {
         slice: SliceRequest,
         window: Window,
     ) -> Result<RenderedFrame, AppError> {
-        let (job, answer) = Job::slice(dataset, slice, window);
+        let (job, answer) = Job::slice(dataset, slice, window, self.max_frame_cost())?;
         self.shared.lock().push(client.clone(), job);
         self.shared.ready.notify_one();
         Self::answer(answer).await
@@ -769,6 +772,7 @@ mod tests {
                     longest_band_ms: 0.0,
                     stats: RenderStats::default(),
                     arrivals: 0,
+                    placed: None,
                 });
                 queue.resume(client, job);
             }
@@ -812,5 +816,44 @@ mod tests {
         .concat();
         assert_eq!(turns(&mut queue), expected);
         assert!(queue.turns.is_empty());
+    }
+
+    #[test]
+    fn a_costly_slab_is_drawn_band_by_band_as_one_piece() {
+        let dataset = Dataset::phantom(32, 16 << 20).expect("phantom");
+        let service = RenderService::start(Backend::Cpu, 64 << 20, 1).expect("worker");
+        let client = Client::Address([127, 0, 0, 2].into());
+        // 1024² pixels × 129 samples: 2 turns and a bit.
+        let slab = SliceRequest {
+            width: 1024,
+            height: 1024,
+            slab_mm: 128.0 * dataset.store.meta().geometry.min_spacing_f32(),
+            ..SliceRequest::default()
+        };
+        let window = dataset.default_window().1;
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .expect("runtime");
+        let banded = runtime
+            .block_on(service.render_slice_waiting(&client, &dataset, slab.clone(), window))
+            .expect("slab");
+        assert!(banded.bands > 1, "{} bands", banded.bands);
+        assert!(banded.slice.is_some());
+        // Coarse data meanwhile, as the bands drew it: compare once every block is in.
+        let mut whole = shaders::slice::render(&dataset.cache, &slab, window).expect("whole");
+        while whole.pending_chunks > 0 {
+            dataset
+                .cache
+                .wait_for_arrivals(dataset.cache.arrivals(), std::time::Duration::from_secs(5));
+            whole = shaders::slice::render(&dataset.cache, &slab, window).expect("whole");
+        }
+        let banded = runtime
+            .block_on(service.render_slice_waiting(&client, &dataset, slab, window))
+            .expect("slab");
+        assert_eq!(banded.frame.height, 1024);
+        assert!(
+            banded.frame.rgba == whole.frame.rgba,
+            "the bands make the whole"
+        );
     }
 }

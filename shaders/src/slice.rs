@@ -36,7 +36,7 @@ use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 
 use crate::camera::{Camera, box_corners};
-use crate::frame::{ClipBox, Frame, MAX_IMAGE_EDGE, Window};
+use crate::frame::{ClipBox, Frame, MAX_IMAGE_EDGE, Rows, Window};
 use crate::raycast::VolumePlacement;
 use crate::settings::{Choice, Expected, TextSetting};
 
@@ -220,6 +220,9 @@ crate::settings! {
     plain {
         /// The plane before rotation: the slice view's own.
         pub plane: Plane = Plane::Axial,
+        /// Draw only these rows of the image (a costly slice is drawn band
+        /// by band, so other frames can go between); all when `None`.
+        pub rows: Option<Rows> = None,
     }
 }
 
@@ -373,7 +376,8 @@ impl SliceRequest {
 /// A rendered slice and what it was drawn from.
 #[derive(Debug)]
 pub struct SliceFrame {
-    /// The pixels (grey, opaque; black outside the volume).
+    /// The pixels (grey, opaque; black outside the volume): the rows asked
+    /// for (`rows`), else the whole image.
     pub frame: Frame,
     /// Where the image lies.
     pub placement: SlicePlacement,
@@ -564,7 +568,15 @@ pub fn render(
             }
         })
         .collect();
-    let (width, height) = (request.width as usize, request.height as usize);
+    let rows = request.rows.unwrap_or(Rows {
+        first: 0,
+        count: request.height,
+    });
+    let first_row = rows.first.min(request.height) as usize;
+    let (width, height) = (
+        request.width as usize,
+        (rows.count as usize).min(request.height as usize - first_row),
+    );
     let corner = Vec3::from(placement.corner);
     let (right, down) = (Vec3::from(placement.right), Vec3::from(placement.down));
     let (low, span) = (window.low(), window.width);
@@ -574,7 +586,8 @@ pub fn render(
     let rows: Vec<(HashSet<ChunkKey>, bool)> = rgba
         .par_chunks_mut(width * 4)
         .enumerate()
-        .map(|(y, row)| {
+        .map(|(band_row, row)| {
+            let y = first_row + band_row;
             let mut reader = Reader::new(cache, Fetch::Cached, level);
             let mut unread = false;
             for (x, pixel) in row.chunks_exact_mut(4).enumerate() {
@@ -628,7 +641,7 @@ pub fn render(
     Ok(SliceFrame {
         frame: Frame {
             width: request.width,
-            height: request.height,
+            height: height as u32,
             rgba,
         },
         placement,
