@@ -46,7 +46,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use fantoccini::actions::{InputSource, MouseActions, PointerAction};
+use fantoccini::actions::{InputSource, MouseActions, PointerAction, TouchActions};
 use fantoccini::{Client, ClientBuilder, Locator};
 use server::stream::StreamSettings;
 use voxserve_tests::gpu::report_skip;
@@ -2313,6 +2313,47 @@ async fn phone_slices(client: &Client, server: &TestServer) -> Result<(), String
         return Err("a view of the 2×2 layout is outside the phone's screen or tiny".into());
     }
     keep_screenshot(client, "slices-phone-layout-2x2").await?;
+    // One finger 60 px up the axial view: six slices up (10 px a slice).
+    let axial = client
+        .find(Locator::Css(".slice-pane[data-pane=\"axial\"]"))
+        .await
+        .map_err(|e| format!("the axial view: {e}"))?;
+    let mut swipe = TouchActions::new("finger".into())
+        .then(PointerAction::MoveToElement {
+            element: axial,
+            duration: None,
+            x: 0.0,
+            y: 30.0,
+        })
+        .then(PointerAction::Down { button: 0 });
+    for _ in 0..6 {
+        swipe = swipe.then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(40)),
+            x: 0.0,
+            y: -10.0,
+        });
+    }
+    swipe = swipe.then(PointerAction::Up { button: 0 });
+    client
+        .perform_actions(swipe)
+        .await
+        .map_err(|e| format!("swiping: {e}"))?;
+    let spacing = datasets_json(server).await?[0]["spacing"][2]
+        .as_f64()
+        .unwrap_or(f64::NAN);
+    let cz = wait_for(
+        client,
+        "the axial slice after a swipe",
+        "return Number(new URLSearchParams(location.hash.slice(1)).get('cz') || 0);",
+        |v| v != 0.0,
+    )
+    .await?;
+    println!("a 60 px swipe moved the axial slice {cz} mm ({spacing} mm slices)");
+    if (cz - 6.0 * spacing).abs() > 0.02 {
+        return Err(format!(
+            "a 60 px swipe up moved the axial slice to {cz} mm: expected 6 × {spacing} mm"
+        ));
+    }
     Ok(())
 }
 

@@ -842,4 +842,108 @@ mod tests {
             .expect("the loop reads");
         running.await.expect("the loop ends");
     }
+
+    #[tokio::test]
+    async fn a_slice_view_comes_placed_probes_read_voxels_and_picks_find_the_surface() {
+        let renderer =
+            RenderService::start(shaders::Backend::Cpu, 64 << 20, 1).expect("render worker");
+        let phantom = Dataset::phantom(32, 16 << 20).expect("phantom");
+        let volume = blocks::phantom::head(32).expect("phantom voxels");
+        let state = AppState::new(vec![phantom], renderer, StreamSettings::default());
+        let (mut client, running) = start(&state);
+        assert_eq!(client.next_json().await["type"], "hello");
+        client
+            .send(serde_json::json!({"type": "layout", "panes": ["3d", "coronal"]}))
+            .await;
+        client
+            .send(serde_json::json!({"type": "view", "id": 1, "set": {"w": 32, "h": 32}}))
+            .await;
+        client
+            .send(
+                serde_json::json!({"type": "view", "id": 2, "pane": "coronal",
+                "set": {"w": 40, "h": 30, "cy": 5}}),
+            )
+            .await;
+        // Frames of both views until the coronal one is converged; its
+        // placement comes just before it.
+        let mut placement = None;
+        loop {
+            match client.next().await {
+                Message::Text(text) => {
+                    let reply: serde_json::Value =
+                        serde_json::from_str(text.as_str()).expect("JSON");
+                    assert_eq!(reply["type"], "slice", "{reply}");
+                    placement = Some(reply);
+                }
+                Message::Binary(bytes) => {
+                    let header = FrameHeader::parse(&bytes).expect("a header");
+                    client
+                        .send(serde_json::json!({"type": "ack", "frame": header.frame_id}))
+                        .await;
+                    if header.pane == protocol::Pane::Volume {
+                        continue;
+                    }
+                    let placed = placement.take().expect("a placement before the slice");
+                    assert_eq!(placed["frame"], header.frame_id);
+                    assert_eq!(placed["pane"], "coronal");
+                    assert_eq!(
+                        (header.width, header.height, header.message_id),
+                        (40, 30, 2)
+                    );
+                    assert_eq!(
+                        placed["placement"]["normal"],
+                        serde_json::json!([0.0, -1.0, 0.0])
+                    );
+                    if header.converged {
+                        break;
+                    }
+                }
+                other => panic!("unexpected {other:?}"),
+            }
+        }
+        // The voxel at the centre of voxel (3, 20, 9), and nothing outside.
+        let s = volume.geometry.spacing[0] as f32;
+        let at = |i: u32| (i as f32 - 15.5) * s;
+        client
+            .send(serde_json::json!({"type": "probe", "id": 3, "at": [at(3), at(20), at(9)]}))
+            .await;
+        let probe = client.next_json().await;
+        assert_eq!(
+            probe["voxel"]["index"],
+            serde_json::json!([3, 20, 9]),
+            "{probe}"
+        );
+        assert_eq!(probe["voxel"]["value"], volume.physical_at(3, 20, 9));
+        assert_eq!(probe["unit"], "HU");
+        client
+            .send(serde_json::json!({"type": "probe", "id": 4, "at": [0, 0, 1000]}))
+            .await;
+        assert_eq!(client.next_json().await["voxel"], serde_json::Value::Null);
+        client
+            .send(serde_json::json!({"type": "probe", "id": 5, "at": [0, 0]}))
+            .await;
+        let refused = client.next_json().await;
+        assert_eq!(
+            (&refused["type"], &refused["id"]),
+            (&"error".into(), &5.into())
+        );
+        // The 3D view's middle, from the front: the skull in front of the centre.
+        client
+            .send(serde_json::json!({"type": "pick", "id": 6, "xy": [16, 16]}))
+            .await;
+        let pick = client.next_json().await;
+        assert_eq!(
+            (&pick["type"], &pick["id"]),
+            (&"pick".into(), &6.into()),
+            "{pick}"
+        );
+        let y = pick["at"][1].as_f64().expect("a point");
+        assert!(y < 0.0, "{pick}");
+        client
+            .send(serde_json::json!({"type": "pick", "id": 7, "xy": [0, 0]}))
+            .await;
+        assert_eq!(client.next_json().await["at"], serde_json::Value::Null);
+        state.shutdown.cancel();
+        running.await.expect("the loop ends");
+    }
 }
