@@ -10,7 +10,9 @@
 // Gestures on a slice view: the wheel, arrows and Page keys (or a one-finger
 // drag on touch screens) scroll through the slices; a click or tap puts the
 // crosshair there (the other views follow); a drag sets the window (across:
-// width, up and down: level); right, middle or Ctrl drag pans, Ctrl+wheel
+// width, up and down: level); a drag that starts on a crosshair line away
+// from its centre turns the other two planes about this view's normal
+// (oblique views: each view keeps its own orientation, a quaternion); right, middle or Ctrl drag pans, Ctrl+wheel
 // or a pinch zooms towards the cursor; + and − zoom; R resets. In measure
 // mode clicks place the points of a distance (2) or an angle (3), listed
 // and drawn on the slice they lie in.
@@ -34,6 +36,22 @@ const scale = (a, k) => a.map((v) => v * k);
 const dot = (a, b) => a.reduce((s, v, i) => s + v * b[i], 0);
 const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
 const length = (a) => Math.hypot(...a);
+// Quaternions [w, x, y, z]: a turn of `angle` radians about unit `axis`, the
+// product a·b (b first, then a), and the text form the `orient` setting takes.
+const turn = (axis, angle) => [Math.cos(angle / 2), ...scale(axis, Math.sin(angle / 2))];
+function multiply([aw, ax, ay, az], [bw, bx, by, bz]) {
+  const q = [
+    aw * bw - ax * bx - ay * by - az * bz,
+    aw * bx + ax * bw + ay * bz - az * by,
+    aw * by - ax * bz + ay * bw + az * bx,
+    aw * bz + ax * by - ay * bx + az * bw,
+  ];
+  return scale(q, 1 / length(q));
+}
+const quatText = (q) => q.map((v) => round(v, 6)).join(',');
+// How near a crosshair line (CSS px) a drag turns it, and how far from its centre.
+const LINE_GRAB = 6;
+const LINE_CENTRE = 24;
 
 // The patient's directions (LPS: +x left, +y posterior, +z superior) as the
 // letter or two a direction is nearest to (two when it is oblique).
@@ -128,7 +146,7 @@ export class SliceViews {
   reset() {
     const d = (name) => this.schema.default(name);
     this.crosshair = [d('cx'), d('cy'), d('cz')];
-    this.orient = d('orient');
+    this.orients = Object.fromEntries(PLANES.map((p) => [p, d('orient').split(',').map(Number)]));
     this.window = null;
     this.slab = d('slab');
     this.slabMode = d('slab_mode');
@@ -168,7 +186,8 @@ export class SliceViews {
         zoom: round(pane.zoom, 3), px: round(pane.px), py: round(pane.py),
         slab: this.slab, slab_mode: this.slabMode,
       };
-      if (this.orient !== this.schema.default('orient')) view.orient = this.orient;
+      const orient = quatText(this.orients[plane]);
+      if (orient !== this.schema.default('orient')) view.orient = orient;
       if (this.window) view.window = `${round(this.window.centre)},${round(this.window.width)}`;
       out[plane] = view;
     }
@@ -298,6 +317,27 @@ export class SliceViews {
     this.onChange();
   }
 
+  // Turns the other two planes by `angle` radians about a view's normal
+  // (counter-clockwise as the view shows it); this view's plane stays.
+  rotate(pane, angle) {
+    if (!pane.placement) return;
+    const r = turn(pane.placement.normal, angle);
+    for (const plane of PLANES) {
+      if (plane !== pane.plane) this.orients[plane] = multiply(r, this.orients[plane]);
+    }
+    this.onChange();
+  }
+
+  // Whether CSS pixel (x, y) of a view lies on one of its crosshair lines,
+  // away from the centre (where a drag turns them).
+  onLine(pane, x, y) {
+    if (!pane.lines || !pane.centre) return false;
+    const [cx, cy] = pane.centre;
+    const away = Math.hypot(x - cx, y - cy);
+    if (away < LINE_CENTRE) return false;
+    return pane.lines.some(([sx, sy]) => Math.abs((x - cx) * sy - (y - cy) * sx) <= LINE_GRAB);
+  }
+
   pan(pane, dx, dy) {
     const mm = this.mmPerPixel(pane);
     pane.px -= dx * mm;
@@ -412,6 +452,8 @@ export class SliceViews {
     const slab = this.slab > 0 ? ` · ${this.slabMode} ${round(this.slab, 1)} mm` : '';
     pane.info.textContent = `${side} ${Math.abs(along).toFixed(1)} mm · W ${round(w.width, 0)} L ${round(w.centre, 0)}${slab}`;
     const centre = this.toScreen(pane, this.crosshair);
+    pane.centre = centre;
+    pane.lines = [];
     if (centre) {
       PLANES.forEach((other, i) => {
         if (other === pane.plane) return;
@@ -420,6 +462,7 @@ export class SliceViews {
         const sy = -dot(d, up);
         const len = Math.hypot(sx, sy);
         if (len < 1e-6) return;
+        pane.lines.push([sx / len, sy / len]);
         const far = 1e4 / len;
         const line = document.createElementNS(SVG, 'line');
         line.setAttribute('x1', centre[0] - sx * far);
@@ -501,7 +544,8 @@ export class SliceViews {
       const [x, y] = local(e);
       pointers.set(e.pointerId, { x, y });
       const pan = e.button === 1 || e.button === 2 || (e.button === 0 && (e.ctrlKey || e.metaKey));
-      const kind = pan ? 'pan' : e.pointerType === 'touch' ? 'scroll' : 'window';
+      let kind = pan ? 'pan' : e.pointerType === 'touch' ? 'scroll' : 'window';
+      if (!pan && pointers.size === 1 && this.onLine(pane, x, y)) kind = 'rotate';
       gesture = { kind, x0: x, y0: y, moved: false, travel: 0 };
       pinch = spread(pointers);
     });
@@ -525,7 +569,16 @@ export class SliceViews {
         return;
       }
       if (!gesture.moved) return;
-      if (gesture.kind === 'pan') this.pan(pane, dx, dy);
+      if (gesture.kind === 'rotate' && pane.centre) {
+        // The cursor's turn about the crosshair (screen y points down).
+        const [cx, cy] = pane.centre;
+        const before = Math.atan2(last.y - cy, last.x - cx);
+        const now = Math.atan2(y - cy, x - cx);
+        let angle = now - before;
+        if (angle > Math.PI) angle -= 2 * Math.PI;
+        if (angle < -Math.PI) angle += 2 * Math.PI;
+        this.rotate(pane, -angle);
+      } else if (gesture.kind === 'pan') this.pan(pane, dx, dy);
       else if (gesture.kind === 'window') this.dragWindow(dx, dy);
       else if (gesture.kind === 'scroll') {
         gesture.travel -= dy;
@@ -538,7 +591,8 @@ export class SliceViews {
     });
     const end = (e) => {
       pointers.delete(e.pointerId);
-      if (gesture && !gesture.moved && pointers.size === 0 && gesture.kind !== 'pan' && gesture.kind !== 'pinch') {
+      const clicked = gesture && !gesture.moved && pointers.size === 0;
+      if (clicked && gesture.kind !== 'pan' && gesture.kind !== 'pinch') {
         this.click(pane, ...local(e));
       }
       if (pointers.size === 0) gesture = null;
@@ -580,7 +634,7 @@ export class SliceViews {
   }
 
   // The slice state for the address's hash (names of their own: `cx`, `cy`,
-  // `cz`, `orient`, `swindow`, `slab`, `slab_mode`, `<plane>_zoom`, …).
+  // `cz`, `swindow`, `slab`, `slab_mode`, `<plane>_zoom`, `<plane>_orient`, …).
   linkParams(params) {
     const d = (name) => this.schema.default(name);
     const put = (name, value, fallback) => {
@@ -589,7 +643,6 @@ export class SliceViews {
     put('cx', round(this.crosshair[0]), d('cx'));
     put('cy', round(this.crosshair[1]), d('cy'));
     put('cz', round(this.crosshair[2]), d('cz'));
-    put('orient', this.orient, d('orient'));
     if (this.window) params.set('swindow', `${round(this.window.centre)},${round(this.window.width)}`);
     put('slab', this.slab, d('slab'));
     put('slab_mode', this.slabMode, d('slab_mode'));
@@ -597,13 +650,13 @@ export class SliceViews {
       put(`${plane}_zoom`, round(pane.zoom, 3), d('zoom'));
       put(`${plane}_px`, round(pane.px), d('px'));
       put(`${plane}_py`, round(pane.py), d('py'));
+      put(`${plane}_orient`, quatText(this.orients[plane]), d('orient'));
     }
   }
 
   applyLink(params) {
     const number = (name, fallback) => (params.get(name) !== null ? Number(params.get(name)) : fallback);
     this.crosshair = ['cx', 'cy', 'cz'].map((name, i) => number(name, this.crosshair[i]));
-    if (params.get('orient') !== null) this.orient = params.get('orient');
     if (params.get('swindow') !== null) {
       const [centre, width] = params.get('swindow').split(',').map(Number);
       this.window = { centre, width };
@@ -614,6 +667,8 @@ export class SliceViews {
       pane.zoom = number(`${plane}_zoom`, pane.zoom);
       pane.px = number(`${plane}_px`, pane.px);
       pane.py = number(`${plane}_py`, pane.py);
+      const orient = params.get(`${plane}_orient`);
+      if (orient !== null) this.orients[plane] = orient.split(',').map(Number);
     }
   }
 }

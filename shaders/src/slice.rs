@@ -7,8 +7,9 @@
 //! radiological convention: axial seen from the feet (the patient's right on
 //! the image's left, anterior up), coronal from the front (superior up),
 //! sagittal from the patient's left (anterior on the image's left). An
-//! oblique plane is the base one turned by [`Orientation`], a rotation the
-//! three views of a crosshair share, so they stay perpendicular.
+//! oblique plane is the base one turned by [`Orientation`]; turning the
+//! crosshair in one view turns the other two planes about that view's
+//! normal (each view has its orientation), so the three stay perpendicular.
 //!
 //! **Placement.** The plane passes through the crosshair (`cx`, `cy`, `cz`,
 //! model mm: from the volume's centre, as the camera's target). The image is
@@ -197,8 +198,7 @@ crate::settings! {
         /// The crosshair's z (towards superior), mm from the volume's centre.
         pub cz: f32 = 0.0, "cz",
             number(-MAX_OFFSET_MM, MAX_OFFSET_MM, "mm from the volume's centre", "mm");
-        /// The crosshair planes' rotation from axial, coronal and sagittal
-        /// (oblique views).
+        /// This view's rotation from its base plane (oblique views).
         pub orient: Orientation = Orientation::default(), "orient", by_type();
         /// Magnification: 1 fits the volume in the view.
         pub zoom: f32 = 1.0, "zoom", number(0.1, MAX_ZOOM, "a factor", "×");
@@ -223,6 +223,10 @@ crate::settings! {
         /// Draw only these rows of the image (a costly slice is drawn band
         /// by band, so other frames can go between); all when `None`.
         pub rows: Option<Rows> = None,
+        /// The normals of the crosshair's three planes (axial, coronal,
+        /// sagittal) when each view has an orientation of its own (a view
+        /// session knows all three); `None`: each turned as this one.
+        pub crosshair_normals: Option<[[f32; 3]; 3]> = None,
     }
 }
 
@@ -300,7 +304,8 @@ pub struct SlicePlacement {
     /// The crosshair, model mm.
     pub crosshair: [f32; 3],
     /// The normals of the crosshair's three planes (axial, coronal,
-    /// sagittal, turned as this view's), whose lines through it a view draws.
+    /// sagittal, each turned by its view's orientation), whose lines
+    /// through it a view draws.
     pub normals: [[f32; 3]; 3],
 }
 
@@ -342,13 +347,15 @@ impl SliceRequest {
         } else {
             (ratio.log2().floor() as usize).min(LEVELS - 1)
         };
-        let normals = [Plane::Axial, Plane::Coronal, Plane::Sagittal].map(|plane| {
-            SliceRequest {
-                plane,
-                ..self.clone()
-            }
-            .axes()[2]
-                .to_array()
+        let normals = self.crosshair_normals.unwrap_or_else(|| {
+            [Plane::Axial, Plane::Coronal, Plane::Sagittal].map(|plane| {
+                SliceRequest {
+                    plane,
+                    ..self.clone()
+                }
+                .axes()[2]
+                    .to_array()
+            })
         });
         SlicePlacement {
             corner: corner.to_array(),

@@ -2073,6 +2073,7 @@ async fn slice_views(
             "a click on the 3D view's forehead put the crosshair at {picked:?} mm, on a voxel of {value}"
         ));
     }
+    oblique(client).await?;
     layout_key(client, "3", &["axial", "coronal", "sagittal"]).await?;
     keep_screenshot(client, &format!("slices-{name}-layout-1+3")).await?;
     layout_key(client, "4", &["axial"]).await?;
@@ -2103,6 +2104,134 @@ async fn slice_views(
     if after != before {
         return Err(format!(
             "the link {href} shows another axial image ({after} against {before})"
+        ));
+    }
+    Ok(())
+}
+
+/// A drag along the axial view's vertical crosshair line, from 80 px above
+/// its centre 60 px to the right, turns the coronal and sagittal planes
+/// about the axial normal: they stay perpendicular to it and each other,
+/// the axial plane stays, and its crosshair lines turn.
+async fn oblique(client: &Client) -> Result<(), String> {
+    let centre = text(
+        client,
+        "the axial crosshair",
+        &format!(
+            "return {}.querySelector('svg').dataset.crosshair;",
+            pane_js("axial")
+        ),
+    )
+    .await?;
+    let c: Vec<f64> = centre.split(',').filter_map(|v| v.parse().ok()).collect();
+    let size = number(
+        client,
+        "the axial view's size",
+        &format!(
+            "const p = {}; return p.clientWidth * 1e5 + p.clientHeight;",
+            pane_js("axial")
+        ),
+    )
+    .await?;
+    let (w, h) = ((size / 1e5).floor(), size % 1e5);
+    let frames = pane_frames(client, "coronal").await?;
+    let axial_frames = pane_frames(client, "axial").await?;
+    let axial = client
+        .find(Locator::Css(".slice-pane[data-pane=\"axial\"]"))
+        .await
+        .map_err(|e| format!("the axial view: {e}"))?;
+    let mut drag = MouseActions::new("mouse".into())
+        .then(PointerAction::MoveToElement {
+            element: axial,
+            duration: None,
+            x: c[0] - w / 2.0,
+            y: c[1] - h / 2.0 - 80.0,
+        })
+        .then(PointerAction::Down { button: 0 });
+    for _ in 0..6 {
+        drag = drag.then(PointerAction::MoveBy {
+            duration: Some(Duration::from_millis(30)),
+            x: 10.0,
+            y: 0.0,
+        });
+    }
+    drag = drag.then(PointerAction::Up { button: 0 });
+    client
+        .perform_actions(drag)
+        .await
+        .map_err(|e| format!("turning the crosshair: {e}"))?;
+    wait_for(
+        client,
+        "the coronal view turned",
+        &frames_js("coronal"),
+        |n| n > frames,
+    )
+    .await?;
+    // The axial view draws again too: its crosshair lines are the others' planes.
+    wait_for(client, "the axial view's lines", &frames_js("axial"), |n| {
+        n > axial_frames
+    })
+    .await?;
+    for plane in ["axial", "coronal", "sagittal"] {
+        pane_settled(client, plane).await?;
+    }
+    let orient = |plane: &'static str| async move {
+        let text = text(
+            client,
+            "an orientation",
+            &format!("return new URLSearchParams(location.hash.slice(1)).get('{plane}_orient') || '1,0,0,0';"),
+        )
+        .await?;
+        let parsed =
+            <shaders::slice::Orientation as shaders::settings::TextSetting>::parse_text(&text)
+                .map_err(|e| format!("{plane}_orient {text}: {}", e.0))?;
+        let plane_of = match plane {
+            "axial" => shaders::slice::Plane::Axial,
+            "coronal" => shaders::slice::Plane::Coronal,
+            _ => shaders::slice::Plane::Sagittal,
+        };
+        Ok::<_, String>(
+            shaders::slice::SliceRequest {
+                plane: plane_of,
+                orient: parsed,
+                ..Default::default()
+            }
+            .axes()[2],
+        )
+    };
+    let (a, c, s) = (
+        orient("axial").await?,
+        orient("coronal").await?,
+        orient("sagittal").await?,
+    );
+    let turned = c.dot(glam::Vec3::NEG_Y).acos().to_degrees();
+    println!("turned the crosshair {turned:.1}°: normals {a}, {c}, {s}");
+    if a != glam::Vec3::NEG_Z
+        || a.dot(c).abs() > 1e-4
+        || a.dot(s).abs() > 1e-4
+        || c.dot(s).abs() > 1e-4
+        || turned < 5.0
+    {
+        return Err(format!(
+            "after turning the crosshair the normals are {a}, {c}, {s} (coronal turned {turned}°)"
+        ));
+    }
+    let lines = text(
+        client,
+        "the axial view's lines",
+        &format!(
+            "return [...{}.querySelectorAll('svg line')].map((l) => l.getAttribute('x1') + ':' + l.getAttribute('x2')).join(' ');",
+            pane_js("axial")
+        ),
+    )
+    .await?;
+    let vertical = lines.split(' ').any(|l| {
+        let x: Vec<f64> = l.split(':').filter_map(|v| v.parse().ok()).collect();
+        x.len() == 2 && (x[0] - x[1]).abs() < 1.0
+    });
+    if vertical {
+        return Err(format!(
+            "the axial view's crosshair lines did not turn: {lines}"
         ));
     }
     Ok(())

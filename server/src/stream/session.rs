@@ -231,6 +231,7 @@ impl Session {
     ) -> Option<Reply> {
         let dpr = dpr.unwrap_or(self.dpr);
         let dataset_before = self.view.dataset.clone();
+        let orients_before = self.slices.each_ref().map(|s| s.orient);
         let checked = match pane {
             Pane::Volume => {
                 let mut view = self.view.clone();
@@ -255,7 +256,17 @@ impl Session {
         let state = &mut self.panes[pane.index()];
         state.message_id = id;
         state.change(now);
-        // Every view shows the dataset and is drawn at the pixel ratio.
+        // Every view shows the dataset and is drawn at the pixel ratio; a
+        // slice view's crosshair lines are the other views' planes.
+        let turned = self.slices.each_ref().map(|s| s.orient) != orients_before;
+        if turned {
+            for other in &mut self.panes[1..] {
+                if other.progress != Progress::Empty {
+                    other.change(now);
+                }
+            }
+            self.panes[pane.index()].changed = Some(now);
+        }
         if rescaled || self.view.dataset != dataset_before {
             for other in &mut self.panes {
                 if other.progress != Progress::Empty {
@@ -532,6 +543,8 @@ impl Session {
             .map_err(|e| ViewError::setting(Origin::Session, e))?;
         if let Pane::Slice(_) = pane {
             let mut slice = self.slices[pane.index() - 1].clone();
+            // The crosshair's lines: the other views' planes as they are turned.
+            slice.crosshair_normals = Some(self.slices.each_ref().map(|s| s.axes()[2].to_array()));
             (slice.width, slice.height) = device_size(slice.width, slice.height, self.dpr)?;
             let window = slice.window.unwrap_or_else(|| dataset.default_window().1);
             let request = FrameRequest {
