@@ -109,13 +109,13 @@ function plainStatus(info) {
 }
 
 function drawFrame(bitmap, info, blob) {
+  if (info.latest && info.lossless) savedFrames[info.pane] = { blob, info };
+  saveButton.disabled = !savedFrames[activePane];
   if (info.pane !== '3d') {
     slices.draw(bitmap, info);
     return;
   }
   errorBox.hidden = true;
-  if (info.latest && info.lossless) savedFrame = { blob, info };
-  saveButton.disabled = !savedFrame;
   context.imageSmoothingEnabled = true;
   context.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
   bitmap.close();
@@ -454,12 +454,15 @@ function requestFrame() {
   const sent = stream.update(view, dpr);
   if (sent) {
     fidelity.classList.add('busy');
-    savedFrame = null;
-    saveButton.disabled = true;
+    delete savedFrames['3d'];
   }
   for (const [plane, sliceView] of Object.entries(slices.views())) {
-    if (stream.update(sliceView, dpr, plane)) slices.markBusy([plane]);
+    if (stream.update(sliceView, dpr, plane)) {
+      slices.markBusy([plane]);
+      delete savedFrames[plane];
+    }
   }
+  saveButton.disabled = !savedFrames[activePane];
   slices.redraw();
   linkView(view);
   showOrientation();
@@ -543,6 +546,9 @@ function applyLayout() {
   const clear = Math.max(22, Math.round(toolbar.getBoundingClientRect().bottom + 22 - host.top));
   context.style.setProperty('--context-top', `${clear}px`);
   document.body.dataset.layout = key;
+  // Save image saves a view that shows: the 3D view, else the first.
+  if (!LAYOUTS[key].includes(activePane)) activePane = LAYOUTS[key].includes('3d') ? '3d' : LAYOUTS[key][0];
+  saveButton.disabled = !savedFrames[activePane];
   resizeCanvas();
   slices.place(rects, viewport().dpr);
   if (stream) stream.setLayout(LAYOUTS[key]);
@@ -758,17 +764,31 @@ function showOrientation() {
   bar.querySelector('span').textContent = `${Number(best.toPrecision(2))} mm`;
 }
 
-// The last lossless frame of the view sent last (as the server encoded it,
-// lossless WebP or PNG), for the Save image button.
-let savedFrame = null;
+// Per view, its last lossless frame of the view sent last (as the server
+// encoded it, lossless WebP or PNG), for the Save image button, which saves
+// the view used last (clicked, touched or focused; the 3D view at first).
+const savedFrames = {};
+let activePane = '3d';
+function attachActivePane() {
+  const choose = (e) => {
+    const pane = e.target.closest && e.target.closest('.slice-pane');
+    if (pane) activePane = pane.dataset.pane;
+    else if (e.target === canvas) activePane = '3d';
+    else return;
+    saveButton.disabled = !savedFrames[activePane];
+  };
+  document.addEventListener('pointerdown', choose, true);
+  document.addEventListener('focusin', choose);
+}
 
 // Downloads that frame as a PNG, the same pixels.
 async function saveImage() {
-  if (!savedFrame) {
+  const saved = savedFrames[activePane];
+  if (!saved) {
     showError('no full frame yet: wait until the image is still and lossless');
     return;
   }
-  const { blob, info } = savedFrame;
+  const { blob, info } = saved;
   let png = blob;
   if (blob.type !== 'image/png') {
     const bitmap = await createImageBitmap(blob);
@@ -784,7 +804,8 @@ async function saveImage() {
   // fetch nothing but its server, blob: addresses included).
   link.saved = png;
   const stamp = new Date().toISOString().replace(/[:.]/g, '-');
-  link.download = `voxserve-${dataset.id}-${stamp}.png`;
+  const view = activePane === '3d' ? '' : `-${activePane}`;
+  link.download = `voxserve-${dataset.id}${view}-${stamp}.png`;
   link.click();
 }
 
@@ -1096,6 +1117,7 @@ async function start() {
   attachGestures(canvas, camera, () => requestFrame());
   attachPick();
   attachKeys();
+  attachActivePane();
   attachControls();
   applyLayout();
   showLight();

@@ -2013,6 +2013,38 @@ async fn slice_views(
     if drawn != 1.0 {
         return Err(format!("{drawn} measurement labels on the axial view"));
     }
+    // An angle at the second of three voxels: their angle within 2°.
+    let (c, _) = probed(client, -60.0, -60.0).await?;
+    run(
+        client,
+        "angle mode",
+        "const m = document.getElementById('measure'); m.value = 'angle'; m.dispatchEvent(new Event('change'));",
+    )
+    .await?;
+    for (x, y) in [(-60.0, 10.0), (70.0, -40.0), (-60.0, -60.0)] {
+        point_at(client, ".slice-pane[data-pane=\"axial\"]", x, y, true).await?;
+    }
+    let measured = wait_for(
+        client,
+        "the angle listed",
+        "const li = document.querySelectorAll('#measurements li')[1]; return li ? Number(li.dataset.value) : -1;",
+        |v| v >= 0.0,
+    )
+    .await?;
+    let mm = |v: [u32; 3]| {
+        glam::DVec3::new(
+            f64::from(v[0]) * spacing[0],
+            f64::from(v[1]) * spacing[1],
+            f64::from(v[2]) * spacing[2],
+        )
+    };
+    let known = (mm(a) - mm(b)).angle_between(mm(c) - mm(b)).to_degrees();
+    println!("angle {measured:.2}° at voxel {b:?}; the voxels make {known:.2}°");
+    if (measured - known).abs() > 2.0 {
+        return Err(format!(
+            "the angle measured is {measured}°; the voxels make {known}°"
+        ));
+    }
     run(
         client,
         "crosshair mode",
@@ -2078,6 +2110,48 @@ async fn slice_views(
     keep_screenshot(client, &format!("slices-{name}-layout-1+3")).await?;
     layout_key(client, "4", &["axial"]).await?;
     keep_screenshot(client, &format!("slices-{name}-layout-axial")).await?;
+    // Save image saves the view shown: the axial slice's lossless frame.
+    run(
+        client,
+        "Save image",
+        "document.getElementById('save').click();",
+    )
+    .await?;
+    wait_for(
+        client,
+        "the saved image",
+        "return document.getElementById('download').saved ? 1 : 0;",
+        |v| v == 1.0,
+    )
+    .await?;
+    let saved = client
+        .execute_async(
+            "const done = arguments[arguments.length - 1];
+             const link = document.getElementById('download');
+             createImageBitmap(link.saved).then((b) => done([link.download, b.width, b.height]));",
+            vec![],
+        )
+        .await
+        .map_err(|e| format!("reading the saved image: {e}"))?;
+    let size = number(
+        client,
+        "the axial frame",
+        &format!(
+            "const c = {}.querySelector('canvas'); return c.width * 1e5 + c.height;",
+            pane_js("axial")
+        ),
+    )
+    .await?;
+    let (w, h) = ((size / 1e5).floor(), size % 1e5);
+    println!("saved {saved}");
+    if !saved[0].as_str().is_some_and(|n| n.contains("-axial-"))
+        || saved[1].as_f64() != Some(w)
+        || saved[2].as_f64() != Some(h)
+    {
+        return Err(format!(
+            "Save image with the axial view alone saved {saved}, not its {w}×{h} frame"
+        ));
+    }
     // The address reproduces the slice view, pixel for pixel, in a fresh page.
     let canvas_hash = format!(
         "const c = {}.querySelector('canvas'); const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
@@ -2442,16 +2516,24 @@ async fn phone_slices(client: &Client, server: &TestServer) -> Result<(), String
         return Err("a view of the 2×2 layout is outside the phone's screen or tiny".into());
     }
     keep_screenshot(client, "slices-phone-layout-2x2").await?;
-    // One finger 60 px up the axial view: six slices up (10 px a slice).
+    wait_for(client, "the 3D view finished", FINISHED, |v| v == 1.0).await?;
+    // One finger 60 px up the axial view: six slices up (10 px a slice),
+    // and the coronal view's axial line moves up.
+    let line = format!(
+        "return Number({}.querySelector('svg').dataset.crosshair.split(',')[1]);",
+        pane_js("coronal")
+    );
+    let y0 = number(client, "the coronal crosshair", &line).await?;
     let axial = client
         .find(Locator::Css(".slice-pane[data-pane=\"axial\"]"))
         .await
         .map_err(|e| format!("the axial view: {e}"))?;
+    // Away from the crosshair's lines (a drag from a line turns them).
     let mut swipe = TouchActions::new("finger".into())
         .then(PointerAction::MoveToElement {
             element: axial,
             duration: None,
-            x: 0.0,
+            x: -40.0,
             y: 30.0,
         })
         .then(PointerAction::Down { button: 0 });
@@ -2477,10 +2559,13 @@ async fn phone_slices(client: &Client, server: &TestServer) -> Result<(), String
         |v| v != 0.0,
     )
     .await?;
-    println!("a 60 px swipe moved the axial slice {cz} mm ({spacing} mm slices)");
-    if (cz - 6.0 * spacing).abs() > 0.02 {
+    let y1 = number(client, "the coronal crosshair", &line).await?;
+    println!(
+        "a 60 px swipe moved the axial slice {cz} mm ({spacing} mm slices), the coronal line from y {y0} to {y1}"
+    );
+    if (cz - 6.0 * spacing).abs() > 0.02 || y1 >= y0 {
         return Err(format!(
-            "a 60 px swipe up moved the axial slice to {cz} mm: expected 6 × {spacing} mm"
+            "a 60 px swipe up moved the axial slice to {cz} mm (expected 6 × {spacing} mm) and the coronal line from y {y0} to {y1}"
         ));
     }
     Ok(())
@@ -2492,7 +2577,14 @@ async fn on_a_phone_the_two_by_two_layout_shows_three_slices_and_3d() {
     let Some((_driver, client)) = open_browser_as(test, 390, 844, true).await else {
         return;
     };
-    let server = phantom_on_cpu(StreamSettings::default()).await;
+    let (dataset, _, _) = slice_dataset(test);
+    let server = TestServer::with_backend(
+        shaders::Backend::Cpu,
+        vec![dataset],
+        1,
+        StreamSettings::default(),
+    )
+    .await;
     let result = phone_slices(&client, &server).await;
     finish(test, client, result).await;
 }
