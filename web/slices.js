@@ -242,13 +242,16 @@ export class SliceViews {
     for (const plane of planes) this.panes[plane]?.busy.classList.add('on');
   }
 
-  // CSS pixel (x, y) of a view → model mm, through its last frame's placement.
+  // CSS pixel (x, y) of a view → model mm, through its last frame's
+  // placement, on the plane through the crosshair now (the frame may still
+  // show the slice before the last scroll).
   toModel(pane, x, y) {
     const p = pane.placement;
     if (!p || !pane.frame) return null;
     const fx = (x * pane.frame.width) / pane.section.clientWidth - 0.5;
     const fy = (y * pane.frame.height) / pane.section.clientHeight - 0.5;
-    return add(add(p.corner, scale(p.right, fx)), scale(p.down, fy));
+    const at = add(add(p.corner, scale(p.right, fx)), scale(p.down, fy));
+    return add(at, scale(p.normal, dot(sub(this.crosshair, at), p.normal)));
   }
 
   // Model mm → CSS pixel of a view (its plane's projection).
@@ -381,6 +384,8 @@ export class SliceViews {
   click(pane, x, y) {
     const at = this.toModel(pane, x, y);
     if (!at) return;
+    // The value there too: on a touch screen a tap is the only way to point.
+    this.hover(pane, x, y);
     if (this.measure === 'off') {
       this.moveCrosshair(at);
       return;

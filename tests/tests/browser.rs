@@ -2484,9 +2484,36 @@ async fn the_main_path_works_from_the_keyboard_alone() {
     finish(test, client, result).await;
 }
 
+/// Touches (`x`, `y`) CSS pixels from the centre of the element `css`.
+async fn tap(client: &Client, css: &str, x: f64, y: f64) -> Result<(), String> {
+    let element = client
+        .find(Locator::Css(css))
+        .await
+        .map_err(|e| format!("{css}: {e}"))?;
+    let touch = TouchActions::new("finger".into())
+        .then(PointerAction::MoveToElement {
+            element,
+            duration: None,
+            x,
+            y,
+        })
+        .then(PointerAction::Down { button: 0 })
+        .then(PointerAction::Up { button: 0 });
+    client
+        .perform_actions(touch)
+        .await
+        .map_err(|e| format!("tapping {css}: {e}"))
+}
+
 /// On a phone (390×844, touch) the 2×2 layout shows three slices and 3D,
-/// each within the screen and drawn.
-async fn phone_slices(client: &Client, server: &TestServer) -> Result<(), String> {
+/// each within the screen and drawn; a swipe scrolls the axial view and
+/// moves the coronal view's line; taps read voxels out and measure their
+/// distance; a tap on the 3D view's forehead moves the crosshair up there.
+async fn phone_slices(
+    client: &Client,
+    server: &TestServer,
+    volume: &blocks::Volume,
+) -> Result<(), String> {
     open_page(client, &server.url("/")).await?;
     run(
         client,
@@ -2568,6 +2595,99 @@ async fn phone_slices(client: &Client, server: &TestServer) -> Result<(), String
             "a 60 px swipe up moved the axial slice to {cz} mm (expected 6 × {spacing} mm) and the coronal line from y {y0} to {y1}"
         ));
     }
+    // A tap reads the voxel out (no hover on a touch screen) and measures.
+    let probe = format!("{}.querySelector('.pane-probe')", pane_js("axial"));
+    let mut taps = Vec::new();
+    for (x, y) in [(-40.0, 20.0), (30.0, -30.0)] {
+        run(
+            client,
+            "clearing the readout",
+            &format!("{probe}.dataset.index = '';"),
+        )
+        .await?;
+        tap(client, ".slice-pane[data-pane=\"axial\"]", x, y).await?;
+        wait_for(
+            client,
+            "the value tapped",
+            &format!("return {probe}.dataset.index ? 1 : 0;"),
+            |v| v == 1.0,
+        )
+        .await?;
+        let index = text(
+            client,
+            "the voxel",
+            &format!("return {probe}.dataset.index;"),
+        )
+        .await?;
+        let value = number(
+            client,
+            "the value",
+            &format!("return Number({probe}.dataset.value);"),
+        )
+        .await?;
+        let v: Vec<u32> = index.split(',').filter_map(|i| i.parse().ok()).collect();
+        if v.len() != 3 || value != volume.physical_at(v[0], v[1], v[2]) {
+            return Err(format!(
+                "a tap read voxel {index} = {value}; the volume disagrees"
+            ));
+        }
+        taps.push(v);
+        if taps.len() == 1 {
+            run(
+                client,
+                "measure mode",
+                "const m = document.getElementById('measure'); m.value = 'distance'; m.dispatchEvent(new Event('change'));",
+            )
+            .await?;
+            // The first tap set the crosshair; measure from the same point.
+            tap(client, ".slice-pane[data-pane=\"axial\"]", x, y).await?;
+        }
+    }
+    let g = &volume.geometry;
+    let known = (0..3)
+        .map(|i| ((f64::from(taps[0][i]) - f64::from(taps[1][i])) * g.spacing[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let measured = wait_for(
+        client,
+        "the distance tapped",
+        "const li = document.querySelector('#measurements li'); return li ? Number(li.dataset.value) : -1;",
+        |v| v >= 0.0,
+    )
+    .await?;
+    println!(
+        "tapped {:?} and {:?}: {measured:.2} mm, {known:.2} mm apart",
+        taps[0], taps[1]
+    );
+    if (measured - known).abs() > g.spacing.iter().copied().fold(0.0, f64::max) {
+        return Err(format!(
+            "a distance tapped is {measured} mm; the voxels are {known} mm apart"
+        ));
+    }
+    run(
+        client,
+        "crosshair mode",
+        "const m = document.getElementById('measure'); m.value = 'off'; m.dispatchEvent(new Event('change'));",
+    )
+    .await?;
+    // A tap on the 3D view's forehead moves the crosshair up there.
+    let before = hash_number(client, "cz", 0.0).await?;
+    let height = number(
+        client,
+        "the 3D view",
+        "return document.getElementById('view').clientHeight;",
+    )
+    .await?;
+    // The skull is smaller here than at 1400×900: an eighth of the height up.
+    tap(client, "#view", 0.0, -0.125 * height).await?;
+    let cz = wait_for(
+        client,
+        "the crosshair after a tap in 3D",
+        "return Number(new URLSearchParams(location.hash.slice(1)).get('cz') || 0);",
+        |v| v > before + 10.0,
+    )
+    .await?;
+    println!("a tap on the 3D forehead put the crosshair at z {cz} mm (from {before})");
     Ok(())
 }
 
@@ -2577,7 +2697,7 @@ async fn on_a_phone_the_two_by_two_layout_shows_three_slices_and_3d() {
     let Some((_driver, client)) = open_browser_as(test, 390, 844, true).await else {
         return;
     };
-    let (dataset, _, _) = slice_dataset(test);
+    let (dataset, volume, _) = slice_dataset(test);
     let server = TestServer::with_backend(
         shaders::Backend::Cpu,
         vec![dataset],
@@ -2585,6 +2705,6 @@ async fn on_a_phone_the_two_by_two_layout_shows_three_slices_and_3d() {
         StreamSettings::default(),
     )
     .await;
-    let result = phone_slices(&client, &server).await;
+    let result = phone_slices(&client, &server, &volume).await;
     finish(test, client, result).await;
 }
