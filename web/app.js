@@ -6,7 +6,7 @@
 import { authFetch, logIn } from './auth.js';
 import { OrbitCamera, attachGestures } from './camera.js';
 import { Schema, control } from './settings.js';
-import { PLANES, SliceViews, directionLetters } from './slices.js';
+import { PLANES, SliceViews, directionLetters, scaleBarMm } from './slices.js';
 import { ViewStream } from './stream.js';
 import { TfEditor } from './tf-editor.js';
 
@@ -725,7 +725,6 @@ function applyLink() {
 
 // Orientation labels at the view's edges and a scale bar in mm (at the
 // camera's target, the depth the view turns about).
-const SCALE_STEPS = [1, 2, 5];
 function showOrientation() {
   // The cube turns with the camera: about the patient's long axis by the
   // azimuth, then tilted by the elevation (CSS: x right, y down, z out).
@@ -747,13 +746,7 @@ function showOrientation() {
   }
   const mmPerPixel = camera.mmPerPixel(canvas.clientHeight);
   // The longest 1, 2 or 5 × 10^k mm bar within 120 CSS pixels.
-  let best = null;
-  for (let k = -3; k <= 5; k += 1) {
-    for (const step of SCALE_STEPS) {
-      const mm = step * 10 ** k;
-      if (mm / mmPerPixel <= 120) best = mm;
-    }
-  }
+  const best = scaleBarMm(mmPerPixel, 120);
   const bar = document.getElementById('scale');
   if (!best) {
     bar.hidden = true;

@@ -246,7 +246,8 @@ function middle(pointers) {
   return { x: (a.x + b.x) / 2, y: (a.y + b.y) / 2 };
 }
 
-function spread(pointers) {
+// The distance between two pointers (0 unless there are two).
+export function spread(pointers) {
   if (pointers.size !== 2) return 0;
   const [a, b] = [...pointers.values()];
   return Math.hypot(a.x - b.x, a.y - b.y);

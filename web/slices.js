@@ -17,6 +17,8 @@
 // mode clicks place the points of a distance (2) or an angle (3), listed
 // and drawn on the slice they lie in.
 
+import { spread } from './camera.js';
+
 export const PLANES = ['axial', 'coronal', 'sagittal'];
 const TITLES = { axial: 'Axial', coronal: 'Coronal', sagittal: 'Sagittal' };
 // The planes' colours (their crosshair lines in the other views).
@@ -61,6 +63,19 @@ export function directionLetters(v) {
   const letter = (axis) => DIRECTIONS[axis][v[axis] >= 0 ? 0 : 1];
   const first = letter(order[0]);
   return Math.abs(v[order[1]]) > 0.38 ? first + letter(order[1]) : first;
+}
+
+// The longest 1, 2 or 5 × 10^k mm (k from −3 to 5) at most `maxPixels`
+// long at `mmPerPixel`; null when even 1 µm is longer.
+export function scaleBarMm(mmPerPixel, maxPixels) {
+  let best = null;
+  for (let k = -3; k <= 5; k += 1) {
+    for (const step of [1, 2, 5]) {
+      const mm = step * 10 ** k;
+      if (mm / mmPerPixel <= maxPixels) best = mm;
+    }
+  }
+  return best;
 }
 
 // Distance between two model points (mm), and the angle at `b` (degrees).
@@ -484,11 +499,8 @@ export class SliceViews {
     const mm = this.mmPerPixel(pane);
     const width = pane.section.clientWidth;
     const height = pane.section.clientHeight;
-    let bar = 0;
-    for (let k = -3; k <= 5 && mm > 0; k += 1) {
-      for (const step of [1, 2, 5]) if ((step * 10 ** k) / mm <= width / 4) bar = step * 10 ** k;
-    }
-    if (bar > 0) {
+    const bar = mm > 0 ? scaleBarMm(mm, width / 4) : null;
+    if (bar) {
       const x1 = width - 22;
       const x0 = x1 - bar / mm;
       const line = document.createElementNS(SVG, 'polyline');
@@ -676,12 +688,6 @@ export class SliceViews {
       if (orient !== null) this.orients[plane] = orient.split(',').map(Number);
     }
   }
-}
-
-function spread(pointers) {
-  if (pointers.size !== 2) return 0;
-  const [a, b] = [...pointers.values()];
-  return Math.hypot(a.x - b.x, a.y - b.y);
 }
 
 function round(v, digits = 2) {

@@ -343,19 +343,29 @@ impl Job {
                 request.width, request.height, request.step_voxels, dataset.id
             )));
         }
-        let rows_per_turn = Job::rows_per_turn(&request, samples);
+        Ok(Job::queued(dataset, request, None, samples))
+    }
+
+    /// A job of `request` (with `slice`, a slice view's) at `samples` a
+    /// pixel, queued now, and where its frame will come.
+    fn queued(
+        dataset: &Dataset,
+        request: FrameRequest,
+        slice: Option<(SliceRequest, Window)>,
+        samples: u64,
+    ) -> (Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>) {
         let (reply, answer) = oneshot::channel();
         let job = Job {
             dataset: dataset.clone(),
+            rows_per_turn: Job::rows_per_turn(&request, samples),
             request,
-            slice: None,
+            slice,
             queued: Instant::now(),
             reply,
             samples,
-            rows_per_turn,
             drawn: None,
         };
-        Ok((job, answer))
+        (job, answer)
     }
 
     /// A slice view's frame of `dataset` queued now, and where it will
@@ -368,7 +378,12 @@ impl Job {
         max_cost: u64,
     ) -> Result<(Job, oneshot::Receiver<Result<RenderedFrame, GpuError>>), AppError> {
         let samples = u64::from(slice.slab_samples(&dataset.store.meta().geometry));
-        let cost = u64::from(slice.width) * u64::from(slice.height) * samples;
+        let request = FrameRequest {
+            width: slice.width,
+            height: slice.height,
+            ..FrameRequest::default()
+        };
+        let cost = Job::frame_cost(&request, samples);
         if cost > max_cost {
             return Err(AppError::BadRequest(format!(
                 "a {}x{} slice of '{}' with a slab of {samples} samples costs {cost} \
@@ -377,23 +392,12 @@ impl Job {
                 slice.width, slice.height, dataset.id
             )));
         }
-        let request = FrameRequest {
-            width: slice.width,
-            height: slice.height,
-            ..FrameRequest::default()
-        };
-        let (reply, answer) = oneshot::channel();
-        let job = Job {
-            dataset: dataset.clone(),
-            rows_per_turn: Job::rows_per_turn(&request, samples),
+        Ok(Job::queued(
+            dataset,
             request,
-            slice: Some((slice, window)),
-            queued: Instant::now(),
-            reply,
+            Some((slice, window)),
             samples,
-            drawn: None,
-        };
-        Ok((job, answer))
+        ))
     }
 
     /// Draws the job's next band: the frame when it was the last (or the
@@ -695,9 +699,7 @@ impl RenderService {
         request: FrameRequest,
     ) -> Result<RenderedFrame, AppError> {
         let (job, answer) = Job::new(dataset, request, self.max_frame_cost())?;
-        self.shared.lock().push(client.clone(), job);
-        self.shared.ready.notify_one();
-        Self::answer(answer).await
+        self.wait_in_turn(client, job, answer).await
     }
 
     /// Renders a slice view's frame of `dataset` through `window` for
@@ -710,6 +712,16 @@ impl RenderService {
         window: Window,
     ) -> Result<RenderedFrame, AppError> {
         let (job, answer) = Job::slice(dataset, slice, window, self.max_frame_cost())?;
+        self.wait_in_turn(client, job, answer).await
+    }
+
+    /// Queues `job` for `client`, always, and awaits its frame.
+    async fn wait_in_turn(
+        &self,
+        client: &Client,
+        job: Job,
+        answer: oneshot::Receiver<Result<RenderedFrame, GpuError>>,
+    ) -> Result<RenderedFrame, AppError> {
         self.shared.lock().push(client.clone(), job);
         self.shared.ready.notify_one();
         Self::answer(answer).await

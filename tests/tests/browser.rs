@@ -46,7 +46,7 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use fantoccini::actions::{InputSource, MouseActions, PointerAction, TouchActions};
+use fantoccini::actions::{ActionSequence, InputSource, MouseActions, PointerAction, TouchActions};
 use fantoccini::{Client, ClientBuilder, Locator};
 use server::stream::StreamSettings;
 use voxserve_tests::gpu::report_skip;
@@ -1767,45 +1767,80 @@ async fn pane_settled(client: &Client, plane: &str) -> Result<(), String> {
     .map(|_| ())
 }
 
-/// A number of the address's hash (`fallback` when it has none).
-async fn hash_number(client: &Client, name: &str, fallback: f64) -> Result<f64, String> {
-    number(
-        client,
-        name,
-        &format!(
-            "const v = new URLSearchParams(location.hash.slice(1)).get('{name}'); return v === null ? {fallback} : Number(v);"
-        ),
+/// The script reading a number of the address's hash (`fallback` when it
+/// has none).
+fn hash_js(name: &str, fallback: f64) -> String {
+    format!(
+        "const v = new URLSearchParams(location.hash.slice(1)).get('{name}'); return v === null ? {fallback} : Number(v);"
     )
-    .await
 }
 
-/// Moves the mouse to (`x`, `y`) CSS pixels from the centre of the element
-/// `css`, and with `click` presses and releases the left button there.
-async fn point_at(client: &Client, css: &str, x: f64, y: f64, click: bool) -> Result<(), String> {
+/// A number of the address's hash (`fallback` when it has none).
+async fn hash_number(client: &Client, name: &str, fallback: f64) -> Result<f64, String> {
+    number(client, name, &hash_js(name, fallback)).await
+}
+
+/// How a test points at an element.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Gesture {
+    /// The mouse moves over it.
+    Hover,
+    /// The mouse moves there and clicks.
+    Click,
+    /// A finger touches it.
+    Tap,
+}
+
+/// Points at (`x`, `y`) CSS pixels from the centre of the element `css` by
+/// `gesture`.
+async fn point_at(
+    client: &Client,
+    css: &str,
+    x: f64,
+    y: f64,
+    gesture: Gesture,
+) -> Result<(), String> {
     let element = client
         .find(Locator::Css(css))
         .await
         .map_err(|e| format!("{css}: {e}"))?;
-    let mut actions = MouseActions::new("mouse".into()).then(PointerAction::MoveToElement {
+    let to = PointerAction::MoveToElement {
         element,
         duration: None,
         x,
         y,
-    });
-    if click {
-        actions = actions
-            .then(PointerAction::Down { button: 0 })
-            .then(PointerAction::Up { button: 0 });
-    }
+    };
+    let (down, up) = (
+        PointerAction::Down { button: 0 },
+        PointerAction::Up { button: 0 },
+    );
+    let actions: ActionSequence = match gesture {
+        Gesture::Hover => MouseActions::new("mouse".into()).then(to).into(),
+        Gesture::Click => MouseActions::new("mouse".into())
+            .then(to)
+            .then(down)
+            .then(up)
+            .into(),
+        Gesture::Tap => TouchActions::new("finger".into())
+            .then(to)
+            .then(down)
+            .then(up)
+            .into(),
+    };
     client
         .perform_actions(actions)
         .await
         .map_err(|e| format!("pointing at {css}: {e}"))
 }
 
-/// The voxel under (`x`, `y`) of the axial view, as the page reads it out:
-/// its index and value.
-async fn probed(client: &Client, x: f64, y: f64) -> Result<([u32; 3], f64), String> {
+/// The voxel at (`x`, `y`) of the axial view pointed at by `gesture`, as
+/// the page reads it out: its index and value.
+async fn probed(
+    client: &Client,
+    gesture: Gesture,
+    x: f64,
+    y: f64,
+) -> Result<([u32; 3], f64), String> {
     run(
         client,
         "clearing the readout",
@@ -1815,7 +1850,7 @@ async fn probed(client: &Client, x: f64, y: f64) -> Result<([u32; 3], f64), Stri
         ),
     )
     .await?;
-    point_at(client, ".slice-pane[data-pane=\"axial\"]", x, y, false).await?;
+    point_at(client, ".slice-pane[data-pane=\"axial\"]", x, y, gesture).await?;
     let probe = format!("{}.querySelector('.pane-probe')", pane_js("axial"));
     wait_for(
         client,
@@ -1949,7 +1984,7 @@ async fn slice_views(
         ));
     }
     // The value under the cursor is the voxel's, in the slice shown.
-    let (a, va) = probed(client, -60.0, 10.0).await?;
+    let (a, va) = probed(client, Gesture::Hover, -60.0, 10.0).await?;
     let expected = volume.physical_at(a[0], a[1], a[2]);
     let centre_k = (f64::from(volume.geometry.dims[2]) - 1.0) / 2.0;
     let k_expected = (centre_k + cz1 / spacing[2]).round();
@@ -1960,7 +1995,7 @@ async fn slice_views(
         ));
     }
     // A distance between two voxels: their distance within one voxel.
-    let (b, _) = probed(client, 70.0, -40.0).await?;
+    let (b, _) = probed(client, Gesture::Hover, 70.0, -40.0).await?;
     let known = (0..3)
         .map(|i| ((f64::from(a[i]) - f64::from(b[i])) * spacing[i]).powi(2))
         .sum::<f64>()
@@ -1976,7 +2011,7 @@ async fn slice_views(
         ".slice-pane[data-pane=\"axial\"]",
         -60.0,
         10.0,
-        true,
+        Gesture::Click,
     )
     .await?;
     point_at(
@@ -1984,7 +2019,7 @@ async fn slice_views(
         ".slice-pane[data-pane=\"axial\"]",
         70.0,
         -40.0,
-        true,
+        Gesture::Click,
     )
     .await?;
     let measured = wait_for(
@@ -2014,7 +2049,7 @@ async fn slice_views(
         return Err(format!("{drawn} measurement labels on the axial view"));
     }
     // An angle at the second of three voxels: their angle within 2°.
-    let (c, _) = probed(client, -60.0, -60.0).await?;
+    let (c, _) = probed(client, Gesture::Hover, -60.0, -60.0).await?;
     run(
         client,
         "angle mode",
@@ -2022,7 +2057,14 @@ async fn slice_views(
     )
     .await?;
     for (x, y) in [(-60.0, 10.0), (70.0, -40.0), (-60.0, -60.0)] {
-        point_at(client, ".slice-pane[data-pane=\"axial\"]", x, y, true).await?;
+        point_at(
+            client,
+            ".slice-pane[data-pane=\"axial\"]",
+            x,
+            y,
+            Gesture::Click,
+        )
+        .await?;
     }
     let measured = wait_for(
         client,
@@ -2060,7 +2102,7 @@ async fn slice_views(
         "return document.getElementById('view').clientHeight;",
     )
     .await?;
-    point_at(client, "#view", 0.0, -0.25 * height, true).await?;
+    point_at(client, "#view", 0.0, -0.25 * height, Gesture::Click).await?;
     wait_for(
         client,
         "the slices after a pick",
@@ -2484,27 +2526,6 @@ async fn the_main_path_works_from_the_keyboard_alone() {
     finish(test, client, result).await;
 }
 
-/// Touches (`x`, `y`) CSS pixels from the centre of the element `css`.
-async fn tap(client: &Client, css: &str, x: f64, y: f64) -> Result<(), String> {
-    let element = client
-        .find(Locator::Css(css))
-        .await
-        .map_err(|e| format!("{css}: {e}"))?;
-    let touch = TouchActions::new("finger".into())
-        .then(PointerAction::MoveToElement {
-            element,
-            duration: None,
-            x,
-            y,
-        })
-        .then(PointerAction::Down { button: 0 })
-        .then(PointerAction::Up { button: 0 });
-    client
-        .perform_actions(touch)
-        .await
-        .map_err(|e| format!("tapping {css}: {e}"))
-}
-
 /// On a phone (390×844, touch) the 2×2 layout shows three slices and 3D,
 /// each within the screen and drawn; a swipe scrolls the axial view and
 /// moves the coronal view's line; taps read voxels out and measure their
@@ -2582,7 +2603,7 @@ async fn phone_slices(
     let cz = wait_for(
         client,
         "the axial slice after a swipe",
-        "return Number(new URLSearchParams(location.hash.slice(1)).get('cz') || 0);",
+        &hash_js("cz", 0.0),
         |v| v != 0.0,
     )
     .await?;
@@ -2596,39 +2617,12 @@ async fn phone_slices(
         ));
     }
     // A tap reads the voxel out (no hover on a touch screen) and measures.
-    let probe = format!("{}.querySelector('.pane-probe')", pane_js("axial"));
     let mut taps = Vec::new();
     for (x, y) in [(-40.0, 20.0), (30.0, -30.0)] {
-        run(
-            client,
-            "clearing the readout",
-            &format!("{probe}.dataset.index = '';"),
-        )
-        .await?;
-        tap(client, ".slice-pane[data-pane=\"axial\"]", x, y).await?;
-        wait_for(
-            client,
-            "the value tapped",
-            &format!("return {probe}.dataset.index ? 1 : 0;"),
-            |v| v == 1.0,
-        )
-        .await?;
-        let index = text(
-            client,
-            "the voxel",
-            &format!("return {probe}.dataset.index;"),
-        )
-        .await?;
-        let value = number(
-            client,
-            "the value",
-            &format!("return Number({probe}.dataset.value);"),
-        )
-        .await?;
-        let v: Vec<u32> = index.split(',').filter_map(|i| i.parse().ok()).collect();
-        if v.len() != 3 || value != volume.physical_at(v[0], v[1], v[2]) {
+        let (v, value) = probed(client, Gesture::Tap, x, y).await?;
+        if value != volume.physical_at(v[0], v[1], v[2]) {
             return Err(format!(
-                "a tap read voxel {index} = {value}; the volume disagrees"
+                "a tap read voxel {v:?} = {value}; the volume disagrees"
             ));
         }
         taps.push(v);
@@ -2640,7 +2634,14 @@ async fn phone_slices(
             )
             .await?;
             // The first tap set the crosshair; measure from the same point.
-            tap(client, ".slice-pane[data-pane=\"axial\"]", x, y).await?;
+            point_at(
+                client,
+                ".slice-pane[data-pane=\"axial\"]",
+                x,
+                y,
+                Gesture::Tap,
+            )
+            .await?;
         }
     }
     let g = &volume.geometry;
@@ -2679,11 +2680,11 @@ async fn phone_slices(
     )
     .await?;
     // The skull is smaller here than at 1400×900: an eighth of the height up.
-    tap(client, "#view", 0.0, -0.125 * height).await?;
+    point_at(client, "#view", 0.0, -0.125 * height, Gesture::Tap).await?;
     let cz = wait_for(
         client,
         "the crosshair after a tap in 3D",
-        "return Number(new URLSearchParams(location.hash.slice(1)).get('cz') || 0);",
+        &hash_js("cz", 0.0),
         |v| v > before + 10.0,
     )
     .await?;

@@ -135,6 +135,13 @@ impl PaneState {
         self.progress = Progress::Changed { at: now };
         self.changed = Some(now);
     }
+
+    /// Changes those of `panes` that have a view.
+    fn change_all(panes: &mut [PaneState], now: Instant) {
+        for pane in panes.iter_mut().filter(|p| p.progress != Progress::Empty) {
+            pane.change(now);
+        }
+    }
 }
 
 /// One view session's state; see the module docs.
@@ -258,21 +265,10 @@ impl Session {
         state.change(now);
         // Every view shows the dataset and is drawn at the pixel ratio; a
         // slice view's crosshair lines are the other views' planes.
-        let turned = self.slices.each_ref().map(|s| s.orient) != orients_before;
-        if turned {
-            for other in &mut self.panes[1..] {
-                if other.progress != Progress::Empty {
-                    other.change(now);
-                }
-            }
-            self.panes[pane.index()].changed = Some(now);
-        }
         if rescaled || self.view.dataset != dataset_before {
-            for other in &mut self.panes {
-                if other.progress != Progress::Empty {
-                    other.change(now);
-                }
-            }
+            PaneState::change_all(&mut self.panes, now);
+        } else if self.slices.each_ref().map(|s| s.orient) != orients_before {
+            PaneState::change_all(&mut self.panes[1..], now);
         }
         None
     }
