@@ -213,9 +213,9 @@ fn every_mirrored_struct_matches_its_wgsl_twin_field_by_field() {
         blend,
         regions,
         max_steps,
+        seam_level,
+        seam_outward,
         _pad0,
-        _pad1,
-        _pad2,
     });
     for source in [
         crate::wgsl::LOCAL_OPACITY,
@@ -223,6 +223,7 @@ fn every_mirrored_struct_matches_its_wgsl_twin_field_by_field() {
         crate::wgsl::DIRECT_LIGHT,
         crate::wgsl::IN_SCATTER,
         crate::wgsl::DIRECT_LIGHT_REFERENCE,
+        crate::wgsl::LIGHT_SEAMS,
     ] {
         check("LightParams", source, &light, size_of::<LightParams>());
     }

@@ -155,6 +155,9 @@ pub const IN_SCATTER: &str = light_stage!(
     "../wgsl/in_scatter.wgsl"
 );
 
+/// The `light_seams` stage (`shaders/wgsl/light_seams.wgsl`).
+pub const LIGHT_SEAMS: &str = light_stage!("../wgsl/light_seams.wgsl");
+
 /// The `direct_light_reference` stage (`shaders/wgsl/direct_light_reference.wgsl`).
 pub const DIRECT_LIGHT_REFERENCE: &str = light_stage!(
     "../wgsl/shared/transfer_function.wgsl",
@@ -177,6 +180,7 @@ mod tests {
             ("global_opacity", super::GLOBAL_OPACITY),
             ("direct_light", super::DIRECT_LIGHT),
             ("in_scatter", super::IN_SCATTER),
+            ("light_seams", super::LIGHT_SEAMS),
             ("direct_light_reference", super::DIRECT_LIGHT_REFERENCE),
             ("raycast extinction", super::RAYCAST_EXTINCTION),
             ("extinction_sat", super::EXTINCTION_SAT),

@@ -1,7 +1,9 @@
 //! Global light propagation: every stage of the mode's declared list on the
 //! GPU against its CPU twin (`local_opacity`, `global_opacity`, `direct_light`
-//! or `direct_light_reference`, `in_scatter`), the lit frame against the lit CPU twin, and what
-//! is recomputed when.
+//! or `direct_light_reference`, `in_scatter` with the `light_seams` passes
+//! after it; the reduced case has level borders, and the comparison fails
+//! when either side leaves the passes out), the lit frame against the lit CPU
+//! twin, and what is recomputed when.
 //!
 //! Tolerance per stage: the two sides differ only in arithmetic — hardware
 //! trilinear filtering keeps 8 fraction bits of the weights, the CPU twin's

@@ -14,13 +14,19 @@
 
 use std::sync::Arc;
 
+use blocks::TransferFunction;
 use blocks::geometry::IDENTITY_DIRECTION;
 use blocks::lod::LodSelection;
 use blocks::packing::{APRON, Packing};
 use blocks::{Geometry, ValueMap, Volume, VoxelData};
 use glam::Vec3;
-use shaders::cpu::PackedTexture;
+use server::Dataset;
+use shaders::LightSettings;
+use shaders::cpu::global_light::{self as twin, LightInputs, LightState};
 use shaders::cpu::packed::atlas_coord;
+use shaders::cpu::{PackedTexture, Texture3d};
+use shaders::global_light::{LightParams, LightSource, Stage};
+use shaders::illumination::{near_blocks, slot_blocks};
 use shaders::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice, assemble_cpu};
 use shaders::packed_volume::{PackedLayout, PackedVolume};
 use shaders::volume_texture::{TexelFormat, VolumeTexture};
@@ -52,8 +58,9 @@ fn ramp_volume() -> Volume {
     Volume::new("ramp", geometry, VoxelData::U16(voxels), ValueMap::IDENTITY).expect("ramp")
 }
 
-/// The value the ray caster reads at `p` (level-0 voxel units), in stored units.
-fn sample(packed: &PackedTexture, g: &PackedVolume, p: [f64; 3]) -> f64 {
+/// Where `p` (level-0 voxel units) is in `packed`'s atlas, read as the ray
+/// caster reads it: in the block `p` lies in.
+fn atlas_position(packed: &PackedTexture, g: &PackedVolume, p: [f64; 3]) -> Vec3 {
     let tc = Vec3::new(
         (p[0] / f64::from(DIMS[0])) as f32,
         (p[1] / f64::from(DIMS[1])) as f32,
@@ -61,14 +68,27 @@ fn sample(packed: &PackedTexture, g: &PackedVolume, p: [f64; 3]) -> f64 {
     );
     let loc = packed.locate(g, tc);
     assert!(!loc.empty, "every block is stored");
-    f64::from(packed.atlas.sample_level(atlas_coord(g, tc, &loc))) * f64::from(u16::MAX)
+    atlas_coord(g, tc, &loc)
 }
 
-/// The largest jump across a block border: for every border plane along
-/// every axis, lines across it on a grid of positions along it.
-fn largest_step(packed: &PackedTexture, g: &PackedVolume) -> f64 {
+/// The value the ray caster reads at `p` (level-0 voxel units), in stored units.
+fn sample(packed: &PackedTexture, g: &PackedVolume, p: [f64; 3]) -> f64 {
+    let at = atlas_position(packed, g, p);
+    f64::from(packed.atlas.sample_level(at)) * f64::from(u16::MAX)
+}
+
+/// The stored light the lit ray caster reads at `p` (level-0 voxel units).
+fn light_at(packed: &PackedTexture, g: &PackedVolume, light: &Texture3d, p: [f64; 3]) -> f64 {
+    f64::from(light.sample_level(atlas_position(packed, g, p)))
+}
+
+/// The largest and the mean jump across a block border of what `read` gives:
+/// for every border plane along every axis, lines across it on a grid of
+/// positions along it.
+fn steps(read: impl Fn([f64; 3]) -> f64) -> (f64, f64) {
     let eps = 1e-3;
     let mut largest: f64 = 0.0;
+    let (mut sum, mut count) = (0.0, 0u32);
     for axis in 0..3 {
         let others = [(axis + 1) % 3, (axis + 2) % 3];
         for border in (16..DIMS[axis]).step_by(16) {
@@ -81,26 +101,23 @@ fn largest_step(packed: &PackedTexture, g: &PackedVolume) -> f64 {
                     p[others[0]] = f64::from(u) * 0.5;
                     p[others[1]] = f64::from(v) * 0.5;
                     p[axis] = f64::from(border) - eps;
-                    let before = sample(packed, g, p);
+                    let before = read(p);
                     p[axis] = f64::from(border) + eps;
-                    let after = sample(packed, g, p);
+                    let after = read(p);
                     largest = largest.max((after - before).abs());
+                    sum += (after - before).abs();
+                    count += 1;
                 }
             }
         }
     }
-    largest
+    (largest, sum / f64::from(count.max(1)))
 }
 
-/// The largest difference from the ramp inside the blocks of `level`, more
-/// than `margin` voxels from their borders: that level's interpolation error.
-fn interpolation_error(
-    packed: &PackedTexture,
-    g: &PackedVolume,
-    lod: &[u8],
-    level: u8,
-    margin: f64,
-) -> f64 {
+/// The largest `error` inside the blocks of `level`, more than `margin`
+/// voxels from their borders: with the difference from what the level
+/// reconstructs, that level's interpolation error.
+fn largest_error(lod: &[u8], level: u8, margin: f64, error: impl Fn([f64; 3]) -> f64) -> f64 {
     let grid = DIMS.map(|d| d / 16);
     let mut largest: f64 = 0.0;
     let steps = 64;
@@ -114,17 +131,15 @@ fn interpolation_error(
             let t = [i % steps, (i / steps) % steps, (i * 7 + 3) % steps]
                 .map(|s| margin + (16.0 - 2.0 * margin) * (f64::from(s as u32) + 0.5) / 64.0);
             let p = [0, 1, 2].map(|a| f64::from(block[a] * 16) + t[a]);
-            largest = largest.max((sample(packed, g, p) - ramp(p)).abs());
+            largest = largest.max(error(p));
         }
     }
     largest
 }
 
-#[test]
-fn blocks_of_levels_0_and_2_meet_without_a_step() {
-    let dataset = dataset_of(ramp_volume());
-    let grid = dataset.store.meta().blocks;
-    let lod: Vec<u8> = (0..grid.iter().product::<u32>())
+/// Levels 0 and 2 alternating over a grid of `grid` blocks, as a checkerboard.
+fn checkerboard(grid: [u32; 3]) -> Vec<u8> {
+    (0..grid.iter().product::<u32>())
         .map(|b| {
             let (x, y, z) = (
                 b % grid[0],
@@ -133,7 +148,12 @@ fn blocks_of_levels_0_and_2_meet_without_a_step() {
             );
             if (x + y + z) % 2 == 0 { 0 } else { 2 }
         })
-        .collect();
+        .collect()
+}
+
+/// The ramp's blocks packed at levels `lod`: the packing, the texture's
+/// description and the packed volume.
+fn packing_of(lod: &[u8], grid: [u32; 3]) -> (Packing, VolumeTexture, PackedVolume) {
     let selection = LodSelection {
         lod: Vec::new(),
         kept_voxels: 0,
@@ -144,7 +164,7 @@ fn blocks_of_levels_0_and_2_meet_without_a_step() {
         over_budget: false,
         error: 0.0,
     }
-    .with_levels(lod.clone());
+    .with_levels(lod.to_vec());
     let packing = Packing::new(&selection, CPU_MAX_EDGE).expect("packing");
     let desc = VolumeTexture::for_volume(&ramp_volume(), shaders::cpu::CPU_FEATURES);
     assert_eq!(
@@ -160,10 +180,19 @@ fn blocks_of_levels_0_and_2_meet_without_a_step() {
         },
         1,
     );
+    (packing, desc, g)
+}
+
+#[test]
+fn blocks_of_levels_0_and_2_meet_without_a_step() {
+    let dataset = dataset_of(ramp_volume());
+    let grid = dataset.store.meta().blocks;
+    let lod = checkerboard(grid);
+    let (packing, desc, g) = packing_of(&lod, grid);
 
     // One opacity for every value: no box is thin structure, so the atlas
     // holds the stored levels (blocks::visibility changes nothing).
-    let uniform = blocks::TransferFunction::parse("0:ffffff:0.5").expect("tf");
+    let uniform = TransferFunction::parse("0:ffffff:0.5").expect("tf");
     let seamless = assemble_cpu(&dataset.cache, &packing, &desc, &uniform).expect("atlas");
     // The same atlas with every apron copied at its block's own level.
     let cache = Arc::clone(&dataset.cache);
@@ -178,10 +207,11 @@ fn blocks_of_levels_0_and_2_meet_without_a_step() {
         .expect("atlas")
         .texture;
 
-    let coarse_error = interpolation_error(&seamless, &g, &lod, 2, 2.0);
-    let fine_error = interpolation_error(&seamless, &g, &lod, 0, 1.0);
-    let step = largest_step(&seamless, &g);
-    let step_same_level = largest_step(&same_level, &g);
+    let error = |p: [f64; 3]| (sample(&seamless, &g, p) - ramp(p)).abs();
+    let coarse_error = largest_error(&lod, 2, 2.0, error);
+    let fine_error = largest_error(&lod, 0, 1.0, error);
+    let (step, _) = steps(|p| sample(&seamless, &g, p));
+    let (step_same_level, _) = steps(|p| sample(&same_level, &g, p));
     println!(
         "ramp {DIMS:?} u16, levels 0 and 2 alternating: interpolation error level 2 {coarse_error:.1}, \
          level 0 {fine_error:.1}; largest step at a border {step:.1} (aprons at the block's own level: \
@@ -201,6 +231,117 @@ fn blocks_of_levels_0_and_2_meet_without_a_step() {
         step_same_level > 0.5 * coarse_error,
         "aprons at their block's own level step by {step_same_level:.1}, expected more than \
          {:.1}",
+        0.5 * coarse_error
+    );
+}
+
+/// Global light on the ramp's blocks at levels `lod` (CPU twins, converged):
+/// the stored light as the renderer keeps it, the same without
+/// `light_seams`, the packed data and the packed volume.
+fn light_of(
+    dataset: &Dataset,
+    lod: &[u8],
+    tf: &TransferFunction,
+    settings: &LightSettings,
+) -> (Texture3d, Texture3d, PackedTexture, PackedVolume) {
+    let grid = dataset.store.meta().blocks;
+    let (packing, desc, _) = packing_of(lod, grid);
+    let packed = assemble_cpu(&dataset.cache, &packing, &desc, tf).expect("atlas");
+    let table = tf.table(desc.tf_domain, 1024).expect("table");
+    let layout = PackedLayout {
+        atlas_dims: packing.atlas_dims,
+        block_grid: grid,
+    };
+    let params = LightParams::new(&desc, settings, &packing, layout, table.len() as u32);
+    let slots = slot_blocks(&packing);
+    let svr = near_blocks(&packing, grid, params.svr_margin_blocks());
+    let directions = params.scatter_directions(settings);
+    let inputs = LightInputs {
+        params: &params,
+        packed: &packed,
+        tf: &table,
+        slot_blocks: &slots,
+        svr_blocks: &svr,
+        directions: &directions,
+        method: settings.method,
+    };
+    let mut state = LightState::default();
+    for stage in Stage::ALL {
+        twin::run(stage, &inputs, &mut state);
+    }
+    let atlas = params.atlas_dims();
+    let direct = Texture3d::new(atlas, state.direct_light.clone());
+    let shadow = Texture3d::new(params.svr_dims, state.shadow_volume.clone());
+    let mut without = vec![0.0; state.light_volume.len()];
+    for d in &directions {
+        twin::in_scatter(
+            &params.scattering(d),
+            &packed,
+            &table,
+            &slots,
+            &direct,
+            &shadow,
+            &mut without,
+        );
+    }
+    (
+        Texture3d::new(atlas, state.light_volume),
+        Texture3d::new(atlas, without),
+        packed,
+        params.volume,
+    )
+}
+
+/// The stored light of global light propagation meets across level borders
+/// as the data does: `light_seams` gives the finer block's apron the coarser
+/// block's light on their border. The light's interpolation error is
+/// measured against the light computed with every block at level 0.
+#[test]
+fn lit_blocks_of_levels_0_and_2_meet_without_a_step_in_the_light() {
+    let dataset = dataset_of(ramp_volume());
+    let grid = dataset.store.meta().blocks;
+    let lod = checkerboard(grid);
+    // Thin everywhere, thicker where the ramp is high: the light fades
+    // smoothly across the volume and bends with the ramp.
+    let tf = TransferFunction::parse("0:ffffff:0.01,65535:ffffff:0.08").expect("tf");
+    let settings = LightSettings {
+        source: LightSource::Directional([-0.6, -0.5, 0.6]),
+        scatter_radius_voxels: 0.0,
+        directions: 1,
+        ..LightSettings::default()
+    };
+    let (seamless, without, packed, g) = light_of(&dataset, &lod, &tf, &settings);
+    let level_0 = vec![0u8; lod.len()];
+    let (full, _, full_packed, full_g) = light_of(&dataset, &level_0, &tf, &settings);
+
+    let error = |p: [f64; 3]| {
+        (light_at(&packed, &g, &seamless, p) - light_at(&full_packed, &full_g, &full, p)).abs()
+    };
+    // Level 0's blocks are lit through level 2's, so their light differs too.
+    let coarse_error = largest_error(&lod, 2, 2.0, error);
+    let fine_error = largest_error(&lod, 0, 1.0, error);
+    let (step, mean) = steps(|p| light_at(&packed, &g, &seamless, p));
+    let (step_without, mean_without) = steps(|p| light_at(&packed, &g, &without, p));
+    println!(
+        "ramp {DIMS:?}, global light, levels 0 and 2 alternating: light error against every \
+         block at level 0: level 2 {coarse_error:.2e}, level 0 {fine_error:.2e}; step at a border \
+         largest {step:.2e}, mean {mean:.2e} (without light_seams: {step_without:.2e}, \
+         {mean_without:.2e})"
+    );
+    assert!(
+        mean <= 0.25 * mean_without,
+        "light_seams leaves a mean step of {mean:.2e} at level borders, more than a quarter \
+         of the {mean_without:.2e} without"
+    );
+    assert!(
+        step <= 0.5 * coarse_error,
+        "a step of {step:.2e} in the light at a level border, more than half the coarser \
+         level's interpolation error {coarse_error:.2e}"
+    );
+    // The measure sees the steps light_seams removes.
+    assert!(
+        step_without > 0.5 * coarse_error,
+        "without light_seams the light steps by {step_without:.2e}, expected more than {:.2e}",
         0.5 * coarse_error
     );
 }

@@ -1,6 +1,6 @@
 //! CPU twins of the light stages, loop for loop like the WGSL:
-//! `local_opacity`, `global_opacity`, `direct_light`, `in_scatter` and
-//! `direct_light_reference` (`shaders/wgsl/*.wgsl`), with the shared helpers of
+//! `local_opacity`, `global_opacity`, `direct_light`, `in_scatter`,
+//! `light_seams` and `direct_light_reference` (`shaders/wgsl/*.wgsl`), with the shared helpers of
 //! `shared/slot.wgsl`, `shared/light.wgsl` and `shared/light_opacity.wgsl`.
 //! Atlas-shaped results are `Vec<f32>` over every atlas texel (x fastest),
 //! zero where no block is stored, as the GPU leaves them.
@@ -10,8 +10,8 @@ use rayon::prelude::*;
 
 use super::Texture3d;
 use super::march::{classify_table, corrected_opacity, intersect_box};
-use super::packed::{BLOCK, BlockLocation, PackedTexture, atlas_coord, empty_exit};
-use crate::global_light::{DirectLightMethod, LightParams, ScatterDirection, Stage};
+use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_coord, empty_exit};
+use crate::global_light::{DirectLightMethod, LightParams, SEAM_PASSES, ScatterDirection, Stage};
 
 /// A slot that holds no block.
 const NO_BLOCK: u32 = u32::MAX;
@@ -296,6 +296,145 @@ pub fn in_scatter(
     light_volume.copy_from_slice(&next);
 }
 
+/// Twin of `light_seams`: every pass of [`SEAM_PASSES`] in order over
+/// `light_volume` (atlas-shaped, updated in place).
+pub fn light_seams(
+    p: &LightParams,
+    packed: &PackedTexture,
+    slot_blocks: &[u32],
+    light_volume: &mut [f32],
+) {
+    for (level, outward) in SEAM_PASSES {
+        light_seams_pass(
+            &p.seam_pass(level, outward),
+            packed,
+            slot_blocks,
+            light_volume,
+        );
+    }
+}
+
+/// WGSL `slot_light`: the stored light of the level-`m` slot whose first
+/// interior texel is at atlas texel `origin`, filtered at `u`.
+fn slot_light(light: &[f32], atlas: [u32; 3], origin: [i32; 3], m: u32, u: Vec3) -> f32 {
+    let n = 16i32 >> m;
+    let q = u.clamp(Vec3::splat(-1.0), Vec3::splat(n as f32));
+    let i0 = q.floor();
+    let f = q - i0;
+    let i0 = [i0.x as i32, i0.y as i32, i0.z as i32];
+    let i1 = i0.map(|i| (i + 1).min(n));
+    let load = |k: usize| {
+        let t: [i32; 3] =
+            [0, 1, 2].map(|a| origin[a] + if k >> a & 1 == 1 { i1[a] } else { i0[a] });
+        light[((t[2] as u32 * atlas[1] + t[1] as u32) * atlas[0] + t[0] as u32) as usize]
+    };
+    let mix = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
+    let x = [0, 2, 4, 6].map(|k| mix(load(k), load(k + 1), f.x));
+    mix(mix(x[0], x[1], f.y), mix(x[2], x[3], f.y), f.z)
+}
+
+/// One `light_seams` dispatch: the pass of `p.seam_level` and `p.seam_outward`.
+/// Within a pass no texel reads another the pass writes, so the values are
+/// computed first and written after, as the GPU's invocations would.
+fn light_seams_pass(
+    p: &LightParams,
+    packed: &PackedTexture,
+    slot_blocks: &[u32],
+    light: &mut [f32],
+) {
+    let level = p.seam_level;
+    let region = p.regions[level as usize];
+    let edge = (16u32 >> level) + 2;
+    let atlas = p.atlas_dims();
+    let first_slot: u32 = p.regions[..level as usize]
+        .iter()
+        .map(|r| r[0] * r[1] * r[2])
+        .sum();
+    let dispatch = [atlas[0], atlas[1], region[2] * edge];
+    let texels = dispatch.iter().map(|&d| d as usize).product::<usize>();
+    let grid = p.volume.block_grid;
+    let read: &[f32] = light;
+    let writes: Vec<(usize, f32)> = (0..texels)
+        .into_par_iter()
+        .filter_map(|i| {
+            let gid = [
+                (i % dispatch[0] as usize) as u32,
+                ((i / dispatch[0] as usize) % dispatch[1] as usize) as u32,
+                (i / (dispatch[0] as usize * dispatch[1] as usize)) as u32,
+            ];
+            let slot = gid.map(|g| g / edge);
+            if (0..3).any(|a| slot[a] >= region[a]) {
+                return None;
+            }
+            let b = slot_blocks
+                [(first_slot + (slot[2] * region[1] + slot[1]) * region[0] + slot[0]) as usize];
+            if b == NO_BLOCK {
+                return None;
+            }
+            let block = [
+                b % grid[0],
+                (b / grid[0]) % grid[1],
+                b / (grid[0] * grid[1]),
+            ]
+            .map(|v| v as i32);
+            let c = [0, 1, 2].map(|a| (gid[a] - slot[a] * edge) as i32);
+            let d = c.map(|v| {
+                if v == 0 {
+                    -1
+                } else if v == edge as i32 - 1 {
+                    1
+                } else {
+                    0
+                }
+            });
+            let outward = d.iter().filter(|&&v| v != 0).count() as u32;
+            if outward != p.seam_outward {
+                return None;
+            }
+            let n = [0, 1, 2].map(|a| block[a] + d[a]);
+            if (0..3).any(|a| n[a] < 0 || n[a] >= grid[a] as i32) {
+                return None;
+            }
+            let entry = packed.index[packed.block_index(n)];
+            let m = u32::from(entry[3]);
+            if entry[3] == EMPTY_LEVEL || m <= level {
+                return None;
+            }
+            let spacing = (1u32 << level) as f32;
+            let border = [0, 1, 2].map(|a| {
+                let start = block[a] as f32 * BLOCK;
+                match d[a] {
+                    1 => start + BLOCK,
+                    -1 => start,
+                    _ => start + (c[a] as f32 - 0.5) * spacing,
+                }
+            });
+            let u = (Vec3::from(border) - Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32) * BLOCK)
+                / (1u32 << m) as f32
+                - 0.5;
+            let origin = [0, 1, 2].map(|a| i32::from(entry[a]));
+            let target = slot_light(read, atlas, origin, m, u);
+            let texel = [gid[0], gid[1], gid[2] + region[3]];
+            let mut others = 0.0;
+            for mask in 1..8usize {
+                let step = [0, 1, 2].map(|a| mask >> a & 1 == 1);
+                if (0..3).any(|a| step[a] && d[a] == 0) {
+                    continue;
+                }
+                let t =
+                    [0, 1, 2].map(|a| (texel[a] as i32 - if step[a] { d[a] } else { 0 }) as u32);
+                others += read[((t[2] * atlas[1] + t[1]) * atlas[0] + t[0]) as usize];
+            }
+            let corners = (1u32 << p.seam_outward) as f32;
+            let index = ((texel[2] * atlas[1] + texel[1]) * atlas[0] + texel[0]) as usize;
+            Some((index, corners * target - others))
+        })
+        .collect();
+    for (index, value) in writes {
+        light[index] = value;
+    }
+}
+
 /// Twin of `direct_light_reference` (brute-force I_d).
 pub fn direct_light_reference(
     p: &LightParams,
@@ -340,7 +479,7 @@ pub struct LightState {
     pub shadow_volume: Vec<f32>,
     /// I_d, atlas-shaped.
     pub direct_light: Vec<f32>,
-    /// I_s after every direction, atlas-shaped.
+    /// I_s after every direction and `light_seams`, atlas-shaped.
     pub light_volume: Vec<f32>,
 }
 
@@ -411,6 +550,7 @@ pub fn run(stage: Stage, inputs: &LightInputs<'_>, state: &mut LightState) {
                     &mut light,
                 );
             }
+            light_seams(p, inputs.packed, inputs.slot_blocks, &mut light);
             state.light_volume = light;
         }
     }

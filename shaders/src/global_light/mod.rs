@@ -13,7 +13,9 @@
 //!   marched to the light at full step, what the piecewise method is
 //!   measured against);
 //! - `in_scatter`: I_s (eqs. 10, 11), one direction per refinement, blended
-//!   into the light volume (eq. 13).
+//!   into the light volume (eq. 13), then `light_seams` ([`SEAM_PASSES`]):
+//!   the aprons of blocks beside coarser ones take the coarser block's light
+//!   on their border, so level borders show no step in the light.
 //!
 //! The ray caster reads the light volume with one extra lookup per sample
 //! (eq. 12).
@@ -94,6 +96,27 @@ impl Stage {
         }
     }
 }
+
+/// The passes of `light_seams` (`shaders/wgsl/light_seams.wgsl`) in the
+/// order they run after every in-scattering step, as (level, outward): the
+/// levels coarsest first, so the coarser slots a pass reads are final (level
+/// 4 has no coarser neighbour), and per level the texels outside their block
+/// along 1, 2, then 3 axes (faces, edges, corners), since each blends texels
+/// the earlier ones set. The GPU update and the CPU twin run this list.
+pub const SEAM_PASSES: [(u32, u32); 12] = [
+    (3, 1),
+    (3, 2),
+    (3, 3),
+    (2, 1),
+    (2, 2),
+    (2, 3),
+    (1, 1),
+    (1, 2),
+    (1, 3),
+    (0, 1),
+    (0, 2),
+    (0, 3),
+];
 
 #[cfg(test)]
 mod tests {

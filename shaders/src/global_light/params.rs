@@ -42,12 +42,13 @@ pub struct LightParams {
     pub regions: [[u32; 4]; LEVELS],
     /// Upper bound on the steps of any march.
     pub max_steps: u32,
+    /// light_seams: the level whose blocks' aprons this pass writes.
+    pub seam_level: u32,
+    /// light_seams: how many axes the texels this pass writes lie outside
+    /// their block along (1 faces, 2 edges, 3 corners).
+    pub seam_outward: u32,
     /// Padding to a multiple of 16 bytes.
     pub _pad0: u32,
-    /// Padding.
-    pub _pad1: u32,
-    /// Padding.
-    pub _pad2: u32,
 }
 
 /// SVR points along each axis for `dims` voxels at `scale`.
@@ -95,9 +96,9 @@ impl LightParams {
             blend: 1.0,
             regions,
             max_steps,
+            seam_level: 0,
+            seam_outward: 0,
             _pad0: 0,
-            _pad1: 0,
-            _pad2: 0,
         }
     }
 
@@ -120,6 +121,16 @@ impl LightParams {
         LightParams {
             scatter_direction: [x, y, z, if direction.to_light { 1.0 } else { 0.0 }],
             blend: direction.blend,
+            ..*self
+        }
+    }
+
+    /// These params for the `light_seams` pass of `level` and `outward`
+    /// ([`super::SEAM_PASSES`]).
+    pub fn seam_pass(&self, level: u32, outward: u32) -> LightParams {
+        LightParams {
+            seam_level: level,
+            seam_outward: outward,
             ..*self
         }
     }

@@ -19,6 +19,8 @@ pub struct LightPipelines {
     pub direct_light: ComputeStage,
     /// `in_scatter`.
     pub in_scatter: ComputeStage,
+    /// `light_seams`.
+    pub light_seams: ComputeStage,
     /// `direct_light_reference`.
     pub direct_light_reference: ComputeStage,
     /// The linear clamp sampler every stage filters with.
@@ -79,6 +81,16 @@ impl LightPipelines {
                 "in_scatter",
                 crate::wgsl::IN_SCATTER,
                 &with_data([float3d(6), float3d(7), read_write(8)]),
+            )?,
+            light_seams: stage(
+                "light_seams",
+                crate::wgsl::LIGHT_SEAMS,
+                &[
+                    params(),
+                    uint_texture_3d(1),
+                    storage_buffer(2),
+                    read_write(3),
+                ],
             )?,
             direct_light_reference: stage(
                 "direct_light_reference",

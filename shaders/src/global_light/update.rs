@@ -8,8 +8,8 @@ use std::any::Any;
 use std::time::Instant;
 
 use super::{
-    DirectLightMethod, LightParams, LightPipelines, LightSettings, LightVolumes, ScatterDirection,
-    Stage,
+    DirectLightMethod, LightParams, LightPipelines, LightSettings, LightVolumes, SEAM_PASSES,
+    ScatterDirection, Stage,
 };
 use crate::illumination::{
     Illumination, Inputs, Refine, StageCache, Timings, near_blocks, slot_blocks, workgroups,
@@ -278,7 +278,8 @@ impl GlobalLight {
         }
     }
 
-    /// The next in-scattering step into the light volume (eq. 13's blend).
+    /// The next in-scattering step into the light volume (eq. 13's blend),
+    /// then its level borders made seamless ([`SEAM_PASSES`]).
     fn scatter_step(&mut self, gpu: &GpuContext, inputs: Inputs<'_>) -> Result<f64, GpuError> {
         let (Some(volumes), Some(params), Some(direction)) = (
             &self.volumes,
@@ -287,20 +288,8 @@ impl GlobalLight {
         ) else {
             return Ok(0.0);
         };
-        let step = params.scattering(direction);
-        // Each step gets its own uniform buffer: queue writes land before the
-        // next submit, so one shared buffer would be overwritten too early.
-        let step_params = gpu.scoped("writing in-scattering params", || {
-            let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("in-scattering params"),
-                size: size_of::<LightParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            gpu.queue
-                .write_buffer(&buffer, 0, bytemuck::bytes_of(&step));
-            buffer
-        })?;
+        let step_params =
+            uniform_buffer(gpu, "in-scattering params", &params.scattering(direction))?;
         let p = &self.pipelines;
         let view = wgpu::BindingResource::TextureView;
         let ms = run(
@@ -320,8 +309,60 @@ impl GlobalLight {
             workgroups(volumes.light_volume.dims),
         )?;
         self.refined += 1;
+        Ok(ms + self.seams(gpu, inputs)?)
+    }
+
+    /// Runs every `light_seams` pass over the light volume, in order; returns
+    /// their milliseconds. Levels without slots are passed over.
+    fn seams(&self, gpu: &GpuContext, inputs: Inputs<'_>) -> Result<f64, GpuError> {
+        let (Some(volumes), Some(params)) = (&self.volumes, &self.params) else {
+            return Ok(0.0);
+        };
+        let mut ms = 0.0;
+        for (level, outward) in SEAM_PASSES {
+            let [sx, sy, sz, _] = params.regions[level as usize];
+            if sx * sy * sz == 0 {
+                continue;
+            }
+            let pass = params.seam_pass(level, outward);
+            let pass_params = uniform_buffer(gpu, "light seams params", &pass)?;
+            let edge = (16 >> level) + 2;
+            let [w, h, _] = params.atlas_dims();
+            ms += run(
+                gpu,
+                &self.pipelines.light_seams,
+                &[
+                    pass_params.as_entire_binding(),
+                    wgpu::BindingResource::TextureView(&inputs.atlas.index_view),
+                    volumes.slot_blocks.as_entire_binding(),
+                    wgpu::BindingResource::TextureView(&volumes.light_volume.view),
+                ],
+                workgroups([w, h, sz * edge]),
+            )?;
+        }
         Ok(ms)
     }
+}
+
+/// A uniform buffer holding `params`. Each step and pass gets its own: queue
+/// writes land before the next submit, so one shared buffer would be
+/// overwritten too early.
+fn uniform_buffer(
+    gpu: &GpuContext,
+    label: &'static str,
+    params: &LightParams,
+) -> Result<wgpu::Buffer, GpuError> {
+    gpu.scoped(label, || {
+        let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size_of::<LightParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        gpu.queue
+            .write_buffer(&buffer, 0, bytemuck::bytes_of(params));
+        buffer
+    })
 }
 
 impl Illumination for GlobalLight {

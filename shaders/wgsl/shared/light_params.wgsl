@@ -1,5 +1,5 @@
 // LightParams: the uniforms of the light stages (local_opacity, global_opacity,
-// direct_light, in_scatter, direct_light_reference) of global light
+// direct_light, in_scatter, light_seams, direct_light_reference) of global light
 // propagation (Hernell, Ljung, Ynnerman 2008).
 // keep in sync with shaders/src/light/mod.rs `LightParams` (checked field by
 // field: shaders::layout)
@@ -30,9 +30,11 @@ struct LightParams {
     blend: f32,
     // Per level: slots along x, y, z, and the atlas z where the level's region starts.
     regions: array<vec4<u32>, 5>,
-    // Upper bound on steps of any march; padding.
+    // Upper bound on steps of any march; light_seams: the level whose blocks'
+    // aprons the pass writes, and how many axes those texels lie outside
+    // their block along (1 faces, 2 edges, 3 corners); padding.
     max_steps: u32,
+    seam_level: u32,
+    seam_outward: u32,
     _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
