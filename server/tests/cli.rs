@@ -284,7 +284,13 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
     let gpu_path = temp_path("gpu.png");
     let out = voxserve(
         &[
-            &["render", "--out", gpu_path.to_str().expect("utf-8")][..],
+            &[
+                "render",
+                "--renderer",
+                "gpu",
+                "--out",
+                gpu_path.to_str().expect("utf-8"),
+            ][..],
             &common,
         ]
         .concat(),
@@ -308,7 +314,15 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
 fn without_an_adapter_render_names_the_package_to_install() {
     // Linux has no DX12, so this backend choice leaves no adapter at all.
     let out = Command::new(VOXSERVE)
-        .args(["render", "--phantom-size", "16", "--out", "/dev/null"])
+        .args([
+            "render",
+            "--renderer",
+            "gpu",
+            "--phantom-size",
+            "16",
+            "--out",
+            "/dev/null",
+        ])
         .env("WGPU_BACKEND", "dx12")
         .output()
         .expect("run voxserve");
@@ -316,7 +330,7 @@ fn without_an_adapter_render_names_the_package_to_install() {
     let stderr = text(&out.stderr);
     assert!(stderr.contains("no GPU adapter found"), "{stderr}");
     assert!(stderr.contains("mesa-vulkan-drivers"), "{stderr}");
-    // `--renderer auto` renders on the CPU instead.
+    // `--renderer auto`, the default, renders on the CPU instead.
     let png = temp_path("auto.png");
     let out = Command::new(VOXSERVE)
         .args([
@@ -328,7 +342,7 @@ fn without_an_adapter_render_names_the_package_to_install() {
             "--height",
             "32",
         ])
-        .args(["--renderer", "auto", "--out", png.to_str().expect("utf-8")])
+        .args(["--out", png.to_str().expect("utf-8")])
         .env("WGPU_BACKEND", "dx12")
         .output()
         .expect("run voxserve");
@@ -346,7 +360,15 @@ fn render_refuses_an_output_it_cannot_write_before_rendering() {
     // names the output proves the output was checked first.
     let run = |out: &str| {
         let out = Command::new(VOXSERVE)
-            .args(["render", "--phantom-size", "16", "--out", out])
+            .args([
+                "render",
+                "--renderer",
+                "gpu",
+                "--phantom-size",
+                "16",
+                "--out",
+                out,
+            ])
             .env("WGPU_BACKEND", "dx12")
             .output()
             .expect("run voxserve");

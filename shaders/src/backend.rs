@@ -17,12 +17,10 @@ use crate::{Frame, FrameRequest, GpuContext, GpuError, RenderStats, Renderer};
 pub enum RendererChoice {
     /// The GPU when there is a hardware adapter; the CPU when the only one
     /// is a software rasterizer (lavapipe, llvmpipe, WARP, SwiftShader) or
-    /// there is none.
+    /// there is none. The default.
+    #[default]
     Auto,
     /// The GPU adapter (a software one too); an error when there is none.
-    /// The default until the CPU renderer computes global light a step per
-    /// frame as the GPU does (it computes it in one go).
-    #[default]
     Gpu,
     /// The CPU renderer.
     Cpu,
@@ -39,6 +37,12 @@ impl RendererChoice {
             Self::Gpu => "gpu",
             Self::Cpu => "cpu",
         }
+    }
+}
+
+impl std::fmt::Display for RendererChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 

@@ -271,6 +271,61 @@ fn light_is_recomputed_on_light_and_tf_changes_refined_per_frame_and_kept_on_cam
     );
 }
 
+/// The CPU renderer keeps the GPU's update policy (a change recomputes with
+/// one in-scattering direction, later frames blend one more each), but
+/// refines only while the view stays: a drag draws from the light there is.
+/// Stepping through every direction leaves what converging at once does.
+#[test]
+fn the_cpu_renderer_lights_in_steps_that_a_moving_view_holds() {
+    let dataset = phantom_64_dataset();
+    let mut renderer = shaders::cpu::CpuRenderer::new(dataset.cache.clone(), 512 << 20);
+    let mut request = lit_request(
+        LightSettings {
+            directions: 3,
+            ..LightSettings::default()
+        },
+        4.0,
+    );
+    request.width = 48;
+    request.height = 48;
+    let mut frame = |r: &FrameRequest| {
+        let image = renderer.render(r).expect("render");
+        (image, *renderer.last_stats().light().expect("lit"))
+    };
+    let (_, first) = frame(&request);
+    assert!(
+        first.recomputed && first.refined == 1 && first.directions == 3,
+        "{first:?}"
+    );
+    assert!(first.local_opacity_ms > 0.0 && first.in_scatter_ms > 0.0);
+    let (_, second) = frame(&request);
+    assert!(
+        !second.recomputed && second.refined == 2 && second.local_opacity_ms == 0.0,
+        "the same view refines: {second:?}"
+    );
+    let still = request.clone();
+    request.camera.azimuth_deg += 40.0;
+    let (_, moved) = frame(&request);
+    assert!(
+        !moved.recomputed && moved.refined == 2 && moved.in_scatter_ms == 0.0,
+        "a moving view holds the light: {moved:?}"
+    );
+    let (_, stays) = frame(&request);
+    assert_eq!(stays.refined, 3, "then it stays, and refines: {stays:?}");
+    let (stepped, last) = frame(&still);
+    assert!(last.in_scatter_ms == 0.0, "converged: {last:?}");
+    let mut fresh = shaders::cpu::CpuRenderer::new(dataset.cache.clone(), 512 << 20);
+    let at_once = fresh.render_converged(&still).expect("render");
+    assert_eq!(
+        stepped.rgba, at_once.rgba,
+        "the light stepped through every direction is the light converged at once"
+    );
+    // A new transfer function relights, with one direction again.
+    request.tf = Some(Preset::CtBone.transfer_function(phantom_64().value_range));
+    let (_, relit) = frame(&request);
+    assert!(relit.recomputed && relit.refined == 1, "{relit:?}");
+}
+
 #[test]
 fn bad_light_settings_are_refused_before_anything_runs() {
     let dataset = phantom_64_dataset();

@@ -271,6 +271,8 @@ pub struct BenchLightArgs {
     #[arg(long, value_name = "DIR")]
     pub images: Option<PathBuf>,
     #[command(flatten)]
+    pub renderer: RendererArgs,
+    #[command(flatten)]
     pub data: DataArgs,
 }
 

@@ -360,7 +360,9 @@ impl<'a> ExtinctionBench<'a> {
         self.renderer.render(&lit)?;
         let update = timings_of(&self.renderer)?;
         let (_, lit_ms) = timed(args.frames, || self.renderer.render(&lit))?;
-        let (unlit_ms, gradient_ms) = unlit_and_gradient_ms(&mut self.renderer, &lit, args.frames)?;
+        let renderer = &mut self.renderer;
+        let (unlit_ms, gradient_ms) =
+            unlit_and_gradient_ms(|r| renderer.render(r), &lit, args.frames)?;
         let line = serde_json::json!({
             "bench": "extinction-frame",
             "width": args.size,

@@ -16,17 +16,21 @@
 //! At `--table-reduction`, `light-table-right`: (A) per SVR scale and segment
 //! length.
 //!
-//! (A) is the sum of the GPU stages `local_opacity`, `global_opacity`,
-//! `direct_light` and the first `in_scatter` step, each timed from submission to
-//! completion; allocation of the light textures is left out (it happens once per
-//! size) and reported apart as `update_total_ms`.
+//! (A) is the sum of the stages `local_opacity`, `global_opacity`,
+//! `direct_light` and the first `in_scatter` step (with its `light_seams`
+//! passes), each timed from submission to completion on the GPU, or as the
+//! CPU renderer runs their twins (`--renderer cpu`); allocation of the light
+//! textures is left out (it happens once per size) and reported apart as
+//! `update_total_ms`.
 
 use std::time::Instant;
 
 use blocks::TransferFunction;
 use shaders::colour_difference::{colour_difference, object_colour_difference};
 use shaders::global_light::{DirectLightMethod, LightTimings, svr_dims};
-use shaders::{Frame, FrameRequest, GpuContext, LightSettings, Renderer, Shading};
+use shaders::{
+    AnyRenderer, Backend, Frame, FrameRequest, GpuContext, GpuError, LightSettings, Shading,
+};
 
 use super::args::BenchLightArgs;
 use super::{bench_dataset, timed, view_request};
@@ -44,7 +48,7 @@ fn update_ms(t: &LightTimings) -> f64 {
 }
 
 /// The light timings of the renderer's last frame.
-fn light_of(renderer: &Renderer) -> anyhow::Result<LightTimings> {
+fn light_of(renderer: &AnyRenderer) -> anyhow::Result<LightTimings> {
     renderer
         .last_stats()
         .light()
@@ -67,8 +71,12 @@ fn unscattered(svr_scale: u32, segment_voxels: u32) -> LightSettings {
 
 /// `voxserve bench light`; see the module docs.
 pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
-    let gpu = GpuContext::new()?;
-    let adapter = adapter_json(&gpu);
+    let backend = args.renderer.backend()?;
+    let adapter = serde_json::json!({
+        "renderer": backend.kind(),
+        "adapter": backend.describe(),
+        "threads": rayon::current_num_threads(),
+    });
     let Some(&first_svr) = args.svr_scales.first() else {
         anyhow::bail!("--svr-scales: expected at least one of 1, 2, 4, 8");
     };
@@ -76,7 +84,7 @@ pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
         let Some((dataset, tf)) = bench_dataset(name, &args.data_dir, &args.data)? else {
             continue;
         };
-        let mut bench = LightBench::new(&gpu, args, &adapter, name, &dataset, tf, first_svr)?;
+        let mut bench = LightBench::new(&backend, args, &adapter, name, &dataset, tf, first_svr)?;
         for &reduction in &args.reductions {
             bench.reduction(reduction)?;
         }
@@ -92,7 +100,7 @@ struct LightBench<'a> {
     name: &'a str,
     tf: TransferFunction,
     dims: [u32; 3],
-    renderer: Renderer,
+    renderer: AnyRenderer,
     /// The light of (A), (B) and (C): in-scattering at the first SVR scale.
     scattered: LightSettings,
 }
@@ -117,7 +125,7 @@ struct Reference {
 
 impl<'a> LightBench<'a> {
     fn new(
-        gpu: &GpuContext,
+        backend: &Backend,
         args: &'a BenchLightArgs,
         adapter: &'a serde_json::Value,
         name: &'a str,
@@ -125,11 +133,7 @@ impl<'a> LightBench<'a> {
         tf: TransferFunction,
         first_svr: u32,
     ) -> anyhow::Result<Self> {
-        let renderer = Renderer::new(
-            gpu.clone(),
-            dataset.cache.clone(),
-            args.data.gpu_budget_bytes(),
-        )?;
+        let renderer = backend.renderer(dataset.cache.clone(), args.data.gpu_budget_bytes())?;
         Ok(Self {
             args,
             adapter,
@@ -307,7 +311,9 @@ impl<'a> LightBench<'a> {
         let b = light_of(&self.renderer)?;
         self.renderer.render_converged(&lit)?;
         let (_, c_ms) = timed(args.frames, || self.renderer.render(&lit))?;
-        let (unlit_ms, gradient_ms) = unlit_and_gradient_ms(&mut self.renderer, &lit, args.frames)?;
+        let renderer = &mut self.renderer;
+        let (unlit_ms, gradient_ms) =
+            unlit_and_gradient_ms(|r| renderer.render(r), &lit, args.frames)?;
         let a_ms = update_ms(&a);
         let svr = self.scattered.svr_scale;
         let line = serde_json::json!({
@@ -415,7 +421,7 @@ pub(crate) fn write_images(
 /// Milliseconds per frame of `lit` rendered unshaded and with gradient
 /// shading instead, `frames` timed each: what a lit frame is compared with.
 pub(crate) fn unlit_and_gradient_ms(
-    renderer: &mut Renderer,
+    mut render: impl FnMut(&FrameRequest) -> Result<Frame, GpuError>,
     lit: &FrameRequest,
     frames: u32,
 ) -> anyhow::Result<(f64, f64)> {
@@ -425,7 +431,7 @@ pub(crate) fn unlit_and_gradient_ms(
             shading,
             ..lit.clone()
         };
-        *out = timed(frames, || renderer.render(&request))?.1;
+        *out = timed(frames, || render(&request))?.1;
     }
     Ok((ms[0], ms[1]))
 }

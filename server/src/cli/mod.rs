@@ -74,14 +74,13 @@ pub struct SettingsArgs {
 /// Which renderer draws.
 #[derive(Debug, Clone, Copy, Args)]
 pub struct RendererArgs {
-    /// Which renderer draws: `gpu` (the best adapter, a software one such as
-    /// lavapipe too), `cpu` (the CPU renderer, on every core: faster than a
-    /// software adapter, but it computes global light in one go, tens of
-    /// seconds on a 256³ volume, which is why it is not yet the default
-    /// there) or `auto` (the GPU; the CPU when the only adapter is a
-    /// software rasterizer, or there is none).
-    #[arg(long = "renderer", default_value = "gpu", value_name = "auto|gpu|cpu",
-          value_parser = parse_renderer)]
+    /// Which renderer draws: `auto` (the GPU; the CPU renderer when the only
+    /// adapter is a software rasterizer such as lavapipe, or there is none),
+    /// `gpu` (the best adapter, a software one too) or `cpu` (the CPU
+    /// renderer, on every core: several times faster than a software
+    /// adapter).
+    #[arg(long = "renderer", default_value_t = RendererChoice::default(),
+          value_name = "auto|gpu|cpu", value_parser = parse_renderer)]
     pub choice: RendererChoice,
 }
 

@@ -8,10 +8,22 @@
 use glam::{Vec3, Vec4Swizzles};
 use rayon::prelude::*;
 
+use std::time::Instant;
+
+use blocks::TransferFunction;
+use blocks::packing::Packing;
+
 use super::Texture3d;
 use super::march::{classify_table, corrected_opacity, intersect_box};
 use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_coord, empty_exit};
-use crate::global_light::{DirectLightMethod, LightParams, SEAM_PASSES, ScatterDirection, Stage};
+use crate::global_light::update::{LightStages, update_light};
+use crate::global_light::{
+    DirectLightMethod, LightParams, LightTimings, SEAM_PASSES, ScatterDirection, Stage,
+};
+use crate::illumination::{Refine, StageCache, near_blocks, slot_blocks};
+use crate::packed_volume::PackedLayout;
+use crate::volume_texture::VolumeTexture;
+use crate::{FrameRequest, GpuError, LightSettings};
 
 /// A slot that holds no block.
 const NO_BLOCK: u32 = u32::MAX;
@@ -536,24 +548,39 @@ pub fn run(stage: Stage, inputs: &LightInputs<'_>, state: &mut LightState) {
                 direct_light_reference(p, inputs.packed, inputs.tf, inputs.slot_blocks);
         }
         (Stage::InScatter, _) => {
-            let direct = Texture3d::new(atlas, state.direct_light.clone());
-            let shadow = shadow();
-            let mut light = vec![0.0f32; state.direct_light.len()];
+            state.light_volume = vec![0.0f32; state.direct_light.len()];
             for d in inputs.directions {
-                in_scatter(
-                    &p.scattering(d),
-                    inputs.packed,
-                    inputs.tf,
-                    inputs.slot_blocks,
-                    &direct,
-                    &shadow,
-                    &mut light,
-                );
+                scatter_step(inputs, state, d);
             }
-            light_seams(p, inputs.packed, inputs.slot_blocks, &mut light);
-            state.light_volume = light;
         }
     }
+}
+
+/// One in-scattering step as the GPU update runs it: `in_scatter` along
+/// `direction` into `state.light_volume`, then `light_seams`.
+pub fn scatter_step(
+    inputs: &LightInputs<'_>,
+    state: &mut LightState,
+    direction: &ScatterDirection,
+) {
+    let p = inputs.params;
+    let direct = Texture3d::new(p.atlas_dims(), state.direct_light.clone());
+    let shadow = Texture3d::new(p.svr_dims, state.shadow_volume.clone());
+    in_scatter(
+        &p.scattering(direction),
+        inputs.packed,
+        inputs.tf,
+        inputs.slot_blocks,
+        &direct,
+        &shadow,
+        &mut state.light_volume,
+    );
+    light_seams(
+        p,
+        inputs.packed,
+        inputs.slot_blocks,
+        &mut state.light_volume,
+    );
 }
 
 /// The whole light computation as [`crate::global_light::GlobalLight`] runs
@@ -564,4 +591,142 @@ pub fn compute_light(inputs: &LightInputs<'_>) -> LightState {
         run(stage, inputs, &mut state);
     }
     state
+}
+
+/// What the CPU renderer's light stages read besides the settings.
+#[derive(Debug, Clone, Copy)]
+pub struct CpuLightInputs<'a> {
+    /// How voxels become texels.
+    pub desc: &'a VolumeTexture,
+    /// The resident blocks' packing and its sizes.
+    pub packing: &'a Packing,
+    /// The atlas's sizes.
+    pub layout: PackedLayout,
+    /// The packed data.
+    pub packed: &'a PackedTexture,
+    /// The transfer-function table.
+    pub tf: &'a [[f32; 4]],
+}
+
+/// Global light on the CPU renderer, brought up to date frame by frame under
+/// the policy the GPU's [`crate::global_light::GlobalLight`] follows
+/// ([`update_light`]): a change recomputes from the first stage it affects
+/// with one in-scattering direction (update A), each later frame that asks
+/// for it blends one more direction in (B), a still image all of them.
+#[derive(Debug, Default)]
+pub struct CpuGlobalLight {
+    cache: StageCache,
+    state: LightState,
+    params: Option<LightParams>,
+    slot_blocks: Vec<u32>,
+    svr_blocks: Vec<u32>,
+    directions: Vec<ScatterDirection>,
+    method: DirectLightMethod,
+    refined: usize,
+}
+
+impl CpuGlobalLight {
+    /// Brings the light up to date for `request` over the resident data of
+    /// `data_version` classified by `tf`, as far as `refine` says.
+    pub fn update(
+        &mut self,
+        inputs: CpuLightInputs<'_>,
+        request: &FrameRequest,
+        data_version: u64,
+        tf: &TransferFunction,
+        refine: Refine,
+    ) -> Result<LightTimings, GpuError> {
+        let keys = StageCache::keys_of(&Stage::NAMES, &request.light, data_version, tf);
+        update_light(self, inputs, keys, &request.light, refine)
+    }
+
+    /// The stored light I_s, atlas-shaped (what the lit ray caster reads).
+    pub fn light_volume(&self) -> &[f32] {
+        &self.state.light_volume
+    }
+
+    /// The twins' inputs for what [`LightStages::prepare`] built.
+    fn twin_inputs<'a>(&'a self, inputs: &CpuLightInputs<'a>) -> Option<LightInputs<'a>> {
+        Some(LightInputs {
+            params: self.params.as_ref()?,
+            packed: inputs.packed,
+            tf: inputs.tf,
+            slot_blocks: &self.slot_blocks,
+            svr_blocks: &self.svr_blocks,
+            directions: &self.directions,
+            method: self.method,
+        })
+    }
+}
+
+impl LightStages for CpuGlobalLight {
+    type Inputs<'a> = CpuLightInputs<'a>;
+
+    fn cache(&mut self) -> &mut StageCache {
+        &mut self.cache
+    }
+
+    fn refinement(&self) -> (usize, usize) {
+        (self.refined, self.directions.len())
+    }
+
+    fn prepare(
+        &mut self,
+        inputs: CpuLightInputs<'_>,
+        settings: &LightSettings,
+    ) -> Result<bool, GpuError> {
+        let params = LightParams::new(
+            inputs.desc,
+            settings,
+            inputs.packing,
+            inputs.layout,
+            inputs.tf.len() as u32,
+        );
+        let fits = self.params.is_some_and(|old| {
+            old.atlas_dims() == params.atlas_dims() && old.svr_dims == params.svr_dims
+        });
+        self.slot_blocks = slot_blocks(inputs.packing);
+        self.svr_blocks = near_blocks(
+            inputs.packing,
+            params.volume.block_grid,
+            params.svr_margin_blocks(),
+        );
+        self.directions = params.scatter_directions(settings);
+        self.method = settings.method;
+        self.params = Some(params);
+        if !fits {
+            self.state = LightState::default();
+        }
+        Ok(!fits)
+    }
+
+    fn run(&mut self, inputs: CpuLightInputs<'_>, stage: Stage) -> Result<f64, GpuError> {
+        if stage == Stage::InScatter {
+            self.refined = 0;
+            self.state.light_volume = vec![0.0; self.state.direct_light.len()];
+            return self.scatter_step(inputs);
+        }
+        let start = Instant::now();
+        let mut state = std::mem::take(&mut self.state);
+        let twin = self
+            .twin_inputs(&inputs)
+            .ok_or_else(|| GpuError::InvalidRequest("the light was not prepared".into()))?;
+        run(stage, &twin, &mut state);
+        self.state = state;
+        Ok(start.elapsed().as_secs_f64() * 1e3)
+    }
+
+    fn scatter_step(&mut self, inputs: CpuLightInputs<'_>) -> Result<f64, GpuError> {
+        let start = Instant::now();
+        let Some(direction) = self.directions.get(self.refined).copied() else {
+            return Ok(0.0);
+        };
+        let mut state = std::mem::take(&mut self.state);
+        if let Some(twin) = self.twin_inputs(&inputs) {
+            scatter_step(&twin, &mut state, &direction);
+        }
+        self.state = state;
+        self.refined += 1;
+        Ok(start.elapsed().as_secs_f64() * 1e3)
+    }
 }

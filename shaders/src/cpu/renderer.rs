@@ -4,9 +4,14 @@
 //! changed blocks rewritten, storage never read on the render thread), the
 //! same stages through their CPU twins.
 //!
-//! Illumination is computed converged (every stage, every refinement) when
-//! its inputs change (the blocks shown, the transfer function, the mode's
-//! settings) and kept while they do not: a camera move only ray-casts.
+//! Illumination follows what it depends on (the blocks shown, the transfer
+//! function, the mode's settings) and is kept while they do not change: a
+//! camera move only ray-casts. Global light is brought up to date as on the
+//! GPU ([`CpuGlobalLight`]: a change recomputes with one in-scattering
+//! direction, later frames blend one more each), but only frames of an
+//! unchanged view refine it, so a drag draws from the light there is and a
+//! still view converges; extinction-based illumination is computed whole
+//! when its inputs change.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -17,29 +22,28 @@ use blocks::lod::LodSelection;
 use blocks::packing::Packing;
 use blocks::transfer_function::TABLE_LEN;
 
+use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::occupancy::{visible_cells, visible_texels};
-use super::{illuminate, raycast};
+use super::{Texture3d, illuminate, raycast};
 use crate::extinction::ExtinctionSettings;
-use crate::illumination::Mode;
+use crate::illumination::{Mode, Refine, Timings};
 use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
 use crate::renderer::RenderStats;
 use crate::residency::{Residency, viewpoint};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
-use crate::{Frame, FrameRequest, GpuError, LightSettings};
+use crate::{Camera, Frame, FrameRequest, GpuError};
 
 /// The texel formats the CPU renderer stores voxels as: those of a GPU with
 /// 16-bit normalized textures, so CPU and GPU frames quantize alike.
 pub const CPU_FEATURES: wgpu::Features = wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
 
-/// What a computed light depends on besides the camera.
+/// What a computed extinction light cache depends on besides the camera.
 #[derive(Debug, Clone, PartialEq)]
-struct LightKey {
-    mode: Mode,
+struct ExtinctionKey {
     data_version: u64,
     tf: TransferFunction,
-    light: LightSettings,
     extinction: ExtinctionSettings,
 }
 
@@ -52,8 +56,12 @@ pub struct CpuRenderer {
     residency: Residency<CpuAtlas>,
     /// The transfer function's table, for the function it was made from.
     table: Option<(TransferFunction, Vec<[f32; 4]>)>,
-    /// The light last computed into the atlas's texture, and what it depends on.
-    light: Option<LightKey>,
+    /// Global light's stages and refinement.
+    global_light: CpuGlobalLight,
+    /// What the extinction light cache in the atlas's texture was computed for.
+    extinction: Option<ExtinctionKey>,
+    /// The view of the last frame drawn: light refines only while it stays.
+    last_view: Option<(Camera, u32, u32)>,
     /// What the atlas's visible cells were computed for: the shown blocks
     /// and the transfer function.
     cells: Option<(u64, TransferFunction)>,
@@ -87,7 +95,9 @@ impl CpuRenderer {
             cache,
             desc,
             table: None,
-            light: None,
+            global_light: CpuGlobalLight::default(),
+            extinction: None,
+            last_view: None,
             cells: None,
             last: RenderStats::default(),
         }
@@ -114,26 +124,34 @@ impl CpuRenderer {
     }
 
     /// Renders one frame at the detail the request selects, waiting on this
-    /// thread for blocks still being read (as [`crate::Renderer::render`]).
+    /// thread for blocks still being read (as [`crate::Renderer::render`]);
+    /// global light refined by one direction when the view is the last
+    /// frame's.
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, true)
+        self.render_lit(request, false, true)
     }
 
     /// Renders one frame from the blocks in memory now, never waiting for
     /// storage (as [`crate::Renderer::render_now`]).
     pub fn render_now(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, false)
+        self.render_lit(request, false, false)
     }
 
-    /// Renders one frame with the light converged: on the CPU every frame's
-    /// light is (as [`crate::Renderer::render_converged`]).
+    /// Renders one frame with the light converged (as
+    /// [`crate::Renderer::render_converged`]).
     pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, true)
+        self.render_lit(request, true, true)
     }
 
     /// Prepares the blocks (all of them, waiting, when `complete`), brings
-    /// the request's light up to date and draws.
-    fn render_lit(&mut self, request: &FrameRequest, complete: bool) -> Result<Frame, GpuError> {
+    /// the request's light up to date (all of its refinements when
+    /// `converge`) and draws.
+    fn render_lit(
+        &mut self,
+        request: &FrameRequest,
+        converge: bool,
+        complete: bool,
+    ) -> Result<Frame, GpuError> {
         request.validate()?;
         let tf = request.store_transfer_function(self.cache.store().meta());
         let mut stats = RenderStats::from(self.residency.update_complete(
@@ -151,8 +169,25 @@ impl CpuRenderer {
             self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
         }
         self.update_cells(&tf);
-        if let Some(mode) = Mode::of(request.shading) {
-            self.update_light(mode, request, &tf);
+        let view = (request.camera, request.width, request.height);
+        let refine = if converge {
+            Refine::Converge
+        } else if request.drawn_rows().first > 0 || self.last_view != Some(view) {
+            // A later band shows the light the frame's first band did; a
+            // moving view draws from the light there is.
+            Refine::Hold
+        } else {
+            Refine::Step
+        };
+        if request.drawn_rows().first == 0 {
+            self.last_view = Some(view);
+        }
+        match Mode::of(request.shading) {
+            Some(Mode::GlobalLight) => {
+                stats.illumination = self.update_global_light(request, &tf, refine)?;
+            }
+            Some(Mode::Extinction) => self.update_extinction(request, &tf),
+            None => {}
         }
         self.draw(request, stats)
     }
@@ -174,27 +209,64 @@ impl CpuRenderer {
         self.cells = Some(key);
     }
 
-    /// Computes illumination mode `mode`'s light into the atlas's texture
-    /// unless what it depends on is unchanged.
-    fn update_light(&mut self, mode: Mode, request: &FrameRequest, tf: &TransferFunction) {
-        let key = LightKey {
-            mode,
+    /// Brings global light up to date for `request` as far as `refine` says
+    /// and puts the stored light where the ray caster reads it; returns what
+    /// its stages took.
+    fn update_global_light(
+        &mut self,
+        request: &FrameRequest,
+        tf: &TransferFunction,
+        refine: Refine,
+    ) -> Result<Option<Timings>, GpuError> {
+        let data_version = self.residency.data_version();
+        let (Some(atlas), Some((_, table))) = (self.residency.atlas_mut(), &self.table) else {
+            return Ok(None);
+        };
+        let inputs = CpuLightInputs {
+            desc: &self.desc,
+            packing: &atlas.packing,
+            layout: atlas.layout,
+            packed: &atlas.texture,
+            tf: table,
+        };
+        let timings = self
+            .global_light
+            .update(inputs, request, data_version, tf, refine)?;
+        let texture = &mut atlas.texture;
+        if timings.recomputed || timings.in_scatter_ms > 0.0 || texture.light.is_none() {
+            let light = self.global_light.light_volume().to_vec();
+            texture.light = Some(Texture3d::new(atlas.packing.atlas_dims, light));
+        }
+        Ok(Some(Timings::GlobalLight(timings)))
+    }
+
+    /// Computes the extinction light cache into the atlas's texture unless
+    /// what it depends on is unchanged.
+    fn update_extinction(&mut self, request: &FrameRequest, tf: &TransferFunction) {
+        let key = ExtinctionKey {
             data_version: self.residency.data_version(),
             tf: tf.clone(),
-            light: request.light,
             extinction: request.extinction.clone(),
         };
         let (Some(atlas), Some((_, table))) = (self.residency.atlas_mut(), &self.table) else {
             return;
         };
-        if self.light.as_ref() == Some(&key) {
+        if self.extinction.as_ref() == Some(&key) {
             return;
         }
         let (packing, layout) = (atlas.packing.clone(), atlas.layout);
         let texture = &mut atlas.texture;
-        (texture.light, texture.light_cache) = (None, None);
-        illuminate(mode, &self.desc, request, &packing, layout, texture, table);
-        self.light = Some(key);
+        texture.light_cache = None;
+        illuminate(
+            Mode::Extinction,
+            &self.desc,
+            request,
+            &packing,
+            layout,
+            texture,
+            table,
+        );
+        self.extinction = Some(key);
     }
 
     /// Ray-casts the frame of `request` from what is resident.

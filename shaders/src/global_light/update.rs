@@ -66,6 +66,77 @@ pub struct GlobalLight {
     refined: usize,
 }
 
+/// What the update policy of global light drives: the stages of one
+/// implementation, [`GlobalLight`] on the GPU or
+/// [`crate::cpu::global_light::CpuGlobalLight`] for the CPU renderer.
+pub(crate) trait LightStages {
+    /// What the stages read besides the settings.
+    type Inputs<'a>: Copy;
+
+    /// What each stage was computed for.
+    fn cache(&mut self) -> &mut StageCache;
+
+    /// Builds what the stages need for `settings`; true when the light's
+    /// textures were made anew (so every stage must run).
+    fn prepare(
+        &mut self,
+        inputs: Self::Inputs<'_>,
+        settings: &LightSettings,
+    ) -> Result<bool, GpuError>;
+
+    /// Runs `stage` (in-scattering: its first direction, restarting the
+    /// refinement); returns its milliseconds.
+    fn run(&mut self, inputs: Self::Inputs<'_>, stage: Stage) -> Result<f64, GpuError>;
+
+    /// Blends the next in-scattering direction in; returns its milliseconds.
+    fn scatter_step(&mut self, inputs: Self::Inputs<'_>) -> Result<f64, GpuError>;
+
+    /// Directions blended in so far (j) and in all (J).
+    fn refinement(&self) -> (usize, usize);
+}
+
+/// Brings `light` up to date for one frame whose stages have `keys`: from
+/// the first stale stage on, else (with [`Refine::Step`]) one more
+/// in-scattering direction; with [`Refine::Converge`], every direction left.
+pub(crate) fn update_light<S: LightStages>(
+    light: &mut S,
+    inputs: S::Inputs<'_>,
+    keys: Vec<crate::illumination::StageKey>,
+    settings: &LightSettings,
+    refine: Refine,
+) -> Result<LightTimings, GpuError> {
+    settings.validate_fields()?;
+    let start = Instant::now();
+    let mut timings = LightTimings::default();
+    let left = |light: &S| {
+        let (j, n) = light.refinement();
+        j < n
+    };
+    if let Some(stale) = light.cache().first_stale(&keys) {
+        // New textures hold nothing: everything is recomputed into them.
+        let first = if light.prepare(inputs, settings)? {
+            0
+        } else {
+            stale
+        };
+        for &stage in &Stage::ALL[first..] {
+            let ms = light.run(inputs, stage)?;
+            timings.add(stage, ms);
+        }
+        light.cache().computed(first, keys);
+        timings.recomputed = true;
+    } else if refine == Refine::Step && left(light) {
+        timings.in_scatter_ms += light.scatter_step(inputs)?;
+    }
+    while refine == Refine::Converge && left(light) {
+        timings.in_scatter_ms += light.scatter_step(inputs)?;
+    }
+    timings.total_ms = start.elapsed().as_secs_f64() * 1e3;
+    let (j, n) = light.refinement();
+    (timings.refined, timings.directions) = (j as u32, n as u32);
+    Ok(timings)
+}
+
 impl GlobalLight {
     /// Compiles the light stages.
     pub fn new(gpu: &GpuContext) -> Result<GlobalLight, GpuError> {
@@ -118,9 +189,7 @@ impl GlobalLight {
         self.cache.is_complete() && self.refined >= self.directions.len()
     }
 
-    /// Brings the light up to date for one frame: from the first stale stage
-    /// on, else (with [`Refine::Step`]) one more in-scattering direction;
-    /// with [`Refine::Converge`], every direction left.
+    /// Brings the light up to date for one frame ([`update_light`]).
     pub fn update_light(
         &mut self,
         gpu: &GpuContext,
@@ -128,33 +197,65 @@ impl GlobalLight {
         settings: &LightSettings,
         refine: Refine,
     ) -> Result<LightTimings, GpuError> {
-        settings.validate_fields()?;
-        let start = Instant::now();
-        let mut timings = LightTimings::default();
         let keys = StageCache::keys(&Stage::NAMES, settings, &inputs);
-        if let Some(stale) = self.cache.first_stale(&keys) {
-            // New textures hold nothing: everything is recomputed into them.
-            let first = if self.prepare(gpu, inputs, settings)? {
-                0
-            } else {
-                stale
-            };
-            for &stage in &Stage::ALL[first..] {
-                let ms = self.run(gpu, inputs, stage)?;
-                timings.add(stage, ms);
+        update_light(self, (gpu, inputs), keys, settings, refine)
+    }
+
+    /// Runs every `light_seams` pass over the light volume, in order, as one
+    /// submission (each dispatch sees the writes of those before it);
+    /// returns their milliseconds. Levels without slots are passed over.
+    fn seams(&self, gpu: &GpuContext, inputs: Inputs<'_>) -> Result<f64, GpuError> {
+        let (Some(volumes), Some(params)) = (&self.volumes, &self.params) else {
+            return Ok(0.0);
+        };
+        let start = Instant::now();
+        let stage = &self.pipelines.light_seams;
+        let mut passes = Vec::new();
+        for (level, outward) in SEAM_PASSES {
+            let [sx, sy, sz, _] = params.regions[level as usize];
+            if sx * sy * sz == 0 {
+                continue;
             }
-            self.cache.computed(first, keys);
-            timings.recomputed = true;
-        } else if refine == Refine::Step && self.refined < self.directions.len() {
-            timings.in_scatter_ms += self.scatter_step(gpu, inputs)?;
+            let pass_params =
+                uniform_buffer(gpu, "light seams params", &params.seam_pass(level, outward))?;
+            let edge = (16 >> level) + 2;
+            let [w, h, _] = params.atlas_dims();
+            passes.push((pass_params, workgroups([w, h, sz * edge])));
         }
-        while refine == Refine::Converge && self.refined < self.directions.len() {
-            timings.in_scatter_ms += self.scatter_step(gpu, inputs)?;
-        }
-        timings.total_ms = start.elapsed().as_secs_f64() * 1e3;
-        timings.refined = self.refined as u32;
-        timings.directions = self.directions.len() as u32;
-        Ok(timings)
+        gpu.scoped("running light_seams", || {
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("light_seams"),
+                });
+            for (pass_params, groups) in &passes {
+                let bind_group = stage.bind_group(
+                    gpu,
+                    &[
+                        pass_params.as_entire_binding(),
+                        wgpu::BindingResource::TextureView(&inputs.atlas.index_view),
+                        volumes.slot_blocks.as_entire_binding(),
+                        wgpu::BindingResource::TextureView(&volumes.light_volume.view),
+                    ],
+                );
+                stage.dispatch(&mut encoder, &bind_group, *groups);
+            }
+            gpu.queue.submit([encoder.finish()]);
+        })?;
+        gpu.wait("light_seams")?;
+        Ok(start.elapsed().as_secs_f64() * 1e3)
+    }
+}
+
+impl LightStages for GlobalLight {
+    type Inputs<'a> = (&'a GpuContext, Inputs<'a>);
+
+    fn cache(&mut self) -> &mut StageCache {
+        &mut self.cache
+    }
+
+    fn refinement(&self) -> (usize, usize) {
+        (self.refined, self.directions.len())
     }
 
     /// Builds the params, the slot and SVR masks and the directions for
@@ -162,8 +263,7 @@ impl GlobalLight {
     /// true when they were.
     fn prepare(
         &mut self,
-        gpu: &GpuContext,
-        inputs: Inputs<'_>,
+        (gpu, inputs): (&GpuContext, Inputs<'_>),
         settings: &LightSettings,
     ) -> Result<bool, GpuError> {
         let packing = &inputs.atlas.packing;
@@ -212,7 +312,11 @@ impl GlobalLight {
 
     /// Runs `stage` (in-scattering: its first direction, restarting the
     /// refinement); returns its milliseconds.
-    fn run(&mut self, gpu: &GpuContext, inputs: Inputs<'_>, stage: Stage) -> Result<f64, GpuError> {
+    fn run(
+        &mut self,
+        (gpu, inputs): (&GpuContext, Inputs<'_>),
+        stage: Stage,
+    ) -> Result<f64, GpuError> {
         let (Some(v), Some(params)) = (&self.volumes, &self.params) else {
             return Err(GpuError::InvalidRequest("no light volumes".into()));
         };
@@ -273,14 +377,14 @@ impl GlobalLight {
             ),
             (Stage::InScatter, _) => {
                 self.refined = 0;
-                self.scatter_step(gpu, inputs)
+                self.scatter_step((gpu, inputs))
             }
         }
     }
 
     /// The next in-scattering step into the light volume (eq. 13's blend),
     /// then its level borders made seamless ([`SEAM_PASSES`]).
-    fn scatter_step(&mut self, gpu: &GpuContext, inputs: Inputs<'_>) -> Result<f64, GpuError> {
+    fn scatter_step(&mut self, (gpu, inputs): (&GpuContext, Inputs<'_>)) -> Result<f64, GpuError> {
         let (Some(volumes), Some(params), Some(direction)) = (
             &self.volumes,
             &self.params,
@@ -310,37 +414,6 @@ impl GlobalLight {
         )?;
         self.refined += 1;
         Ok(ms + self.seams(gpu, inputs)?)
-    }
-
-    /// Runs every `light_seams` pass over the light volume, in order; returns
-    /// their milliseconds. Levels without slots are passed over.
-    fn seams(&self, gpu: &GpuContext, inputs: Inputs<'_>) -> Result<f64, GpuError> {
-        let (Some(volumes), Some(params)) = (&self.volumes, &self.params) else {
-            return Ok(0.0);
-        };
-        let mut ms = 0.0;
-        for (level, outward) in SEAM_PASSES {
-            let [sx, sy, sz, _] = params.regions[level as usize];
-            if sx * sy * sz == 0 {
-                continue;
-            }
-            let pass = params.seam_pass(level, outward);
-            let pass_params = uniform_buffer(gpu, "light seams params", &pass)?;
-            let edge = (16 >> level) + 2;
-            let [w, h, _] = params.atlas_dims();
-            ms += run(
-                gpu,
-                &self.pipelines.light_seams,
-                &[
-                    pass_params.as_entire_binding(),
-                    wgpu::BindingResource::TextureView(&inputs.atlas.index_view),
-                    volumes.slot_blocks.as_entire_binding(),
-                    wgpu::BindingResource::TextureView(&volumes.light_volume.view),
-                ],
-                workgroups([w, h, sz * edge]),
-            )?;
-        }
-        Ok(ms)
     }
 }
 

@@ -260,15 +260,20 @@ impl StageCache {
     /// The keys of `stages` (in the order they run) for `settings` over
     /// `inputs`' data and transfer function.
     pub fn keys<S: Settings>(stages: &[&str], settings: &S, inputs: &Inputs<'_>) -> Vec<StageKey> {
+        StageCache::keys_of(stages, settings, inputs.data_version, inputs.tf)
+    }
+
+    /// The keys of `stages` for `settings` over the resident data's
+    /// `data_version` and transfer function `tf` (any renderer's).
+    pub fn keys_of<S: Settings>(
+        stages: &[&str],
+        settings: &S,
+        data_version: u64,
+        tf: &TransferFunction,
+    ) -> Vec<StageKey> {
         stages
             .iter()
-            .map(|stage| {
-                (
-                    inputs.data_version,
-                    inputs.tf.clone(),
-                    stage_key(settings, stages, stage),
-                )
-            })
+            .map(|stage| (data_version, tf.clone(), stage_key(settings, stages, stage)))
             .collect()
     }
 
