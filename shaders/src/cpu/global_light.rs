@@ -18,7 +18,7 @@ use super::march::{classify_table, corrected_opacity, intersect_box};
 use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_coord, empty_exit};
 use crate::global_light::update::{LightStages, update_light};
 use crate::global_light::{
-    DirectLightMethod, LightParams, LightTimings, SEAM_PASSES, ScatterDirection, Stage,
+    DirectLightMethod, LightParams, LightTimings, ScatterDirection, Stage, seam_passes,
 };
 use crate::illumination::{Refine, StageCache, near_blocks, slot_blocks};
 use crate::packed_volume::PackedLayout;
@@ -308,7 +308,9 @@ pub fn in_scatter(
     light_volume.copy_from_slice(&next);
 }
 
-/// Twin of `light_seams`: every pass of [`SEAM_PASSES`] in order over
+/// Twin of `light_seams`: the passes of
+/// [`crate::global_light::SEAM_PASSES`] with work to do
+/// ([`seam_passes`] of the levels in `packed`'s index) in order over
 /// `light_volume` (atlas-shaped, updated in place).
 pub fn light_seams(
     p: &LightParams,
@@ -316,7 +318,12 @@ pub fn light_seams(
     slot_blocks: &[u32],
     light_volume: &mut [f32],
 ) {
-    for (level, outward) in SEAM_PASSES {
+    let lod: Vec<u8> = packed
+        .index
+        .iter()
+        .map(|e| u8::try_from(e[3]).unwrap_or(blocks::lod::EMPTY))
+        .collect();
+    for (level, outward) in seam_passes(&lod, packed.grid) {
         light_seams_pass(
             &p.seam_pass(level, outward),
             packed,

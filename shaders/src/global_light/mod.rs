@@ -118,10 +118,60 @@ pub const SEAM_PASSES: [(u32, u32); 12] = [
     (0, 3),
 ];
 
+/// The passes of [`SEAM_PASSES`] with work to do for blocks shown at levels
+/// `lod` (per block of a grid of `grid`, x fastest; [`blocks::lod::EMPTY`]
+/// where none is shown), in order: those of the levels that hold a block with
+/// a neighbour shown coarser. The others would change no texel (at 1:1, none
+/// has any), so both implementations leave them out.
+pub fn seam_passes(lod: &[u8], grid: [u32; 3]) -> Vec<(u32, u32)> {
+    let mut beside_coarser = [false; blocks::store::LEVELS];
+    let [gx, gy, _] = grid;
+    for (b, &level) in lod.iter().enumerate() {
+        let Some(found) = beside_coarser.get_mut(usize::from(level)) else {
+            continue;
+        };
+        if *found {
+            continue;
+        }
+        let block = [b as u32 % gx, (b as u32 / gx) % gy, b as u32 / (gx * gy)];
+        let around = blocks::seams::neighbourhood(lod, grid, block);
+        *found = around
+            .iter()
+            .any(|&n| n > level && usize::from(n) < blocks::store::LEVELS);
+    }
+    SEAM_PASSES
+        .into_iter()
+        .filter(|&(level, _)| beside_coarser[level as usize])
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use glam::Vec3;
+
+    #[test]
+    fn seam_passes_run_only_for_levels_beside_a_coarser_block() {
+        let grid = [3, 1, 1];
+        assert!(
+            seam_passes(&[0, 0, 0], grid).is_empty(),
+            "one level: no seams"
+        );
+        let empty = blocks::lod::EMPTY;
+        assert!(
+            seam_passes(&[0, empty, 2], grid).is_empty(),
+            "not neighbours"
+        );
+        let passes = seam_passes(&[0, 2, 3], grid);
+        assert_eq!(
+            passes,
+            SEAM_PASSES
+                .into_iter()
+                .filter(|&(l, _)| l == 2 || l == 0)
+                .collect::<Vec<_>>(),
+            "level 2 beside 3 and level 0 beside 2, in SEAM_PASSES' order"
+        );
+    }
 
     #[test]
     fn near_blocks_mark_exactly_the_blocks_within_the_margin_of_a_kept_one() {

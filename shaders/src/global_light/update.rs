@@ -8,8 +8,8 @@ use std::any::Any;
 use std::time::Instant;
 
 use super::{
-    DirectLightMethod, LightParams, LightPipelines, LightSettings, LightVolumes, SEAM_PASSES,
-    ScatterDirection, Stage,
+    DirectLightMethod, LightParams, LightPipelines, LightSettings, LightVolumes, ScatterDirection,
+    Stage, seam_passes,
 };
 use crate::illumination::{
     Illumination, Inputs, Refine, StageCache, Timings, near_blocks, slot_blocks, workgroups,
@@ -64,6 +64,8 @@ pub struct GlobalLight {
     params: Option<LightParams>,
     method: DirectLightMethod,
     refined: usize,
+    /// The `light_seams` passes the packing needs.
+    seam_passes: Vec<(u32, u32)>,
 }
 
 /// What the update policy of global light drives: the stages of one
@@ -148,6 +150,7 @@ impl GlobalLight {
             params: None,
             method: DirectLightMethod::default(),
             refined: 0,
+            seam_passes: Vec::new(),
         })
     }
 
@@ -201,9 +204,9 @@ impl GlobalLight {
         update_light(self, (gpu, inputs), keys, settings, refine)
     }
 
-    /// Runs every `light_seams` pass over the light volume, in order, as one
-    /// submission (each dispatch sees the writes of those before it);
-    /// returns their milliseconds. Levels without slots are passed over.
+    /// Runs the `light_seams` passes with work to do ([`seam_passes`]) over
+    /// the light volume, in order, as one submission (each dispatch sees the
+    /// writes of those before it); returns their milliseconds.
     fn seams(&self, gpu: &GpuContext, inputs: Inputs<'_>) -> Result<f64, GpuError> {
         let (Some(volumes), Some(params)) = (&self.volumes, &self.params) else {
             return Ok(0.0);
@@ -211,11 +214,8 @@ impl GlobalLight {
         let start = Instant::now();
         let stage = &self.pipelines.light_seams;
         let mut passes = Vec::new();
-        for (level, outward) in SEAM_PASSES {
-            let [sx, sy, sz, _] = params.regions[level as usize];
-            if sx * sy * sz == 0 {
-                continue;
-            }
+        for &(level, outward) in &self.seam_passes {
+            let [_, _, sz, _] = params.regions[level as usize];
             let pass_params =
                 uniform_buffer(gpu, "light seams params", &params.seam_pass(level, outward))?;
             let edge = (16 >> level) + 2;
@@ -305,6 +305,7 @@ impl LightStages for GlobalLight {
                 .write_buffer(&v.params, 0, bytemuck::bytes_of(&params));
         }
         self.directions = params.scatter_directions(settings);
+        self.seam_passes = seam_passes(&packing.lod, params.volume.block_grid);
         self.params = Some(params);
         self.method = settings.method;
         Ok(!fits)
