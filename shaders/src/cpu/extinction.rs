@@ -9,7 +9,7 @@ use glam::{IVec3, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 
 use super::march::{MAX_SAMPLE_OPACITY, classify_table};
-use super::packed::{PackedTexture, atlas_coord};
+use super::packed::PackedTexture;
 use crate::extinction::{
     AoMethod, ExtinctionParams, ExtinctionSettings, FIXED_ONE, LightUniform, MAX_CELL_DEPTH,
     MAX_CONE_CUBOIDS, ShadowMethod, Stage,
@@ -123,7 +123,7 @@ pub fn extinction_sat(
                             / gridf;
                         let loc = packed.locate(&g, tc);
                         if !loc.empty {
-                            let value = packed.atlas.sample_level(atlas_coord(&g, tc, &loc));
+                            let value = packed.sample_block(&g, tc, &loc);
                             let rgba = classify_table(
                                 p.volume.tf_len,
                                 transfer_function,

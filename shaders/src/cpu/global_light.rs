@@ -119,7 +119,7 @@ fn opacity_at(
     tc: Vec3,
     loc: &BlockLocation,
 ) -> f32 {
-    let value = packed.atlas.sample_level(atlas_coord(&p.volume, tc, loc));
+    let value = packed.sample_block(&p.volume, tc, loc);
     let a = classify_table(
         p.volume.tf_len,
         tf,

@@ -8,6 +8,7 @@ use blocks::packing::slot_edge;
 use blocks::store::LEVELS;
 
 use super::march::intersect_box;
+use super::slot_atlas::SLOT_APRON;
 use super::texture::floor3;
 use super::{SlotAtlas, Texture3d};
 use crate::packed_volume::PackedVolume;
@@ -109,6 +110,18 @@ pub fn empty_exit(g: &PackedVolume, origin: Vec3, dir: Vec3, loc: &BlockLocation
 }
 
 impl PackedTexture {
+    /// The data at `tc` in block `loc`'s slot (positions outside the block
+    /// clamped to its apron), filtered as the GPU filters its atlas there:
+    /// read straight from the slot, whose texels are contiguous, instead of
+    /// finding each of the eight texels' slot from its atlas position.
+    #[inline]
+    pub fn sample_block(&self, g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> f32 {
+        // `atlas_texel` within the slot, whose apron starts one texel before
+        // the block's first interior texel.
+        let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
+        self.atlas.sample_slot(loc.slot, loc.slot_edge, in_slot)
+    }
+
     /// WGSL `locate`.
     pub fn locate(&self, g: &PackedVolume, tc: Vec3) -> BlockLocation {
         self.locate_block(block_of(g, tc))

@@ -212,10 +212,7 @@ impl Storage for PackedTexture {
     }
 
     fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> f32 {
-        // `atlas_texel` within the slot, whose apron starts one texel before
-        // the block's first interior texel.
-        let in_slot = atlas_texel(&p.volume, tc, loc) - (loc.origin - SLOT_APRON);
-        self.atlas.sample_slot(loc.slot, loc.slot_edge, in_slot)
+        self.sample_block(&p.volume, tc, loc)
     }
 
     fn voxel_edge(loc: &BlockLocation) -> f32 {
