@@ -369,84 +369,91 @@ fn light_seams_pass(
         .iter()
         .map(|r| r[0] * r[1] * r[2])
         .sum();
-    let dispatch = [atlas[0], atlas[1], region[2] * edge];
-    let texels = dispatch.iter().map(|&d| d as usize).product::<usize>();
     let grid = p.volume.block_grid;
     let read: &[f32] = light;
-    let writes: Vec<(usize, f32)> = (0..texels)
+    // What the WGSL's main writes for invocation `gid`, a texel of `slot`
+    // (holding block `b`), if anything. Only apron texels can write and the
+    // others return at once, so only the slots' shells are visited below.
+    let texel_value = |slot: [u32; 3], b: u32, gid: [u32; 3]| -> Option<(usize, f32)> {
+        let block = [
+            b % grid[0],
+            (b / grid[0]) % grid[1],
+            b / (grid[0] * grid[1]),
+        ]
+        .map(|v| v as i32);
+        let c = [0, 1, 2].map(|a| (gid[a] - slot[a] * edge) as i32);
+        let d = c.map(|v| {
+            if v == 0 {
+                -1
+            } else if v == edge as i32 - 1 {
+                1
+            } else {
+                0
+            }
+        });
+        let outward = d.iter().filter(|&&v| v != 0).count() as u32;
+        if outward != p.seam_outward {
+            return None;
+        }
+        let n = [0, 1, 2].map(|a| block[a] + d[a]);
+        if (0..3).any(|a| n[a] < 0 || n[a] >= grid[a] as i32) {
+            return None;
+        }
+        let entry = packed.index[packed.block_index(n)];
+        let m = u32::from(entry[3]);
+        if entry[3] == EMPTY_LEVEL || m <= level {
+            return None;
+        }
+        let spacing = (1u32 << level) as f32;
+        let border = [0, 1, 2].map(|a| {
+            let start = block[a] as f32 * BLOCK;
+            match d[a] {
+                1 => start + BLOCK,
+                -1 => start,
+                _ => start + (c[a] as f32 - 0.5) * spacing,
+            }
+        });
+        let u = (Vec3::from(border) - Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32) * BLOCK)
+            / (1u32 << m) as f32
+            - 0.5;
+        let origin = [0, 1, 2].map(|a| i32::from(entry[a]));
+        let target = slot_light(read, atlas, origin, m, u);
+        let texel = [gid[0], gid[1], gid[2] + region[3]];
+        let mut others = 0.0;
+        for mask in 1..8usize {
+            let step = [0, 1, 2].map(|a| mask >> a & 1 == 1);
+            if (0..3).any(|a| step[a] && d[a] == 0) {
+                continue;
+            }
+            let t = [0, 1, 2].map(|a| (texel[a] as i32 - if step[a] { d[a] } else { 0 }) as u32);
+            others += read[((t[2] * atlas[1] + t[1]) * atlas[0] + t[0]) as usize];
+        }
+        let corners = (1u32 << p.seam_outward) as f32;
+        let index = ((texel[2] * atlas[1] + texel[1]) * atlas[0] + texel[0]) as usize;
+        Some((index, corners * target - others))
+    };
+    let slots = (region[0] * region[1] * region[2]) as usize;
+    let last = edge - 1;
+    let writes: Vec<(usize, f32)> = (0..slots)
         .into_par_iter()
-        .filter_map(|i| {
-            let gid = [
-                (i % dispatch[0] as usize) as u32,
-                ((i / dispatch[0] as usize) % dispatch[1] as usize) as u32,
-                (i / (dispatch[0] as usize * dispatch[1] as usize)) as u32,
+        .flat_map_iter(|s| {
+            let s = s as u32;
+            let slot = [
+                s % region[0],
+                (s / region[0]) % region[1],
+                s / (region[0] * region[1]),
             ];
-            let slot = gid.map(|g| g / edge);
-            if (0..3).any(|a| slot[a] >= region[a]) {
-                return None;
-            }
-            let b = slot_blocks
-                [(first_slot + (slot[2] * region[1] + slot[1]) * region[0] + slot[0]) as usize];
-            if b == NO_BLOCK {
-                return None;
-            }
-            let block = [
-                b % grid[0],
-                (b / grid[0]) % grid[1],
-                b / (grid[0] * grid[1]),
-            ]
-            .map(|v| v as i32);
-            let c = [0, 1, 2].map(|a| (gid[a] - slot[a] * edge) as i32);
-            let d = c.map(|v| {
-                if v == 0 {
-                    -1
-                } else if v == edge as i32 - 1 {
-                    1
-                } else {
-                    0
-                }
+            let b = slot_blocks[(first_slot + s) as usize];
+            let shell = (0..edge).flat_map(move |z| {
+                (0..edge).flat_map(move |y| {
+                    let inner = z != 0 && z != last && y != 0 && y != last;
+                    let step = if inner { last } else { 1 };
+                    (0..edge).step_by(step as usize).map(move |x| [x, y, z])
+                })
             });
-            let outward = d.iter().filter(|&&v| v != 0).count() as u32;
-            if outward != p.seam_outward {
-                return None;
-            }
-            let n = [0, 1, 2].map(|a| block[a] + d[a]);
-            if (0..3).any(|a| n[a] < 0 || n[a] >= grid[a] as i32) {
-                return None;
-            }
-            let entry = packed.index[packed.block_index(n)];
-            let m = u32::from(entry[3]);
-            if entry[3] == EMPTY_LEVEL || m <= level {
-                return None;
-            }
-            let spacing = (1u32 << level) as f32;
-            let border = [0, 1, 2].map(|a| {
-                let start = block[a] as f32 * BLOCK;
-                match d[a] {
-                    1 => start + BLOCK,
-                    -1 => start,
-                    _ => start + (c[a] as f32 - 0.5) * spacing,
-                }
-            });
-            let u = (Vec3::from(border) - Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32) * BLOCK)
-                / (1u32 << m) as f32
-                - 0.5;
-            let origin = [0, 1, 2].map(|a| i32::from(entry[a]));
-            let target = slot_light(read, atlas, origin, m, u);
-            let texel = [gid[0], gid[1], gid[2] + region[3]];
-            let mut others = 0.0;
-            for mask in 1..8usize {
-                let step = [0, 1, 2].map(|a| mask >> a & 1 == 1);
-                if (0..3).any(|a| step[a] && d[a] == 0) {
-                    continue;
-                }
-                let t =
-                    [0, 1, 2].map(|a| (texel[a] as i32 - if step[a] { d[a] } else { 0 }) as u32);
-                others += read[((t[2] * atlas[1] + t[1]) * atlas[0] + t[0]) as usize];
-            }
-            let corners = (1u32 << p.seam_outward) as f32;
-            let index = ((texel[2] * atlas[1] + texel[1]) * atlas[0] + texel[0]) as usize;
-            Some((index, corners * target - others))
+            shell
+                .filter(move |_| b != NO_BLOCK)
+                .filter_map(move |c| texel_value(slot, b, [0, 1, 2].map(|a| slot[a] * edge + c[a])))
         })
         .collect();
     for (index, value) in writes {
