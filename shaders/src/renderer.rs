@@ -420,14 +420,7 @@ impl Renderer {
         let request = fitted.as_ref().unwrap_or(request);
         stats.camera = fitted.as_ref().map(|r| r.camera);
         if let Some(mode) = Mode::of(request.shading) {
-            let refine = if converge {
-                Refine::Converge
-            } else if request.drawn_rows().first > 0 {
-                // A later band shows the light the frame's first band did.
-                Refine::Hold
-            } else {
-                Refine::Step
-            };
+            let refine = Refine::for_frame(request, converge, true);
             stats.illumination = Some(self.update_illumination(mode, request, &tf, refine)?);
         }
         self.draw(request, &tf, stats)

@@ -22,11 +22,10 @@ use blocks::{Geometry, ValueMap, Volume, VoxelData};
 use glam::Vec3;
 use server::Dataset;
 use shaders::LightSettings;
-use shaders::cpu::global_light::{self as twin, LightInputs, LightState};
+use shaders::cpu::global_light::{self as twin, LightState};
 use shaders::cpu::packed::atlas_coord;
 use shaders::cpu::{PackedTexture, Texture3d};
-use shaders::global_light::{LightParams, LightSource, Stage};
-use shaders::illumination::{near_blocks, slot_blocks};
+use shaders::global_light::{LightSetup, LightSource, Stage};
 use shaders::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice, assemble_cpu};
 use shaders::packed_volume::{PackedLayout, PackedVolume};
 use shaders::volume_texture::{TexelFormat, VolumeTexture};
@@ -252,19 +251,9 @@ fn light_of(
         atlas_dims: packing.atlas_dims,
         block_grid: grid,
     };
-    let params = LightParams::new(&desc, settings, &packing, layout, table.len() as u32);
-    let slots = slot_blocks(&packing);
-    let svr = near_blocks(&packing, grid, params.svr_margin_blocks());
-    let directions = params.scatter_directions(settings);
-    let inputs = LightInputs {
-        params: &params,
-        packed: &packed,
-        tf: &table,
-        slot_blocks: &slots,
-        svr_blocks: &svr,
-        directions: &directions,
-        method: settings.method,
-    };
+    let setup = LightSetup::new(&desc, settings, &packing, layout, table.len() as u32);
+    let params = &setup.params;
+    let inputs = setup.twin_inputs(&packed, &table, settings.method);
     let mut state = LightState::default();
     for stage in Stage::ALL {
         twin::run(stage, &inputs, &mut state);
@@ -273,12 +262,12 @@ fn light_of(
     let direct = Texture3d::new(atlas, state.direct_light.clone());
     let shadow = Texture3d::new(params.svr_dims, state.shadow_volume.clone());
     let mut without = vec![0.0; state.light_volume.len()];
-    for d in &directions {
+    for d in &setup.directions {
         twin::in_scatter(
             &params.scattering(d),
             &packed,
             &table,
-            &slots,
+            &setup.slot_blocks,
             &direct,
             &shadow,
             &mut without,

@@ -18,9 +18,9 @@ use super::march::{classify_table, corrected_opacity, intersect_box};
 use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_coord, empty_exit};
 use crate::global_light::update::{LightStages, update_light};
 use crate::global_light::{
-    DirectLightMethod, LightParams, LightTimings, ScatterDirection, Stage, seam_passes,
+    DirectLightMethod, LightParams, LightSetup, LightTimings, ScatterDirection, Stage, seam_passes,
 };
-use crate::illumination::{Refine, StageCache, near_blocks, slot_blocks};
+use crate::illumination::{Refine, StageCache};
 use crate::packed_volume::PackedLayout;
 use crate::volume_texture::VolumeTexture;
 use crate::{FrameRequest, GpuError, LightSettings};
@@ -578,8 +578,10 @@ pub fn scatter_step(
     direction: &ScatterDirection,
 ) {
     let p = inputs.params;
-    let direct = Texture3d::new(p.atlas_dims(), state.direct_light.clone());
-    let shadow = Texture3d::new(p.svr_dims, state.shadow_volume.clone());
+    // I_d and the SVR lent as textures for the step and given back: a step
+    // runs every frame of a still view, too often to copy them.
+    let direct = Texture3d::new(p.atlas_dims(), std::mem::take(&mut state.direct_light));
+    let shadow = Texture3d::new(p.svr_dims, std::mem::take(&mut state.shadow_volume));
     in_scatter(
         &p.scattering(direction),
         inputs.packed,
@@ -595,6 +597,8 @@ pub fn scatter_step(
         inputs.slot_blocks,
         &mut state.light_volume,
     );
+    state.direct_light = direct.into_texels();
+    state.shadow_volume = shadow.into_texels();
 }
 
 /// The whole light computation as [`crate::global_light::GlobalLight`] runs
@@ -631,10 +635,7 @@ pub struct CpuLightInputs<'a> {
 pub struct CpuGlobalLight {
     cache: StageCache,
     state: LightState,
-    params: Option<LightParams>,
-    slot_blocks: Vec<u32>,
-    svr_blocks: Vec<u32>,
-    directions: Vec<ScatterDirection>,
+    setup: Option<LightSetup>,
     method: DirectLightMethod,
     refined: usize,
 }
@@ -658,19 +659,6 @@ impl CpuGlobalLight {
     pub fn light_volume(&self) -> &[f32] {
         &self.state.light_volume
     }
-
-    /// The twins' inputs for what [`LightStages::prepare`] built.
-    fn twin_inputs<'a>(&'a self, inputs: &CpuLightInputs<'a>) -> Option<LightInputs<'a>> {
-        Some(LightInputs {
-            params: self.params.as_ref()?,
-            packed: inputs.packed,
-            tf: inputs.tf,
-            slot_blocks: &self.slot_blocks,
-            svr_blocks: &self.svr_blocks,
-            directions: &self.directions,
-            method: self.method,
-        })
-    }
 }
 
 impl LightStages for CpuGlobalLight {
@@ -681,7 +669,8 @@ impl LightStages for CpuGlobalLight {
     }
 
     fn refinement(&self) -> (usize, usize) {
-        (self.refined, self.directions.len())
+        let directions = self.setup.as_ref().map_or(0, |s| s.directions.len());
+        (self.refined, directions)
     }
 
     fn prepare(
@@ -689,25 +678,19 @@ impl LightStages for CpuGlobalLight {
         inputs: CpuLightInputs<'_>,
         settings: &LightSettings,
     ) -> Result<bool, GpuError> {
-        let params = LightParams::new(
+        let setup = LightSetup::new(
             inputs.desc,
             settings,
             inputs.packing,
             inputs.layout,
             inputs.tf.len() as u32,
         );
-        let fits = self.params.is_some_and(|old| {
-            old.atlas_dims() == params.atlas_dims() && old.svr_dims == params.svr_dims
+        let (new, old) = (&setup.params, self.setup.as_ref().map(|s| &s.params));
+        let fits = old.is_some_and(|old| {
+            old.atlas_dims() == new.atlas_dims() && old.svr_dims == new.svr_dims
         });
-        self.slot_blocks = slot_blocks(inputs.packing);
-        self.svr_blocks = near_blocks(
-            inputs.packing,
-            params.volume.block_grid,
-            params.svr_margin_blocks(),
-        );
-        self.directions = params.scatter_directions(settings);
         self.method = settings.method;
-        self.params = Some(params);
+        self.setup = Some(setup);
         if !fits {
             self.state = LightState::default();
         }
@@ -721,25 +704,25 @@ impl LightStages for CpuGlobalLight {
             return self.scatter_step(inputs);
         }
         let start = Instant::now();
-        let mut state = std::mem::take(&mut self.state);
-        let twin = self
-            .twin_inputs(&inputs)
+        let setup = self
+            .setup
+            .as_ref()
             .ok_or_else(|| GpuError::InvalidRequest("the light was not prepared".into()))?;
-        run(stage, &twin, &mut state);
-        self.state = state;
+        let twin = setup.twin_inputs(inputs.packed, inputs.tf, self.method);
+        run(stage, &twin, &mut self.state);
         Ok(start.elapsed().as_secs_f64() * 1e3)
     }
 
     fn scatter_step(&mut self, inputs: CpuLightInputs<'_>) -> Result<f64, GpuError> {
         let start = Instant::now();
-        let Some(direction) = self.directions.get(self.refined).copied() else {
+        let Some(setup) = &self.setup else {
             return Ok(0.0);
         };
-        let mut state = std::mem::take(&mut self.state);
-        if let Some(twin) = self.twin_inputs(&inputs) {
-            scatter_step(&twin, &mut state, &direction);
-        }
-        self.state = state;
+        let Some(direction) = setup.directions.get(self.refined) else {
+            return Ok(0.0);
+        };
+        let twin = setup.twin_inputs(inputs.packed, inputs.tf, self.method);
+        scatter_step(&twin, &mut self.state, direction);
         self.refined += 1;
         Ok(start.elapsed().as_secs_f64() * 1e3)
     }

@@ -54,8 +54,8 @@ use blocks::lod::LodSelection;
 use blocks::transfer_function::TABLE_LEN;
 
 use crate::extinction::ExtinctionParams;
-use crate::global_light::LightParams;
-use crate::illumination::{Mode, near_blocks, slot_blocks};
+use crate::global_light::LightSetup;
+use crate::illumination::Mode;
 use crate::packed_volume::PackedLayout;
 use crate::raycast::RaycastParams;
 use crate::volume_texture::VolumeTexture;
@@ -101,20 +101,12 @@ pub fn illuminate(
     let tf_len = table.len() as u32;
     match mode {
         Mode::GlobalLight => {
-            let params = LightParams::new(desc, &request.light, packing, layout, tf_len);
-            let directions = params.scatter_directions(&request.light);
-            let slots = slot_blocks(packing);
-            let margin = params.svr_margin_blocks();
-            let svr = near_blocks(packing, params.volume.block_grid, margin);
-            let state = global_light::compute_light(&global_light::LightInputs {
-                params: &params,
+            let setup = LightSetup::new(desc, &request.light, packing, layout, tf_len);
+            let state = global_light::compute_light(&setup.twin_inputs(
                 packed,
-                tf: table,
-                slot_blocks: &slots,
-                svr_blocks: &svr,
-                directions: &directions,
-                method: request.light.method,
-            });
+                table,
+                request.light.method,
+            ));
             packed.light = Some(Texture3d::new(packing.atlas_dims, state.light_volume));
         }
         Mode::Extinction => {

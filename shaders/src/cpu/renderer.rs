@@ -169,16 +169,9 @@ impl CpuRenderer {
             self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
         }
         self.update_cells(&tf);
+        // A moving view draws from the light there is.
         let view = (request.camera, request.width, request.height);
-        let refine = if converge {
-            Refine::Converge
-        } else if request.drawn_rows().first > 0 || self.last_view != Some(view) {
-            // A later band shows the light the frame's first band did; a
-            // moving view draws from the light there is.
-            Refine::Hold
-        } else {
-            Refine::Step
-        };
+        let refine = Refine::for_frame(request, converge, self.last_view == Some(view));
         if request.drawn_rows().first == 0 {
             self.last_view = Some(view);
         }

@@ -83,6 +83,11 @@ impl Texture3d {
         self.dims
     }
 
+    /// The texels, x fastest, given back.
+    pub fn into_texels(self) -> Vec<f32> {
+        self.texels
+    }
+
     /// The texels, x fastest, to write in place.
     pub fn texels_mut(&mut self) -> &mut [f32] {
         &mut self.texels

@@ -37,7 +37,7 @@ pub mod settings;
 pub mod update;
 
 pub use directions::{ScatterDirection, scatter_directions, subdivided_octahedron};
-pub use params::{LightParams, svr_dims};
+pub use params::{LightParams, LightSetup, svr_dims};
 pub use pipelines::LightPipelines;
 pub use resources::LightVolumes;
 pub use settings::{

@@ -6,7 +6,7 @@ use blocks::store::LEVELS;
 use glam::{Mat4, Vec3};
 
 use super::{LightSettings, LightSource, ScatterDirection, scatter_directions};
-use crate::illumination::texture_transforms;
+use crate::illumination::{near_blocks, slot_blocks, texture_transforms};
 use crate::packed_volume::{PackedLayout, PackedVolume};
 use crate::raycast::VolumePlacement;
 use crate::volume_texture::VolumeTexture;
@@ -147,5 +147,65 @@ impl LightParams {
     /// Atlas texels along x, y, z.
     pub fn atlas_dims(&self) -> [u32; 3] {
         self.volume.atlas_dims()
+    }
+}
+
+/// What the light stages read besides the data and each other's results, for
+/// one set of settings over one packing: the uniforms, the block in each
+/// slot, the SVR's mask of blocks and the in-scattering directions. The GPU
+/// update, the CPU renderer and the converged CPU twins build it one way.
+#[derive(Debug, Clone)]
+pub struct LightSetup {
+    /// The uniforms.
+    pub params: LightParams,
+    /// [`crate::illumination::slot_blocks`] of the packing.
+    pub slot_blocks: Vec<u32>,
+    /// [`crate::illumination::near_blocks`] for the SVR's margin.
+    pub svr_blocks: Vec<u32>,
+    /// The in-scattering directions, in refinement order.
+    pub directions: Vec<ScatterDirection>,
+}
+
+impl LightSetup {
+    /// The setup for lighting the volume stored as `texture`, packed as
+    /// `packing` (`layout` its sizes), with `settings` and a
+    /// transfer-function table of `tf_len` entries.
+    pub fn new(
+        texture: &VolumeTexture,
+        settings: &LightSettings,
+        packing: &Packing,
+        layout: PackedLayout,
+        tf_len: u32,
+    ) -> LightSetup {
+        let params = LightParams::new(texture, settings, packing, layout, tf_len);
+        LightSetup {
+            slot_blocks: slot_blocks(packing),
+            svr_blocks: near_blocks(
+                packing,
+                params.volume.block_grid,
+                params.svr_margin_blocks(),
+            ),
+            directions: params.scatter_directions(settings),
+            params,
+        }
+    }
+
+    /// The CPU twins' inputs for this setup over `packed` data, classified
+    /// by the table `tf`, with the direct light by `method`.
+    pub fn twin_inputs<'a>(
+        &'a self,
+        packed: &'a crate::cpu::PackedTexture,
+        tf: &'a [[f32; 4]],
+        method: super::DirectLightMethod,
+    ) -> crate::cpu::global_light::LightInputs<'a> {
+        crate::cpu::global_light::LightInputs {
+            params: &self.params,
+            packed,
+            tf,
+            slot_blocks: &self.slot_blocks,
+            svr_blocks: &self.svr_blocks,
+            directions: &self.directions,
+            method,
+        }
     }
 }

@@ -8,12 +8,10 @@ use std::any::Any;
 use std::time::Instant;
 
 use super::{
-    DirectLightMethod, LightParams, LightPipelines, LightSettings, LightVolumes, ScatterDirection,
-    Stage, seam_passes,
+    DirectLightMethod, LightParams, LightPipelines, LightSettings, LightSetup, LightVolumes,
+    ScatterDirection, Stage, seam_passes,
 };
-use crate::illumination::{
-    Illumination, Inputs, Refine, StageCache, Timings, near_blocks, slot_blocks, workgroups,
-};
+use crate::illumination::{Illumination, Inputs, Refine, StageCache, Timings, workgroups};
 use crate::pipeline::run;
 use crate::settings::Settings;
 use crate::{FrameRequest, GpuContext, GpuError};
@@ -267,20 +265,19 @@ impl LightStages for GlobalLight {
         settings: &LightSettings,
     ) -> Result<bool, GpuError> {
         let packing = &inputs.atlas.packing;
-        let params = LightParams::new(
+        let LightSetup {
+            params,
+            slot_blocks: slots,
+            svr_blocks: svr_mask,
+            directions,
+        } = LightSetup::new(
             inputs.texture,
             settings,
             packing,
             inputs.atlas.layout,
             inputs.tf_len,
         );
-        let slots = slot_blocks(packing);
         let atlas_dims = inputs.atlas.layout.atlas_dims;
-        let svr_mask = near_blocks(
-            packing,
-            params.volume.block_grid,
-            params.svr_margin_blocks(),
-        );
         let fits = self
             .volumes
             .as_ref()
@@ -304,7 +301,7 @@ impl LightStages for GlobalLight {
             gpu.queue
                 .write_buffer(&v.params, 0, bytemuck::bytes_of(&params));
         }
-        self.directions = params.scatter_directions(settings);
+        self.directions = directions;
         self.seam_passes = seam_passes(&packing.lod, params.volume.block_grid);
         self.params = Some(params);
         self.method = settings.method;
