@@ -19,6 +19,16 @@ fn voxserve(args: &[&str]) -> Output {
         .unwrap_or_else(|e| panic!("running voxserve {args:?}: {e}"))
 }
 
+/// Runs voxserve with `args` where no GPU adapter exists: Linux has no DX12,
+/// so this backend choice leaves none at all.
+fn without_adapter(args: &[&str]) -> Output {
+    Command::new(VOXSERVE)
+        .args(args)
+        .env("WGPU_BACKEND", "dx12")
+        .output()
+        .unwrap_or_else(|e| panic!("running voxserve {args:?}: {e}"))
+}
+
 fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
@@ -312,40 +322,32 @@ fn render_writes_the_frame_and_gpu_and_cpu_twin_agree() {
 #[cfg(target_os = "linux")]
 #[test]
 fn without_an_adapter_render_names_the_package_to_install() {
-    // Linux has no DX12, so this backend choice leaves no adapter at all.
-    let out = Command::new(VOXSERVE)
-        .args([
-            "render",
-            "--renderer",
-            "gpu",
-            "--phantom-size",
-            "16",
-            "--out",
-            "/dev/null",
-        ])
-        .env("WGPU_BACKEND", "dx12")
-        .output()
-        .expect("run voxserve");
+    let out = without_adapter(&[
+        "render",
+        "--renderer",
+        "gpu",
+        "--phantom-size",
+        "16",
+        "--out",
+        "/dev/null",
+    ]);
     assert!(!out.status.success());
     let stderr = text(&out.stderr);
     assert!(stderr.contains("no GPU adapter found"), "{stderr}");
     assert!(stderr.contains("mesa-vulkan-drivers"), "{stderr}");
     // `--renderer auto`, the default, renders on the CPU instead.
     let png = temp_path("auto.png");
-    let out = Command::new(VOXSERVE)
-        .args([
-            "render",
-            "--phantom-size",
-            "16",
-            "--width",
-            "32",
-            "--height",
-            "32",
-        ])
-        .args(["--out", png.to_str().expect("utf-8")])
-        .env("WGPU_BACKEND", "dx12")
-        .output()
-        .expect("run voxserve");
+    let out = without_adapter(&[
+        "render",
+        "--phantom-size",
+        "16",
+        "--width",
+        "32",
+        "--height",
+        "32",
+        "--out",
+        png.to_str().expect("utf-8"),
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(
         text(&out.stdout).contains("on CPU renderer"),
@@ -356,22 +358,18 @@ fn without_an_adapter_render_names_the_package_to_install() {
 
 #[test]
 fn render_refuses_an_output_it_cannot_write_before_rendering() {
-    // Without an adapter (no DX12 on Linux) any render fails; a refusal that
-    // names the output proves the output was checked first.
+    // Without an adapter any render on the GPU fails; a refusal that names
+    // the output proves the output was checked first.
     let run = |out: &str| {
-        let out = Command::new(VOXSERVE)
-            .args([
-                "render",
-                "--renderer",
-                "gpu",
-                "--phantom-size",
-                "16",
-                "--out",
-                out,
-            ])
-            .env("WGPU_BACKEND", "dx12")
-            .output()
-            .expect("run voxserve");
+        let out = without_adapter(&[
+            "render",
+            "--renderer",
+            "gpu",
+            "--phantom-size",
+            "16",
+            "--out",
+            out,
+        ]);
         assert!(!out.status.success());
         text(&out.stderr)
     };

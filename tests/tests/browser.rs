@@ -795,6 +795,25 @@ async fn run(client: &Client, what: &str, script: &str) -> Result<(), String> {
         .map_err(|e| format!("{what}: {e}"))
 }
 
+/// Clicks Save image and waits until the page holds the saved file
+/// (`#download.saved`, a Blob; the download link's name beside it).
+async fn save_image(client: &Client) -> Result<(), String> {
+    run(
+        client,
+        "Save image",
+        "document.getElementById('save').click();",
+    )
+    .await?;
+    wait_for(
+        client,
+        "the saved image",
+        "return document.getElementById('download').saved ? 1 : 0;",
+        |v| v == 1.0,
+    )
+    .await?;
+    Ok(())
+}
+
 /// Loads `url` and waits for its first frame.
 async fn open_page(client: &Client, url: &str) -> Result<(), String> {
     client
@@ -1454,19 +1473,7 @@ async fn sharing(client: &Client, server: &TestServer) -> Result<(), String> {
         }
     }
     // Save image: the full lossless frame as PNG, the canvas's size.
-    run(
-        client,
-        "Save image",
-        "document.getElementById('save').click();",
-    )
-    .await?;
-    wait_for(
-        client,
-        "the saved image",
-        "return document.getElementById('download').saved ? 1 : 0;",
-        |v| v == 1.0,
-    )
-    .await?;
+    save_image(client).await?;
     let png = client
         .execute_async(
             "const done = arguments[arguments.length - 1];
@@ -2153,19 +2160,7 @@ async fn slice_views(
     layout_key(client, "4", &["axial"]).await?;
     keep_screenshot(client, &format!("slices-{name}-layout-axial")).await?;
     // Save image saves the view shown: the axial slice's lossless frame.
-    run(
-        client,
-        "Save image",
-        "document.getElementById('save').click();",
-    )
-    .await?;
-    wait_for(
-        client,
-        "the saved image",
-        "return document.getElementById('download').saved ? 1 : 0;",
-        |v| v == 1.0,
-    )
-    .await?;
+    save_image(client).await?;
     let saved = client
         .execute_async(
             "const done = arguments[arguments.length - 1];
