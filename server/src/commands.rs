@@ -12,8 +12,8 @@ use blocks::ingest::{self, VolumeInfo, VolumeSource, VolumeStats};
 use tokio::net::TcpListener;
 
 use crate::cli::{
-    AuthArgs, Command, DataArgs, InfoArgs, IngestArgs, RenderArgs, ServeArgs, SettingsArgs,
-    TokenArgs, VerifyArgs,
+    AuthArgs, Command, DataArgs, InfoArgs, IngestArgs, PacsArgs, PacsCommand, PacsFetchArgs,
+    RenderArgs, ServeArgs, SettingsArgs, TokenArgs, VerifyArgs,
 };
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
@@ -30,7 +30,150 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Verify(args) => verify(&args),
         Command::Settings(args) => settings(&args),
         Command::Token(args) => token(args),
+        Command::Pacs(command) => tokio::runtime::Runtime::new()
+            .map_err(anyhow::Error::from)
+            .and_then(|rt| rt.block_on(pacs(command))),
     }
+}
+
+/// The PACS client `args` configure.
+fn dicomweb(args: &PacsArgs) -> anyhow::Result<crate::pacs::DicomWeb> {
+    let endpoints = crate::pacs::Endpoints::new(args.pacs.clone(), &args.auth)?;
+    let endpoint = endpoints.pick(args.from.as_deref())?.clone();
+    crate::pacs::DicomWeb::new(endpoint, std::time::Duration::from_secs(args.timeout_s))
+}
+
+/// `voxserve pacs search | series | fetch`.
+pub async fn pacs(command: PacsCommand) -> anyhow::Result<()> {
+    match command {
+        PacsCommand::Search(args) => {
+            let web = dicomweb(&args.pacs)?;
+            let query = crate::pacs::StudyQuery {
+                patient_name: args.patient_name,
+                patient_id: args.patient_id,
+                accession_number: args.accession,
+                study_date: args.study_date,
+                modality: args.modality,
+                study_uid: args.study,
+                limit: args.limit,
+                offset: args.offset,
+            };
+            query.check().map_err(anyhow::Error::msg)?;
+            for study in web.search_studies(&query).await? {
+                if args.json {
+                    say(&serde_json::to_string(&study)?)?;
+                    continue;
+                }
+                let or = |v: &Option<String>| v.clone().unwrap_or_else(|| "-".into());
+                say(&format!(
+                    "{}  {}  {}  \"{}\"  {}  {} series, {} images  \"{}\"",
+                    study.study_uid,
+                    or(&study.study_date),
+                    or(&study.patient_id),
+                    or(&study.patient_name),
+                    study.modalities.join("/"),
+                    study.series.map_or("?".into(), |n| n.to_string()),
+                    study.instances.map_or("?".into(), |n| n.to_string()),
+                    or(&study.description),
+                ))?;
+            }
+            Ok(())
+        }
+        PacsCommand::Series(args) => {
+            let web = dicomweb(&args.pacs)?;
+            for series in web.search_series(&args.study).await? {
+                if args.json {
+                    say(&serde_json::to_string(&series)?)?;
+                    continue;
+                }
+                say(&format!(
+                    "{}  {}  #{}  {} images  \"{}\"",
+                    series.series_uid,
+                    series.modality.as_deref().unwrap_or("?"),
+                    series.number.map_or("?".into(), |n| n.to_string()),
+                    series.instances.map_or("?".into(), |n| n.to_string()),
+                    series.description.as_deref().unwrap_or(""),
+                ))?;
+            }
+            Ok(())
+        }
+        PacsCommand::Fetch(args) => pacs_fetch(args).await,
+    }
+}
+
+/// `voxserve pacs fetch`: a series' instances into a spool folder beside
+/// the store, then bricked from there (in bounded memory, as `ingest`).
+async fn pacs_fetch(args: PacsFetchArgs) -> anyhow::Result<()> {
+    let web = dicomweb(&args.pacs)?;
+    let series = match args.series {
+        Some(series) => series,
+        None => {
+            let all = web.search_series(&args.study).await?;
+            match all.as_slice() {
+                [only] => only.series_uid.clone(),
+                [] => anyhow::bail!(
+                    "study {}: no series on PACS {}; expected a study it holds (voxserve pacs search lists them)",
+                    args.study,
+                    web.name()
+                ),
+                _ => anyhow::bail!(
+                    "study {}: {} series; say which with --series:\n{}",
+                    args.study,
+                    all.len(),
+                    all.iter()
+                        .map(|s| format!(
+                            "  {}  {} {} images  {}",
+                            s.series_uid,
+                            s.modality.as_deref().unwrap_or("?"),
+                            s.instances.map_or("?".into(), |n| n.to_string()),
+                            s.description.as_deref().unwrap_or("")
+                        ))
+                        .collect::<Vec<_>>()
+                        .join("\n")
+                ),
+            }
+        }
+    };
+    let spool_in = match args.out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&spool_in)
+        .with_context(|| format!("{}: cannot make the folder", spool_in.display()))?;
+    let options = crate::pacs::fetch::FetchOptions {
+        concurrency: usize::from(args.concurrency),
+        max_instance_bytes: args.max_instance_mib << 20,
+        ..Default::default()
+    };
+    let bar = progress_bar(0, "fetching");
+    let progress = |done: usize, total: usize, _bytes: u64| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let fetched =
+        crate::pacs::fetch::fetch_series(&web, &args.study, &series, &spool_in, options, &progress)
+            .await?;
+    bar.finish_and_clear();
+    say(&format!(
+        "fetched series {series} of study {}: {} instances, {:.1} MB in {:.1} s ({:.0} MB/s, {:.0} instances/s)",
+        args.study,
+        fetched.instances.len(),
+        fetched.bytes as f64 / 1e6,
+        fetched.seconds,
+        fetched.bytes as f64 / 1e6 / fetched.seconds.max(1e-9),
+        fetched.instances.len() as f64 / fetched.seconds.max(1e-9),
+    ))?;
+    let (out, force, level) = (args.out, args.force, args.zstd_level);
+    let what = format!(
+        "series {series} of study {} from PACS {}",
+        args.study,
+        web.name()
+    );
+    tokio::task::spawn_blocking(move || {
+        let mut source = crate::pacs::fetch::open_fetched(&fetched)?;
+        write_store(source.as_mut(), &out, force, level).with_context(|| what)
+    })
+    .await?
 }
 
 /// `voxserve token`: a new API token on standard output, its entry for the
@@ -571,16 +714,27 @@ fn info_text(
 /// `voxserve ingest`: a brick store from a volume file or DICOM folder.
 pub fn ingest(args: &IngestArgs) -> anyhow::Result<()> {
     let mut source = ingest::open(&args.input, &args.input_options.open_options())?;
+    write_store(source.as_mut(), &args.out, args.force, args.zstd_level)
+}
+
+/// Writes `source` as a brick store at `out` with a progress bar, and says
+/// what was written.
+fn write_store(
+    source: &mut dyn VolumeSource,
+    out: &std::path::Path,
+    force: bool,
+    zstd_level: i32,
+) -> anyhow::Result<()> {
     let nz = u64::from(source.info().geometry.dims[2]);
     let options = blocks::store::IngestOptions {
-        overwrite: args.force,
-        zstd_level: args.zstd_level,
+        overwrite: force,
+        zstd_level,
         fault: std::env::var("VOXSERVE_FAULT_ABORT")
             .ok()
             .and_then(|v| blocks::store::ingest::FaultPoint::parse(&v)),
     };
     let bar = progress_bar(nz, "value range");
-    let summary = blocks::store::ingest(source.as_mut(), &args.out, &options, &mut |p| match p {
+    let summary = blocks::store::ingest(source, out, &options, &mut |p| match p {
         blocks::store::IngestProgress::Scanning(z, _) => bar.set_position(u64::from(z)),
         blocks::store::IngestProgress::Writing(z, _) => {
             if bar.message() != "writing" {
@@ -594,7 +748,7 @@ pub fn ingest(args: &IngestArgs) -> anyhow::Result<()> {
     say(&format!(
         "wrote {}: {x} × {y} × {z} {} voxels, {} blocks of 16³ ({} uniform) at 5 levels; \
          {:.1} MB of voxels in {:.1} MB (compression {:.2}:1); {:.1} s, {:.0} MB/s",
-        args.out.display(),
+        out.display(),
         summary.voxel_type.name(),
         summary.blocks,
         summary.uniform_blocks,

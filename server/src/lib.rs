@@ -34,7 +34,10 @@
 //! - [`web`]: the static web client from `web/`, compiled into the binary.
 //! - [`cli`]: the command line's subcommands and flags (`render`'s view flags
 //!   from the settings schema).
-//! - [`commands`]: what `serve`, `render`, `info`, `ingest` and `settings` do.
+//! - [`pacs`]: studies from a PACS over DICOMweb (QIDO-RS, WADO-RS), fetched
+//!   into a spool folder and bricked as the same files on disk are.
+//! - [`commands`]: what `serve`, `render`, `info`, `ingest`, `pacs` and
+//!   `settings` do.
 //!
 //! The benchmarks (`voxserve bench`) are in the binary's module tree
 //! (`server/src/bench/`), not in this library.
@@ -51,6 +54,7 @@ pub mod encode;
 pub mod error;
 pub mod listen;
 pub mod metrics;
+pub mod pacs;
 pub mod protocol;
 pub mod render_service;
 pub mod stream;

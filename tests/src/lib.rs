@@ -18,6 +18,8 @@
 //! - [`server`]: a real server on port 0 for end-to-end tests.
 //! - [`issuer`]: an OpenID Connect issuer on port 0 that signs real tokens
 //!   (RS256, ES256), rotates keys, and logs browsers in (PKCE).
+//! - [`orthanc`]: a real PACS (Orthanc with DICOMweb) on a loopback port,
+//!   loaded through its REST API.
 //! - [`malformed`]: a generated corpus of malformed and hostile volume files,
 //!   as a table of cases with the words each error must contain.
 
@@ -27,6 +29,7 @@ pub mod gpu;
 pub mod image_compare;
 pub mod issuer;
 pub mod malformed;
+pub mod orthanc;
 pub mod phantom;
 #[path = "../../server/src/bench/reference_data.rs"]
 pub mod reference_data;

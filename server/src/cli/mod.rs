@@ -37,10 +37,130 @@ pub enum Command {
     /// List every view setting: name, flag, what it takes and its default
     /// (`--json`: as `GET /api/settings` gives them).
     Settings(SettingsArgs),
+    /// Studies on a PACS over DICOMweb: search them (QIDO-RS), list a
+    /// study's series, fetch a series (WADO-RS) into a brick store.
+    #[command(subcommand)]
+    Pacs(PacsCommand),
     /// Make a static API token for scripts: prints the token (give it to the
     /// script; it is shown once) and, on standard error, the entry to add to
     /// the file `serve --api-tokens` reads (it holds only the token's hash).
     Token(TokenArgs),
+}
+
+/// `voxserve pacs …`.
+#[derive(Debug, Subcommand)]
+pub enum PacsCommand {
+    /// Search a PACS's studies (QIDO-RS); one line per study (`--json`: one
+    /// JSON object per line).
+    Search(PacsSearchArgs),
+    /// List a study's series (QIDO-RS).
+    Series(PacsSeriesArgs),
+    /// Fetch a series (WADO-RS, every instance as stored, several at a
+    /// time) and write it as a brick store, as `ingest` writes the same
+    /// files from a folder.
+    Fetch(PacsFetchArgs),
+}
+
+/// Which PACS, and how to reach it.
+#[derive(Debug, Args)]
+pub struct PacsArgs {
+    /// A PACS's DICOMweb service: NAME=URL, e.g.
+    /// main=https://pacs.example.org/dicom-web. Repeat for more.
+    #[arg(long = "pacs", value_name = "NAME=URL", required = true,
+          value_parser = crate::pacs::endpoint::parse_pacs)]
+    pub pacs: Vec<crate::pacs::Endpoint>,
+    /// The authorization a PACS needs: NAME=FILE, the file holding one line
+    /// `Header-Name: value` or a bare token (sent as `Authorization: Bearer
+    /// TOKEN`). Repeat for more.
+    #[arg(long = "pacs-auth", value_name = "NAME=FILE",
+          value_parser = crate::pacs::endpoint::parse_auth)]
+    pub auth: Vec<(String, PathBuf)>,
+    /// Which PACS to ask, where several are given.
+    #[arg(long, value_name = "NAME")]
+    pub from: Option<String>,
+    /// Seconds an answer may stall (no byte arriving) before it is given up.
+    #[arg(long = "pacs-timeout-s", value_name = "SECONDS", default_value_t = 30,
+          value_parser = clap::value_parser!(u64).range(1..=600))]
+    pub timeout_s: u64,
+}
+
+/// `voxserve pacs search`.
+#[derive(Debug, Args)]
+pub struct PacsSearchArgs {
+    #[command(flatten)]
+    pub pacs: PacsArgs,
+    /// PatientID (wildcards * and ?).
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_value("PatientID", v))]
+    pub patient_id: Option<String>,
+    /// PatientName (wildcards * and ?), e.g. "DOE^J*".
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_value("PatientName", v))]
+    pub patient_name: Option<String>,
+    /// AccessionNumber.
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_value("AccessionNumber", v))]
+    pub accession: Option<String>,
+    /// StudyDate: YYYYMMDD or a range YYYYMMDD-YYYYMMDD (either end may be left out).
+    #[arg(long, value_parser = crate::pacs::DateRange::parse)]
+    pub study_date: Option<crate::pacs::DateRange>,
+    /// ModalitiesInStudy, e.g. CT.
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_value("ModalitiesInStudy", v))]
+    pub modality: Option<String>,
+    /// StudyInstanceUID.
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_uid("StudyInstanceUID", v))]
+    pub study: Option<String>,
+    /// Studies to list at most.
+    #[arg(long, default_value_t = crate::pacs::query::DEFAULT_LIMIT,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::pacs::query::MAX_LIMIT)))]
+    pub limit: u32,
+    /// Studies to pass over first.
+    #[arg(long, default_value_t = 0)]
+    pub offset: u32,
+    /// Print JSON lines instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `voxserve pacs series`.
+#[derive(Debug, Args)]
+pub struct PacsSeriesArgs {
+    #[command(flatten)]
+    pub pacs: PacsArgs,
+    /// StudyInstanceUID.
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_uid("StudyInstanceUID", v))]
+    pub study: String,
+    /// Print JSON lines instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `voxserve pacs fetch`.
+#[derive(Debug, Args)]
+pub struct PacsFetchArgs {
+    #[command(flatten)]
+    pub pacs: PacsArgs,
+    /// StudyInstanceUID.
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_uid("StudyInstanceUID", v))]
+    pub study: String,
+    /// SeriesInstanceUID [default: the study's only series].
+    #[arg(long, value_parser = |v: &str| crate::pacs::query::check_uid("SeriesInstanceUID", v))]
+    pub series: Option<String>,
+    /// The store to write (a folder; written under a temporary name and
+    /// renamed when complete). The instances are kept beside it while they
+    /// are read, and removed.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Replace the brick store at --out if there is one (as `ingest --force`).
+    #[arg(long)]
+    pub force: bool,
+    /// zstd compression level, 1 (fast) to 19 (small).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(i32).range(1..=19))]
+    pub zstd_level: i32,
+    /// Instances retrieved at once.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub concurrency: u16,
+    /// Most MiB of one instance.
+    #[arg(long = "pacs-max-instance-mib", value_name = "MIB", default_value_t = 4096,
+          value_parser = clap::value_parser!(u64).range(1..=65536))]
+    pub max_instance_mib: u64,
 }
 
 /// `voxserve token`.

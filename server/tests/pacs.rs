@@ -1,0 +1,527 @@
+//! Studies from a real PACS over DICOMweb: Orthanc (with its DICOMweb
+//! plugin) on a loopback port, loaded with the VHF head series and the nine
+//! transfer-syntax files through its REST API.
+//!
+//! - `voxserve pacs search` finds the study by PatientID and by a StudyDate
+//!   range; `voxserve pacs fetch` makes a store equal, voxel for voxel and
+//!   in geometry, to the one `ingest` makes from the same files on disk.
+//! - Every transfer syntax arrives as stored and decodes to the same pixels.
+//! - Faults: a PACS that is down, one that never answers (timeout), 404 and
+//!   500 answers, malformed JSON, a truncated multipart body, a frame that
+//!   fails to decode, a series with a missing slice: each is an error naming
+//!   the PACS and the study or series, and no store (nor spool folder) is
+//!   left behind.
+//!
+//! Skipped with a printed reason where Orthanc is not installed, unless
+//! `VOXSERVE_REQUIRE_PACS=1` (`.ci/run`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use blocks::ingest::{self, OpenOptions};
+use blocks::store::{self, IngestOptions, LEVELS, Store};
+use dicom_dictionary_std::tags;
+use server::pacs::fetch::{FetchOptions, fetch_series, open_fetched};
+use server::pacs::{DicomWeb, PacsError, StudyQuery, endpoint::parse_pacs};
+use voxserve_tests::data::shared_data;
+use voxserve_tests::orthanc::Orthanc;
+
+const VOXSERVE: &str = env!("CARGO_BIN_EXE_voxserve");
+
+/// The `.dcm` files of a folder, sorted.
+fn dicom_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .expect("folder")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "dcm"))
+        .collect();
+    files.sort();
+    files
+}
+
+/// A UID attribute of a DICOM file.
+fn uid_of(file: &Path, tag: dicom_core::Tag) -> String {
+    let obj = dicom_object::OpenFileOptions::new()
+        .read_until(tags::PIXEL_DATA)
+        .open_file(file)
+        .expect("DICOM file");
+    obj.element(tag)
+        .expect("attribute")
+        .to_str()
+        .expect("text")
+        .trim_end_matches('\0')
+        .trim()
+        .to_owned()
+}
+
+/// A client of `orthanc`'s DICOMweb service that gives up after `timeout`.
+fn client_of(url: &str, timeout: Duration) -> DicomWeb {
+    DicomWeb::new(parse_pacs(&format!("t={url}")).expect("endpoint"), timeout).expect("client")
+}
+
+/// `voxserve ARGS`, its status and output.
+fn voxserve(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(VOXSERVE)
+        .args(args)
+        .output()
+        .expect("run voxserve");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// `store` equals `other` in every voxel of every level, geometry, voxel
+/// type, value map, study and statistics (not in name and source).
+fn assert_same_store(store: &Store, other: &Store) {
+    let (mut a, mut b) = (store.meta().clone(), other.meta().clone());
+    for m in [&mut a, &mut b] {
+        m.name.clear();
+        m.source.clear();
+    }
+    assert_eq!(a, b, "the stores' metadata");
+    for level in 0..LEVELS {
+        let (x, y) = (
+            store.load_level(level).expect("level"),
+            other.load_level(level).expect("level"),
+        );
+        assert_eq!(x.geometry, y.geometry, "level {level}'s geometry");
+        assert!(x.voxels == y.voxels, "level {level}'s voxels differ");
+    }
+}
+
+/// Nothing of a failed fetch is left in `dir`: no store, no spool folder.
+fn assert_nothing_left(dir: &Path) {
+    let left: Vec<_> = std::fs::read_dir(dir)
+        .expect("folder")
+        .map(|e| e.expect("entry").file_name())
+        .collect();
+    assert!(
+        left.is_empty(),
+        "left behind in {}: {left:?}",
+        dir.display()
+    );
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_series_fetched_from_orthanc_makes_the_store_its_files_make_on_disk() {
+    let test = "a_series_fetched_from_orthanc_makes_the_store_its_files_make_on_disk";
+    let Some(data) = shared_data(test) else {
+        return;
+    };
+    let Some(orthanc) = Orthanc::start_or_skip(test) else {
+        return;
+    };
+    let http = reqwest::Client::new();
+    let vhf = data.join("dicom/vhf_head");
+    let files = dicom_files(&vhf);
+    for f in files
+        .iter()
+        .chain(&dicom_files(&data.join("dicom/transfer_syntaxes")))
+    {
+        orthanc.upload(&http, f).await;
+    }
+    let study = uid_of(&files[0], tags::STUDY_INSTANCE_UID);
+    let pacs = format!("t={}", orthanc.dicomweb());
+
+    // Found by PatientID and by a StudyDate range; not by a range without it.
+    for keys in [
+        &["--patient-id", "000-000-001"][..],
+        &["--patient-id", "000-000-*"],
+        &["--study-date", "20041201-20050201"],
+    ] {
+        let (ok, out, err) =
+            voxserve(&[&["pacs", "search", "--pacs", &pacs, "--json"][..], keys].concat());
+        assert!(ok, "{keys:?}: {err}");
+        let found: Vec<serde_json::Value> = out
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("a JSON line"))
+            .collect();
+        assert_eq!(found.len(), 1, "{keys:?}: {out}");
+        assert_eq!(found[0]["study_uid"], study.as_str());
+        assert_eq!(found[0]["patient_name"], "Eve");
+        assert_eq!(found[0]["instances"], 234);
+    }
+    let (ok, out, err) = voxserve(&[
+        "pacs",
+        "search",
+        "--pacs",
+        &pacs,
+        "--study-date",
+        "20060101-",
+    ]);
+    assert!(ok && !out.contains(&study), "{out}{err}");
+    let (ok, _, err) = voxserve(&[
+        "pacs",
+        "search",
+        "--pacs",
+        &pacs,
+        "--study-date",
+        "2005-01-01",
+    ]);
+    assert!(
+        !ok && err.contains("StudyDate") && err.contains("YYYYMMDD"),
+        "{err}"
+    );
+
+    // Fetched (the study's only series) and bricked; the same files ingested
+    // from disk.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let from_pacs = dir.path().join("pacs.zarr");
+    let (ok, out, err) = voxserve(&[
+        "pacs",
+        "fetch",
+        "--pacs",
+        &pacs,
+        "--study",
+        &study,
+        "--out",
+        from_pacs.to_str().expect("path"),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("234 instances"), "{out}");
+    let from_disk = dir.path().join("disk.zarr");
+    let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
+    store::ingest(
+        source.as_mut(),
+        &from_disk,
+        &IngestOptions::default(),
+        &mut |_| {},
+    )
+    .expect("ingest");
+    let (pacs_store, disk_store) = (
+        Store::open(&from_pacs).expect("open"),
+        Store::open(&from_disk).expect("open"),
+    );
+    assert_same_store(&pacs_store, &disk_store);
+    assert!(
+        pacs_store.meta().source.contains("/dicom-web/studies/")
+            && pacs_store.meta().source.contains(&study),
+        "the store names where it came from: {}",
+        pacs_store.meta().source
+    );
+    let names: Vec<_> = std::fs::read_dir(dir.path())
+        .expect("folder")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        !names.iter().any(|n| n.starts_with(".voxserve-fetch")),
+        "the spool folder is removed: {names:?}"
+    );
+
+    // A series with a missing slice: refused, naming the series and the gap,
+    // and nothing is written.
+    let web = client_of(&orthanc.dicomweb(), Duration::from_secs(30));
+    let found = web
+        .search_studies(&StudyQuery {
+            study_uid: Some(study.clone()),
+            ..StudyQuery::default()
+        })
+        .await
+        .expect("search");
+    assert_eq!(found.len(), 1);
+    let gone: serde_json::Value = serde_json::from_slice(
+        &http
+            .post(format!("{}/tools/lookup", orthanc.url))
+            .body(uid_of(&files[117], tags::SOP_INSTANCE_UID))
+            .send()
+            .await
+            .expect("lookup")
+            .bytes()
+            .await
+            .expect("body"),
+    )
+    .expect("JSON");
+    orthanc
+        .delete_instance(&http, gone[0]["ID"].as_str().expect("id"))
+        .await;
+    let gap = tempfile::tempdir().expect("tempdir");
+    let out = gap.path().join("gap.zarr");
+    let (ok, _, err) = voxserve(&[
+        "pacs",
+        "fetch",
+        "--pacs",
+        &pacs,
+        "--study",
+        &study,
+        "--out",
+        out.to_str().expect("path"),
+    ]);
+    let series = uid_of(&files[0], tags::SERIES_INSTANCE_UID);
+    assert!(
+        !ok && err.contains("missing slice") && err.contains(&series),
+        "{err}"
+    );
+    assert_nothing_left(gap.path());
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn every_transfer_syntax_arrives_as_stored_and_decodes_to_the_same_pixels() {
+    let test = "every_transfer_syntax_arrives_as_stored_and_decodes_to_the_same_pixels";
+    let Some(data) = shared_data(test) else {
+        return;
+    };
+    let Some(orthanc) = Orthanc::start_or_skip(test) else {
+        return;
+    };
+    let http = reqwest::Client::new();
+    let files = dicom_files(&data.join("dicom/transfer_syntaxes"));
+    for f in &files {
+        orthanc.upload(&http, f).await;
+    }
+    let web = client_of(&orthanc.dicomweb(), Duration::from_secs(30));
+    let study = uid_of(&files[0], tags::STUDY_INSTANCE_UID);
+    let series = web.search_series(&study).await.expect("series");
+    assert_eq!(series.len(), 1, "{series:?}");
+    let instances = web
+        .series_instances(&study, &series[0].series_uid)
+        .await
+        .expect("metadata");
+    assert_eq!(instances.len(), files.len());
+    let dir = tempfile::tempdir().expect("tempdir");
+    let pixels = |file: &Path| {
+        let mut source = ingest::open(file, &OpenOptions::default())
+            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        ingest::load(source.as_mut()).expect("decode").voxels
+    };
+    let expected = pixels(&files[0]);
+    for file in &files {
+        let sop = uid_of(file, tags::SOP_INSTANCE_UID);
+        let dest = dir.path().join(format!("{sop}.dcm"));
+        let bytes = web
+            .retrieve_instance(&study, &series[0].series_uid, &sop, &dest, 1 << 30)
+            .await
+            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        assert_eq!(
+            std::fs::read(&dest).expect("read"),
+            std::fs::read(file).expect("read"),
+            "{}: retrieved as stored ({bytes} bytes)",
+            file.display()
+        );
+        assert!(
+            pixels(&dest) == expected,
+            "{}: other pixels",
+            file.display()
+        );
+    }
+}
+
+/// A server that answers every request with `status`, `content_type` and
+/// `body` (for faults a real PACS cannot be made to show), on a loopback
+/// port; stopped when the runtime ends.
+async fn faulty(status: u16, content_type: &'static str, body: &'static [u8]) -> String {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let url = format!("http://{}", listener.local_addr().expect("address"));
+    let app = axum::Router::new().fallback(move || async move {
+        (
+            axum::http::StatusCode::from_u16(status).expect("status"),
+            [(axum::http::header::CONTENT_TYPE, content_type)],
+            body,
+        )
+    });
+    tokio::spawn(async move { axum::serve(listener, app).await });
+    url
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_failing_pacs_gives_errors_naming_the_study_or_series_and_bricks_nothing() {
+    let test = "a_failing_pacs_gives_errors_naming_the_study_or_series_and_bricks_nothing";
+    let (study, series, sop) = ("1.2.3.4", "1.2.3.4.5", "1.2.3.4.5.6");
+
+    // Down: nothing listens.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("port")
+        .port();
+    let down = client_of(
+        &format!("http://127.0.0.1:{port}/dicom-web"),
+        Duration::from_secs(5),
+    );
+    let e = down.search_series(study).await.expect_err("down");
+    assert!(
+        matches!(e, PacsError::Unreachable { .. }) && e.retryable(),
+        "{e}"
+    );
+    assert!(
+        e.to_string().contains("cannot connect") && e.to_string().contains(study),
+        "{e}"
+    );
+
+    // Slow: connections accepted, never answered.
+    let silent = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let silent_url = format!("http://{}/dicom-web", silent.local_addr().expect("address"));
+    tokio::spawn(async move {
+        let mut held = Vec::new();
+        while let Ok((socket, _)) = silent.accept().await {
+            held.push(socket);
+        }
+    });
+    let slow = client_of(&silent_url, Duration::from_secs(1));
+    let e = slow
+        .series_instances(study, series)
+        .await
+        .expect_err("slow");
+    assert!(matches!(e, PacsError::Timeout { .. }), "{e}");
+    assert!(
+        e.to_string().contains("no answer within 1 s") && e.to_string().contains(series),
+        "{e}"
+    );
+
+    // 500, tried again, then given up; the spool folder removed.
+    let failing = client_of(
+        &faulty(500, "text/plain", b"boom").await,
+        Duration::from_secs(5),
+    );
+    let spool = tempfile::tempdir().expect("tempdir");
+    let options = FetchOptions {
+        attempts: 2,
+        ..FetchOptions::default()
+    };
+    let e = fetch_series(
+        &failing,
+        study,
+        series,
+        spool.path(),
+        options,
+        &|_, _, _| {},
+    )
+    .await
+    .expect_err("500");
+    assert!(
+        matches!(e, PacsError::Status { status: 500, .. }) && e.retryable(),
+        "{e}"
+    );
+    assert!(e.to_string().contains(series), "{e}");
+    assert_nothing_left(spool.path());
+
+    // Malformed JSON, and JSON that is not DICOM JSON.
+    for (body, words) in [
+        (&b"[{\"0020000E\": "[..], "expected DICOM JSON"),
+        (b"{\"a\": 1}", "not an array of objects"),
+        (
+            b"[{\"0020000E\": {\"vr\": \"UI\", \"Value\": [\"x\"]}}]",
+            "SeriesInstanceUID",
+        ),
+    ] {
+        let web = client_of(
+            &faulty(200, "application/dicom+json", body).await,
+            Duration::from_secs(5),
+        );
+        let e = web.search_series(study).await.expect_err("malformed");
+        assert!(
+            matches!(e, PacsError::Malformed { .. }) && !e.retryable(),
+            "{e}"
+        );
+        assert!(
+            e.to_string().contains(words) && e.to_string().contains(study),
+            "{e}"
+        );
+    }
+
+    // A multipart body cut short, one without a boundary, one of another type.
+    let dest = spool.path().join("instance.dcm");
+    for (content_type, body, words) in [
+        (
+            "multipart/related; type=\"application/dicom\"; boundary=XX",
+            &b"--XX\r\nContent-Type: application/dicom\r\n\r\nDICM and then nothing"[..],
+            "truncated",
+        ),
+        (
+            "multipart/related; type=\"application/dicom\"",
+            b"",
+            "with a boundary",
+        ),
+        (
+            "multipart/related; boundary=XX",
+            b"--XX\r\nContent-Type: image/jpeg\r\n\r\nabc\r\n--XX--\r\n",
+            "expected application/dicom",
+        ),
+    ] {
+        let web = client_of(
+            &faulty(200, content_type, body).await,
+            Duration::from_secs(5),
+        );
+        let e = web
+            .retrieve_instance(study, series, sop, &dest, 1 << 20)
+            .await
+            .expect_err("malformed multipart");
+        assert!(matches!(e, PacsError::Malformed { .. }), "{e}");
+        assert!(
+            e.to_string().contains(words) && e.to_string().contains(sop),
+            "{e}"
+        );
+    }
+
+    // 404 from a real PACS, and a frame that does not decode.
+    let Some(data) = shared_data(test) else {
+        return;
+    };
+    let Some(orthanc) = Orthanc::start_or_skip(test) else {
+        return;
+    };
+    let web = client_of(&orthanc.dicomweb(), Duration::from_secs(30));
+    let e = web.series_instances(study, series).await.expect_err("404");
+    assert!(
+        matches!(e, PacsError::Status { status: 404, .. }) && !e.retryable(),
+        "{e}"
+    );
+    assert!(
+        e.to_string().contains("not found") && e.to_string().contains(study),
+        "{e}"
+    );
+
+    // JPEG-LS with its codestream's markers wiped: stored by the PACS,
+    // refused when bricked.
+    let original = data.join("dicom/transfer_syntaxes/7.dcm");
+    let mut bytes = std::fs::read(&original).expect("read");
+    let start = bytes
+        .windows(4)
+        .position(|w| w == [0xFF, 0xD8, 0xFF, 0xF7])
+        .expect("a JPEG-LS codestream");
+    bytes[start..start + 64].fill(0);
+    let broken = spool.path().join("broken.dcm");
+    std::fs::write(&broken, &bytes).expect("write");
+    orthanc.upload(&reqwest::Client::new(), &broken).await;
+    std::fs::remove_file(&broken).expect("remove");
+    let (study, series, sop) = (
+        uid_of(&original, tags::STUDY_INSTANCE_UID),
+        uid_of(&original, tags::SERIES_INSTANCE_UID),
+        uid_of(&original, tags::SOP_INSTANCE_UID),
+    );
+    let out = spool.path().join("broken.zarr");
+    let (ok, _, err) = voxserve(&[
+        "pacs",
+        "fetch",
+        "--pacs",
+        &format!("t={}", orthanc.dicomweb()),
+        "--study",
+        &study,
+        "--series",
+        &series,
+        "--out",
+        out.to_str().expect("path"),
+    ]);
+    assert!(!ok && err.contains(&series) && err.contains(&sop), "{err}");
+    assert_nothing_left(spool.path());
+    // The same through the library: the error names the instance.
+    let fetched = fetch_series(
+        &web,
+        &study,
+        &series,
+        spool.path(),
+        FetchOptions::default(),
+        &|_, _, _| {},
+    )
+    .await
+    .expect("fetched");
+    let e = open_fetched(&fetched)
+        .and_then(|mut s| ingest::load(s.as_mut()).map_err(anyhow::Error::from))
+        .expect_err("undecodable");
+    assert!(e.to_string().contains(&sop), "{e}");
+}
