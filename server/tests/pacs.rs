@@ -6,6 +6,8 @@
 //!   range; `voxserve pacs fetch` makes a store equal, voxel for voxel and
 //!   in geometry, to the one `ingest` makes from the same files on disk.
 //! - Every transfer syntax arrives as stored and decodes to the same pixels.
+//! - An enhanced multi-frame CT made of the VHF slices by highdicom reads
+//!   as the classic slices do, from a file and from the PACS.
 //! - Faults: a PACS that is down, one that never answers (timeout), 404 and
 //!   500 answers, malformed JSON, a truncated multipart body, a frame that
 //!   fails to decode, a series with a missing slice: each is an error naming
@@ -74,12 +76,17 @@ fn voxserve(args: &[&str]) -> (bool, String, String) {
 }
 
 /// `store` equals `other` in every voxel of every level, geometry, voxel
-/// type, value map, study and statistics (not in name and source).
-fn assert_same_store(store: &Store, other: &Store) {
+/// type, value map, study and statistics (not in name and source, nor in
+/// the series' description where `same_series` is false).
+fn assert_same_store(store: &Store, other: &Store, same_series: bool) {
     let (mut a, mut b) = (store.meta().clone(), other.meta().clone());
     for m in [&mut a, &mut b] {
         m.name.clear();
         m.source.clear();
+        if !same_series {
+            m.description = None;
+            m.study.series_description = None;
+        }
     }
     assert_eq!(a, b, "the stores' metadata");
     for level in 0..LEVELS {
@@ -195,7 +202,7 @@ async fn a_series_fetched_from_orthanc_makes_the_store_its_files_make_on_disk() 
         Store::open(&from_pacs).expect("open"),
         Store::open(&from_disk).expect("open"),
     );
-    assert_same_store(&pacs_store, &disk_store);
+    assert_same_store(&pacs_store, &disk_store, true);
     assert!(
         pacs_store.meta().source.contains("/dicom-web/studies/")
             && pacs_store.meta().source.contains(&study),
@@ -524,4 +531,118 @@ async fn a_failing_pacs_gives_errors_naming_the_study_or_series_and_bricks_nothi
         .and_then(|mut s| ingest::load(s.as_mut()).map_err(anyhow::Error::from))
         .expect_err("undecodable");
     assert!(e.to_string().contains(&sop), "{e}");
+}
+
+/// `voxserve` run on a Python that imports highdicom, or `None` after saying
+/// why `test` is skipped.
+fn highdicom_or_skip(test: &str) -> Option<()> {
+    let ok = Command::new("python3")
+        .args(["-c", "import highdicom"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(());
+    }
+    assert!(
+        !std::env::var("VOXSERVE_REQUIRE_PACS").is_ok_and(|v| v == "1"),
+        "{test}: VOXSERVE_REQUIRE_PACS=1 but python3 cannot import highdicom (pip install highdicom)"
+    );
+    voxserve_tests::gpu::report_skip(test, "python3 cannot import highdicom");
+    None
+}
+
+/// highdicom's legacy conversion: the classic slices in `folder` as one
+/// Legacy Converted Enhanced CT image at `out`.
+const ENHANCE: &str = "
+import glob, sys, pydicom, highdicom
+from highdicom.legacy import LegacyConvertedEnhancedCTImage
+slices = [pydicom.dcmread(f) for f in sorted(glob.glob(sys.argv[1] + '/*.dcm'))]
+LegacyConvertedEnhancedCTImage(
+    legacy_datasets=slices, series_instance_uid=highdicom.UID(), series_number=100,
+    sop_instance_uid=highdicom.UID(), instance_number=1,
+).save_as(sys.argv[2])
+";
+
+#[tokio::test(flavor = "multi_thread")]
+async fn an_enhanced_multi_frame_ct_reads_as_its_classic_slices_from_a_file_and_from_orthanc() {
+    let test =
+        "an_enhanced_multi_frame_ct_reads_as_its_classic_slices_from_a_file_and_from_orthanc";
+    let Some(data) = shared_data(test) else {
+        return;
+    };
+    let Some(()) = highdicom_or_skip(test) else {
+        return;
+    };
+    let vhf = data.join("dicom/vhf_head");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let enhanced_dir = dir.path().join("enhanced");
+    std::fs::create_dir(&enhanced_dir).expect("folder");
+    let enhanced = enhanced_dir.join("vhf_enhanced.dcm");
+    let made = Command::new("python3")
+        .args(["-c", ENHANCE])
+        .arg(&vhf)
+        .arg(&enhanced)
+        .output()
+        .expect("python3");
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+
+    // From the file, and from a folder holding it: the classic volume.
+    let load = |path: &Path| {
+        let mut source = ingest::open(path, &OpenOptions::default())
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        ingest::load(source.as_mut()).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    };
+    let classic = load(&vhf);
+    for path in [&enhanced, &enhanced_dir] {
+        let v = load(path);
+        assert_eq!(v.geometry, classic.geometry, "{}: geometry", path.display());
+        assert_eq!(
+            v.value_map,
+            classic.value_map,
+            "{}: value map",
+            path.display()
+        );
+        assert!(v.voxels == classic.voxels, "{}: voxels", path.display());
+    }
+
+    // From Orthanc: the store of the classic slices on disk.
+    let Some(orthanc) = Orthanc::start_or_skip(test) else {
+        return;
+    };
+    orthanc.upload(&reqwest::Client::new(), &enhanced).await;
+    let study = uid_of(&enhanced, tags::STUDY_INSTANCE_UID);
+    let series = uid_of(&enhanced, tags::SERIES_INSTANCE_UID);
+    let out = dir.path().join("enhanced.zarr");
+    let (ok, stdout, err) = voxserve(&[
+        "pacs",
+        "fetch",
+        "--pacs",
+        &format!("t={}", orthanc.dicomweb()),
+        "--study",
+        &study,
+        "--series",
+        &series,
+        "--out",
+        out.to_str().expect("path"),
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("1 instances"), "{stdout}");
+    let disk = dir.path().join("classic.zarr");
+    let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
+    store::ingest(
+        source.as_mut(),
+        &disk,
+        &IngestOptions::default(),
+        &mut |_| {},
+    )
+    .expect("ingest");
+    assert_same_store(
+        &Store::open(&out).expect("open"),
+        &Store::open(&disk).expect("open"),
+        false,
+    );
 }

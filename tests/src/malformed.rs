@@ -935,6 +935,17 @@ fn dicom_file_cases(c: &mut Corpus) {
         },
         &["NumberOfFrames"],
     );
+    c.dicom(
+        "frames-unplaced.dcm",
+        |o| {
+            o.put(DataElement::new(
+                tags::NUMBER_OF_FRAMES,
+                VR::IS,
+                PrimitiveValue::from("3"),
+            ));
+        },
+        &["PerFrameFunctionalGroupsSequence", "one item per frame"],
+    );
 }
 
 /// Writes a series of `n` 8 × 8 slices into `folder`, slice `i` at

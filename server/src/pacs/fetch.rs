@@ -159,7 +159,7 @@ fn malformed(web: &DicomWeb, study: &str, series: &str, what: String) -> PacsErr
 
 /// A fetched series as a volume: read from the spool folder by the DICOM
 /// folder reader, with the series' place on the PACS as its source. Every
-/// instance must have become a slice (single-frame series).
+/// frame of every instance must have become a slice.
 pub fn open_fetched(fetched: &Fetched) -> anyhow::Result<Box<dyn VolumeSource>> {
     let options = OpenOptions {
         series: Some(fetched.series.clone()),
@@ -169,12 +169,13 @@ pub fn open_fetched(fetched: &Fetched) -> anyhow::Result<Box<dyn VolumeSource>> 
         anyhow::anyhow!("series {} of study {}: {e}", fetched.series, fetched.study)
     })?;
     let slices = u64::from(inner.info().geometry.dims[2]);
-    let instances = fetched.instances.len() as u64;
-    if fetched.instances.iter().all(|i| i.frames == 1) && slices != instances {
+    let frames: u64 = fetched.instances.iter().map(|i| i.frames).sum();
+    if slices != frames {
         anyhow::bail!(
-            "series {} of study {}: {instances} instances retrieved but {slices} slices read; expected one slice per instance",
+            "series {} of study {}: {} instances of {frames} frames retrieved but {slices} slices read; expected one slice per frame",
             fetched.series,
-            fetched.study
+            fetched.study,
+            fetched.instances.len()
         );
     }
     let mut info = inner.info().clone();

@@ -69,16 +69,16 @@ impl FolderScan {
     /// error.
     pub fn new(folder: &Path, allow_outside: bool) -> Result<FolderScan, Error> {
         let (files, mut skipped) = candidate_files(folder, allow_outside)?;
-        let headers: Vec<(PathBuf, Option<SliceHeader>)> = files
+        let headers: Vec<(PathBuf, Vec<SliceHeader>)> = files
             .into_par_iter()
             .map(|p| read_header(&p).map(|h| (p, h)))
             .collect::<Result<_, _>>()?;
         let mut images = Vec::new();
-        for (path, header) in headers {
-            match header {
-                Some(h) => images.push(h),
-                None => skipped.push((path, "a DICOM file without an image".to_owned())),
+        for (path, frames) in headers {
+            if frames.is_empty() {
+                skipped.push((path, "a DICOM file without an image".to_owned()));
             }
+            images.extend(frames);
         }
         if images.is_empty() {
             return Err(field(
@@ -257,11 +257,18 @@ pub fn open_folder(
     FolderScan::new(folder, allow_outside)?.open(series)
 }
 
-/// Opens a single DICOM file as a one-slice volume.
+/// Opens a single DICOM file: a one-slice volume, or the frames of an
+/// enhanced multi-frame image stacked.
 pub fn open_file(path: &Path) -> Result<DicomSeries, Error> {
-    let header = read_header(path)?
-        .ok_or_else(|| field(path, "Rows (0028,0010)", "missing: expected an image"))?;
-    DicomSeries::new(path, vec![header])
+    let frames = read_header(path)?;
+    if frames.is_empty() {
+        return Err(field(
+            path,
+            "Rows (0028,0010)",
+            "missing: expected an image",
+        ));
+    }
+    DicomSeries::new(path, frames)
 }
 
 /// Groups images by series UID, then by geometry; ids are the UID, or

@@ -95,7 +95,14 @@ fn stack_slices(
             return Err(field(
                 &s.path,
                 "ImagePositionPatient (0020,0032)",
-                "missing: expected it on every slice to place the slice",
+                format!(
+                    "missing{}: expected it on every slice to place the slice",
+                    if s.frames > 1 {
+                        format!(" for frame {}", s.frame + 1)
+                    } else {
+                        String::new()
+                    }
+                ),
             ));
         }
     }
@@ -107,7 +114,7 @@ fn stack_slices(
     let median = sorted[sorted.len() / 2];
     for (w, d) in slices.windows(2).zip(&distances) {
         let (a, b) = (&w[0], &w[1]);
-        let place = |s: &SliceHeader| format!("{} (at {:.3} mm)", s.path.display(), at(s));
+        let place = |s: &SliceHeader| format!("{} (at {:.3} mm)", s.label(), at(s));
         if *d < 1e-3 {
             return Err(field(
                 &b.path,

@@ -6,6 +6,15 @@
 //! different shapes are never stacked. A folder with several series lists them
 //! and asks for one (`--series`).
 //!
+//! An enhanced multi-frame image (CT, MR, legacy converted) is one slice per
+//! frame: each frame's ImagePositionPatient, ImageOrientationPatient,
+//! PixelSpacing, SliceThickness and rescale come from its item of the
+//! PerFrameFunctionalGroupsSequence, else from the
+//! SharedFunctionalGroupsSequence, else from the top level, so its frames
+//! (and those of several instances of one series) are grouped, sorted and
+//! checked as classic slices are. Its file is read whole once and kept while
+//! the frames of a slab are decoded in parallel.
+//!
 //! Within a series, slices are sorted by the projection of ImagePositionPatient
 //! on the slice normal (row × column direction) — never by InstanceNumber or file
 //! name. The slice spacing comes from position differences and is checked:

@@ -4,6 +4,7 @@
 //! inverted, padding marked, and rescaled when slices disagree on the rescale.
 
 use dicom_encoding::TransferSyntaxIndex;
+use dicom_object::DefaultDicomObject;
 use dicom_pixeldata::PixelDecoder;
 use dicom_transfer_syntax_registry::TransferSyntaxRegistry;
 
@@ -148,29 +149,14 @@ fn check_one_format(slices: &[SliceHeader]) -> Result<(), Error> {
                 format!("{}: expected 1 (grayscale)", s.samples_per_pixel),
             ));
         }
-        if s.frames != 1 {
-            return Err(field(
-                &s.path,
-                "NumberOfFrames (0028,0008)",
-                format!(
-                    "{}: expected single-frame images (multi-frame objects are not supported yet)",
-                    s.frames
-                ),
-            ));
-        }
     }
     Ok(())
 }
 
-/// Opens slice `s` (its element lengths checked against the file first) and
-/// decodes its pixel data, both inside the panic boundary, then hands the
-/// decoded bytes — at least one sample per pixel — to `use_pixels`.
-fn with_decoded<T>(
-    s: &SliceHeader,
-    format: &PixelFormat,
-    use_pixels: impl FnOnce(&[u8]) -> T,
-) -> Result<T, Error> {
-    let obj = boundary::guard(&s.path, "DICOM", || {
+/// Opens the file of slice `s` whole (its element lengths checked against
+/// the file first), inside the panic boundary.
+pub(super) fn open(s: &SliceHeader) -> Result<DefaultDicomObject, Error> {
+    boundary::guard(&s.path, "DICOM", || {
         bounds::check_lengths(&s.path, false)?;
         dicom_object::open_file(&s.path).map_err(|e| {
             field(
@@ -179,7 +165,18 @@ fn with_decoded<T>(
                 format!("{e}: expected a readable DICOM file"),
             )
         })
-    })?;
+    })
+}
+
+/// Decodes slice `s` — its frame, for a multi-frame image — from `obj`, its
+/// file, inside the panic boundary, then hands the decoded bytes (at least
+/// one sample per pixel) to `use_pixels`.
+fn with_decoded<T>(
+    obj: &DefaultDicomObject,
+    s: &SliceHeader,
+    format: &PixelFormat,
+    use_pixels: impl FnOnce(&[u8]) -> T,
+) -> Result<T, Error> {
     let syntax = obj
         .meta()
         .transfer_syntax()
@@ -190,9 +187,18 @@ fn with_decoded<T>(
         None => format!("pixel data (transfer syntax {syntax})"),
     };
     let decoded = boundary::guard(&s.path, &codec, || {
-        obj.decode_pixel_data().map_err(|e| Error::Corrupt {
+        let decoded = if s.frames > 1 {
+            obj.decode_pixel_data_frame(s.frame)
+        } else {
+            obj.decode_pixel_data()
+        };
+        decoded.map_err(|e| Error::Corrupt {
             path: s.path.clone(),
-            codec: codec.clone(),
+            codec: if s.frames > 1 {
+                format!("{codec}, frame {}", s.frame + 1)
+            } else {
+                codec.clone()
+            },
             detail: e.to_string(),
         })
     })?;
@@ -240,11 +246,12 @@ fn value(
 
 /// The lowest value of slice `s` that is not padding (infinity when all is).
 pub(super) fn lowest_unpadded(
+    obj: &DefaultDicomObject,
     s: &SliceHeader,
     format: &PixelFormat,
     rescale_each: bool,
 ) -> Result<f64, Error> {
-    with_decoded(s, format, |bytes| {
+    with_decoded(obj, s, format, |bytes| {
         let count = bytes.len() / usize::from(format.sample_bytes());
         (0..count)
             .filter_map(|p| value(s, format, rescale_each, bytes, p))
@@ -256,13 +263,14 @@ pub(super) fn lowest_unpadded(
 /// pixel: the file, its decoded pixel data and the voxels), padded pixels set
 /// to `fill`.
 pub(super) fn decode(
+    obj: &DefaultDicomObject,
     s: &SliceHeader,
     format: &PixelFormat,
     rescale_each: bool,
     fill: f64,
     voxel_type: VoxelType,
 ) -> Result<VoxelData, Error> {
-    with_decoded(s, format, |bytes| {
+    with_decoded(obj, s, format, |bytes| {
         let count = bytes.len() / usize::from(format.sample_bytes());
         let v = (0..count).map(|p| value(s, format, rescale_each, bytes, p).unwrap_or(fill));
         // Values fit their type: they come from that many stored bits.

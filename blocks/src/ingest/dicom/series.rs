@@ -1,7 +1,10 @@
 //! [`DicomSeries`]: a checked, sorted series of slices as a [`VolumeSource`],
 //! read a slab of slices at a time with the slices decoded in parallel.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use dicom_object::DefaultDicomObject;
 
 use rayon::prelude::*;
 
@@ -23,6 +26,9 @@ pub struct DicomSeries {
     rescale_each: bool,
     /// The value padded pixels take, in the output domain.
     padding_replacement: Option<f64>,
+    /// The multi-frame file read last, kept for the next slab's frames (a
+    /// file is read whole: held once, not once per slab).
+    last_file: Mutex<Option<(PathBuf, Arc<DefaultDicomObject>)>>,
 }
 
 impl DicomSeries {
@@ -93,6 +99,7 @@ impl DicomSeries {
             format,
             rescale_each,
             padding_replacement: None,
+            last_file: Mutex::new(None),
         };
         if series.slices.iter().any(|s| s.padding.is_some()) {
             series.padding_replacement = Some(series.lowest_unpadded_value()?);
@@ -112,24 +119,60 @@ impl DicomSeries {
     /// The lowest non-padding value of the series in the output domain (one pass
     /// over the pixels, made only for series that declare padding).
     fn lowest_unpadded_value(&self) -> Result<f64, Error> {
-        let lows: Vec<f64> = self
-            .slices
-            .par_iter()
-            .map(|s| pixels::lowest_unpadded(s, &self.format, self.rescale_each))
-            .collect::<Result<_, _>>()?;
+        let lows = self.each_slice(0..self.slices.len(), |obj, s| {
+            pixels::lowest_unpadded(obj, s, &self.format, self.rescale_each)
+        })?;
         let low = lows.into_iter().fold(f64::INFINITY, f64::min);
         Ok(if low.is_finite() { low } else { 0.0 })
     }
 
-    /// Slice `i` as output voxels.
-    fn slice(&self, i: usize) -> Result<VoxelData, Error> {
-        pixels::decode(
-            &self.slices[i],
-            &self.format,
-            self.rescale_each,
-            self.padding_replacement.unwrap_or(0.0),
-            self.info.voxel_type,
-        )
+    /// `f` on slices `range` in order, each with its file read: single-frame
+    /// files in parallel; the frames of a multi-frame file in parallel from
+    /// one read of it, kept for the next call.
+    fn each_slice<T: Send>(
+        &self,
+        range: std::ops::Range<usize>,
+        f: impl Fn(&DefaultDicomObject, &SliceHeader) -> Result<T, Error> + Sync,
+    ) -> Result<Vec<T>, Error> {
+        let slices = &self.slices[range];
+        if slices.iter().all(|s| s.frames == 1) {
+            return slices.par_iter().map(|s| f(&pixels::open(s)?, s)).collect();
+        }
+        let mut files: Vec<&Path> = slices.iter().map(|s| s.path.as_path()).collect();
+        files.sort();
+        files.dedup();
+        let mut out: Vec<Option<T>> = slices.iter().map(|_| None).collect();
+        for file in files {
+            let obj = self.file(slices.iter().find(|s| s.path == file).unwrap_or(&slices[0]))?;
+            let done: Vec<(usize, T)> = slices
+                .par_iter()
+                .enumerate()
+                .filter(|(_, s)| s.path == file)
+                .map(|(i, s)| f(&obj, s).map(|v| (i, v)))
+                .collect::<Result<_, _>>()?;
+            for (i, v) in done {
+                out[i] = Some(v);
+            }
+        }
+        Ok(out.into_iter().flatten().collect())
+    }
+
+    /// The file of slice `s`, read whole, or the one kept from last time
+    /// (one file kept at a time).
+    fn file(&self, s: &SliceHeader) -> Result<Arc<DefaultDicomObject>, Error> {
+        let mut last = self
+            .last_file
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some((path, obj)) = last.as_ref()
+            && *path == s.path
+        {
+            return Ok(Arc::clone(obj));
+        }
+        *last = None;
+        let obj = Arc::new(pixels::open(s)?);
+        *last = Some((s.path.clone(), Arc::clone(&obj)));
+        Ok(obj)
     }
 }
 
@@ -165,10 +208,17 @@ impl VolumeSource for DicomSeries {
 
     fn read_slab(&mut self, z0: u32, depth: u32) -> Result<VoxelData, Error> {
         check_slab(&self.info, z0, depth)?;
-        let slices: Vec<VoxelData> = (z0..z0 + depth)
-            .into_par_iter()
-            .map(|z| self.slice(z as usize))
-            .collect::<Result<_, _>>()?;
+        let fill = self.padding_replacement.unwrap_or(0.0);
+        let slices = self.each_slice(z0 as usize..(z0 + depth) as usize, |obj, s| {
+            pixels::decode(
+                obj,
+                s,
+                &self.format,
+                self.rescale_each,
+                fill,
+                self.info.voxel_type,
+            )
+        })?;
         let mut out = VoxelData::zeros(self.info.voxel_type, 0);
         for s in slices {
             out.append(s)?;

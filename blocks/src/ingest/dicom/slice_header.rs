@@ -3,8 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
+use dicom_core::Tag;
 use dicom_dictionary_std::tags;
-use dicom_object::{DefaultDicomObject, OpenFileOptions};
+use dicom_object::{InMemDicomObject, OpenFileOptions};
 
 use crate::Error;
 use crate::ingest::boundary;
@@ -14,6 +15,8 @@ use crate::ingest::header::{field, read_prefix};
 #[derive(Debug, Clone)]
 pub(super) struct SliceHeader {
     pub(super) path: PathBuf,
+    /// The frame of the file (0 for single-frame images).
+    pub(super) frame: u32,
     pub(super) series_uid: String,
     pub(super) series_description: Option<String>,
     pub(super) patient_name: Option<String>,
@@ -37,6 +40,7 @@ pub(super) struct SliceHeader {
     pub(super) pixel_representation: u16,
     pub(super) samples_per_pixel: u16,
     pub(super) photometric: String,
+    /// Frames in the file.
     pub(super) frames: u32,
     pub(super) slope: f64,
     pub(super) intercept: f64,
@@ -46,6 +50,15 @@ pub(super) struct SliceHeader {
 }
 
 impl SliceHeader {
+    /// The file, and the frame of a multi-frame image, for messages.
+    pub(super) fn label(&self) -> String {
+        if self.frames > 1 {
+            format!("{} (frame {})", self.path.display(), self.frame + 1)
+        } else {
+            self.path.display().to_string()
+        }
+    }
+
     /// The key that splits a series into stacks of one geometry.
     pub(super) fn geometry_key(&self) -> String {
         let round = |v: f64| format!("{v:.4}");
@@ -66,8 +79,13 @@ pub(super) fn has_dicom_marker(path: &Path) -> Result<bool, Error> {
     Ok(read_prefix(path, 132)?.get(128..132) == Some(b"DICM"))
 }
 
-/// Reads the header of one file (up to the pixel data).
-pub(super) fn read_header(path: &Path) -> Result<Option<SliceHeader>, Error> {
+/// Most frames of one multi-frame image.
+pub const MAX_FRAMES: u32 = 65_536;
+
+/// Reads the header of one file (up to the pixel data): one [`SliceHeader`]
+/// per frame (an enhanced multi-frame image gives one per frame, placed by
+/// its functional groups), none for a file without an image.
+pub(super) fn read_header(path: &Path) -> Result<Vec<SliceHeader>, Error> {
     if !has_dicom_marker(path)? {
         return Err(field(
             path,
@@ -89,25 +107,9 @@ pub(super) fn read_header(path: &Path) -> Result<Option<SliceHeader>, Error> {
             })
     })?;
     let Some(rows) = opt_int::<u32>(&obj, tags::ROWS) else {
-        return Ok(None); // no image: DICOMDIR, structured report, …
+        return Ok(Vec::new()); // no image: DICOMDIR, structured report, …
     };
-    let text = |tag| {
-        obj.element_opt(tag)
-            .ok()
-            .flatten()
-            .and_then(|e| e.to_str().ok())
-            .map(|s| s.trim().to_owned())
-            .filter(|s| !s.is_empty())
-    };
-    let floats = |tag| {
-        obj.element_opt(tag)
-            .ok()
-            .flatten()
-            .and_then(|e| e.to_multi_float64().ok())
-    };
-    let fixed =
-        |tag, n: usize| floats(tag).filter(|v| v.len() == n && v.iter().all(|x| x.is_finite()));
-    let series_uid = text(tags::SERIES_INSTANCE_UID).ok_or_else(|| {
+    let series_uid = text(&obj, tags::SERIES_INSTANCE_UID).ok_or_else(|| {
         field(
             path,
             "SeriesInstanceUID (0020,000E)",
@@ -118,41 +120,145 @@ pub(super) fn read_header(path: &Path) -> Result<Option<SliceHeader>, Error> {
         let limit = opt_int::<i64>(&obj, tags::PIXEL_PADDING_RANGE_LIMIT).unwrap_or(p);
         (p.min(limit), p.max(limit))
     });
-    Ok(Some(SliceHeader {
+    let frames = opt_int::<u32>(&obj, tags::NUMBER_OF_FRAMES)
+        .unwrap_or(1)
+        .max(1);
+    if frames > MAX_FRAMES {
+        return Err(field(
+            path,
+            "NumberOfFrames (0028,0008)",
+            format!("{frames}: expected at most {MAX_FRAMES}"),
+        ));
+    }
+    // Enhanced multi-frame images (PS3.3 C.7.6.16): what holds for every
+    // frame in the shared functional groups, the rest per frame.
+    let shared = items(&obj, tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE).first();
+    let per_frame = items(&obj, tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE);
+    if frames > 1 && per_frame.len() != frames as usize {
+        return Err(field(
+            path,
+            "PerFrameFunctionalGroupsSequence (5200,9230)",
+            format!(
+                "{} items for {frames} frames: expected an enhanced multi-frame image, one item per frame placing it",
+                per_frame.len()
+            ),
+        ));
+    }
+    let first = SliceHeader {
         path: path.to_owned(),
+        frame: 0,
         series_uid,
-        series_description: text(tags::SERIES_DESCRIPTION),
-        patient_name: text(tags::PATIENT_NAME),
-        patient_id: text(tags::PATIENT_ID),
-        patient_birth_date: text(tags::PATIENT_BIRTH_DATE),
-        study_date: text(tags::STUDY_DATE),
-        study_description: text(tags::STUDY_DESCRIPTION),
-        modality: text(tags::MODALITY),
+        series_description: text(&obj, tags::SERIES_DESCRIPTION),
+        patient_name: text(&obj, tags::PATIENT_NAME),
+        patient_id: text(&obj, tags::PATIENT_ID),
+        patient_birth_date: text(&obj, tags::PATIENT_BIRTH_DATE),
+        study_date: text(&obj, tags::STUDY_DATE),
+        study_description: text(&obj, tags::STUDY_DESCRIPTION),
+        modality: text(&obj, tags::MODALITY),
         rows,
         columns: opt_int(&obj, tags::COLUMNS).unwrap_or(0),
-        orientation: fixed(tags::IMAGE_ORIENTATION_PATIENT, 6)
-            .map(|v| [v[0], v[1], v[2], v[3], v[4], v[5]]),
-        position: fixed(tags::IMAGE_POSITION_PATIENT, 3).map(|v| [v[0], v[1], v[2]]),
-        pixel_spacing: fixed(tags::PIXEL_SPACING, 2).map(|v| [v[0], v[1]]),
-        slice_thickness: fixed(tags::SLICE_THICKNESS, 1).map(|v| v[0]),
-        spacing_between_slices: fixed(tags::SPACING_BETWEEN_SLICES, 1).map(|v| v[0]),
+        orientation: None,
+        position: None,
+        pixel_spacing: None,
+        slice_thickness: None,
+        spacing_between_slices: None,
         bits_allocated: opt_int(&obj, tags::BITS_ALLOCATED).unwrap_or(16),
         bits_stored: opt_int(&obj, tags::BITS_STORED).unwrap_or(16),
         high_bit: opt_int(&obj, tags::HIGH_BIT).unwrap_or(15),
         pixel_representation: opt_int(&obj, tags::PIXEL_REPRESENTATION).unwrap_or(0),
         samples_per_pixel: opt_int(&obj, tags::SAMPLES_PER_PIXEL).unwrap_or(1),
-        photometric: text(tags::PHOTOMETRIC_INTERPRETATION).unwrap_or_else(|| "MONOCHROME2".into()),
-        frames: opt_int(&obj, tags::NUMBER_OF_FRAMES).unwrap_or(1),
-        slope: fixed(tags::RESCALE_SLOPE, 1).map_or(1.0, |v| v[0]),
-        intercept: fixed(tags::RESCALE_INTERCEPT, 1).map_or(0.0, |v| v[0]),
+        photometric: text(&obj, tags::PHOTOMETRIC_INTERPRETATION)
+            .unwrap_or_else(|| "MONOCHROME2".into()),
+        frames,
+        slope: 1.0,
+        intercept: 0.0,
         padding,
-        rescale_type: text(tags::RESCALE_TYPE),
-        units: text(tags::UNITS),
-    }))
+        rescale_type: None,
+        units: text(&obj, tags::UNITS),
+    };
+    Ok((0..frames)
+        .map(|frame| {
+            // Where an attribute is: in this frame's functional group
+            // `group`, else in the shared one, else at the top level.
+            let groups = [per_frame.get(frame as usize), shared];
+            let find = |group: Tag, tag: Tag| {
+                groups
+                    .iter()
+                    .flatten()
+                    .find_map(|g| items(g, group).first().and_then(|i| fixed(i, tag)))
+                    .or_else(|| fixed(&obj, tag))
+            };
+            let n = |v: Option<Vec<f64>>, len: usize| v.filter(|v| v.len() == len);
+            let measures = tags::PIXEL_MEASURES_SEQUENCE;
+            let transformation = tags::PIXEL_VALUE_TRANSFORMATION_SEQUENCE;
+            let rescale_type = groups
+                .iter()
+                .flatten()
+                .find_map(|g| {
+                    items(g, transformation)
+                        .first()
+                        .and_then(|i| text(i, tags::RESCALE_TYPE))
+                })
+                .or_else(|| text(&obj, tags::RESCALE_TYPE));
+            SliceHeader {
+                frame,
+                orientation: n(
+                    find(
+                        tags::PLANE_ORIENTATION_SEQUENCE,
+                        tags::IMAGE_ORIENTATION_PATIENT,
+                    ),
+                    6,
+                )
+                .map(|v| [v[0], v[1], v[2], v[3], v[4], v[5]]),
+                position: n(
+                    find(tags::PLANE_POSITION_SEQUENCE, tags::IMAGE_POSITION_PATIENT),
+                    3,
+                )
+                .map(|v| [v[0], v[1], v[2]]),
+                pixel_spacing: n(find(measures, tags::PIXEL_SPACING), 2).map(|v| [v[0], v[1]]),
+                slice_thickness: n(find(measures, tags::SLICE_THICKNESS), 1).map(|v| v[0]),
+                spacing_between_slices: n(find(measures, tags::SPACING_BETWEEN_SLICES), 1)
+                    .map(|v| v[0]),
+                slope: n(find(transformation, tags::RESCALE_SLOPE), 1).map_or(1.0, |v| v[0]),
+                intercept: n(find(transformation, tags::RESCALE_INTERCEPT), 1)
+                    .map_or(0.0, |v| v[0]),
+                rescale_type,
+                ..first.clone()
+            }
+        })
+        .collect())
+}
+
+/// The items of sequence `tag` (none when absent or not a sequence).
+fn items(obj: &InMemDicomObject, tag: Tag) -> &[InMemDicomObject] {
+    obj.element_opt(tag)
+        .ok()
+        .flatten()
+        .and_then(|e| e.items())
+        .unwrap_or(&[])
+}
+
+/// A text attribute, trimmed; `None` when absent or empty.
+fn text(obj: &InMemDicomObject, tag: Tag) -> Option<String> {
+    obj.element_opt(tag)
+        .ok()
+        .flatten()
+        .and_then(|e| e.to_str().ok())
+        .map(|s| s.trim().to_owned())
+        .filter(|s| !s.is_empty())
+}
+
+/// A numeric attribute's values, all finite.
+fn fixed(obj: &InMemDicomObject, tag: Tag) -> Option<Vec<f64>> {
+    obj.element_opt(tag)
+        .ok()
+        .flatten()
+        .and_then(|e| e.to_multi_float64().ok())
+        .filter(|v| v.iter().all(|x| x.is_finite()))
 }
 
 /// An integer attribute, or `None` when absent or not an integer.
-fn opt_int<T: DicomInt>(obj: &DefaultDicomObject, tag: dicom_core::Tag) -> Option<T> {
+fn opt_int<T: DicomInt>(obj: &InMemDicomObject, tag: Tag) -> Option<T> {
     obj.element_opt(tag).ok().flatten().and_then(T::read)
 }
 
