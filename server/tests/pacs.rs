@@ -7,7 +7,8 @@
 //!   in geometry, to the one `ingest` makes from the same files on disk.
 //! - Every transfer syntax arrives as stored and decodes to the same pixels.
 //! - An enhanced multi-frame CT made of the VHF slices by highdicom reads
-//!   as the classic slices do, from a file and from the PACS.
+//!   as the classic slices do, from a file and from the PACS, and so does
+//!   the series split over two such instances.
 //! - Faults: a PACS that is down, one that never answers (timeout), 404 and
 //!   500 answers, malformed JSON, a truncated multipart body, a frame that
 //!   fails to decode, a series with a missing slice: each is an error naming
@@ -551,16 +552,22 @@ fn highdicom_or_skip(test: &str) -> Option<()> {
     None
 }
 
-/// highdicom's legacy conversion: the classic slices in `folder` as one
-/// Legacy Converted Enhanced CT image at `out`.
+/// highdicom's legacy conversion: the classic slices in folder `argv[1]` as
+/// one Legacy Converted Enhanced CT image at `argv[2]`, and as two (the
+/// halves, one series) at `argv[3]` and `argv[4]`.
 const ENHANCE: &str = "
 import glob, sys, pydicom, highdicom
 from highdicom.legacy import LegacyConvertedEnhancedCTImage
 slices = [pydicom.dcmread(f) for f in sorted(glob.glob(sys.argv[1] + '/*.dcm'))]
-LegacyConvertedEnhancedCTImage(
-    legacy_datasets=slices, series_instance_uid=highdicom.UID(), series_number=100,
-    sop_instance_uid=highdicom.UID(), instance_number=1,
-).save_as(sys.argv[2])
+def convert(part, series, number, out):
+    LegacyConvertedEnhancedCTImage(
+        legacy_datasets=part, series_instance_uid=series, series_number=100,
+        sop_instance_uid=highdicom.UID(), instance_number=number,
+    ).save_as(out)
+convert(slices, highdicom.UID(), 1, sys.argv[2])
+half, series = len(slices) // 2, highdicom.UID()
+convert(slices[:half], series, 1, sys.argv[3])
+convert(slices[half:], series, 2, sys.argv[4])
 ";
 
 #[tokio::test(flavor = "multi_thread")]
@@ -578,10 +585,14 @@ async fn an_enhanced_multi_frame_ct_reads_as_its_classic_slices_from_a_file_and_
     let enhanced_dir = dir.path().join("enhanced");
     std::fs::create_dir(&enhanced_dir).expect("folder");
     let enhanced = enhanced_dir.join("vhf_enhanced.dcm");
+    let split_dir = dir.path().join("split");
+    std::fs::create_dir(&split_dir).expect("folder");
     let made = Command::new("python3")
         .args(["-c", ENHANCE])
         .arg(&vhf)
         .arg(&enhanced)
+        .arg(split_dir.join("first.dcm"))
+        .arg(split_dir.join("second.dcm"))
         .output()
         .expect("python3");
     assert!(
@@ -590,14 +601,15 @@ async fn an_enhanced_multi_frame_ct_reads_as_its_classic_slices_from_a_file_and_
         String::from_utf8_lossy(&made.stderr)
     );
 
-    // From the file, and from a folder holding it: the classic volume.
+    // From the file, from a folder holding it, and from a folder holding
+    // the series as two instances: the classic volume.
     let load = |path: &Path| {
         let mut source = ingest::open(path, &OpenOptions::default())
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         ingest::load(source.as_mut()).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
     };
     let classic = load(&vhf);
-    for path in [&enhanced, &enhanced_dir] {
+    for path in [&enhanced, &enhanced_dir, &split_dir] {
         let v = load(path);
         assert_eq!(v.geometry, classic.geometry, "{}: geometry", path.display());
         assert_eq!(
