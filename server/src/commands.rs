@@ -37,7 +37,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
 }
 
 /// The PACS client `args` configure.
-fn dicomweb(args: &PacsArgs) -> anyhow::Result<crate::pacs::DicomWeb> {
+pub fn dicomweb(args: &PacsArgs) -> anyhow::Result<crate::pacs::DicomWeb> {
     let endpoints = crate::pacs::Endpoints::new(args.pacs.clone(), &args.auth)?;
     let endpoint = endpoints.pick(args.from.as_deref())?.clone();
     crate::pacs::DicomWeb::new(endpoint, std::time::Duration::from_secs(args.timeout_s))

@@ -58,6 +58,32 @@ pub enum BenchCommand {
     /// interleaved in one run: the ratio of frame times per dataset and mode,
     /// and both images' coverage.
     Peer(Box<BenchPeerArgs>),
+    /// A series from a PACS over DICOMweb: WADO-RS fetch (MB/s, instances
+    /// per second) per concurrency, bricking what was fetched (MB/s, slices
+    /// per second), and, interleaved, `ingest` of the same files from disk.
+    Pacs(Box<BenchPacsArgs>),
+}
+
+/// `voxserve bench pacs`.
+#[derive(Debug, Args)]
+pub struct BenchPacsArgs {
+    #[command(flatten)]
+    pub pacs: server::cli::PacsArgs,
+    /// StudyInstanceUID.
+    #[arg(long, value_parser = |v: &str| server::pacs::query::check_uid("StudyInstanceUID", v))]
+    pub study: String,
+    /// SeriesInstanceUID [default: the study's only series].
+    #[arg(long, value_parser = |v: &str| server::pacs::query::check_uid("SeriesInstanceUID", v))]
+    pub series: Option<String>,
+    /// The same series' files on disk, ingested in each round for comparison.
+    #[arg(long, value_name = "FOLDER")]
+    pub folder: Option<PathBuf>,
+    /// Instances retrieved at once, comma separated: one run each per round.
+    #[arg(long, value_delimiter = ',', default_values_t = [1u16, 8])]
+    pub concurrency: Vec<u16>,
+    /// Rounds.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub rounds: u32,
 }
 
 /// `voxserve bench peer`.

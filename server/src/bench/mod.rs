@@ -2,7 +2,7 @@
 //! that produced it. Speed and memory targets are checked here, never by tests.
 //!
 //! One module per benchmark (`render`, `read`, `blocks`, `light`, `stream`,
-//! `slice`, `extinction`, `peer`), its flags in `args`, the real datasets in `reference_data`;
+//! `slice`, `extinction`, `peer`, `pacs`), its flags in `args`, the real datasets in `reference_data`;
 //! this module dispatches and holds what several benchmarks share.
 
 use std::io::Write as _;
@@ -21,6 +21,7 @@ pub mod args;
 mod blocks;
 mod extinction;
 mod light;
+mod pacs;
 mod peer;
 mod read;
 pub mod reference_data;
@@ -31,6 +32,7 @@ mod stream;
 use blocks::blocks;
 use extinction::extinction;
 use light::light;
+use pacs::pacs;
 use peer::peer;
 use read::read;
 use render::render;
@@ -48,6 +50,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Slice(a) => slice(a),
         BenchCommand::Extinction(a) => extinction(a),
         BenchCommand::Peer(a) => peer(a),
+        BenchCommand::Pacs(a) => pacs(a),
     }
 }
 
