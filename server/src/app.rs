@@ -12,6 +12,7 @@
 //! | `GET /api/datasets/{id}/render?…` | `GET /api/render` for that dataset (thumbnails, embedding) |
 //! | `GET /metrics` | OpenMetrics text: [`crate::metrics`] |
 //! | `GET /healthz` | `{"status":"ok"}` (and the `adapter` when the server has no authentication) |
+//! | `POST /dicom-web/studies`, `POST /dicom-web/studies/{study}` | STOW-RS: [`crate::receive`] (with `--receive`; a store role) |
 //! | `GET /api/auth` | how to log in: `{"required":…,"oidc":{"issuer","client_id","scopes","authorization_endpoint","token_endpoint"}|null,"api_tokens":…}` |
 //!
 //! Every request's `Host` is checked first ([`crate::access`]: 421 for a
@@ -21,7 +22,8 @@
 //! ([`crate::auth`]: 401 without a valid one); the web client's files,
 //! `/healthz` and `/api/auth` do not. Lists show only the datasets the
 //! caller may see; another dataset answers 403, or 404 when the policy
-//! hides denied ones. `/metrics` needs a metrics role. Each access is
+//! hides denied ones. `/metrics` needs a metrics role, STOW-RS a store
+//! role. Each access is
 //! recorded in the audit trail ([`crate::audit`]).
 
 use std::future::Future;
@@ -34,7 +36,7 @@ use axum::extract::rejection::QueryRejection;
 use axum::extract::{ConnectInfo, Path, Query, State};
 use axum::http::{HeaderValue, Uri, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, post};
 use axum::{Json, Router};
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
@@ -51,8 +53,9 @@ use crate::{AppError, Dataset, RenderService, View, encode, web};
 /// What every handler shares.
 #[derive(Debug, Clone)]
 pub struct AppState {
-    /// The datasets offered, the default first (never empty).
-    pub datasets: Arc<[Dataset]>,
+    /// The datasets offered, the default first (never empty); more may
+    /// arrive while the server runs (studies received).
+    pub datasets: Datasets,
     /// The render worker.
     pub renderer: RenderService,
     /// How view sessions trade quality for speed.
@@ -76,6 +79,49 @@ pub struct AppState {
     pub rates: Arc<RequestRates>,
     /// A line every viewer shows over the image (`--notice`), if any.
     pub notice: Option<Arc<str>>,
+    /// Where studies pushed to the server go (`--receive`), if anywhere.
+    pub receiver: Option<Arc<crate::receive::Receiver>>,
+}
+
+/// The datasets a server offers: a list read as a whole (a request or a
+/// view session works on the list as it was when it began) and added to
+/// while the server runs.
+#[derive(Debug, Clone)]
+pub struct Datasets(Arc<std::sync::RwLock<Arc<[Dataset]>>>);
+
+impl Datasets {
+    /// `list`, the default first.
+    pub fn new(list: Vec<Dataset>) -> Datasets {
+        Datasets(Arc::new(std::sync::RwLock::new(list.into())))
+    }
+
+    /// The datasets now.
+    pub fn snapshot(&self) -> Arc<[Dataset]> {
+        self.0
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// Whether a dataset has the id `id`.
+    pub fn contains(&self, id: &str) -> bool {
+        self.snapshot().iter().any(|d| d.id == id)
+    }
+
+    /// Offers `dataset` too, in place of one with its id.
+    pub fn add(&self, dataset: Dataset) {
+        let mut list = self
+            .0
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut next: Vec<Dataset> = list
+            .iter()
+            .filter(|d| d.id != dataset.id)
+            .cloned()
+            .collect();
+        next.push(dataset);
+        *list = next.into();
+    }
 }
 
 impl AppState {
@@ -93,7 +139,7 @@ impl AppState {
         let mut metrics = Metrics::default();
         metrics.set_renderer(renderer.kind(), renderer.adapter());
         AppState {
-            datasets: datasets.into(),
+            datasets: Datasets::new(datasets),
             renderer,
             stream,
             sessions: Sessions::new(stream.max_sessions, stream.sessions_per_client),
@@ -105,6 +151,7 @@ impl AppState {
             tls: None,
             rates: Arc::new(RequestRates::new(Access::default().requests)),
             notice: None,
+            receiver: None,
         }
     }
 
@@ -131,11 +178,11 @@ impl AppState {
 
     /// The datasets `principal` may see, in order.
     pub fn visible(&self, principal: &Principal) -> Arc<[Dataset]> {
+        let all = self.datasets.snapshot();
         if !self.auth.required() {
-            return self.datasets.clone();
+            return all;
         }
-        self.datasets
-            .iter()
+        all.iter()
             .filter(|d| self.auth.may_see(principal, &d.id))
             .cloned()
             .collect()
@@ -147,10 +194,11 @@ impl AppState {
     /// 404 for an unknown id (naming the ones the principal may see); 403
     /// for a denied one, or the same 404 when the policy hides denied
     /// datasets.
-    pub fn find_dataset(&self, principal: &Principal, id: &str) -> Result<&Dataset, AppError> {
-        let found = self.datasets.iter().find(|d| d.id == id);
+    pub fn find_dataset(&self, principal: &Principal, id: &str) -> Result<Dataset, AppError> {
+        let all = self.datasets.snapshot();
+        let found = all.iter().find(|d| d.id == id);
         match found {
-            Some(dataset) if self.auth.may_see(principal, id) => Ok(dataset),
+            Some(dataset) if self.auth.may_see(principal, id) => Ok(dataset.clone()),
             Some(_) if !self.auth.hides_denied() => Err(AppError::Forbidden(format!(
                 "dataset '{id}': {} may not see it",
                 principal.user
@@ -196,6 +244,11 @@ pub fn router(state: AppState) -> Router {
             get(crate::stream::handler).connect(crate::stream::handler),
         )
         .route("/api/settings", get(settings))
+        .route("/dicom-web/studies", post(crate::receive::stow))
+        .route(
+            "/dicom-web/studies/{study}",
+            post(crate::receive::stow_study),
+        )
         .route("/api/datasets", get(datasets))
         .route("/api/datasets/{id}", get(dataset))
         .route(
@@ -283,7 +336,7 @@ async fn datasets(
         .detail(format!(
             "{} of {} datasets",
             visible.len(),
-            state.datasets.len()
+            state.datasets.snapshot().len()
         )),
     );
     Json(
@@ -336,7 +389,7 @@ async fn dataset(
     ConnectInfo(client): ConnectInfo<SocketAddr>,
     Path(id): Path<String>,
 ) -> Result<Json<DatasetInfo>, AppError> {
-    let found = state.find_dataset(&principal, &id).map(Dataset::info);
+    let found = state.find_dataset(&principal, &id).map(|d| d.info());
     audit_access(
         &state,
         "describe",
@@ -423,7 +476,7 @@ async fn metrics(
     let text = state.metrics.encode(
         state.sessions.open(),
         &state.renderer,
-        state.datasets.iter().map(|d| &*d.cache),
+        state.datasets.snapshot().iter().map(|d| &*d.cache),
     );
     let content_type = "application/openmetrics-text; version=1.0.0; charset=utf-8";
     Ok(([(header::CONTENT_TYPE, content_type)], text).into_response())
@@ -488,7 +541,7 @@ fn checked_view(
     pairs: &[(String, String)],
 ) -> Result<(View, Dataset), AppError> {
     if let Some(id) = named_dataset(pairs)
-        && state.datasets.iter().any(|d| d.id == id)
+        && state.datasets.contains(id)
     {
         state.find_dataset(principal, id)?;
     }

@@ -385,6 +385,23 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
             }
         }
     }
+    let receiver = match &args.receive_dir {
+        Some(dir) => {
+            let receiver = crate::receive::Receiver::new(
+                dir,
+                std::time::Duration::from_secs(args.receive_settle_s),
+                args.data.cache_bytes(),
+            )?;
+            for path in receiver.stores()? {
+                match load_dataset(&path.to_string_lossy(), &args.data) {
+                    Ok(dataset) => datasets.push(dataset),
+                    Err(e) => tracing::error!("not serving {}: {e:#}", path.display()),
+                }
+            }
+            Some(receiver)
+        }
+        None => None,
+    };
     for (i, d) in datasets.iter().enumerate() {
         if datasets[..i].iter().any(|e| e.id == d.id) {
             anyhow::bail!(
@@ -417,6 +434,10 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .with_notice(args.notice.clone());
     if let Some(tls) = tls {
         state = state.with_tls(tls);
+    }
+    if let Some(receiver) = receiver {
+        receiver.spawn_settler(state.datasets.clone(), state.shutdown.clone());
+        state.receiver = Some(receiver);
     }
     reload_on_hangup(&state)?;
     say(&format!(

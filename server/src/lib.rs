@@ -36,6 +36,8 @@
 //!   from the settings schema).
 //! - [`pacs`]: studies from a PACS over DICOMweb (QIDO-RS, WADO-RS), fetched
 //!   into a spool folder and bricked as the same files on disk are.
+//! - [`receive`]: studies pushed to the server (STOW-RS), kept series by
+//!   series and bricked into datasets once complete.
 //! - [`commands`]: what `serve`, `render`, `info`, `ingest`, `pacs` and
 //!   `settings` do.
 //!
@@ -56,6 +58,7 @@ pub mod listen;
 pub mod metrics;
 pub mod pacs;
 pub mod protocol;
+pub mod receive;
 pub mod render_service;
 pub mod stream;
 pub mod tls;

@@ -368,6 +368,48 @@ async fn api_tokens_work_and_metrics_need_their_role() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn storing_studies_needs_the_store_role() {
+    let (viewer, viewer_entry) =
+        server::auth::tokens::generate("viewer", vec!["radiology".into()]).expect("random");
+    let (modality, modality_entry) =
+        server::auth::tokens::generate("ct-scanner", vec!["store".into()]).expect("random");
+    let auth = Auth {
+        tokens: Some(ApiTokens::new(vec![viewer_entry, modality_entry]).expect("tokens")),
+        policy: Some(Policy::parse(POLICY).expect("policy")),
+        ..Auth::default()
+    };
+    let server = start(auth, None).await;
+    let stow = |token: Option<&str>| {
+        let mut request = reqwest::Client::new()
+            .post(format!("{}/dicom-web/studies", server.base))
+            .header(
+                "content-type",
+                "multipart/related; type=\"application/dicom\"; boundary=XX",
+            )
+            .body("--XX--\r\n");
+        if let Some(token) = token {
+            request = request.header("authorization", format!("Bearer {token}"));
+        }
+        request.send()
+    };
+    assert_eq!(stow(None).await.expect("answer").status().as_u16(), 401);
+    let denied = stow(Some(&viewer)).await.expect("answer");
+    assert_eq!(denied.status().as_u16(), 403);
+    assert!(denied.text().await.expect("body").contains("store role"));
+    // Allowed; this server receives nothing (no --receive): it says so.
+    let allowed = stow(Some(&modality)).await.expect("answer");
+    assert_eq!(allowed.status().as_u16(), 404);
+    assert!(allowed.text().await.expect("body").contains("--receive"));
+    let lines = audit_lines(&server.audit);
+    assert!(
+        lines
+            .iter()
+            .any(|l| l["event"] == "store" && l["user"] == "viewer" && l["outcome"] == "denied"),
+        "{lines:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_denied_dataset_can_look_unknown() {
     let tokens = [server::auth::tokens::generate("a", vec!["ward".into()]).expect("random")];
     let policy = POLICY.replace(

@@ -9,6 +9,10 @@
 //! - An enhanced multi-frame CT made of the VHF slices by highdicom reads
 //!   as the classic slices do, from a file and from the PACS, and so does
 //!   the series split over two such instances.
+//! - Orthanc pushes the VHF study to `serve --receive` with STOW-RS: the
+//!   series is bricked once settled, served under its SeriesInstanceUID,
+//!   and its store equals the one its files make; a body that is not
+//!   multipart (415) and a part that is not DICOM (409) are refused.
 //! - Faults: a PACS that is down, one that never answers (timeout), 404 and
 //!   500 answers, malformed JSON, a truncated multipart body, a frame that
 //!   fails to decode, a series with a missing slice: each is an error naming
@@ -657,4 +661,137 @@ async fn an_enhanced_multi_frame_ct_reads_as_its_classic_slices_from_a_file_and_
         &Store::open(&disk).expect("open"),
         false,
     );
+}
+
+/// `GET url` as JSON.
+async fn get_json(client: &reqwest::Client, url: &str) -> serde_json::Value {
+    let body = client
+        .get(url)
+        .send()
+        .await
+        .and_then(reqwest::Response::error_for_status)
+        .unwrap_or_else(|e| panic!("GET {url}: {e}"))
+        .bytes()
+        .await
+        .expect("body");
+    serde_json::from_slice(&body).expect("JSON")
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_are() {
+    let test = "a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_are";
+    let Some(data) = shared_data(test) else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let received = dir.path().join("received");
+    let server = voxserve_tests::server::Spawned::start(
+        VOXSERVE,
+        &[
+            "serve",
+            "--addr",
+            "127.0.0.1:0",
+            "--phantom-size",
+            "32",
+            "--receive",
+            received.to_str().expect("path"),
+            "--receive-settle-s",
+            "1",
+        ],
+    )
+    .await
+    .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    let http = reqwest::Client::new();
+    let stow = format!("{}/dicom-web/studies", server.url);
+
+    // Not a multipart body: 415. A part that is not DICOM: refused (409),
+    // named in the FailedSOPSequence; nothing is served of it.
+    let answer = http.post(&stow).body("hello").send().await.expect("POST");
+    assert_eq!(answer.status().as_u16(), 415);
+    let answer = http
+        .post(&stow)
+        .header(
+            "content-type",
+            "multipart/related; type=\"application/dicom\"; boundary=XX",
+        )
+        .body("--XX\r\nContent-Type: application/dicom\r\n\r\nnot a DICOM file\r\n--XX--\r\n")
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(answer.status().as_u16(), 409);
+    let failed: serde_json::Value =
+        serde_json::from_slice(&answer.bytes().await.expect("body")).expect("DICOM JSON");
+    assert!(
+        failed["00081198"]["Value"][0]["00081197"].is_object(),
+        "{failed}"
+    );
+
+    // Orthanc pushes the VHF head's study with STOW-RS.
+    let Some(orthanc) = Orthanc::start_with_or_skip(
+        test,
+        &serde_json::json!({"voxserve": [format!("{}/dicom-web/", server.url)]}),
+    ) else {
+        return;
+    };
+    let vhf = data.join("dicom/vhf_head");
+    let files = dicom_files(&vhf);
+    let mut orthanc_study = String::new();
+    for f in &files {
+        orthanc_study = orthanc.upload_answer(&http, f).await["ParentStudy"]
+            .as_str()
+            .expect("a study id")
+            .to_owned();
+    }
+    orthanc
+        .post_json(
+            &http,
+            "/dicom-web/servers/voxserve/stow",
+            &serde_json::json!({"Resources": [orthanc_study], "Synchronous": true}),
+        )
+        .await;
+
+    // Once the series has settled it is bricked and served under its
+    // SeriesInstanceUID, and its store equals the one its files make.
+    let series = uid_of(&files[0], tags::SERIES_INSTANCE_UID);
+    let start = std::time::Instant::now();
+    loop {
+        let list = get_json(&http, &format!("{}/api/datasets", server.url)).await;
+        let found = list
+            .as_array()
+            .expect("a list")
+            .iter()
+            .find(|d| d["id"] == series.as_str())
+            .cloned();
+        if let Some(d) = found {
+            assert_eq!(d["dims"], serde_json::json!([512, 512, 234]), "{d}");
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(90),
+            "series {series} not served after 90 s: {list}"
+        );
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    let from_disk = dir.path().join("disk.zarr");
+    let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
+    store::ingest(
+        source.as_mut(),
+        &from_disk,
+        &IngestOptions::default(),
+        &mut |_| {},
+    )
+    .expect("ingest");
+    assert_same_store(
+        &Store::open(received.join("stores").join(format!("{series}.zarr"))).expect("open"),
+        &Store::open(&from_disk).expect("open"),
+        true,
+    );
+    assert_eq!(
+        std::fs::read_dir(received.join("series").join(&series))
+            .expect("kept")
+            .count(),
+        files.len(),
+        "every instance kept"
+    );
+    let _ = server.stop();
 }

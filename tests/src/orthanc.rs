@@ -46,6 +46,16 @@ impl Orthanc {
     /// # Panics
     /// When it is installed but does not answer within 30 s.
     pub fn start() -> Result<Orthanc, String> {
+        Orthanc::start_with(&serde_json::json!({}))
+    }
+
+    /// [`Orthanc::start`] with `servers` as the DICOMweb servers it may
+    /// send studies to (`{"NAME": ["URL"]}`; `POST
+    /// /dicom-web/servers/NAME/stow` then pushes with STOW-RS).
+    ///
+    /// # Panics
+    /// As [`Orthanc::start`].
+    pub fn start_with(servers: &serde_json::Value) -> Result<Orthanc, String> {
         let binary = find("Orthanc").ok_or("Orthanc is not installed (Debian: orthanc)")?;
         if !Path::new(DICOMWEB_PLUGIN).is_file() {
             return Err(format!(
@@ -68,7 +78,7 @@ impl Orthanc {
             "DicomServerEnabled": false,
             "HttpCompressionEnabled": false,
             "Plugins": [DICOMWEB_PLUGIN],
-            "DicomWeb": {"Enable": true, "Root": "/dicom-web/"},
+            "DicomWeb": {"Enable": true, "Root": "/dicom-web/", "Servers": servers},
         });
         let config_file = dir.path().join("orthanc.json");
         std::fs::write(&config_file, config.to_string()).map_err(|e| e.to_string())?;
@@ -102,7 +112,15 @@ impl Orthanc {
     /// # Panics
     /// When Orthanc is missing and `VOXSERVE_REQUIRE_PACS=1`.
     pub fn start_or_skip(test: &str) -> Option<Orthanc> {
-        match Orthanc::start() {
+        Orthanc::start_with_or_skip(test, &serde_json::json!({}))
+    }
+
+    /// [`Orthanc::start_with`], or `None` after saying why `test` is skipped.
+    ///
+    /// # Panics
+    /// When Orthanc is missing and `VOXSERVE_REQUIRE_PACS=1`.
+    pub fn start_with_or_skip(test: &str, servers: &serde_json::Value) -> Option<Orthanc> {
+        match Orthanc::start_with(servers) {
             Ok(o) => Some(o),
             Err(why) => {
                 if std::env::var("VOXSERVE_REQUIRE_PACS").is_ok_and(|v| v == "1") {
@@ -124,6 +142,18 @@ impl Orthanc {
     /// # Panics
     /// When Orthanc refuses it.
     pub async fn upload(&self, client: &reqwest::Client, file: &Path) -> String {
+        self.upload_answer(client, file).await["ID"]
+            .as_str()
+            .expect("an instance id")
+            .to_owned()
+    }
+
+    /// Stores `file` (POST /instances); returns Orthanc's answer (`ID`,
+    /// `ParentStudy`, `ParentSeries`, …).
+    ///
+    /// # Panics
+    /// When Orthanc refuses it.
+    pub async fn upload_answer(&self, client: &reqwest::Client, file: &Path) -> serde_json::Value {
         let bytes = std::fs::read(file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
         let body = client
             .post(format!("{}/instances", self.url))
@@ -135,8 +165,29 @@ impl Orthanc {
             .bytes()
             .await
             .expect("Orthanc's answer");
-        let answer: serde_json::Value = serde_json::from_slice(&body).expect("JSON");
-        answer["ID"].as_str().expect("an instance id").to_owned()
+        serde_json::from_slice(&body).expect("JSON")
+    }
+
+    /// `POST path` with the JSON `body`; the answer, which must be a success.
+    ///
+    /// # Panics
+    /// When Orthanc refuses.
+    pub async fn post_json(
+        &self,
+        client: &reqwest::Client,
+        path: &str,
+        body: &serde_json::Value,
+    ) -> String {
+        let answer = client
+            .post(format!("{}{path}", self.url))
+            .body(body.to_string())
+            .send()
+            .await
+            .unwrap_or_else(|e| panic!("POST {path}: {e}"));
+        let status = answer.status();
+        let text = answer.text().await.unwrap_or_default();
+        assert!(status.is_success(), "POST {path}: HTTP {status}: {text}");
+        text
     }
 
     /// Removes an instance by Orthanc's id.

@@ -739,7 +739,7 @@ async fn restarted(client: &Client, first: TestServer) -> Result<(), String> {
         .await
         .map_err(|e| format!("stopping the first server: {e}"))?;
     let state = ball_state(StreamSettings::default());
-    let id = state.datasets[0].id.clone();
+    let id = state.datasets.snapshot()[0].id.clone();
     let _second = TestServer::serving_at(state, &address).await;
     let ball_drawn = wait_for(
         client,

@@ -198,6 +198,17 @@ impl Auth {
         }
     }
 
+    /// Whether `principal` may store studies (STOW-RS).
+    pub fn may_store(&self, principal: &Principal) -> bool {
+        match principal.proof {
+            Proof::Anonymous => true,
+            _ => {
+                let allowed = policy::store_roles(self.policy.as_ref());
+                principal.roles.iter().any(|r| allowed.contains(r))
+            }
+        }
+    }
+
     /// What the web client needs to log in, for `GET /api/auth`.
     pub fn describe(&self) -> serde_json::Value {
         serde_json::json!({

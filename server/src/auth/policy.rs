@@ -7,7 +7,8 @@
 //!     {"roles": ["admin"], "datasets": ["*"]}
 //!   ],
 //!   "hide_denied": true,
-//!   "metrics_roles": ["monitoring"]
+//!   "metrics_roles": ["monitoring"],
+//!   "store_roles": ["modality"]
 //! }
 //! ```
 //!
@@ -16,7 +17,8 @@
 //! matching the dataset's id. Nothing else is allowed. With `hide_denied`, a
 //! denied dataset answers 404 as an unknown one does (its existence is
 //! itself sensitive), else 403. `metrics_roles` may read `/metrics`
-//! (default: `metrics`).
+//! (default: `metrics`); `store_roles` may push studies with STOW-RS
+//! (default: `store`).
 
 use std::path::Path;
 
@@ -25,6 +27,8 @@ use serde::Deserialize;
 
 /// The role that may read `/metrics` without a policy file.
 const METRICS_ROLE: &str = "metrics";
+/// The role that may store studies (STOW-RS) without a policy file.
+const STORE_ROLE: &str = "store";
 /// The largest policy file read, bytes, and the most rules, roles and
 /// patterns it may hold.
 const MAX_FILE_BYTES: u64 = 4 << 20;
@@ -39,10 +43,21 @@ struct File {
     hide_denied: bool,
     #[serde(default = "default_metrics_roles")]
     metrics_roles: Vec<String>,
+    #[serde(default = "default_store_roles")]
+    store_roles: Vec<String>,
 }
 
 fn default_metrics_roles() -> Vec<String> {
     vec![METRICS_ROLE.to_owned()]
+}
+
+fn default_store_roles() -> Vec<String> {
+    vec![STORE_ROLE.to_owned()]
+}
+
+/// The roles that may store studies (STOW-RS) without a policy file.
+pub fn store_roles(policy: Option<&Policy>) -> Vec<String> {
+    policy.map_or_else(default_store_roles, |p| p.store_roles.clone())
 }
 
 #[derive(Debug, Deserialize)]
@@ -67,6 +82,8 @@ pub struct Policy {
     pub hide_denied: bool,
     /// The roles that may read `/metrics`.
     pub metrics_roles: Vec<String>,
+    /// The roles that may store studies (STOW-RS).
+    pub store_roles: Vec<String>,
 }
 
 impl Policy {
@@ -85,7 +102,7 @@ impl Policy {
     pub fn parse(text: &str) -> Result<Policy, String> {
         let file: File = serde_json::from_str(text).map_err(|e| {
             format!(
-                "{e}: expected {{\"rules\": [{{\"roles\": […], \"datasets\": […]}}], \"hide_denied\": false, \"metrics_roles\": […]}}"
+                "{e}: expected {{\"rules\": [{{\"roles\": […], \"datasets\": […]}}], \"hide_denied\": false, \"metrics_roles\": […], \"store_roles\": […]}}"
             )
         })?;
         if file.rules.len() > MAX_RULES {
@@ -122,6 +139,7 @@ impl Policy {
             rules,
             hide_denied: file.hide_denied,
             metrics_roles: file.metrics_roles,
+            store_roles: file.store_roles,
         })
     }
 

@@ -400,6 +400,18 @@ pub struct ServeArgs {
     /// Also serve every brick store in this folder (after the DATASETs).
     #[arg(long = "data", value_name = "DIR")]
     pub data_dir: Option<PathBuf>,
+    /// Receive studies (STOW-RS, `POST /dicom-web/studies`) into this
+    /// folder: every instance is kept, and each series is bricked and
+    /// served (its id: the SeriesInstanceUID) once no new instance of it
+    /// has come for --receive-settle-s. Series received before are served
+    /// at start.
+    #[arg(long = "receive", value_name = "DIR")]
+    pub receive_dir: Option<PathBuf>,
+    /// Seconds without a new instance after which a received series counts
+    /// as complete and is bricked.
+    #[arg(long = "receive-settle-s", value_name = "SECONDS", default_value_t = 10,
+          value_parser = clap::value_parser!(u64).range(1..=3600))]
+    pub receive_settle_s: u64,
     /// Datasets whose blocks stay on the GPU at once; the one used least
     /// recently is released when another is needed.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]

@@ -682,7 +682,7 @@ mod tests {
         let state = state.clone();
         let caller = Caller {
             principal: crate::auth::Principal::anonymous(),
-            datasets: state.datasets.clone(),
+            datasets: state.datasets.snapshot(),
         };
         let running = tokio::spawn(async move { run(sink, stream, &state, place, caller).await });
         let channels = Channels {

@@ -79,6 +79,68 @@ pub(super) fn has_dicom_marker(path: &Path) -> Result<bool, Error> {
     Ok(read_prefix(path, 132)?.get(128..132) == Some(b"DICM"))
 }
 
+/// The UIDs that file a DICOM instance: its study, series, SOP class and
+/// SOP instance.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InstanceUids {
+    /// StudyInstanceUID.
+    pub study: String,
+    /// SeriesInstanceUID.
+    pub series: String,
+    /// SOPClassUID, when given.
+    pub class: Option<String>,
+    /// SOPInstanceUID.
+    pub instance: String,
+}
+
+/// The UIDs of the instance in `path` (its header only, element lengths
+/// checked first, inside the panic boundary): each present and a valid UID
+/// (1 to 64 digits and dots), SOPClassUID where given.
+pub fn instance_uids(path: &Path) -> Result<InstanceUids, Error> {
+    if !has_dicom_marker(path)? {
+        return Err(field(
+            path,
+            "preamble",
+            "no 'DICM' marker at byte 128: expected a DICOM file",
+        ));
+    }
+    let obj = boundary::guard(path, "DICOM header", || {
+        super::bounds::check_lengths(path, true)?;
+        OpenFileOptions::new()
+            .read_until(tags::PIXEL_DATA)
+            .open_file(path)
+            .map_err(|e| {
+                field(
+                    path,
+                    "header",
+                    format!("{e}: expected a readable DICOM file"),
+                )
+            })
+    })?;
+    let uid = |tag: Tag, name: &str| -> Result<String, Error> {
+        let value = text(&obj, tag)
+            .map(|s| s.trim_end_matches('\0').to_owned())
+            .ok_or_else(|| field(path, name, "missing: expected a UID"))?;
+        if value.is_empty()
+            || value.len() > 64
+            || !value.bytes().all(|b| b.is_ascii_digit() || b == b'.')
+        {
+            return Err(field(
+                path,
+                name,
+                format!("{value:?}: expected a UID (1 to 64 digits and dots)"),
+            ));
+        }
+        Ok(value)
+    };
+    Ok(InstanceUids {
+        study: uid(tags::STUDY_INSTANCE_UID, "StudyInstanceUID (0020,000D)")?,
+        series: uid(tags::SERIES_INSTANCE_UID, "SeriesInstanceUID (0020,000E)")?,
+        class: uid(tags::SOP_CLASS_UID, "SOPClassUID (0008,0016)").ok(),
+        instance: uid(tags::SOP_INSTANCE_UID, "SOPInstanceUID (0008,0018)")?,
+    })
+}
+
 /// Most frames of one multi-frame image.
 pub const MAX_FRAMES: u32 = 65_536;
 
