@@ -725,6 +725,38 @@ async fn a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_
         failed["00081198"]["Value"][0]["00081197"].is_object(),
         "{failed}"
     );
+    // A series UID that would name a folder elsewhere: refused.
+    let vhf = data.join("dicom/vhf_head");
+    let files = dicom_files(&vhf);
+    let mut evil = dicom_object::open_file(&files[0]).expect("open");
+    evil.put(dicom_core::DataElement::new(
+        tags::SERIES_INSTANCE_UID,
+        dicom_core::VR::UI,
+        dicom_core::PrimitiveValue::from(".."),
+    ));
+    let mut body = b"--XX\r\nContent-Type: application/dicom\r\n\r\n".to_vec();
+    let evil_file = dir.path().join("evil.dcm");
+    evil.write_to_file(&evil_file).expect("write");
+    body.extend(std::fs::read(&evil_file).expect("read"));
+    body.extend(b"\r\n--XX--\r\n");
+    let answer = http
+        .post(&stow)
+        .header(
+            "content-type",
+            "multipart/related; type=\"application/dicom\"; boundary=XX",
+        )
+        .body(body)
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(answer.status().as_u16(), 409);
+    assert_eq!(
+        std::fs::read_dir(received.join("series"))
+            .expect("series")
+            .count(),
+        0,
+        "nothing kept of refused instances"
+    );
 
     // Orthanc pushes the VHF head's study with STOW-RS.
     let Some(orthanc) = Orthanc::start_with_or_skip(
@@ -733,8 +765,6 @@ async fn a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_
     ) else {
         return;
     };
-    let vhf = data.join("dicom/vhf_head");
-    let files = dicom_files(&vhf);
     let mut orthanc_study = String::new();
     for f in &files {
         orthanc_study = orthanc.upload_answer(&http, f).await["ParentStudy"]

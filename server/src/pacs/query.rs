@@ -108,11 +108,12 @@ pub fn check_value(key: &str, value: &str) -> Result<String, String> {
     Ok(value.to_owned())
 }
 
-/// A UID: 1 to 64 digits and dots.
+/// A UID ([`blocks::ingest::dicom::is_uid`]): numbers joined by dots, at
+/// most 64 characters.
 pub fn check_uid(key: &str, uid: &str) -> Result<String, String> {
-    if uid.is_empty() || uid.len() > 64 || !uid.bytes().all(|b| b.is_ascii_digit() || b == b'.') {
+    if !blocks::ingest::dicom::is_uid(uid) {
         return Err(format!(
-            "{key} {uid:?}: expected a DICOM UID (1 to 64 digits and dots)"
+            "{key} {uid:?}: expected a DICOM UID (numbers joined by dots, at most 64 characters)"
         ));
     }
     Ok(uid.to_owned())
@@ -211,6 +212,17 @@ mod tests {
         ] {
             let err = DateRange::parse(bad).expect_err(bad);
             assert!(err.starts_with("StudyDate"), "{bad}: {err}");
+        }
+    }
+
+    #[test]
+    fn uids_are_numbers_joined_by_dots() {
+        for good in ["1.2.840.10008.1.2", "0", "1.0.3", "1.02"] {
+            assert!(check_uid("uid", good).is_ok(), "{good}");
+        }
+        let long = "1".repeat(65);
+        for bad in ["", ".", "..", "1..2", ".1", "1.", "1.2a", long.as_str()] {
+            assert!(check_uid("uid", bad).is_err(), "{bad:?}");
         }
     }
 

@@ -55,4 +55,4 @@ mod slice_header;
 pub use folder::{FolderScan, SeriesSummary, open_file, open_folder};
 pub use geometry::SPACING_TOLERANCE;
 pub use series::DicomSeries;
-pub use slice_header::{InstanceUids, instance_uids};
+pub use slice_header::{InstanceUids, instance_uids, is_uid};

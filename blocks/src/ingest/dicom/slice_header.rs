@@ -93,6 +93,18 @@ pub struct InstanceUids {
     pub instance: String,
 }
 
+/// Whether `text` is a DICOM UID (PS3.5 §9.1): at most 64 characters,
+/// numbers joined by single dots (leading zeros, which the standard forbids
+/// and some devices write, are let through). So a UID is never `.`, `..`
+/// or empty, and is safe as a file or folder name.
+pub fn is_uid(text: &str) -> bool {
+    !text.is_empty()
+        && text.len() <= 64
+        && text
+            .split('.')
+            .all(|part| !part.is_empty() && part.bytes().all(|b| b.is_ascii_digit()))
+}
+
 /// The UIDs of the instance in `path` (its header only, element lengths
 /// checked first, inside the panic boundary): each present and a valid UID
 /// (1 to 64 digits and dots), SOPClassUID where given.
@@ -121,14 +133,13 @@ pub fn instance_uids(path: &Path) -> Result<InstanceUids, Error> {
         let value = text(&obj, tag)
             .map(|s| s.trim_end_matches('\0').to_owned())
             .ok_or_else(|| field(path, name, "missing: expected a UID"))?;
-        if value.is_empty()
-            || value.len() > 64
-            || !value.bytes().all(|b| b.is_ascii_digit() || b == b'.')
-        {
+        if !is_uid(&value) {
             return Err(field(
                 path,
                 name,
-                format!("{value:?}: expected a UID (1 to 64 digits and dots)"),
+                format!(
+                    "{value:?}: expected a UID (numbers joined by dots, at most 64 characters)"
+                ),
             ));
         }
         Ok(value)
