@@ -155,7 +155,7 @@ async fn pacs_fetch(args: PacsFetchArgs) -> anyhow::Result<()> {
             .await?;
     bar.finish_and_clear();
     say(&format!(
-        "fetched series {series} of study {}: {} instances, {:.1} MB in {:.1} s ({:.0} MB/s, {:.0} instances/s)",
+        "fetched series {series} of study {}: {} instance(s), {:.1} MB in {:.1} s ({:.0} MB/s, {:.0} instances/s)",
         args.study,
         fetched.instances.len(),
         fetched.bytes as f64 / 1e6,

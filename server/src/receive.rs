@@ -61,11 +61,34 @@ impl Receiver {
                 anyhow::anyhow!("--receive {}: cannot make {sub}/: {e}", dir.display())
             })?;
         }
+        // Series received but not bricked when the server last stopped (or
+        // added to since they were): bricked once the settling time passes.
+        let mut pending = HashMap::new();
+        let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+        let entries = std::fs::read_dir(dir.join("series"))
+            .map_err(|e| anyhow::anyhow!("--receive {}: series/: {e}", dir.display()))?;
+        for entry in entries.filter_map(Result::ok) {
+            let uid = entry.file_name().to_string_lossy().into_owned();
+            if !blocks::ingest::dicom::is_uid(&uid) {
+                continue;
+            }
+            let store = dir.join("stores").join(format!("{uid}.zarr"));
+            if modified(&store) < modified(&entry.path()) || !store.exists() {
+                pending.insert(uid, Instant::now());
+            }
+        }
+        if !pending.is_empty() {
+            tracing::info!(
+                "--receive {}: {} received series to brick",
+                dir.display(),
+                pending.len()
+            );
+        }
         Ok(Arc::new(Receiver {
             dir: dir.to_owned(),
             settle,
             cache_bytes,
-            pending: Mutex::new(HashMap::new()),
+            pending: Mutex::new(pending),
         }))
     }
 
@@ -110,8 +133,7 @@ impl Receiver {
                     match brick.await {
                         Ok(Ok(dataset)) => {
                             tracing::info!(
-                                "received series {} bricked: offered as dataset {}",
-                                dataset.id,
+                                "received series {} bricked and served (dataset id {0})",
                                 dataset.id
                             );
                             datasets.add(dataset);

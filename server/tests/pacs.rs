@@ -193,7 +193,7 @@ async fn a_series_fetched_from_orthanc_makes_the_store_its_files_make_on_disk() 
         from_pacs.to_str().expect("path"),
     ]);
     assert!(ok, "{err}");
-    assert!(out.contains("234 instances"), "{out}");
+    assert!(out.contains("234 instance(s)"), "{out}");
     let from_disk = dir.path().join("disk.zarr");
     let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
     store::ingest(
@@ -646,7 +646,7 @@ async fn an_enhanced_multi_frame_ct_reads_as_its_classic_slices_from_a_file_and_
         out.to_str().expect("path"),
     ]);
     assert!(ok, "{err}");
-    assert!(stdout.contains("1 instances"), "{stdout}");
+    assert!(stdout.contains("1 instance(s)"), "{stdout}");
     let disk = dir.path().join("classic.zarr");
     let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
     store::ingest(
@@ -685,22 +685,20 @@ async fn a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let received = dir.path().join("received");
-    let server = voxserve_tests::server::Spawned::start(
-        VOXSERVE,
-        &[
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--phantom-size",
-            "32",
-            "--receive",
-            received.to_str().expect("path"),
-            "--receive-settle-s",
-            "1",
-        ],
-    )
-    .await
-    .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    let serve = [
+        "serve",
+        "--addr",
+        "127.0.0.1:0",
+        "--phantom-size",
+        "32",
+        "--receive",
+        received.to_str().expect("path"),
+        "--receive-settle-s",
+        "1",
+    ];
+    let server = voxserve_tests::server::Spawned::start(VOXSERVE, &serve)
+        .await
+        .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
     let http = reqwest::Client::new();
     let stow = format!("{}/dicom-web/studies", server.url);
 
@@ -783,25 +781,7 @@ async fn a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_
     // Once the series has settled it is bricked and served under its
     // SeriesInstanceUID, and its store equals the one its files make.
     let series = uid_of(&files[0], tags::SERIES_INSTANCE_UID);
-    let start = std::time::Instant::now();
-    loop {
-        let list = get_json(&http, &format!("{}/api/datasets", server.url)).await;
-        let found = list
-            .as_array()
-            .expect("a list")
-            .iter()
-            .find(|d| d["id"] == series.as_str())
-            .cloned();
-        if let Some(d) = found {
-            assert_eq!(d["dims"], serde_json::json!([512, 512, 234]), "{d}");
-            break;
-        }
-        assert!(
-            start.elapsed() < Duration::from_secs(90),
-            "series {series} not served after 90 s: {list}"
-        );
-        tokio::time::sleep(Duration::from_millis(250)).await;
-    }
+    wait_served(&http, &server.url, &series).await;
     let from_disk = dir.path().join("disk.zarr");
     let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
     store::ingest(
@@ -823,5 +803,39 @@ async fn a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_
         files.len(),
         "every instance kept"
     );
+
+    // A series received but not bricked when the server stopped is bricked
+    // when it starts again.
     let _ = server.stop();
+    std::fs::remove_dir_all(received.join("stores").join(format!("{series}.zarr")))
+        .expect("remove the store");
+    let again = voxserve_tests::server::Spawned::start(VOXSERVE, &serve)
+        .await
+        .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    wait_served(&http, &again.url, &series).await;
+    let _ = again.stop();
+}
+
+/// Waits (up to 90 s) until the server at `url` serves dataset `id`, a
+/// 512 × 512 × 234 volume.
+async fn wait_served(http: &reqwest::Client, url: &str, id: &str) {
+    let start = std::time::Instant::now();
+    loop {
+        let list = get_json(http, &format!("{url}/api/datasets")).await;
+        let found = list
+            .as_array()
+            .expect("a list")
+            .iter()
+            .find(|d| d["id"] == id)
+            .cloned();
+        if let Some(d) = found {
+            assert_eq!(d["dims"], serde_json::json!([512, 512, 234]), "{d}");
+            return;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(90),
+            "series {id} not served after 90 s: {list}"
+        );
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
 }
