@@ -104,6 +104,12 @@ fn assert_same_store(store: &Store, other: &Store, same_series: bool) {
     }
 }
 
+/// `voxserve ingest` of `input` into a store at `out`, as the library does it.
+fn ingest_to(input: &Path, out: &Path) {
+    let mut source = ingest::open(input, &OpenOptions::default()).expect("open");
+    store::ingest(source.as_mut(), out, &IngestOptions::default(), &mut |_| {}).expect("ingest");
+}
+
 /// Nothing of a failed fetch is left in `dir`: no store, no spool folder.
 fn assert_nothing_left(dir: &Path) {
     let left: Vec<_> = std::fs::read_dir(dir)
@@ -195,14 +201,7 @@ async fn a_series_fetched_from_orthanc_makes_the_store_its_files_make_on_disk() 
     assert!(ok, "{err}");
     assert!(out.contains("234 instance(s)"), "{out}");
     let from_disk = dir.path().join("disk.zarr");
-    let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
-    store::ingest(
-        source.as_mut(),
-        &from_disk,
-        &IngestOptions::default(),
-        &mut |_| {},
-    )
-    .expect("ingest");
+    ingest_to(&vhf, &from_disk);
     let (pacs_store, disk_store) = (
         Store::open(&from_pacs).expect("open"),
         Store::open(&from_disk).expect("open"),
@@ -648,14 +647,7 @@ async fn an_enhanced_multi_frame_ct_reads_as_its_classic_slices_from_a_file_and_
     assert!(ok, "{err}");
     assert!(stdout.contains("1 instance(s)"), "{stdout}");
     let disk = dir.path().join("classic.zarr");
-    let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
-    store::ingest(
-        source.as_mut(),
-        &disk,
-        &IngestOptions::default(),
-        &mut |_| {},
-    )
-    .expect("ingest");
+    ingest_to(&vhf, &disk);
     assert_same_store(
         &Store::open(&out).expect("open"),
         &Store::open(&disk).expect("open"),
@@ -783,14 +775,7 @@ async fn a_study_pushed_with_stow_rs_is_bricked_and_served_as_its_files_on_disk_
     let series = uid_of(&files[0], tags::SERIES_INSTANCE_UID);
     wait_served(&http, &server.url, &series).await;
     let from_disk = dir.path().join("disk.zarr");
-    let mut source = ingest::open(&vhf, &OpenOptions::default()).expect("open");
-    store::ingest(
-        source.as_mut(),
-        &from_disk,
-        &IngestOptions::default(),
-        &mut |_| {},
-    )
-    .expect("ingest");
+    ingest_to(&vhf, &from_disk);
     assert_same_store(
         &Store::open(received.join("stores").join(format!("{series}.zarr"))).expect("open"),
         &Store::open(&from_disk).expect("open"),

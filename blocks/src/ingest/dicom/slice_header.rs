@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use dicom_core::Tag;
 use dicom_dictionary_std::tags;
-use dicom_object::{InMemDicomObject, OpenFileOptions};
+use dicom_object::{DefaultDicomObject, InMemDicomObject, OpenFileOptions};
 
 use crate::Error;
 use crate::ingest::boundary;
@@ -93,6 +93,32 @@ pub struct InstanceUids {
     pub instance: String,
 }
 
+/// The header of the DICOM file `path`, up to the pixel data: its `DICM`
+/// marker checked (`hint` ends the message when it is missing), then its
+/// element lengths against the file, then read inside the panic boundary.
+fn open_header(path: &Path, hint: &str) -> Result<DefaultDicomObject, Error> {
+    if !has_dicom_marker(path)? {
+        return Err(field(
+            path,
+            "preamble",
+            format!("no 'DICM' marker at byte 128: expected a DICOM file{hint}"),
+        ));
+    }
+    boundary::guard(path, "DICOM header", || {
+        super::bounds::check_lengths(path, true)?;
+        OpenFileOptions::new()
+            .read_until(tags::PIXEL_DATA)
+            .open_file(path)
+            .map_err(|e| {
+                field(
+                    path,
+                    "header",
+                    format!("{e}: expected a readable DICOM file"),
+                )
+            })
+    })
+}
+
 /// Whether `text` is a DICOM UID (PS3.5 §9.1): at most 64 characters,
 /// numbers joined by single dots (leading zeros, which the standard forbids
 /// and some devices write, are let through). So a UID is never `.`, `..`
@@ -109,26 +135,7 @@ pub fn is_uid(text: &str) -> bool {
 /// checked first, inside the panic boundary): each present and a valid UID
 /// (1 to 64 digits and dots), SOPClassUID where given.
 pub fn instance_uids(path: &Path) -> Result<InstanceUids, Error> {
-    if !has_dicom_marker(path)? {
-        return Err(field(
-            path,
-            "preamble",
-            "no 'DICM' marker at byte 128: expected a DICOM file",
-        ));
-    }
-    let obj = boundary::guard(path, "DICOM header", || {
-        super::bounds::check_lengths(path, true)?;
-        OpenFileOptions::new()
-            .read_until(tags::PIXEL_DATA)
-            .open_file(path)
-            .map_err(|e| {
-                field(
-                    path,
-                    "header",
-                    format!("{e}: expected a readable DICOM file"),
-                )
-            })
-    })?;
+    let obj = open_header(path, "")?;
     let uid = |tag: Tag, name: &str| -> Result<String, Error> {
         let value = text(&obj, tag)
             .map(|s| s.trim_end_matches('\0').to_owned())
@@ -159,26 +166,7 @@ pub const MAX_FRAMES: u32 = 65_536;
 /// per frame (an enhanced multi-frame image gives one per frame, placed by
 /// its functional groups), none for a file without an image.
 pub(super) fn read_header(path: &Path) -> Result<Vec<SliceHeader>, Error> {
-    if !has_dicom_marker(path)? {
-        return Err(field(
-            path,
-            "preamble",
-            "no 'DICM' marker at byte 128: expected a DICOM file (move other files out of the series folder)",
-        ));
-    }
-    let obj = boundary::guard(path, "DICOM header", || {
-        super::bounds::check_lengths(path, true)?;
-        OpenFileOptions::new()
-            .read_until(tags::PIXEL_DATA)
-            .open_file(path)
-            .map_err(|e| {
-                field(
-                    path,
-                    "header",
-                    format!("{e}: expected a readable DICOM file"),
-                )
-            })
-    })?;
+    let obj = open_header(path, " (move other files out of the series folder)")?;
     let Some(rows) = opt_int::<u32>(&obj, tags::ROWS) else {
         return Ok(Vec::new()); // no image: DICOMDIR, structured report, …
     };
