@@ -379,6 +379,8 @@ export class SliceViews {
     pane.hoverAt = at;
     if (pane.probing) return;
     pane.probing = true;
+    // Whether an answer is still to come (what the readout shows may be older).
+    pane.probe.dataset.busy = '1';
     while (pane.hoverAt) {
       const asked = pane.hoverAt;
       pane.hoverAt = null;
@@ -392,6 +394,7 @@ export class SliceViews {
       pane.probe.dataset.index = v ? v.index.join(',') : '';
     }
     pane.probing = false;
+    pane.probe.dataset.busy = '';
   }
 
   // A click at CSS pixel (x, y) of a view: a measurement point in measure

@@ -1848,6 +1848,16 @@ async fn probed(
     x: f64,
     y: f64,
 ) -> Result<([u32; 3], f64), String> {
+    // An answer still on its way (to an earlier tap) would fill the
+    // readout cleared here: wait for it first.
+    let probe = format!("{}.querySelector('.pane-probe')", pane_js("axial"));
+    wait_for(
+        client,
+        "the earlier probe's answer",
+        &format!("return {probe}.dataset.busy === '1' ? 0 : 1;"),
+        |v| v == 1.0,
+    )
+    .await?;
     run(
         client,
         "clearing the readout",
@@ -1858,11 +1868,11 @@ async fn probed(
     )
     .await?;
     point_at(client, ".slice-pane[data-pane=\"axial\"]", x, y, gesture).await?;
-    let probe = format!("{}.querySelector('.pane-probe')", pane_js("axial"));
+    // The last answer, for this position (not one asked before it).
     wait_for(
         client,
         "the value under the cursor",
-        &format!("return {probe}.dataset.index ? 1 : 0;"),
+        &format!("return {probe}.dataset.index && {probe}.dataset.busy !== '1' ? 1 : 0;"),
         |v| v == 1.0,
     )
     .await?;
