@@ -12,6 +12,8 @@
 //! | `session-open`, `session-close` | a view session opened or ended (detail: why, frames sent) |
 //! | `view` | a view session showed a dataset for the first time, or again after another |
 //! | `metrics` | `/metrics` was read |
+//! | `store` | instances were pushed: a STOW-RS request (the user) or a DICOM association (`AE TITLE`); detail: how many stored and refused |
+//! | `associate` | a DICOM association was rejected (outcome `denied`; detail: the AE title not recognised) |
 //!
 //! Lines hold no token and no query string: the dataset's id is the only
 //! resource named.

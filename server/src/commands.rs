@@ -1,6 +1,7 @@
 //! What the `voxserve` subcommands do (their flags are in [`crate::cli`]).
 
 use std::io::Write as _;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -410,6 +411,11 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
             );
         }
     }
+    if args.dicom_port.is_some() && args.dicom_allow.is_empty() {
+        anyhow::bail!(
+            "--dicom-port without --dicom-allow: name the calling AE titles that may store (or * for any)"
+        );
+    }
     let backend = args.renderer.backend()?;
     let resident = usize::try_from(args.resident_datasets).unwrap_or(usize::MAX);
     let renderer = RenderService::start(backend, args.data.gpu_budget_bytes(), resident)?;
@@ -426,6 +432,20 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .map(|d| format!("the {} ({:?} voxels)", d.name(), d.dims()))
         .collect();
     let scheme = if tls.is_some() { "https" } else { "http" };
+    let dicom = match args.dicom_port {
+        Some(port) => {
+            let at = SocketAddr::new(args.addr.ip(), port);
+            let listener = TcpListener::bind(at)
+                .await
+                .with_context(|| format!("--dicom-port: cannot listen on {at}"))?;
+            let mut at = listener.local_addr()?;
+            if at.ip().is_unspecified() {
+                at.set_ip(std::net::Ipv4Addr::LOCALHOST.into());
+            }
+            Some((listener, at))
+        }
+        None => None,
+    };
     let mut access = args.access.access();
     access.frame_ancestors = args.auth.frame_ancestors.clone();
     let mut state = AppState::new(datasets, renderer, args.stream.settings())
@@ -435,13 +455,28 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
     if let Some(tls) = tls {
         state = state.with_tls(tls);
     }
+    let mut dicom_line = String::new();
     if let Some(receiver) = receiver {
         receiver.spawn_settler(state.datasets.clone(), state.shutdown.clone());
+        if let Some((listener, at)) = dicom {
+            let settings = crate::dimse::DicomSettings {
+                ae_title: args.ae_title.clone(),
+                callers: args.dicom_allow.clone(),
+            };
+            crate::dimse::spawn(
+                listener,
+                settings,
+                std::sync::Arc::clone(&receiver),
+                std::sync::Arc::clone(&state.audit),
+                state.shutdown.clone(),
+            );
+            dicom_line = format!(" and DICOM as {} at {at}", args.ae_title);
+        }
         state.receiver = Some(receiver);
     }
     reload_on_hangup(&state)?;
     say(&format!(
-        "voxserve: serving {} on {} at {scheme}://{addr}/",
+        "voxserve: serving {} on {} at {scheme}://{addr}/{dicom_line}",
         names.join(", "),
         state.renderer.adapter()
     ))?;

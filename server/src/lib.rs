@@ -38,6 +38,8 @@
 //!   into a spool folder and bricked as the same files on disk are.
 //! - [`receive`]: studies pushed to the server (STOW-RS), kept series by
 //!   series and bricked into datasets once complete.
+//! - [`dimse`]: the DICOM C-STORE and C-ECHO service class provider, keeping
+//!   what it receives as [`receive`] does.
 //! - [`commands`]: what `serve`, `render`, `info`, `ingest`, `pacs` and
 //!   `settings` do.
 //!
@@ -52,6 +54,7 @@ pub mod cli;
 pub mod client;
 pub mod commands;
 pub mod dataset;
+pub mod dimse;
 pub mod encode;
 pub mod error;
 pub mod listen;

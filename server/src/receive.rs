@@ -44,11 +44,27 @@ pub struct Receiver {
     pending: Mutex<HashMap<String, Instant>>,
 }
 
-/// One instance of a STOW-RS request: stored, or why not.
-struct Outcome1 {
-    class: Option<String>,
-    instance: Option<String>,
-    failure: Option<String>,
+/// One instance received: stored, or why not.
+pub(crate) struct Outcome1 {
+    pub class: Option<String>,
+    pub instance: Option<String>,
+    /// Its series, when it was kept.
+    pub series: Option<String>,
+    pub failure: Option<String>,
+    /// Whether it failed for not being what the request claimed.
+    pub mismatch: bool,
+}
+
+/// What a request says of an instance it sends, checked against the
+/// instance's own header.
+#[derive(Debug, Default)]
+pub(crate) struct Claimed<'a> {
+    /// StudyInstanceUID (the STOW-RS URL's study).
+    pub study: Option<&'a str>,
+    /// SOPClassUID (a C-STORE's AffectedSOPClassUID).
+    pub class: Option<&'a str>,
+    /// SOPInstanceUID (a C-STORE's AffectedSOPInstanceUID).
+    pub instance: Option<&'a str>,
 }
 
 impl Receiver {
@@ -166,17 +182,24 @@ impl Receiver {
         Ok(Dataset::new(uid.to_owned(), store, self.cache_bytes)?)
     }
 
-    /// Keeps one received part (the instance's bytes in `file`): read its
-    /// header, check its UIDs (and its study against `study`), and move it
-    /// to its series' folder.
-    fn keep(&self, file: tempfile::NamedTempFile, study: Option<&str>) -> Outcome1 {
+    /// A new file in `incoming/`, for an instance being received.
+    pub(crate) fn incoming_file(&self) -> std::io::Result<tempfile::NamedTempFile> {
+        tempfile::NamedTempFile::new_in(self.dir.join("incoming"))
+    }
+
+    /// Keeps one received instance (its bytes in `file`): read its header,
+    /// check its UIDs (and that it is what the request `claimed`), and move
+    /// it to its series' folder.
+    pub(crate) fn keep(&self, file: tempfile::NamedTempFile, claimed: &Claimed<'_>) -> Outcome1 {
         let uids = match blocks::ingest::dicom::instance_uids(file.path()) {
             Ok(uids) => uids,
             Err(e) => {
                 return Outcome1 {
                     class: None,
                     instance: None,
+                    series: None,
                     failure: Some(e.to_string()),
+                    mismatch: false,
                 };
             }
         };
@@ -186,12 +209,14 @@ impl Receiver {
             class,
             instance,
         } = uids;
-        let fail = |why: String, instance: Option<String>| Outcome1 {
+        let fail = |why: String, instance: Option<String>, mismatch: bool| Outcome1 {
             class: class.clone(),
             instance,
+            series: None,
             failure: Some(why),
+            mismatch,
         };
-        if let Some(study) = study
+        if let Some(study) = claimed.study
             && study != their_study
         {
             return fail(
@@ -199,6 +224,28 @@ impl Receiver {
                     "StudyInstanceUID {their_study}: expected {study}, the study of the request's URL"
                 ),
                 Some(instance),
+                true,
+            );
+        }
+        if let Some(claimed) = claimed.instance
+            && claimed != instance
+        {
+            return fail(
+                format!("SOPInstanceUID {instance}: expected {claimed}, the request's"),
+                Some(instance),
+                true,
+            );
+        }
+        if let Some(claimed) = claimed.class
+            && Some(claimed) != class.as_deref()
+        {
+            return fail(
+                format!(
+                    "SOPClassUID {}: expected {claimed}, the request's",
+                    class.as_deref().unwrap_or("missing")
+                ),
+                Some(instance),
+                true,
             );
         }
         let folder = self.dir.join("series").join(&series);
@@ -210,16 +257,18 @@ impl Receiver {
                     .map_err(|e| e.to_string())
             });
         if let Err(e) = kept {
-            return fail(format!("cannot keep it: {e}"), Some(instance));
+            return fail(format!("cannot keep it: {e}"), Some(instance), false);
         }
         self.pending
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
-            .insert(series, Instant::now());
+            .insert(series.clone(), Instant::now());
         Outcome1 {
             class,
             instance: Some(instance),
+            series: Some(series),
             failure: None,
+            mismatch: false,
         }
     }
 }
@@ -319,7 +368,8 @@ async fn stow_into(
             .content_type()
             .filter(|t| t.essence_str() != "application/dicom")
             .map(ToString::to_string);
-        let mut file = tempfile::NamedTempFile::new_in(receiver.dir.join("incoming"))
+        let mut file = receiver
+            .incoming_file()
             .map_err(|e| AppError::Internal(format!("STOW-RS: cannot make a file: {e}")))?;
         let mut size = 0u64;
         loop {
@@ -346,15 +396,25 @@ async fn stow_into(
             outcomes.push(Outcome1 {
                 class: None,
                 instance: None,
+                series: None,
                 failure: Some(format!("part {n} of type {t}: expected application/dicom")),
+                mismatch: false,
             });
             continue;
         }
         let r = Arc::clone(&receiver);
         let study = study.clone();
-        let outcome = tokio::task::spawn_blocking(move || r.keep(file, study.as_deref()))
-            .await
-            .map_err(|e| AppError::Internal(format!("STOW-RS: {e}")))?;
+        let outcome = tokio::task::spawn_blocking(move || {
+            r.keep(
+                file,
+                &Claimed {
+                    study: study.as_deref(),
+                    ..Claimed::default()
+                },
+            )
+        })
+        .await
+        .map_err(|e| AppError::Internal(format!("STOW-RS: {e}")))?;
         outcomes.push(outcome);
     }
     let stored = outcomes.iter().filter(|o| o.failure.is_none()).count();

@@ -13,13 +13,18 @@
 //!   series is bricked once settled, served under its SeriesInstanceUID,
 //!   and its store equals the one its files make; a body that is not
 //!   multipart (415) and a part that is not DICOM (409) are refused.
+//! - dcmtk's `dcmsend` pushes the VHF series to `serve --dicom-port` (the
+//!   C-STORE SCP): served, and its store equals the one its files make;
+//!   `echoscu` is answered; an association from a calling AE title not
+//!   allowed, or calling another title, is rejected, audited, and stores
+//!   nothing; a silent connection and one speaking HTTP hold up no one.
 //! - Faults: a PACS that is down, one that never answers (timeout), 404 and
 //!   500 answers, malformed JSON, a truncated multipart body, a frame that
 //!   fails to decode, a series with a missing slice: each is an error naming
 //!   the PACS and the study or series, and no store (nor spool folder) is
 //!   left behind.
 //!
-//! Skipped with a printed reason where Orthanc is not installed, unless
+//! Skipped with a printed reason where Orthanc (or dcmtk) is not installed, unless
 //! `VOXSERVE_REQUIRE_PACS=1` (`.ci/run`).
 
 use std::path::{Path, PathBuf};
@@ -823,4 +828,194 @@ async fn wait_served(http: &reqwest::Client, url: &str, id: &str) {
         );
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
+}
+
+/// dcmtk's `tool` (echoscu, storescu, dcmsend) if installed, else `None`
+/// after saying why `test` is skipped.
+fn dcmtk_or_skip(test: &str, tool: &str) -> Option<PathBuf> {
+    let found = std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|p| p.join(tool))
+            .find(|p| p.is_file())
+    });
+    if found.is_none() {
+        assert!(
+            !std::env::var("VOXSERVE_REQUIRE_PACS").is_ok_and(|v| v == "1"),
+            "{test}: VOXSERVE_REQUIRE_PACS=1 but dcmtk's {tool} is not installed (apt install dcmtk)"
+        );
+        voxserve_tests::gpu::report_skip(test, &format!("dcmtk's {tool} is not installed"));
+    }
+    found
+}
+
+/// Runs a dcmtk tool; its success and what it printed.
+fn dcmtk(tool: &Path, args: &[&str]) -> (bool, String) {
+    let out = Command::new(tool).args(args).output().expect("run dcmtk");
+    (
+        out.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn dcmtk_pushes_the_series_over_dicom_and_it_is_served_as_its_files_on_disk_are() {
+    let test = "dcmtk_pushes_the_series_over_dicom_and_it_is_served_as_its_files_on_disk_are";
+    let Some(data) = shared_data(test) else {
+        return;
+    };
+    let (Some(echoscu), Some(storescu), Some(dcmsend)) = (
+        dcmtk_or_skip(test, "echoscu"),
+        dcmtk_or_skip(test, "storescu"),
+        dcmtk_or_skip(test, "dcmsend"),
+    ) else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let received = dir.path().join("received");
+    let audit = dir.path().join("audit.jsonl");
+    let serve = [
+        "serve",
+        "--addr",
+        "127.0.0.1:0",
+        "--phantom-size",
+        "32",
+        "--receive",
+        received.to_str().expect("path"),
+        "--receive-settle-s",
+        "1",
+        "--dicom-port",
+        "0",
+        "--ae-title",
+        "VOXSERVE",
+        "--dicom-allow",
+        "MODALITY",
+        "--dicom-allow",
+        "ROUTER",
+        "--audit-log",
+        audit.to_str().expect("path"),
+    ];
+    // Without --dicom-allow, or without --receive, it does not start.
+    let (ok, _, err) = voxserve(&serve[..14]);
+    assert!(!ok && err.contains("--dicom-allow"), "{err}");
+    let (ok, _, err) = voxserve(&["serve", "--dicom-port", "0", "--dicom-allow", "*"]);
+    assert!(!ok && err.contains("--receive"), "{err}");
+    let (ok, _, err) = voxserve(&["serve", "--ae-title", "A_TITLE_OF_17_CHR"]);
+    assert!(!ok && err.contains("--ae-title"), "{err}");
+
+    let server = voxserve_tests::server::Spawned::start(VOXSERVE, &serve)
+        .await
+        .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    let at = server
+        .line
+        .split("DICOM as VOXSERVE at ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no DICOM address in {:?}", server.line))
+        .trim();
+    let (host, port) = at.rsplit_once(':').expect("host:port");
+    let scp = |caller: &'static str, called: &'static str| {
+        vec![
+            "-aet".to_owned(),
+            caller.to_owned(),
+            "-aec".to_owned(),
+            called.to_owned(),
+            host.to_owned(),
+            port.to_owned(),
+        ]
+    };
+    fn args(v: &[String]) -> Vec<&str> {
+        v.iter().map(String::as_str).collect()
+    }
+
+    // A connection that says nothing, and one that speaks HTTP, hold up
+    // no one.
+    let silent = tokio::net::TcpStream::connect(at).await.expect("connect");
+    let mut http = tokio::net::TcpStream::connect(at).await.expect("connect");
+    tokio::io::AsyncWriteExt::write_all(&mut http, b"GET / HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .expect("write");
+    let mut answer = Vec::new();
+    let read = tokio::time::timeout(
+        Duration::from_secs(20),
+        tokio::io::AsyncReadExt::read_to_end(&mut http, &mut answer),
+    )
+    .await;
+    assert!(
+        read.is_ok(),
+        "a connection speaking HTTP is still open after 20 s"
+    );
+
+    // C-ECHO: answered for an allowed caller calling our title; refused
+    // (and audited) otherwise.
+    let (ok, out) = dcmtk(&echoscu, &args(&scp("MODALITY", "VOXSERVE")));
+    assert!(ok, "echoscu: {out}");
+    let (ok, out) = dcmtk(&echoscu, &args(&scp("INTRUDER", "VOXSERVE")));
+    assert!(
+        !ok && out.contains("Calling AE Title Not Recognized"),
+        "echoscu from an AE title not allowed: {out}"
+    );
+    let (ok, out) = dcmtk(&echoscu, &args(&scp("MODALITY", "ELSEWHERE")));
+    assert!(
+        !ok && out.contains("Called AE Title Not Recognized"),
+        "echoscu calling another AE title: {out}"
+    );
+    let vhf = data.join("dicom/vhf_head");
+    let files = dicom_files(&vhf);
+    let mut intruder = scp("INTRUDER", "VOXSERVE");
+    intruder.push(files[0].to_string_lossy().into_owned());
+    let (ok, out) = dcmtk(&storescu, &args(&intruder));
+    assert!(!ok, "storescu from an AE title not allowed: {out}");
+    assert_eq!(
+        std::fs::read_dir(received.join("series"))
+            .expect("series")
+            .count(),
+        0,
+        "nothing kept from an association refused"
+    );
+    let log = std::fs::read_to_string(&audit).unwrap_or_default();
+    assert!(
+        log.lines()
+            .any(|l| l.contains("\"associate\"") && l.contains("denied") && l.contains("INTRUDER")),
+        "the refused association is audited, naming the calling AE title: {log}"
+    );
+
+    // dcmsend pushes the VHF head's series; once settled it is bricked,
+    // served under its SeriesInstanceUID, and its store equals the one its
+    // files make.
+    let mut send = scp("MODALITY", "VOXSERVE");
+    send.extend([
+        "--scan-directories".to_owned(),
+        vhf.to_string_lossy().into_owned(),
+    ]);
+    let (ok, out) = dcmtk(&dcmsend, &args(&send));
+    assert!(ok, "dcmsend: {out}");
+    let series = uid_of(&files[0], tags::SERIES_INSTANCE_UID);
+    let http = reqwest::Client::new();
+    wait_served(&http, &server.url, &series).await;
+    let from_disk = dir.path().join("disk.zarr");
+    ingest_to(&vhf, &from_disk);
+    assert_same_store(
+        &Store::open(received.join("stores").join(format!("{series}.zarr"))).expect("open"),
+        &Store::open(&from_disk).expect("open"),
+        true,
+    );
+    assert_eq!(
+        std::fs::read_dir(received.join("series").join(&series))
+            .expect("kept")
+            .count(),
+        files.len(),
+        "every instance kept"
+    );
+    let log = std::fs::read_to_string(&audit).unwrap_or_default();
+    assert!(
+        log.lines().any(|l| l.contains("\"store\"")
+            && l.contains("AE MODALITY")
+            && l.contains(&format!("{} instance(s) stored", files.len()))),
+        "the association that stored is audited: {log}"
+    );
+    drop(silent);
+    let _ = server.stop();
 }

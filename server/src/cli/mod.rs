@@ -412,6 +412,20 @@ pub struct ServeArgs {
     #[arg(long = "receive-settle-s", value_name = "SECONDS", default_value_t = 10,
           value_parser = clap::value_parser!(u64).range(1..=3600))]
     pub receive_settle_s: u64,
+    /// Also receive studies over DICOM: a C-STORE service class provider
+    /// on this port (at --addr's address; 0 picks a free one) that keeps
+    /// instances where --receive does and answers C-ECHO. Associations must
+    /// call --ae-title from a calling AE title --dicom-allow names.
+    #[arg(long, value_name = "PORT", requires = "receive_dir")]
+    pub dicom_port: Option<u16>,
+    /// This server's DICOM AE title (1 to 16 characters).
+    #[arg(long, value_name = "TITLE", default_value = "VOXSERVE",
+          value_parser = crate::dimse::parse_ae_title)]
+    pub ae_title: String,
+    /// A calling AE title that may open DICOM associations (repeat for
+    /// several; `*` allows any). Needed with --dicom-port.
+    #[arg(long = "dicom-allow", value_name = "TITLE", value_parser = crate::dimse::parse_caller)]
+    pub dicom_allow: Vec<String>,
     /// Datasets whose blocks stay on the GPU at once; the one used least
     /// recently is released when another is needed.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]
