@@ -8,6 +8,7 @@ import { OrbitCamera, attachGestures } from './camera.js';
 import { Schema, control } from './settings.js';
 import { PLANES, SliceViews, directionLetters, scaleBarMm } from './slices.js';
 import { ViewStream } from './stream.js';
+import { StudyBrowser, isoDate, personName } from './studies.js';
 import { TfEditor } from './tf-editor.js';
 
 // The full frame's longest side, in device pixels (software GPUs are slow).
@@ -806,18 +807,6 @@ async function saveImage() {
 const datasetSelect = document.getElementById('dataset');
 let datasets = [];
 
-// A DICOM person name (family^given^middle^prefix^suffix) as people write it.
-function personName(pn) {
-  const [family = '', given = '', middle = '', prefix = '', suffix = ''] = pn.split('=')[0].split('^');
-  const first = [prefix, given, middle].filter(Boolean).join(' ');
-  return [family, first].filter(Boolean).join(', ') + (suffix ? ` ${suffix}` : '');
-}
-
-// A DICOM date (YYYYMMDD) as ISO 8601, unambiguous in every country.
-function isoDate(da) {
-  return /^\d{8}$/.test(da) ? `${da.slice(0, 4)}-${da.slice(4, 6)}-${da.slice(6)}` : da;
-}
-
 // The patient and the study of the current dataset in the image's corners.
 function showContext() {
   const s = dataset.study || {};
@@ -894,7 +883,13 @@ function fillDatasetPicker(list) {
   datasetSelect.replaceChildren();
   for (const d of list) {
     const [nx, ny, nz] = d.dims;
-    datasetSelect.add(new Option(`${d.name} ${nx}×${ny}×${nz}`, d.id));
+    // A series opened or received is named by its UID: its description
+    // (and modality) say more.
+    const s = d.study || {};
+    const named = /^[\d.]+$/.test(d.name) && s.series_description
+      ? [d.modality, s.series_description].filter(Boolean).join(' ')
+      : d.name;
+    datasetSelect.add(new Option(`${named} ${nx}×${ny}×${nz}`, d.id));
   }
 }
 
@@ -1055,7 +1050,63 @@ function attachHint() {
   });
 }
 
+// The page-wide notice while a series opens from the PACS: `fraction`
+// (0 to 1) and words, or nothing (null) to take it away.
+const opening = document.getElementById('opening');
+function showOpening(fraction, words = '') {
+  if (fraction === null) {
+    if (!opening.classList.contains('failed')) opening.hidden = true;
+    return;
+  }
+  opening.hidden = false;
+  document.getElementById('opening-progress').value = fraction;
+  document.getElementById('opening-words').textContent = words;
+}
+
+// Why a launch cannot be shown, over the whole page (not a blank viewer).
+function showLaunchFailed(message) {
+  opening.classList.add('failed');
+  opening.hidden = false;
+  document.getElementById('opening-title').textContent = 'Cannot show the images';
+  document.getElementById('opening-words').textContent = message;
+}
+
+// Dataset `id`, just offered by the server, shown from its default view.
+async function showOpened(id) {
+  const response = await authFetch('/api/datasets');
+  if (!response.ok) throw new Error(`GET /api/datasets answered ${response.status}`);
+  fillDatasetPicker(await response.json());
+  chooseDataset(id);
+  camera.reset();
+  requestFrame();
+}
+
+// The study browser, shown when the server has a PACS; a launch (IHE
+// Invoke Image Display sends the browser to `#iid=QUERY`) opens its study.
+async function attachStudies(launch) {
+  const browser = new StudyBrowser(document.getElementById('studies-panel'), {
+    onOpened: showOpened,
+    onProgress: showOpening,
+  });
+  const available = await browser.start();
+  if (launch === null) return;
+  if (!available) {
+    showLaunchFailed('This server cannot search a PACS for you (none is configured, or your role may not).');
+    return;
+  }
+  showOpening(0, 'Finding the study on the PACS…');
+  try {
+    const shown = await browser.invoke(launch);
+    if (shown === null) showOpening(null);
+  } catch (e) {
+    showLaunchFailed(e.message);
+  }
+}
+
 async function start() {
+  // A launch's request, read before the view's link replaces the hash.
+  const launch = new URLSearchParams(location.hash.slice(1)).get('iid');
+  if (launch !== null) showOpening(0, 'Logging in…');
   resizeCanvas();
   attachHint();
   showStatus('Loading the settings and the list of datasets…');
@@ -1116,6 +1167,7 @@ async function start() {
   showLight();
   showLightPanel();
   requestFrame();
+  attachStudies(launch);
 }
 
 start();

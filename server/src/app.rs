@@ -81,11 +81,14 @@ pub struct AppState {
     pub notice: Option<Arc<str>>,
     /// Where studies pushed to the server go (`--receive`), if anywhere.
     pub receiver: Option<Arc<crate::receive::Receiver>>,
+    /// The PACS the study browser searches (`--pacs`), if any.
+    pub studies: Option<Arc<crate::studies::Studies>>,
 }
 
-/// The datasets a server offers: a list read as a whole (a request or a
-/// view session works on the list as it was when it began) and added to
-/// while the server runs.
+/// The datasets a server offers: a list read as a whole (a request works
+/// on the list as it was when it began, a view session on the list as it
+/// was at its last message) and added to, or taken from, while the server
+/// runs.
 #[derive(Debug, Clone)]
 pub struct Datasets(Arc<std::sync::RwLock<Arc<[Dataset]>>>);
 
@@ -122,6 +125,19 @@ impl Datasets {
         next.push(dataset);
         *list = next.into();
     }
+
+    /// No longer offers dataset `id` (sessions showing it keep what they
+    /// hold); never the last one.
+    pub fn remove(&self, id: &str) {
+        let mut list = self
+            .0
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if list.len() > 1 && list.iter().any(|d| d.id == id) {
+            let next: Vec<Dataset> = list.iter().filter(|d| d.id != id).cloned().collect();
+            *list = next.into();
+        }
+    }
 }
 
 impl AppState {
@@ -152,6 +168,7 @@ impl AppState {
             rates: Arc::new(RequestRates::new(Access::default().requests)),
             notice: None,
             receiver: None,
+            studies: None,
         }
     }
 
@@ -249,6 +266,14 @@ pub fn router(state: AppState) -> Router {
             "/dicom-web/studies/{study}",
             post(crate::receive::stow_study),
         )
+        .route("/api/pacs", get(crate::studies::list))
+        .route("/api/pacs/studies", get(crate::studies::search))
+        .route("/api/pacs/series", get(crate::studies::series))
+        .route(
+            "/api/pacs/open",
+            post(crate::studies::open).get(crate::studies::progress),
+        )
+        .route("/api/pacs/iid", get(crate::studies::resolve))
         .route("/api/datasets", get(datasets))
         .route("/api/datasets/{id}", get(dataset))
         .route(
@@ -263,6 +288,7 @@ pub fn router(state: AppState) -> Router {
         .merge(api)
         .route("/api/auth", get(auth_config))
         .route("/healthz", get(healthz))
+        .route("/IHEInvokeImageDisplay", get(crate::studies::invoke))
         .fallback(get(static_file))
         .layer(host_guard)
         .layer(headers)

@@ -14,7 +14,7 @@ use tokio::net::TcpListener;
 
 use crate::cli::{
     AuthArgs, Command, DataArgs, InfoArgs, IngestArgs, PacsArgs, PacsCommand, PacsFetchArgs,
-    RenderArgs, ServeArgs, SettingsArgs, TokenArgs, VerifyArgs,
+    PacsLinkArgs, RenderArgs, ServeArgs, SettingsArgs, TokenArgs, VerifyArgs,
 };
 use crate::dataset::PHANTOM_ID;
 use crate::{AppState, Dataset, RenderService, encode};
@@ -39,9 +39,25 @@ pub fn run(command: Command) -> anyhow::Result<()> {
 
 /// The PACS client `args` configure.
 pub fn dicomweb(args: &PacsArgs) -> anyhow::Result<crate::pacs::DicomWeb> {
-    let endpoints = crate::pacs::Endpoints::new(args.pacs.clone(), &args.auth)?;
+    let link = &args.link;
+    if link.pacs.is_empty() {
+        anyhow::bail!("--pacs: expected at least one NAME=URL, the PACS to ask");
+    }
+    let endpoints = crate::pacs::Endpoints::new(link.pacs.clone(), &link.auth)?;
     let endpoint = endpoints.pick(args.from.as_deref())?.clone();
-    crate::pacs::DicomWeb::new(endpoint, std::time::Duration::from_secs(args.timeout_s))
+    crate::pacs::DicomWeb::new(endpoint, std::time::Duration::from_secs(link.timeout_s))
+}
+
+/// A client of every PACS `args` names.
+fn dicomwebs(args: &PacsLinkArgs) -> anyhow::Result<Vec<crate::pacs::DicomWeb>> {
+    let endpoints = crate::pacs::Endpoints::new(args.pacs.clone(), &args.auth)?;
+    endpoints
+        .all()
+        .iter()
+        .map(|e| {
+            crate::pacs::DicomWeb::new(e.clone(), std::time::Duration::from_secs(args.timeout_s))
+        })
+        .collect()
 }
 
 /// `voxserve pacs search | series | fetch`.
@@ -403,6 +419,32 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    let studies = match (&args.pacs_cache, args.pacs.pacs.is_empty()) {
+        (None, true) => None,
+        (None, false) => anyhow::bail!(
+            "--pacs without --pacs-cache: name the folder where series opened from the PACS are kept"
+        ),
+        (Some(_), true) => {
+            anyhow::bail!(
+                "--pacs-cache without --pacs: name the PACS (NAME=URL) to open studies from"
+            )
+        }
+        (Some(dir), false) => {
+            let studies = crate::studies::Studies::new(
+                dicomwebs(&args.pacs)?,
+                dir,
+                args.pacs_cache_gib << 30,
+                args.data.cache_bytes(),
+            )?;
+            for path in studies.stores()? {
+                match load_dataset(&path.to_string_lossy(), &args.data) {
+                    Ok(dataset) => datasets.push(dataset),
+                    Err(e) => tracing::error!("not serving {}: {e:#}", path.display()),
+                }
+            }
+            Some(studies)
+        }
+    };
     for (i, d) in datasets.iter().enumerate() {
         if datasets[..i].iter().any(|e| e.id == d.id) {
             anyhow::bail!(
@@ -474,6 +516,7 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         }
         state.receiver = Some(receiver);
     }
+    state.studies = studies;
     reload_on_hangup(&state)?;
     say(&format!(
         "voxserve: serving {} on {} at {scheme}://{addr}/{dicom_line}",

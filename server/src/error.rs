@@ -17,6 +17,10 @@ pub enum AppError {
     /// The named thing does not exist. Answered with 404.
     #[error("{0}")]
     NotFound(String),
+    /// A PACS the server asked failed or answered what it should not; the
+    /// message names the PACS and the request. Answered with 502.
+    #[error("{0}")]
+    BadGateway(String),
     /// The server is at capacity; the client may retry. Answered with 503.
     #[error("{0}")]
     Busy(String),
@@ -59,6 +63,7 @@ impl IntoResponse for AppError {
             AppError::BadRequest(m) => (StatusCode::BAD_REQUEST, m),
             AppError::Forbidden(m) => (StatusCode::FORBIDDEN, m),
             AppError::NotFound(m) => (StatusCode::NOT_FOUND, m),
+            AppError::BadGateway(m) => (StatusCode::BAD_GATEWAY, m),
             AppError::Busy(m) => (StatusCode::SERVICE_UNAVAILABLE, m),
             AppError::TooMany(m) => (StatusCode::TOO_MANY_REQUESTS, m),
             e @ AppError::DataUnreadable(_) => {

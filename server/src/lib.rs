@@ -38,6 +38,8 @@
 //!   into a spool folder and bricked as the same files on disk are.
 //! - [`receive`]: studies pushed to the server (STOW-RS), kept series by
 //!   series and bricked into datasets once complete.
+//! - [`studies`]: the study browser's PACS search and opening of series
+//!   (fetched, bricked and cached), and IHE Invoke Image Display.
 //! - [`dimse`]: the DICOM C-STORE and C-ECHO service class provider, keeping
 //!   what it receives as [`receive`] does.
 //! - [`commands`]: what `serve`, `render`, `info`, `ingest`, `pacs` and
@@ -64,6 +66,7 @@ pub mod protocol;
 pub mod receive;
 pub mod render_service;
 pub mod stream;
+pub mod studies;
 pub mod tls;
 pub mod view;
 pub mod web;

@@ -2714,3 +2714,163 @@ async fn on_a_phone_the_two_by_two_layout_shows_three_slices_and_3d() {
     let result = phone_slices(&client, &server, &volume).await;
     finish(test, client, result).await;
 }
+
+/// IHE Invoke Image Display against a real Orthanc holding the VHF head:
+/// the launch URL with its StudyInstanceUID opens the viewer on that
+/// study's volume (fetched over WADO-RS, bricked, shown at 512×512×234);
+/// an unknown study gives a page saying so, not a blank viewer; a
+/// malformed request a readable page naming the parameter.
+async fn iid_launch(
+    client: &Client,
+    server: &TestServer,
+    study: &str,
+    series: &str,
+) -> Result<(), String> {
+    let launched = Instant::now();
+    client
+        .goto(&server.url(&format!(
+            "/IHEInvokeImageDisplay?requestType=STUDY&studyUID={study}&viewerType=IHE_BIR&diagnosticQuality=true"
+        )))
+        .await
+        .map_err(|e| format!("opening the launch URL: {e}"))?;
+    let shown = format!(
+        "return document.getElementById('dataset').value === '{series}' && document.getElementById('opening').hidden ? 1 : 0;"
+    );
+    wait_for(client, "the study's series shown", &shown, |v| v == 1.0).await?;
+    let frames = number(client, "frames", FRAMES).await?;
+    wait_for(client, "a frame of the study", FRAMES, |n| n > frames).await?;
+    println!(
+        "IHE Invoke Image Display to the first frame of the study (fetched, bricked, drawn): {:.1} s",
+        launched.elapsed().as_secs_f64()
+    );
+    wait_for(client, "the study's view finished", FINISHED, |v| v == 1.0).await?;
+    keep_screenshot(client, "iid-study").await?;
+    let list = datasets_json(server).await?;
+    let offered = list
+        .as_array()
+        .and_then(|l| l.iter().find(|d| d["id"] == series))
+        .ok_or_else(|| format!("series {series} not offered: {list}"))?;
+    if offered["dims"] != serde_json::json!([512, 512, 234]) {
+        return Err(format!("the series is offered as {offered}"));
+    }
+    let corners = text(
+        client,
+        "the corners",
+        "return document.getElementById('context').textContent;",
+    )
+    .await?;
+    if corners.trim().is_empty() {
+        return Err(format!("the corners name no patient or study: {corners:?}"));
+    }
+
+    // The study browser finds the study by PatientID through the server
+    // and lists its series; the one opened is offered already (Show).
+    run(
+        client,
+        "a search",
+        "const p = document.getElementById('studies-panel'); p.open = true;
+         const f = p.querySelector('form'); f.elements.PatientID.value = '000-000-001';
+         f.requestSubmit();",
+    )
+    .await?;
+    wait_for(
+        client,
+        "the studies found",
+        "return document.querySelectorAll('#study-list button').length;",
+        |n| n == 1.0,
+    )
+    .await?;
+    run(
+        client,
+        "a study",
+        "document.querySelector('#study-list button').click();",
+    )
+    .await?;
+    let listed = format!(
+        "const li = document.querySelector('#series-list li[data-series=\"{series}\"]');
+         return li && li.querySelector('button') && li.querySelector('button').textContent === 'Show' ? 1 : 0;"
+    );
+    wait_for(client, "the study's series listed", &listed, |v| v == 1.0).await?;
+    keep_screenshot(client, "study-browser").await?;
+
+    // An unknown study: the reason over the whole page.
+    client
+        .goto(&server.url(
+            "/IHEInvokeImageDisplay?requestType=STUDY&studyUID=1.2.826.0.1.3680043.2.1125.99.1",
+        ))
+        .await
+        .map_err(|e| format!("opening the launch URL: {e}"))?;
+    let failed = "const o = document.getElementById('opening');
+        return !o.hidden && o.classList.contains('failed') ? 1 : 0;";
+    wait_for(client, "the unknown study's page", failed, |v| v == 1.0).await?;
+    let words = text(
+        client,
+        "the page's words",
+        "return document.getElementById('opening').innerText;",
+    )
+    .await?;
+    println!("an unknown study: {words:?}");
+    if !words.contains("not found") || !words.contains("1.2.826.0.1.3680043.2.1125.99.1") {
+        return Err(format!(
+            "the page for an unknown study says {words:?}: expected that it was not found, naming it"
+        ));
+    }
+    keep_screenshot(client, "iid-unknown").await?;
+
+    // A malformed request: a readable page naming the parameter.
+    client
+        .goto(&server.url("/IHEInvokeImageDisplay?requestType=SERIES&studyUID=1.2.3"))
+        .await
+        .map_err(|e| format!("opening the launch URL: {e}"))?;
+    let words = text(
+        client,
+        "the page's words",
+        "return document.body.innerText;",
+    )
+    .await?;
+    if !words.contains("requestType") || !words.contains("STUDY or PATIENT") {
+        return Err(format!(
+            "the page for requestType=SERIES says {words:?}: expected the parameter named"
+        ));
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn an_iid_launch_opens_the_study_from_the_pacs_and_an_unknown_one_says_so() {
+    let test = "an_iid_launch_opens_the_study_from_the_pacs_and_an_unknown_one_says_so";
+    let Some(data) = voxserve_tests::data::shared_data(test) else {
+        return;
+    };
+    let Some(orthanc) = voxserve_tests::orthanc::Orthanc::start_or_skip(test) else {
+        return;
+    };
+    let Some((_driver, client)) = open_browser_as(test, 1000, 700, false).await else {
+        return;
+    };
+    let http = reqwest::Client::new();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(data.join("dicom/vhf_head"))
+        .expect("the VHF head")
+        .map(|e| e.expect("entry").path())
+        .collect();
+    files.sort();
+    for f in &files {
+        orthanc.upload(&http, f).await;
+    }
+    let uids = blocks::ingest::dicom::instance_uids(&files[0]).expect("UIDs");
+    let cache = tempfile::tempdir().expect("tempdir");
+    let endpoint =
+        server::pacs::endpoint::parse_pacs(&format!("orthanc={}/dicom-web", orthanc.url))
+            .expect("endpoint");
+    let web = server::pacs::DicomWeb::new(endpoint, Duration::from_secs(30)).expect("client");
+    let studies =
+        server::studies::Studies::new(vec![web], cache.path(), 1 << 30, 256 << 20).expect("cache");
+    let renderer =
+        server::RenderService::start(shaders::Backend::Cpu, 512 << 20, 2).expect("render worker");
+    let phantom = server::Dataset::phantom(32, 64 << 20).expect("phantom");
+    let mut state = server::AppState::new(vec![phantom], renderer, StreamSettings::default());
+    state.studies = Some(studies);
+    let server = TestServer::serving(state).await;
+    let result = iid_launch(&client, &server, &uids.study, &uids.series).await;
+    finish(test, client, result).await;
+}

@@ -209,6 +209,17 @@ impl Auth {
         }
     }
 
+    /// Whether `principal` may search and open studies from the PACS.
+    pub fn may_use_pacs(&self, principal: &Principal) -> bool {
+        match principal.proof {
+            Proof::Anonymous => true,
+            _ => {
+                let allowed = policy::pacs_roles(self.policy.as_ref());
+                principal.roles.iter().any(|r| allowed.contains(r))
+            }
+        }
+    }
+
     /// What the web client needs to log in, for `GET /api/auth`.
     pub fn describe(&self) -> serde_json::Value {
         serde_json::json!({

@@ -8,7 +8,8 @@
 //!   ],
 //!   "hide_denied": true,
 //!   "metrics_roles": ["monitoring"],
-//!   "store_roles": ["modality"]
+//!   "store_roles": ["modality"],
+//!   "pacs_roles": ["radiology"]
 //! }
 //! ```
 //!
@@ -18,7 +19,8 @@
 //! denied dataset answers 404 as an unknown one does (its existence is
 //! itself sensitive), else 403. `metrics_roles` may read `/metrics`
 //! (default: `metrics`); `store_roles` may push studies with STOW-RS
-//! (default: `store`).
+//! (default: `store`); `pacs_roles` may search the PACS and open its
+//! studies (default: `pacs`).
 
 use std::path::Path;
 
@@ -29,6 +31,9 @@ use serde::Deserialize;
 const METRICS_ROLE: &str = "metrics";
 /// The role that may store studies (STOW-RS) without a policy file.
 const STORE_ROLE: &str = "store";
+/// The role that may search and open studies from the PACS without a
+/// policy file.
+const PACS_ROLE: &str = "pacs";
 /// The largest policy file read, bytes, and the most rules, roles and
 /// patterns it may hold.
 const MAX_FILE_BYTES: u64 = 4 << 20;
@@ -45,6 +50,8 @@ struct File {
     metrics_roles: Vec<String>,
     #[serde(default = "default_store_roles")]
     store_roles: Vec<String>,
+    #[serde(default = "default_pacs_roles")]
+    pacs_roles: Vec<String>,
 }
 
 fn default_metrics_roles() -> Vec<String> {
@@ -53,6 +60,15 @@ fn default_metrics_roles() -> Vec<String> {
 
 fn default_store_roles() -> Vec<String> {
     vec![STORE_ROLE.to_owned()]
+}
+
+fn default_pacs_roles() -> Vec<String> {
+    vec![PACS_ROLE.to_owned()]
+}
+
+/// The roles that may search and open studies from the PACS.
+pub fn pacs_roles(policy: Option<&Policy>) -> Vec<String> {
+    policy.map_or_else(default_pacs_roles, |p| p.pacs_roles.clone())
 }
 
 /// The roles that may store studies (STOW-RS) without a policy file.
@@ -84,6 +100,8 @@ pub struct Policy {
     pub metrics_roles: Vec<String>,
     /// The roles that may store studies (STOW-RS).
     pub store_roles: Vec<String>,
+    /// The roles that may search and open studies from the PACS.
+    pub pacs_roles: Vec<String>,
 }
 
 impl Policy {
@@ -102,7 +120,7 @@ impl Policy {
     pub fn parse(text: &str) -> Result<Policy, String> {
         let file: File = serde_json::from_str(text).map_err(|e| {
             format!(
-                "{e}: expected {{\"rules\": [{{\"roles\": […], \"datasets\": […]}}], \"hide_denied\": false, \"metrics_roles\": […], \"store_roles\": […]}}"
+                "{e}: expected {{\"rules\": [{{\"roles\": […], \"datasets\": […]}}], \"hide_denied\": false, \"metrics_roles\": […], \"store_roles\": […], \"pacs_roles\": […]}}"
             )
         })?;
         if file.rules.len() > MAX_RULES {
@@ -140,6 +158,7 @@ impl Policy {
             hide_denied: file.hide_denied,
             metrics_roles: file.metrics_roles,
             store_roles: file.store_roles,
+            pacs_roles: file.pacs_roles,
         })
     }
 

@@ -64,9 +64,19 @@ pub enum PacsCommand {
 /// Which PACS, and how to reach it.
 #[derive(Debug, Args)]
 pub struct PacsArgs {
+    #[command(flatten)]
+    pub link: PacsLinkArgs,
+    /// Which PACS to ask, where several are given.
+    #[arg(long, value_name = "NAME")]
+    pub from: Option<String>,
+}
+
+/// The PACS (their DICOMweb services) and how to reach them.
+#[derive(Debug, Args)]
+pub struct PacsLinkArgs {
     /// A PACS's DICOMweb service: NAME=URL, e.g.
     /// main=https://pacs.example.org/dicom-web. Repeat for more.
-    #[arg(long = "pacs", value_name = "NAME=URL", required = true,
+    #[arg(long = "pacs", value_name = "NAME=URL",
           value_parser = crate::pacs::endpoint::parse_pacs)]
     pub pacs: Vec<crate::pacs::Endpoint>,
     /// The authorization a PACS needs: NAME=FILE, the file holding one line
@@ -75,9 +85,6 @@ pub struct PacsArgs {
     #[arg(long = "pacs-auth", value_name = "NAME=FILE",
           value_parser = crate::pacs::endpoint::parse_auth)]
     pub auth: Vec<(String, PathBuf)>,
-    /// Which PACS to ask, where several are given.
-    #[arg(long, value_name = "NAME")]
-    pub from: Option<String>,
     /// Seconds an answer may stall (no byte arriving) before it is given up.
     #[arg(long = "pacs-timeout-s", value_name = "SECONDS", default_value_t = 30,
           value_parser = clap::value_parser!(u64).range(1..=600))]
@@ -426,6 +433,18 @@ pub struct ServeArgs {
     /// several; `*` allows any). Needed with --dicom-port.
     #[arg(long = "dicom-allow", value_name = "TITLE", value_parser = crate::dimse::parse_caller)]
     pub dicom_allow: Vec<String>,
+    /// The PACS the web client's study browser and IHE Invoke Image Display
+    /// search (the first is the default); needs --pacs-cache.
+    #[command(flatten)]
+    pub pacs: PacsLinkArgs,
+    /// Where series opened from the PACS are bricked and kept (served again
+    /// at start); the store used least recently goes past --pacs-cache-gib.
+    #[arg(long, value_name = "DIR")]
+    pub pacs_cache: Option<PathBuf>,
+    /// The most the series kept in --pacs-cache may take, GiB.
+    #[arg(long, value_name = "GIB", default_value_t = 20,
+          value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub pacs_cache_gib: u64,
     /// Datasets whose blocks stay on the GPU at once; the one used least
     /// recently is released when another is needed.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]

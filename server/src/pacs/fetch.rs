@@ -86,8 +86,11 @@ pub async fn fetch_series(
     let total = instances.len();
     let (done, bytes) = (AtomicUsize::new(0), AtomicU64::new(0));
     progress(0, total, 0);
-    futures_util::stream::iter(&instances)
-        .map(|instance| {
+    // By index, not by reference: a closure over `&InstanceRecord` would be
+    // higher-ranked, and the future could not be spawned.
+    futures_util::stream::iter(0..instances.len())
+        .map(|i| {
+            let instance = &instances[i];
             // Named by the SOP instance UID (digits and dots), so that an
             // error reading the file names the instance.
             let dest = dir.path().join(format!("{}.dcm", instance.sop_uid));

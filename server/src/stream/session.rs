@@ -171,6 +171,11 @@ pub struct Session {
 }
 
 impl Session {
+    /// Offers `datasets` from now on (the list the server offers now).
+    pub fn offer(&mut self, datasets: Arc<[Dataset]>) {
+        self.datasets = datasets;
+    }
+
     /// A session without a view yet, offering `datasets`; the layout shows
     /// the 3D view alone.
     pub fn new(datasets: Arc<[Dataset]>, settings: StreamSettings) -> Session {

@@ -316,6 +316,11 @@ where
             }
             _ => {}
         }
+        if matches!(event, Event::Received(Message::Text(_))) {
+            // Datasets added (a study opened or received) or removed since:
+            // a view message may name any the caller may see now.
+            session.offer(state.visible(&caller.principal));
+        }
         if let Some(end) = handle(event, sink, session, state).await {
             return end;
         }
