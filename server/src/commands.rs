@@ -433,7 +433,7 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
             let studies = crate::studies::Studies::new(
                 dicomwebs(&args.pacs)?,
                 dir,
-                args.pacs_cache_gib << 30,
+                args.pacs_cache_mib << 20,
                 args.data.cache_bytes(),
             )?;
             for path in studies.stores()? {

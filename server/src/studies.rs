@@ -9,7 +9,7 @@
 //! offers it as a dataset whose id is its SeriesInstanceUID; the client
 //! follows the job (instances fetched, slices bricked) and shows it once
 //! it is ready. Stores in the cache are served again at start; past the
-//! cache's budget (`--pacs-cache-gib`) the store used least recently is
+//! cache's budget (`--pacs-cache-mib`) the store used least recently is
 //! removed (and no longer offered). One job per series at a time; at most
 //! [`MAX_BRICKING`] series bricked at once.
 //!

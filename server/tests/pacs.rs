@@ -18,6 +18,12 @@
 //!   `echoscu` is answered; an association from a calling AE title not
 //!   allowed, or calling another title, is rejected, audited, and stores
 //!   nothing; a silent connection and one speaking HTTP hold up no one.
+//! - `serve --pacs --pacs-cache` searches Orthanc for the study browser
+//!   (by PatientID, by StudyDate and modality), lists the series, opens
+//!   one (its store equals the one its files make), evicts the store used
+//!   least recently past the budget, resolves IID STUDY and PATIENT
+//!   requests, and refuses bad ones naming the parameter (a PACS that is
+//!   down: 502; a series the PACS lacks: a failed job, nothing cached).
 //! - Faults: a PACS that is down, one that never answers (timeout), 404 and
 //!   500 answers, malformed JSON, a truncated multipart body, a frame that
 //!   fails to decode, a series with a missing slice: each is an error naming
@@ -1017,5 +1023,273 @@ async fn dcmtk_pushes_the_series_over_dicom_and_it_is_served_as_its_files_on_dis
         "the association that stored is audited: {log}"
     );
     drop(silent);
+    let _ = server.stop();
+}
+
+/// `GET url`: its status and JSON body (`null` when not JSON).
+async fn get_answer(http: &reqwest::Client, url: &str) -> (u16, serde_json::Value) {
+    let answer = http.get(url).send().await.expect("GET");
+    let status = answer.status().as_u16();
+    let body = answer.bytes().await.expect("body");
+    (status, serde_json::from_slice(&body).unwrap_or_default())
+}
+
+/// Waits (up to 90 s) for the job opening `series` to end; its last state.
+async fn wait_opened(
+    http: &reqwest::Client,
+    url: &str,
+    study: &str,
+    series: &str,
+) -> serde_json::Value {
+    let start = std::time::Instant::now();
+    loop {
+        let (status, job) = get_answer(
+            http,
+            &format!("{url}/api/pacs/open?study={study}&series={series}"),
+        )
+        .await;
+        assert_eq!(status, 200, "{job}");
+        if job["state"] == "ready" || job["state"] == "failed" {
+            return job;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(90),
+            "series {series} still {job} after 90 s"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_bad_requests() {
+    let test = "the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_bad_requests";
+    let Some(data) = shared_data(test) else {
+        return;
+    };
+    let Some(orthanc) = Orthanc::start_or_skip(test) else {
+        return;
+    };
+    let http = reqwest::Client::new();
+    let dir = tempfile::tempdir().expect("tempdir");
+    // Two series of one study: the first 40 VHF slices, and the same
+    // slices again as a second series (new series and instance UIDs).
+    let vhf = dicom_files(&data.join("dicom/vhf_head"));
+    let again = dir.path().join("again");
+    std::fs::create_dir_all(&again).expect("folder");
+    for (i, f) in vhf[..40].iter().enumerate() {
+        orthanc.upload(&http, f).await;
+        let mut obj = dicom_object::open_file(f).expect("open");
+        for (tag, uid) in [
+            (
+                tags::SERIES_INSTANCE_UID,
+                "1.2.826.0.1.3680043.2.1125.7.2".to_owned(),
+            ),
+            (
+                tags::SOP_INSTANCE_UID,
+                format!("1.2.826.0.1.3680043.2.1125.7.2.{}", i + 1),
+            ),
+            (tags::SERIES_NUMBER, "2".to_owned()),
+        ] {
+            let vr = if tag == tags::SERIES_NUMBER {
+                dicom_core::VR::IS
+            } else {
+                dicom_core::VR::UI
+            };
+            obj.put(dicom_core::DataElement::new(
+                tag,
+                vr,
+                dicom_core::PrimitiveValue::from(uid),
+            ));
+        }
+        obj.update_meta(|m| {
+            m.media_storage_sop_instance_uid = format!("1.2.826.0.1.3680043.2.1125.7.2.{}", i + 1);
+        });
+        let copy = again.join(format!("{i}.dcm"));
+        obj.write_to_file(&copy).expect("write");
+        orthanc.upload(&http, &copy).await;
+    }
+    let study = uid_of(&vhf[0], tags::STUDY_INSTANCE_UID);
+    let first = uid_of(&vhf[0], tags::SERIES_INSTANCE_UID);
+    let second = "1.2.826.0.1.3680043.2.1125.7.2";
+
+    let cache = dir.path().join("cache");
+    let orthanc_pacs = format!("orthanc={}/dicom-web", orthanc.url);
+    let serve = [
+        "serve",
+        "--addr",
+        "127.0.0.1:0",
+        "--phantom-size",
+        "32",
+        "--pacs",
+        &orthanc_pacs,
+        "--pacs",
+        "down=http://127.0.0.1:9/dicom-web",
+        "--pacs-cache",
+        cache.to_str().expect("path"),
+        "--pacs-cache-mib",
+        "1",
+    ];
+    let (ok, _, err) = voxserve(&serve[..9]);
+    assert!(!ok && err.contains("--pacs-cache"), "{err}");
+    let server = voxserve_tests::server::Spawned::start(VOXSERVE, &serve)
+        .await
+        .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    let url = &server.url;
+
+    // Search and list through the server.
+    let (status, pacs) = get_answer(&http, &format!("{url}/api/pacs")).await;
+    assert_eq!(
+        (status, &pacs["pacs"]),
+        (200, &serde_json::json!(["orthanc", "down"]))
+    );
+    let (status, found) = get_answer(
+        &http,
+        &format!("{url}/api/pacs/studies?PatientID=000-000-001"),
+    )
+    .await;
+    assert_eq!(status, 200, "{found}");
+    assert_eq!(found[0]["study_uid"], study.as_str(), "{found}");
+    let (status, found) = get_answer(
+        &http,
+        &format!("{url}/api/pacs/studies?StudyDate=20050101-20050102&ModalitiesInStudy=CT"),
+    )
+    .await;
+    assert_eq!(
+        (status, found.as_array().map(Vec::len)),
+        (200, Some(1)),
+        "{found}"
+    );
+    let (status, series) = get_answer(&http, &format!("{url}/api/pacs/series?study={study}")).await;
+    assert_eq!(status, 200, "{series}");
+    assert_eq!(series.as_array().map(Vec::len), Some(2), "{series}");
+    assert!(
+        series
+            .as_array()
+            .expect("list")
+            .iter()
+            .all(|s| s["volume"] == true && s["instances"] == 40)
+    );
+
+    // Bad requests: named, not passed on.
+    for (path, status, words) in [
+        ("/api/pacs/studies?StudyDate=2005-01-01", 400, "StudyDate"),
+        (
+            "/api/pacs/studies?pacs=elsewhere",
+            404,
+            "expected one of orthanc, down",
+        ),
+        ("/api/pacs/studies?limit=5000", 400, "limit"),
+        ("/api/pacs/series?study=1..2", 400, "study"),
+        ("/api/pacs/studies?pacs=down", 502, "down"),
+        ("/api/pacs/iid?requestType=SERIES", 400, "STUDY or PATIENT"),
+        (
+            "/api/pacs/iid?requestType=STUDY&studyUID=1.2.3",
+            404,
+            "not found on PACS orthanc",
+        ),
+        (
+            "/api/pacs/iid?requestType=PATIENT&patientID=nobody",
+            404,
+            "patient nobody",
+        ),
+    ] {
+        let (got, body) = get_answer(&http, &format!("{url}{path}")).await;
+        assert_eq!(got, status, "{path}: {body}");
+        assert!(
+            body["error"].as_str().is_some_and(|e| e.contains(words)),
+            "{path}: {body}, expected {words:?}"
+        );
+    }
+    // An IID launch is checked, then sent to the viewer with its query.
+    let launch = reqwest::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()
+        .expect("client");
+    let answer = launch
+        .get(format!(
+            "{url}/IHEInvokeImageDisplay?requestType=STUDY&studyUID={study}"
+        ))
+        .send()
+        .await
+        .expect("GET");
+    assert_eq!(answer.status().as_u16(), 303);
+    let location = answer.headers()["location"]
+        .to_str()
+        .expect("text")
+        .to_owned();
+    assert!(
+        location.starts_with("/#iid=requestType%3DSTUDY%26studyUID%3D"),
+        "{location}"
+    );
+    let answer = launch
+        .get(format!("{url}/IHEInvokeImageDisplay?requestType=PATIENT"))
+        .send()
+        .await
+        .expect("GET");
+    assert_eq!(answer.status().as_u16(), 400);
+    assert!(answer.text().await.expect("page").contains("patientID"));
+    let (status, resolved) = get_answer(
+        &http,
+        &format!("{url}/api/pacs/iid?requestType=PATIENT&patientID=000-000-001&mostRecentResults=1&modalitiesInStudy=CT,MR"),
+    )
+    .await;
+    assert_eq!(status, 200, "{resolved}");
+    assert_eq!(
+        resolved["studies"].as_array().map(Vec::len),
+        Some(1),
+        "{resolved}"
+    );
+
+    // A series the PACS does not hold: the job fails naming it; nothing
+    // is served or left in the cache.
+    let missing = "1.2.826.0.1.3680043.2.1125.7.3";
+    let open = |series: &str| {
+        http.post(format!("{url}/api/pacs/open?study={study}&series={series}"))
+            .send()
+    };
+    assert_eq!(open(missing).await.expect("POST").status().as_u16(), 200);
+    let job = wait_opened(&http, url, &study, missing).await;
+    assert_eq!(job["state"], "failed", "{job}");
+    assert!(
+        job["error"].as_str().is_some_and(|e| e.contains(missing)),
+        "{job}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&cache).expect("cache").collect();
+    assert!(left.is_empty(), "left in the cache: {left:?}");
+
+    // Opened: fetched, bricked, served, and the same as its files make.
+    assert_eq!(open(&first).await.expect("POST").status().as_u16(), 200);
+    let job = wait_opened(&http, url, &study, &first).await;
+    assert_eq!(job["state"], "ready", "{job}");
+    assert_eq!(job["fetched"], 40, "{job}");
+    let from_disk = dir.path().join("disk.zarr");
+    let forty = dir.path().join("forty");
+    std::fs::create_dir_all(&forty).expect("folder");
+    for f in &vhf[..40] {
+        std::fs::copy(f, forty.join(f.file_name().expect("name"))).expect("copy");
+    }
+    ingest_to(&forty, &from_disk);
+    assert_same_store(
+        &Store::open(cache.join(format!("{first}.zarr"))).expect("open"),
+        &Store::open(&from_disk).expect("open"),
+        true,
+    );
+    // A second series past the 1 MiB budget: the first, used least
+    // recently, is removed and no longer offered.
+    assert_eq!(open(second).await.expect("POST").status().as_u16(), 200);
+    let job = wait_opened(&http, url, &study, second).await;
+    assert_eq!(job["state"], "ready", "{job}");
+    let list = get_json(&http, &format!("{url}/api/datasets")).await;
+    let ids: Vec<&str> = list
+        .as_array()
+        .expect("list")
+        .iter()
+        .filter_map(|d| d["id"].as_str())
+        .collect();
+    assert!(
+        ids.contains(&second) && !ids.contains(&first.as_str()),
+        "{ids:?}"
+    );
+    assert!(!cache.join(format!("{first}.zarr")).exists());
     let _ = server.stop();
 }

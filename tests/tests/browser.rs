@@ -36,6 +36,12 @@
 //! written for the test, the corners name the patient and the study, Info
 //! hides them (remembered), and the server's `--notice` shows.
 //!
+//! IHE Invoke Image Display against a real Orthanc holding the VHF head:
+//! the launch URL opens the viewer on the study's volume (fetched, bricked,
+//! drawn), the Studies panel finds it by PatientID and lists its series, an
+//! unknown study gives a page saying so (not a blank viewer) and a
+//! malformed request a readable page naming the parameter.
+//!
 //! Skipped with a printed reason when `chromedriver` is missing, unless
 //! `VOXSERVE_REQUIRE_BROWSER=1` (set by `.ci/run`, whose prerequisites install
 //! it).

@@ -84,6 +84,12 @@ pub struct BenchPacsArgs {
     /// Rounds.
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub rounds: u32,
+    /// Also time, per round, an IHE Invoke Image Display request for the
+    /// study to the first frame of its series (a server on loopback with an
+    /// empty cache, rendering on the CPU): the request checked and sent on,
+    /// the study resolved, the series fetched and bricked, a 512² frame.
+    #[arg(long)]
+    pub iid: bool,
 }
 
 /// `voxserve bench peer`.

@@ -438,13 +438,14 @@ pub struct ServeArgs {
     #[command(flatten)]
     pub pacs: PacsLinkArgs,
     /// Where series opened from the PACS are bricked and kept (served again
-    /// at start); the store used least recently goes past --pacs-cache-gib.
+    /// at start); the store used least recently goes past --pacs-cache-mib.
     #[arg(long, value_name = "DIR")]
     pub pacs_cache: Option<PathBuf>,
-    /// The most the series kept in --pacs-cache may take, GiB.
-    #[arg(long, value_name = "GIB", default_value_t = 20,
-          value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
-    pub pacs_cache_gib: u64,
+    /// The most the series kept in --pacs-cache may take, MiB (the series
+    /// just opened is kept whatever its size).
+    #[arg(long, value_name = "MIB", default_value_t = 20 << 10,
+          value_parser = clap::value_parser!(u64).range(1..=1 << 30))]
+    pub pacs_cache_mib: u64,
     /// Datasets whose blocks stay on the GPU at once; the one used least
     /// recently is released when another is needed.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..=64))]
