@@ -139,7 +139,11 @@ export class StudyBrowser {
         s.instances != null ? `${s.instances} image${s.instances === 1 ? '' : 's'}` : ''];
       const label = document.createElement('span');
       label.textContent = words.filter(Boolean).join(' · ');
-      item.append(label);
+      const thumb = document.createElement('img');
+      thumb.alt = '';
+      thumb.className = 'thumbnail';
+      item.append(thumb, label);
+      this.thumbnail(thumb, pacs, study, s.series_uid);
       if (s.volume) {
         const open = document.createElement('button');
         open.type = 'button';
@@ -151,6 +155,20 @@ export class StudyBrowser {
       }
       return item;
     }));
+  }
+
+  // Loads a series' thumbnail (as the PACS renders it) into `img`; without
+  // one the image stays empty.
+  async thumbnail(img, pacs, study, series) {
+    try {
+      const response = await authFetch(`/api/pacs/thumbnail?${new URLSearchParams({ pacs, study, series })}`);
+      if (!response.ok) return;
+      img.addEventListener('load', () => URL.revokeObjectURL(img.src), { once: true });
+      img.src = URL.createObjectURL(await response.blob());
+      img.dataset.loaded = '1';
+    } catch {
+      // No thumbnail: the series is listed without one.
+    }
   }
 
   // Opens a series: the server fetches and bricks it; resolves with the

@@ -274,6 +274,7 @@ pub fn router(state: AppState) -> Router {
             post(crate::studies::open).get(crate::studies::progress),
         )
         .route("/api/pacs/iid", get(crate::studies::resolve))
+        .route("/api/pacs/thumbnail", get(crate::studies::thumbnail))
         .route("/api/datasets", get(datasets))
         .route("/api/datasets/{id}", get(dataset))
         .route(

@@ -20,6 +20,7 @@
 //! | `GET /api/pacs/series?pacs=&study=` | a study's series |
 //! | `POST /api/pacs/open?pacs=&study=&series=` | open a series (starts its job) |
 //! | `GET /api/pacs/open?pacs=&study=&series=` | that job's state |
+//! | `GET /api/pacs/thumbnail?pacs=&study=&series=` | a series' image as the PACS renders it (WADO-RS rendered), PNG within 96² |
 //! | `GET /api/pacs/iid?…` | an IHE IID request resolved: the studies, the series, the one to show |
 //! | `GET /IHEInvokeImageDisplay?…` | checks the request (a readable page when malformed) and sends the browser to the viewer with it |
 //!
@@ -538,6 +539,42 @@ fn listed(list: Vec<SeriesRecord>, datasets: &Datasets) -> Vec<Listed> {
         )
     });
     list
+}
+
+/// Edge of a series' thumbnail, pixels.
+pub const THUMBNAIL_EDGE: u32 = 96;
+
+/// `GET /api/pacs/thumbnail`: a series' image as the PACS renders it.
+pub async fn thumbnail(
+    State(state): State<AppState>,
+    Extension(principal): Extension<Principal>,
+    ConnectInfo(client): ConnectInfo<SocketAddr>,
+    Query(params): Query<HashMap<String, String>>,
+) -> Result<Response, AppError> {
+    let studies = studies_for(&state, &principal, client)?;
+    let pacs = studies.pick(param(&params, "pacs"))?;
+    let study =
+        check_uid("study", param(&params, "study").unwrap_or("")).map_err(AppError::BadRequest)?;
+    let series = check_uid("series", param(&params, "series").unwrap_or(""))
+        .map_err(AppError::BadRequest)?;
+    let png = pacs
+        .series_thumbnail(&study, &series, THUMBNAIL_EDGE)
+        .await
+        .map_err(|e| match e {
+            crate::pacs::PacsError::Status { status: 404, .. } => AppError::NotFound(format!(
+                "series {series}: PACS {} renders no image of it",
+                pacs.name()
+            )),
+            e => pacs_error(&e),
+        })?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "private, max-age=3600"),
+        ],
+        png,
+    )
+        .into_response())
 }
 
 /// `POST /api/pacs/open`: starts opening a series.

@@ -1170,6 +1170,19 @@ async fn the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_ba
             .all(|s| s["volume"] == true && s["instances"] == 40)
     );
 
+    // A series' thumbnail, as the PACS renders it, within 96².
+    let answer = http
+        .get(format!(
+            "{url}/api/pacs/thumbnail?study={study}&series={first}"
+        ))
+        .send()
+        .await
+        .expect("GET");
+    assert_eq!(answer.status().as_u16(), 200);
+    let png = answer.bytes().await.expect("body");
+    let thumb = image::load_from_memory_with_format(&png, image::ImageFormat::Png).expect("a PNG");
+    assert!(thumb.width() <= 96 && thumb.height() <= 96 && thumb.width() > 0);
+
     // Bad requests: named, not passed on.
     for (path, status, words) in [
         ("/api/pacs/studies?StudyDate=2005-01-01", 400, "StudyDate"),
@@ -1180,6 +1193,7 @@ async fn the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_ba
         ),
         ("/api/pacs/studies?limit=5000", 400, "limit"),
         ("/api/pacs/series?study=1..2", 400, "study"),
+        ("/api/pacs/thumbnail?study=1.2&series=", 400, "series"),
         ("/api/pacs/studies?pacs=down", 502, "down"),
         ("/api/pacs/iid?requestType=SERIES", 400, "STUDY or PATIENT"),
         (

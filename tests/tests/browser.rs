@@ -2797,6 +2797,11 @@ async fn iid_launch(
          return li && li.querySelector('button') && li.querySelector('button').textContent === 'Show' ? 1 : 0;"
     );
     wait_for(client, "the study's series listed", &listed, |v| v == 1.0).await?;
+    let thumbnail = format!(
+        "const img = document.querySelector('#series-list li[data-series=\"{series}\"] img');
+         return img && img.dataset.loaded === '1' && img.complete && img.naturalWidth > 0 ? 1 : 0;"
+    );
+    wait_for(client, "the series' thumbnail", &thumbnail, |v| v == 1.0).await?;
     keep_screenshot(client, "study-browser").await?;
 
     // An unknown study: the reason over the whole page.

@@ -24,6 +24,10 @@ pub const MAX_JSON_BYTES: usize = 128 * 1024 * 1024;
 pub const MAX_INSTANCES: usize = 100_000;
 /// Most characters kept of a free-text attribute (descriptions, names).
 const MAX_TEXT_CHARS: usize = 256;
+/// Most bytes of a rendered image (a thumbnail) a PACS may send.
+pub const MAX_RENDERED_BYTES: usize = 4 << 20;
+/// Largest edge of a rendered image decoded, pixels.
+const MAX_RENDERED_EDGE: u32 = 4096;
 /// Time to open a connection.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 /// Most time one request may take, its whole body read.
@@ -321,6 +325,56 @@ impl DicomWeb {
                 })
             })
             .collect()
+    }
+
+    /// WADO-RS rendered series (PS3.18 §9.5.1.2): an image of the series
+    /// (the PACS's choice) as the PACS renders it for display, asked for
+    /// within `edge`² pixels; decoded here (a JPEG or PNG of at most
+    /// [`MAX_RENDERED_BYTES`] and [`MAX_RENDERED_EDGE`]² pixels) and given
+    /// back scaled to fit `edge`², as PNG.
+    pub async fn series_thumbnail(
+        &self,
+        study: &str,
+        series: &str,
+        edge: u32,
+    ) -> Result<Vec<u8>, PacsError> {
+        let mut url = self.url(&["studies", study, "series", series, "rendered"]);
+        // The comma as is: some PACS (Orthanc) do not decode `%2C` here.
+        url.set_query(Some(&format!("viewport={edge},{edge}")));
+        // JPEG: what every PACS must render (and one type only: Orthanc
+        // refuses a list).
+        let mut response = self.get(&url, "image/jpeg").await?;
+        let mut body = Vec::new();
+        while let Some(chunk) = response
+            .chunk()
+            .await
+            .map_err(|e| self.transport_error(&url, &e))?
+        {
+            if body.len() + chunk.len() > MAX_RENDERED_BYTES {
+                return Err(self.malformed(
+                    &url,
+                    format!("an image of over {MAX_RENDERED_BYTES} bytes: expected a small rendered image"),
+                ));
+            }
+            body.extend_from_slice(&chunk);
+        }
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(&body))
+            .with_guessed_format()
+            .map_err(|e| self.malformed(&url, format!("{e}: expected a JPEG or PNG image")))?;
+        let mut limits = image::Limits::default();
+        limits.max_image_width = Some(MAX_RENDERED_EDGE);
+        limits.max_image_height = Some(MAX_RENDERED_EDGE);
+        limits.max_alloc = Some(256 << 20);
+        reader.limits(limits);
+        let decoded = reader
+            .decode()
+            .map_err(|e| self.malformed(&url, format!("{e}: expected a JPEG or PNG image")))?;
+        let small = decoded.thumbnail(edge, edge);
+        let mut png = Vec::new();
+        small
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .map_err(|e| self.malformed(&url, format!("cannot encode it again: {e}")))?;
+        Ok(png)
     }
 
     /// WADO-RS: instance `instance` of `series` in `study`, as stored (any
