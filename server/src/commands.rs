@@ -408,6 +408,7 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
                 dir,
                 std::time::Duration::from_secs(args.receive_settle_s),
                 args.data.cache_bytes(),
+                args.receive_max_mib << 20,
             )?;
             for path in receiver.stores()? {
                 match load_dataset(&path.to_string_lossy(), &args.data) {

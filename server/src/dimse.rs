@@ -239,13 +239,18 @@ struct Peer {
 }
 
 /// A DIMSE command set's fields that matter here.
-#[derive(Debug)]
-struct Command {
-    field: u16,
-    message_id: u16,
-    has_data_set: bool,
-    class: String,
-    instance: String,
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Command {
+    /// CommandField (e.g. 0x0001 C-STORE-RQ, 0x0030 C-ECHO-RQ).
+    pub field: u16,
+    /// MessageID.
+    pub message_id: u16,
+    /// Whether a data set follows (CommandDataSetType other than 0x0101).
+    pub has_data_set: bool,
+    /// AffectedSOPClassUID ("" when absent).
+    pub class: String,
+    /// AffectedSOPInstanceUID ("" when absent).
+    pub instance: String,
 }
 
 /// What the association expects next.
@@ -557,6 +562,8 @@ impl Peer {
                     command.class, command.instance
                 ),
             ));
+        } else if let Some(why) = self.receiver.full() {
+            failure = Some((OUT_OF_RESOURCES, why));
         } else {
             match self.start_file(&command, transfer_syntax, caller) {
                 Ok(opened) => file = Some(Box::new(opened)),
@@ -633,6 +640,7 @@ impl Peer {
                 Ok(())
             }
             (Some(why), _) if kept.mismatch => Err((DATA_SET_DOES_NOT_MATCH, why)),
+            (Some(why), _) if kept.full => Err((OUT_OF_RESOURCES, why)),
             (why, _) => Err((CANNOT_UNDERSTAND, why.unwrap_or_default())),
         }
     }
@@ -718,8 +726,12 @@ impl Peer {
     }
 }
 
-/// Reads a command set (implicit VR little endian, PS3.7 §6.3.1).
-fn parse_command(bytes: &[u8]) -> Result<Command, String> {
+/// Reads a command set (implicit VR little endian, PS3.7 §6.3.1), as a
+/// peer sent it.
+///
+/// # Errors
+/// What is missing or does not parse, and what was expected.
+pub fn parse_command(bytes: &[u8]) -> Result<Command, String> {
     let object = InMemDicomObject::read_dataset_with_ts(bytes, &IMPLICIT_VR_LITTLE_ENDIAN.erased())
         .map_err(|e| {
             format!("a command set that does not parse ({e}): expected a DIMSE command")

@@ -8,11 +8,15 @@
 //!
 //! Layout of `DIR`: `incoming/` (parts being received), `series/UID/`
 //! (the instances, named by SOPInstanceUID), `stores/UID.zarr` (the stores).
+//! What `series/` and `stores/` hold is kept within `--receive-max-mib`:
+//! past it, instances are refused (out of resources) until an operator
+//! makes room; nothing kept is ever removed by the server.
 
 use std::collections::HashMap;
 use std::io::Write as _;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
@@ -40,6 +44,11 @@ pub struct Receiver {
     dir: PathBuf,
     settle: Duration,
     cache_bytes: u64,
+    /// The most `series/` and `stores/` may hold, bytes.
+    budget: u64,
+    /// What they hold (counted at start and after each bricking, added to
+    /// as instances are kept).
+    used: AtomicU64,
     /// Series with instances not yet bricked, and when the last arrived.
     pending: Mutex<HashMap<String, Instant>>,
 }
@@ -53,6 +62,8 @@ pub(crate) struct Outcome1 {
     pub failure: Option<String>,
     /// Whether it failed for not being what the request claimed.
     pub mismatch: bool,
+    /// Whether it was refused for want of room (`--receive-max-mib`).
+    pub full: bool,
 }
 
 /// What a request says of an instance it sends, checked against the
@@ -69,9 +80,14 @@ pub(crate) struct Claimed<'a> {
 
 impl Receiver {
     /// Receives into `dir` (made if missing), bricking a series `settle`
-    /// after its last instance; stores' decoded blocks cached up to
-    /// `cache_bytes`.
-    pub fn new(dir: &Path, settle: Duration, cache_bytes: u64) -> anyhow::Result<Arc<Receiver>> {
+    /// after its last instance, keeping at most `budget` bytes; stores'
+    /// decoded blocks cached up to `cache_bytes`.
+    pub fn new(
+        dir: &Path,
+        settle: Duration,
+        cache_bytes: u64,
+        budget: u64,
+    ) -> anyhow::Result<Arc<Receiver>> {
         for sub in ["incoming", "series", "stores"] {
             std::fs::create_dir_all(dir.join(sub)).map_err(|e| {
                 anyhow::anyhow!("--receive {}: cannot make {sub}/: {e}", dir.display())
@@ -100,12 +116,36 @@ impl Receiver {
                 pending.len()
             );
         }
-        Ok(Arc::new(Receiver {
+        let receiver = Receiver {
             dir: dir.to_owned(),
             settle,
             cache_bytes,
+            budget,
+            used: AtomicU64::new(0),
             pending: Mutex::new(pending),
-        }))
+        };
+        receiver.count_used();
+        Ok(Arc::new(receiver))
+    }
+
+    /// Counts what `series/` and `stores/` hold.
+    fn count_used(&self) {
+        let used = crate::studies::folder_bytes(&self.dir.join("series"))
+            + crate::studies::folder_bytes(&self.dir.join("stores"));
+        self.used.store(used, Ordering::Relaxed);
+    }
+
+    /// Why nothing more can be received now, if so.
+    pub(crate) fn full(&self) -> Option<String> {
+        let used = self.used.load(Ordering::Relaxed);
+        (used >= self.budget).then(|| {
+            format!(
+                "{} holds {} MiB of received studies, its --receive-max-mib of {} MiB: make room",
+                self.dir.display(),
+                used >> 20,
+                self.budget >> 20
+            )
+        })
     }
 
     /// The stores of series received before, to offer at start.
@@ -177,7 +217,9 @@ impl Receiver {
             overwrite: true,
             ..blocks::store::IngestOptions::default()
         };
-        blocks::store::ingest(source.as_mut(), &out, &ingest, &mut |_| {})?;
+        let bricked = blocks::store::ingest(source.as_mut(), &out, &ingest, &mut |_| {});
+        self.count_used();
+        bricked?;
         let store = blocks::store::Store::open(&out)?;
         Ok(Dataset::new(uid.to_owned(), store, self.cache_bytes)?)
     }
@@ -200,6 +242,7 @@ impl Receiver {
                     series: None,
                     failure: Some(e.to_string()),
                     mismatch: false,
+                    full: false,
                 };
             }
         };
@@ -215,6 +258,7 @@ impl Receiver {
             series: None,
             failure: Some(why),
             mismatch,
+            full: false,
         };
         if let Some(study) = claimed.study
             && study != their_study
@@ -248,6 +292,15 @@ impl Receiver {
                 true,
             );
         }
+        let size = file.as_file().metadata().map_or(0, |m| m.len());
+        // Refused once the budget is reached (it may be passed by the one
+        // instance that reaches it).
+        if let Some(why) = self.full() {
+            return Outcome1 {
+                full: true,
+                ..fail(why, Some(instance), false)
+            };
+        }
         let folder = self.dir.join("series").join(&series);
         let kept = std::fs::create_dir_all(&folder)
             .map_err(|e| e.to_string())
@@ -259,6 +312,7 @@ impl Receiver {
         if let Err(e) = kept {
             return fail(format!("cannot keep it: {e}"), Some(instance), false);
         }
+        self.used.fetch_add(size, Ordering::Relaxed);
         self.pending
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
@@ -269,6 +323,7 @@ impl Receiver {
             series: Some(series),
             failure: None,
             mismatch: false,
+            full: false,
         }
     }
 }
@@ -345,6 +400,14 @@ async fn stow_into(
         )
             .into_response());
     };
+    if let Some(why) = receiver.full() {
+        tracing::warn!("STOW-RS refused: {why}");
+        return Ok((
+            StatusCode::INSUFFICIENT_STORAGE,
+            format!("STOW-RS: no room: {why}"),
+        )
+            .into_response());
+    }
     let mut parts = multer::Multipart::new(body.into_data_stream(), boundary);
     let mut outcomes = Vec::new();
     loop {
@@ -399,6 +462,7 @@ async fn stow_into(
                 series: None,
                 failure: Some(format!("part {n} of type {t}: expected application/dicom")),
                 mismatch: false,
+                full: false,
             });
             continue;
         }
@@ -444,8 +508,9 @@ async fn stow_into(
             item["00081155"] = json!({"vr": "UI", "Value": [i]});
         }
         if o.failure.is_some() {
-            // Processing failure (PS3.4 Annex GG).
-            item["00081197"] = json!({"vr": "US", "Value": [0x0110]});
+            // Out of resources, or processing failure (PS3.4 Annex GG).
+            let reason = if o.full { 0xA700 } else { 0x0110 };
+            item["00081197"] = json!({"vr": "US", "Value": [reason]});
         }
         item
     };

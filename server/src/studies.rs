@@ -351,7 +351,7 @@ fn touch(path: &Path) {
 }
 
 /// Bytes of the files under `path`.
-fn folder_bytes(path: &Path) -> u64 {
+pub(crate) fn folder_bytes(path: &Path) -> u64 {
     let Ok(entries) = std::fs::read_dir(path) else {
         return 0;
     };

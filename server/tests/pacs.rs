@@ -1024,6 +1024,71 @@ async fn dcmtk_pushes_the_series_over_dicom_and_it_is_served_as_its_files_on_dis
     );
     drop(silent);
     let _ = server.stop();
+
+    // Past --receive-max-mib, instances are refused (out of resources),
+    // over DICOM and STOW-RS alike, and nothing more is kept.
+    let small = dir.path().join("small");
+    let small_serve = [
+        "serve",
+        "--addr",
+        "127.0.0.1:0",
+        "--phantom-size",
+        "32",
+        "--receive",
+        small.to_str().expect("path"),
+        "--receive-max-mib",
+        "1",
+        "--dicom-port",
+        "0",
+        "--dicom-allow",
+        "*",
+    ];
+    let server = voxserve_tests::server::Spawned::start(VOXSERVE, &small_serve)
+        .await
+        .unwrap_or_else(|stderr| panic!("serve exited: {stderr}"));
+    let at = server
+        .line
+        .split("DICOM as VOXSERVE at ")
+        .nth(1)
+        .expect("a DICOM address")
+        .trim();
+    let (host, port) = at.rsplit_once(':').expect("host:port");
+    let mut five = vec!["-v", "-aet", "MODALITY", "-aec", "VOXSERVE", host, port];
+    let names: Vec<String> = files[..5]
+        .iter()
+        .map(|f| f.to_string_lossy().into_owned())
+        .collect();
+    five.extend(names.iter().map(String::as_str));
+    let (_, out) = dcmtk(&storescu, &five);
+    assert!(
+        out.contains("Refused: OutOfResources"),
+        "storescu past the budget: {out}"
+    );
+    let kept = std::fs::read_dir(small.join("series"))
+        .expect("series")
+        .filter_map(Result::ok)
+        .map(|s| std::fs::read_dir(s.path()).expect("series").count())
+        .sum::<usize>();
+    assert!(kept < 5, "{kept} instances kept past a 1 MiB budget");
+    let answer = http
+        .post(format!("{}/dicom-web/studies", server.url))
+        .header(
+            "content-type",
+            "multipart/related; type=\"application/dicom\"; boundary=XX",
+        )
+        .body("--XX\r\nContent-Type: application/dicom\r\n\r\nx\r\n--XX--\r\n")
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(answer.status().as_u16(), 507);
+    assert!(
+        answer
+            .text()
+            .await
+            .expect("body")
+            .contains("--receive-max-mib")
+    );
+    let _ = server.stop();
 }
 
 /// `GET url`: its status and JSON body (`null` when not JSON).

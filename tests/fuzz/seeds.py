@@ -99,6 +99,20 @@ def text_seeds(corpus):
            b'"levels":5,"histogram_bins":32,"blocks":[2,2,2],"source":"phantom","source_format":"raw",' \
            b'"notes":[]}}}'
     put(corpus, "store_metadata", "root", root)
+    put(corpus, "dimse_command", "echo", dimse_command([
+        (0x0002, b"1.2.840.10008.1.1\0"), (0x0100, struct.pack("<H", 0x0030)),
+        (0x0110, struct.pack("<H", 1)), (0x0800, struct.pack("<H", 0x0101))]))
+    put(corpus, "dimse_command", "store", dimse_command([
+        (0x0002, b"1.2.840.10008.5.1.4.1.1.2\0"), (0x0100, struct.pack("<H", 0x0001)),
+        (0x0110, struct.pack("<H", 7)), (0x0700, struct.pack("<H", 0)),
+        (0x0800, struct.pack("<H", 0)), (0x1000, b"1.2.3.4")]))
+
+
+def dimse_command(elements):
+    """A command set: group 0000 elements (implicit VR little endian) after
+    their group length."""
+    body = b"".join(struct.pack("<HHI", 0, e, len(v)) + v for e, v in elements)
+    return struct.pack("<HHII", 0, 0, 4, len(body)) + body
 
 
 def shared_seeds(corpus, shared):

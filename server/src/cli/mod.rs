@@ -419,6 +419,12 @@ pub struct ServeArgs {
     #[arg(long = "receive-settle-s", value_name = "SECONDS", default_value_t = 10,
           value_parser = clap::value_parser!(u64).range(1..=3600))]
     pub receive_settle_s: u64,
+    /// The most the received instances and their stores in --receive may
+    /// take, MiB; past it, instances are refused (out of resources) until
+    /// room is made. Nothing received is removed by the server.
+    #[arg(long = "receive-max-mib", value_name = "MIB", default_value_t = 100 << 10,
+          value_parser = clap::value_parser!(u64).range(1..=1 << 30))]
+    pub receive_max_mib: u64,
     /// Also receive studies over DICOM: a C-STORE service class provider
     /// on this port (at --addr's address; 0 picks a free one) that keeps
     /// instances where --receive does and answers C-ECHO. Associations must
