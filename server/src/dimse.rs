@@ -727,42 +727,81 @@ impl Peer {
 }
 
 /// Reads a command set (implicit VR little endian, PS3.7 §6.3.1), as a
-/// peer sent it.
+/// peer sent it. Read here rather than by a general DICOM parser: a command
+/// set is a flat list of group 0000 elements, and each length is checked
+/// against the bytes there are (a parser would trust a length, or a VR's
+/// size over the length given, and reserve or skip that much).
 ///
 /// # Errors
-/// What is missing or does not parse, and what was expected.
+/// What is missing or malformed, and what was expected.
 pub fn parse_command(bytes: &[u8]) -> Result<Command, String> {
-    let object = InMemDicomObject::read_dataset_with_ts(bytes, &IMPLICIT_VR_LITTLE_ENDIAN.erased())
-        .map_err(|e| {
-            format!("a command set that does not parse ({e}): expected a DIMSE command")
-        })?;
-    let number = |tag, name: &str| {
-        object
-            .element(tag)
-            .ok()
-            .and_then(|e| e.to_int::<u16>().ok())
-            .ok_or_else(|| format!("a command without {name}: expected a DIMSE command"))
+    let mut elements: Vec<(u16, &[u8])> = Vec::new();
+    let mut at = 0;
+    while at < bytes.len() {
+        let Some(head) = bytes.get(at..at + 8) else {
+            return Err(
+                "a command set cut short within an element's header: expected a DIMSE command"
+                    .into(),
+            );
+        };
+        let group = u16::from_le_bytes([head[0], head[1]]);
+        let element = u16::from_le_bytes([head[2], head[3]]);
+        let length = u32::from_le_bytes([head[4], head[5], head[6], head[7]]) as usize;
+        if group != 0 {
+            return Err(format!(
+                "element ({group:04X},{element:04X}) in a command set: expected command elements (group 0000) only"
+            ));
+        }
+        let rest = bytes.len() - at - 8;
+        if length > rest {
+            return Err(format!(
+                "element (0000,{element:04X}) of {length} bytes where {rest} remain: expected a whole DIMSE command"
+            ));
+        }
+        elements.push((element, &bytes[at + 8..at + 8 + length]));
+        at += 8 + length;
+    }
+    let value = |element: u16| {
+        elements
+            .iter()
+            .find(|(e, _)| *e == element)
+            .map(|(_, v)| *v)
     };
-    let text = |tag| {
-        object
-            .element(tag)
-            .ok()
-            .and_then(|e| e.to_str().ok())
-            .map(|s| s.trim_end_matches(['\0', ' ']).to_owned())
-            .unwrap_or_default()
+    let number = |element: u16, name: &str| -> Result<u16, String> {
+        match value(element) {
+            Some(&[a, b]) => Ok(u16::from_le_bytes([a, b])),
+            Some(v) => Err(format!(
+                "{name} (0000,{element:04X}) of {} bytes: expected 2 (US)",
+                v.len()
+            )),
+            None => Err(format!(
+                "a command without {name}: expected a DIMSE command"
+            )),
+        }
     };
-    let field = number(tags::COMMAND_FIELD, "CommandField")?;
-    let message_id = if field == C_ECHO_RQ || field == C_STORE_RQ {
-        number(tags::MESSAGE_ID, "MessageID")?
-    } else {
-        number(tags::MESSAGE_ID, "MessageID").unwrap_or(0)
+    let uid = |element: u16, name: &str| -> Result<String, String> {
+        let Some(v) = value(element) else {
+            return Ok(String::new());
+        };
+        let text = std::str::from_utf8(v)
+            .ok()
+            .map(|t| t.trim_end_matches(['\0', ' ']))
+            .filter(|t| t.len() <= 64 && t.bytes().all(|b| b.is_ascii_digit() || b == b'.'))
+            .ok_or_else(|| format!("{name} (0000,{element:04X}): expected a UID"))?;
+        Ok(text.to_owned())
+    };
+    let field = number(0x0100, "CommandField")?;
+    let message_id = match number(0x0110, "MessageID") {
+        Ok(id) => id,
+        Err(e) if field == C_ECHO_RQ || field == C_STORE_RQ => return Err(e),
+        Err(_) => 0,
     };
     Ok(Command {
         field,
         message_id,
-        has_data_set: number(tags::COMMAND_DATA_SET_TYPE, "CommandDataSetType")? != NO_DATA_SET,
-        class: text(tags::AFFECTED_SOP_CLASS_UID),
-        instance: text(tags::AFFECTED_SOP_INSTANCE_UID),
+        has_data_set: number(0x0800, "CommandDataSetType")? != NO_DATA_SET,
+        class: uid(0x0002, "AffectedSOPClassUID")?,
+        instance: uid(0x1000, "AffectedSOPInstanceUID")?,
     })
 }
 
@@ -862,6 +901,9 @@ mod tests {
         assert_eq!(command.class, uids::CT_IMAGE_STORAGE);
         assert_eq!(command.instance, "1.2.3");
         assert!(parse_command(b"\x00\x00\x00\x00\x04\x00").is_err());
+        // A length past the end, or undefined: refused before parsing.
+        assert!(parse_command(b"\x00\x00\x00\x01\xff\xff\xff\xff").is_err());
+        assert!(parse_command(b"\x08\x00\x18\x00\x00\x00\x00\x00").is_err());
         assert!(parse_command(&[]).is_err());
     }
 }
