@@ -13,6 +13,7 @@
 //! | `view` | a view session showed a dataset for the first time, or again after another |
 //! | `metrics` | `/metrics` was read |
 //! | `store` | instances were pushed: a STOW-RS request (the user) or a DICOM association (`AE TITLE`); detail: how many stored and refused |
+//! | `pacs` | the PACS was searched or a series opened from it for the study browser or a launch (outcome `denied` without a PACS role) |
 //! | `associate` | a DICOM association was rejected (outcome `denied`; detail: the AE title not recognised) |
 //!
 //! Lines hold no token and no query string: the dataset's id is the only

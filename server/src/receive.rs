@@ -382,16 +382,7 @@ async fn stow_into(
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .unwrap_or("");
-    let mime = content_type.parse::<mime::Mime>().ok();
-    let boundary = mime
-        .as_ref()
-        .filter(|m| m.type_() == mime::MULTIPART && m.subtype() == "related")
-        .filter(|m| {
-            m.get_param("type")
-                .is_none_or(|t| t.as_str() == "application/dicom")
-        })
-        .and_then(|m| m.get_param(mime::BOUNDARY).map(|b| b.as_str().to_owned()));
-    let Some(boundary) = boundary else {
+    let Some(boundary) = crate::pacs::dicomweb::dicom_parts_boundary(content_type) else {
         return Ok((
             StatusCode::UNSUPPORTED_MEDIA_TYPE,
             format!(

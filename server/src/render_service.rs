@@ -36,6 +36,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
+use blocks::cache::BlockCache;
 use shaders::frame::Window;
 use shaders::raycast::samples_per_ray;
 use shaders::slice::{SlicePlacement, SliceRequest};
@@ -515,35 +516,52 @@ enum Turn {
     More(Job),
 }
 
-/// The worker's renderers, least recently used first.
+/// The worker's renderers, least recently used first, each with the id
+/// and the block cache of the dataset it draws.
 struct Renderers {
     backend: Backend,
     budget_bytes: u64,
     capacity: usize,
-    by_use: Vec<(String, AnyRenderer)>,
+    by_use: Vec<(String, Arc<BlockCache>, AnyRenderer)>,
 }
 
 impl Renderers {
     /// The renderer of `dataset`, made (after dropping the least recently used
-    /// one when all places are taken) if there is none.
+    /// one when all places are taken) if there is none. A dataset offered
+    /// anew under the same id (a received series bricked again, a series
+    /// opened again after it left the cache) has a new block cache: the
+    /// renderer of the old one is dropped, never drawn from.
     fn get(&mut self, dataset: &Dataset) -> Result<&mut AnyRenderer, GpuError> {
-        if let Some(i) = self.by_use.iter().position(|(id, _)| *id == dataset.id) {
+        if let Some(i) = self.by_use.iter().position(|(id, _, _)| *id == dataset.id) {
             let entry = self.by_use.remove(i);
-            self.by_use.push(entry);
-        } else {
+            if Arc::ptr_eq(&entry.1, &dataset.cache) {
+                self.by_use.push(entry);
+            } else {
+                tracing::info!(
+                    "dataset '{}' is offered anew: its old blocks are released",
+                    dataset.id
+                );
+            }
+        }
+        let current = self
+            .by_use
+            .last()
+            .is_some_and(|(id, cache, _)| *id == dataset.id && Arc::ptr_eq(cache, &dataset.cache));
+        if !current {
             if self.by_use.len() >= self.capacity {
                 // Freed before the next one allocates.
-                let (id, _) = self.by_use.remove(0);
+                let (id, _, _) = self.by_use.remove(0);
                 tracing::info!("released dataset '{id}' from the renderer");
             }
             let renderer = self
                 .backend
                 .renderer(dataset.cache.clone(), self.budget_bytes)?;
-            self.by_use.push((dataset.id.clone(), renderer));
+            self.by_use
+                .push((dataset.id.clone(), dataset.cache.clone(), renderer));
         }
         self.by_use
             .last_mut()
-            .map(|(_, r)| r)
+            .map(|(_, _, r)| r)
             .ok_or_else(|| GpuError::InvalidRequest("no renderer".into()))
     }
 }
@@ -790,6 +808,25 @@ mod tests {
             }
         }
         turns
+    }
+
+    #[test]
+    fn a_dataset_offered_anew_under_its_id_gets_a_new_renderer() {
+        let mut renderers = Renderers {
+            backend: Backend::Cpu,
+            budget_bytes: 64 << 20,
+            capacity: 2,
+            by_use: Vec::new(),
+        };
+        let old = Dataset::phantom(16, 1 << 20).expect("phantom");
+        let new = Dataset::phantom(16, 1 << 20).expect("phantom");
+        assert_eq!(old.id, new.id);
+        renderers.get(&old).expect("a renderer");
+        renderers.get(&old).expect("the same renderer");
+        assert_eq!(renderers.by_use.len(), 1);
+        renderers.get(&new).expect("a renderer");
+        assert_eq!(renderers.by_use.len(), 1, "the old one is dropped");
+        assert!(Arc::ptr_eq(&renderers.by_use[0].1, &new.cache));
     }
 
     #[test]

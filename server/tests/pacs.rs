@@ -1193,6 +1193,8 @@ async fn the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_ba
         cache.to_str().expect("path"),
         "--pacs-cache-mib",
         "1",
+        "--renderer",
+        "cpu",
     ];
     let (ok, _, err) = voxserve(&serve[..9]);
     assert!(!ok && err.contains("--pacs-cache"), "{err}");
@@ -1353,6 +1355,20 @@ async fn the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_ba
         &Store::open(&from_disk).expect("open"),
         true,
     );
+    let render = |id: String| {
+        let http = http.clone();
+        async move {
+            let answer = http
+                .get(format!("{url}/api/datasets/{id}/render?w=64&h=64"))
+                .send()
+                .await
+                .expect("GET");
+            let status = answer.status().as_u16();
+            (status, answer.text().await.unwrap_or_default())
+        }
+    };
+    let (status, body) = render(first.clone()).await;
+    assert_eq!(status, 200, "{body}");
     // A second series past the 1 MiB budget: the first, used least
     // recently, is removed and no longer offered.
     assert_eq!(open(second).await.expect("POST").status().as_u16(), 200);
@@ -1370,5 +1386,12 @@ async fn the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_ba
         "{ids:?}"
     );
     assert!(!cache.join(format!("{first}.zarr")).exists());
+    // Opened again, it is fetched anew and drawn from its new store (not
+    // from the blocks of the one removed).
+    assert_eq!(open(&first).await.expect("POST").status().as_u16(), 200);
+    let job = wait_opened(&http, url, &study, &first).await;
+    assert_eq!(job["state"], "ready", "{job}");
+    let (status, body) = render(first.clone()).await;
+    assert_eq!(status, 200, "the series opened again: {body}");
     let _ = server.stop();
 }

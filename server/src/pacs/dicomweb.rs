@@ -120,6 +120,24 @@ impl PacsError {
     }
 }
 
+/// The boundary of a body of DICOM instances (PS3.18 §8.6.1.2:
+/// `multipart/related`, its `type` absent or `application/dicom`) from its
+/// Content-Type; `None` when it is not one.
+pub fn dicom_parts_boundary(content_type: &str) -> Option<String> {
+    let mime = content_type.parse::<mime::Mime>().ok()?;
+    if mime.type_() != mime::MULTIPART || mime.subtype() != "related" {
+        return None;
+    }
+    if mime
+        .get_param("type")
+        .is_some_and(|t| t.as_str() != "application/dicom")
+    {
+        return None;
+    }
+    mime.get_param(mime::BOUNDARY)
+        .map(|b| b.as_str().to_owned())
+}
+
 /// A study a search found.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct StudyRecord {
@@ -396,17 +414,14 @@ impl DicomWeb {
             .and_then(|v| v.to_str().ok())
             .unwrap_or("")
             .to_owned();
-        let boundary =
-            content_type
-                .parse::<mime::Mime>()
-                .ok()
-                .filter(|m| m.type_() == mime::MULTIPART)
-                .and_then(|m| m.get_param(mime::BOUNDARY).map(|b| b.as_str().to_owned()))
-                .ok_or_else(|| {
-                    self.malformed(&url, format!(
-                    "Content-Type {content_type:?}: expected multipart/related with a boundary"
-                ))
-                })?;
+        let boundary = dicom_parts_boundary(&content_type).ok_or_else(|| {
+            self.malformed(
+                &url,
+                format!(
+                    "Content-Type {content_type:?}: expected multipart/related; type=\"application/dicom\" with a boundary"
+                ),
+            )
+        })?;
         let body = futures_util::stream::unfold(Some(response), |response| async move {
             let mut response = response?;
             match response.chunk().await {
