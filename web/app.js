@@ -1071,14 +1071,24 @@ function showLaunchFailed(message) {
   document.getElementById('opening-words').textContent = message;
 }
 
-// Dataset `id`, just offered by the server, shown from its default view.
-async function showOpened(id) {
+// Dataset `id`, just offered by the server, shown from its default view
+// (`again`: the whole series in place of its preview, from the same view).
+async function showOpened(id, { again = false } = {}) {
   const response = await authFetch('/api/datasets');
   if (!response.ok) throw new Error(`GET /api/datasets answered ${response.status}`);
   fillDatasetPicker(await response.json());
   chooseDataset(id);
-  camera.reset();
+  if (again) stream.resendAll();
+  else camera.reset();
   requestFrame();
+}
+
+// While a preview of a series shows (a sample of its images), how the rest
+// arrives; null when the whole series shows.
+const previewNote = document.getElementById('preview-note');
+function showPreviewProgress(fraction, words = '') {
+  previewNote.hidden = fraction === null;
+  previewNote.textContent = fraction === null ? '' : `Preview (a sample of the images) · ${words}`;
 }
 
 // The study browser, shown when the server has a PACS; a launch (IHE
@@ -1087,6 +1097,7 @@ async function attachStudies(launch) {
   const browser = new StudyBrowser(document.getElementById('studies-panel'), {
     onOpened: showOpened,
     onProgress: showOpening,
+    onPreviewProgress: showPreviewProgress,
   });
   const available = await browser.start();
   if (launch === null) return;

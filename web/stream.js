@@ -189,6 +189,13 @@ export class ViewStream {
     return this.flush().includes(pane);
   }
 
+  // Sends every view whole with the next update (the dataset behind the
+  // same id was replaced: each view is drawn again).
+  resendAll() {
+    this.sent = {};
+    this.sentDpr = null;
+  }
+
   // Shows these views (the others are not rendered).
   setLayout(panes) {
     this.layout = [...panes];

@@ -45,13 +45,17 @@ function progressOf(job) {
 }
 
 export class StudyBrowser {
-  // `panel` is the toolbar's Studies panel; `onOpened(id)` shows dataset
-  // `id` once the server offers it; `onProgress(fraction, words)` (or null
-  // when done) shows how opening goes.
-  constructor(panel, { onOpened, onProgress }) {
+  // `panel` is the toolbar's Studies panel; `onOpened(id, how)` shows
+  // dataset `id` once the server offers it (`how.preview`: a sample of the
+  // series while the rest arrives; `how.again`: the whole series in place
+  // of its preview); `onProgress(fraction, words)` (or null when done)
+  // shows how opening goes over the page, `onPreviewProgress` the same
+  // while a preview is shown.
+  constructor(panel, { onOpened, onProgress, onPreviewProgress }) {
     this.panel = panel;
     this.onOpened = onOpened;
     this.onProgress = onProgress;
+    this.onPreviewProgress = onPreviewProgress;
     this.pacs = [];
     this.form = panel.querySelector('form');
     this.studyList = panel.querySelector('#study-list');
@@ -175,19 +179,28 @@ export class StudyBrowser {
   // dataset's id once it is offered, or rejects with why not.
   async open(pacs, study, series) {
     const params = new URLSearchParams({ pacs, study, series });
+    let previewed = false;
     try {
       let job = await getJson(`/api/pacs/open?${params}`, { method: 'POST' });
       while (job.state === 'fetching' || job.state === 'bricking') {
-        this.onProgress(...progressOf(job));
+        if (job.preview && !previewed) {
+          previewed = true;
+          this.onProgress(null);
+          await this.onOpened(job.dataset, { preview: true });
+        }
+        if (previewed) this.onPreviewProgress(...progressOf(job));
+        else this.onProgress(...progressOf(job));
         await new Promise((resolve) => setTimeout(resolve, POLL_MS));
         job = await getJson(`/api/pacs/open?${params}`);
       }
       if (job.state !== 'ready') throw new Error(job.error || `the series is ${job.state}`);
       this.onProgress(null);
-      await this.onOpened(job.dataset);
+      this.onPreviewProgress(null);
+      await this.onOpened(job.dataset, { again: previewed });
       return job.dataset;
     } catch (e) {
       this.onProgress(null);
+      this.onPreviewProgress(null);
       this.say(`Cannot open the series: ${e.message}`);
       throw e;
     }

@@ -43,7 +43,7 @@ use serde::Serialize;
 use crate::app::Datasets;
 use crate::audit::{Event, Outcome};
 use crate::auth::Principal;
-use crate::pacs::fetch::{FetchOptions, fetch_series, open_fetched};
+use crate::pacs::fetch::{FetchOptions, Fetched, Preview, fetch_series_with_preview, open_fetched};
 use crate::pacs::query::{check_uid, check_value};
 use crate::pacs::{DateRange, DicomWeb, SeriesRecord, StudyQuery, StudyRecord};
 use crate::{AppError, AppState, Dataset};
@@ -51,6 +51,8 @@ use crate::{AppError, AppState, Dataset};
 /// Series bricked at once (bricking is CPU-bound; fetching is not limited
 /// here but by the fetch's own concurrency).
 pub const MAX_BRICKING: usize = 2;
+/// The cache's folder of previews.
+const PREVIEWS: &str = ".preview";
 /// Jobs remembered (finished ones are forgotten oldest first past this).
 const MAX_JOBS: usize = 256;
 /// Most studies an IID PATIENT request lists.
@@ -72,8 +74,12 @@ pub struct Job {
     /// Slices bricked, of `slices` (0 until bricking starts).
     pub bricked: u32,
     pub slices: u32,
-    /// The dataset's id once ready.
+    /// The dataset's id once ready, or once its preview is.
     pub dataset: Option<String>,
+    /// Whether what `dataset` offers now is a preview: a sample of the
+    /// series' images (every k-th), offered while the rest arrives and
+    /// replaced by the whole series.
+    pub preview: bool,
     /// Why it failed.
     pub error: Option<String>,
 }
@@ -106,7 +112,9 @@ impl Studies {
         std::fs::create_dir_all(cache).map_err(|e| {
             anyhow::anyhow!("--pacs-cache {}: cannot make it: {e}", cache.display())
         })?;
-        // Spool folders of fetches cut short when the server last stopped.
+        // Spool folders of fetches cut short when the server last stopped,
+        // and the previews of the last run.
+        let _ = std::fs::remove_dir_all(cache.join(PREVIEWS));
         if let Ok(entries) = std::fs::read_dir(cache) {
             for entry in entries.filter_map(Result::ok) {
                 if entry
@@ -195,6 +203,7 @@ impl Studies {
                 bricked: 0,
                 slices: 0,
                 dataset: Some(series.to_owned()),
+                preview: false,
                 error: None,
             };
         }
@@ -225,6 +234,7 @@ impl Studies {
                 bricked: 0,
                 slices: 0,
                 dataset: None,
+                preview: false,
                 error: None,
             };
             jobs.push(job.clone());
@@ -237,13 +247,22 @@ impl Studies {
             match studies.run(&pacs, &study, &series, &datasets).await {
                 Ok(()) => studies.update(&series, |j| {
                     j.state = "ready";
+                    j.preview = false;
                     j.dataset = Some(series.clone());
                 }),
                 Err(e) => {
                     let why = format!("{e:#}");
                     tracing::error!("opening series {series} from PACS {}: {why}", pacs.name());
+                    // A preview of a series that did not arrive whole is
+                    // no longer offered.
+                    let previewed = studies.job(&series).is_some_and(|j| j.preview);
+                    if previewed {
+                        datasets.remove(&series);
+                    }
                     studies.update(&series, |j| {
                         j.state = "failed";
+                        j.preview = false;
+                        j.dataset = None;
                         j.error = Some(why);
                     });
                 }
@@ -267,7 +286,52 @@ impl Studies {
                 j.bytes = bytes;
             });
         };
-        let fetched = fetch_series(pacs, study, series, &self.cache, self.fetch, &progress).await?;
+        // A sample of a large series is bricked and offered while the rest
+        // arrives (into `.preview/`, kept until the next start or until the
+        // series leaves the cache: a view may still be drawing from it).
+        let (sample_tx, sample_rx) = tokio::sync::oneshot::channel::<Fetched>();
+        let previewing = {
+            let (studies, id, datasets) = (Arc::clone(self), series.to_owned(), datasets.clone());
+            tokio::spawn(async move {
+                let Ok(sample) = sample_rx.await else {
+                    return;
+                };
+                let s = Arc::clone(&studies);
+                let made = tokio::task::spawn_blocking(move || s.brick_preview(&sample)).await;
+                match made {
+                    Ok(Ok(dataset)) => {
+                        let mut offered = false;
+                        studies.update(&id, |j| {
+                            if j.state == "fetching" {
+                                j.preview = true;
+                                j.dataset = Some(id.clone());
+                                offered = true;
+                            }
+                        });
+                        if offered {
+                            datasets.add(dataset);
+                        }
+                    }
+                    Ok(Err(e)) => tracing::warn!("series {id}: no preview: {e:#}"),
+                    Err(e) => tracing::warn!("series {id}: no preview: {e}"),
+                }
+            })
+        };
+        let hand_over: Preview<'_> = Box::new(move |sample| {
+            let _ = sample_tx.send(sample);
+        });
+        let fetched = fetch_series_with_preview(
+            pacs,
+            study,
+            series,
+            &self.cache,
+            self.fetch,
+            &progress,
+            Some(hand_over),
+        )
+        .await;
+        let _ = previewing.await;
+        let fetched = fetched?;
         let _place = self.bricking.acquire().await?;
         self.update(series, |j| j.state = "bricking");
         let studies = Arc::clone(self);
@@ -304,6 +368,27 @@ impl Studies {
         Ok(())
     }
 
+    /// Bricks a sample of a series into `.preview/` and opens it.
+    fn brick_preview(&self, sample: &Fetched) -> anyhow::Result<Dataset> {
+        let mut source = open_fetched(sample)?;
+        let out = self
+            .cache
+            .join(PREVIEWS)
+            .join(format!("{}.zarr", sample.series));
+        std::fs::create_dir_all(self.cache.join(PREVIEWS))?;
+        let options = blocks::store::IngestOptions {
+            overwrite: true,
+            ..blocks::store::IngestOptions::default()
+        };
+        blocks::store::ingest(source.as_mut(), &out, &options, &mut |_| {})?;
+        let store = blocks::store::Store::open(&out)?;
+        Ok(Dataset::new(
+            sample.series.clone(),
+            store,
+            self.block_cache_bytes,
+        )?)
+    }
+
     /// Removes the stores used least recently (never `keep`) until the
     /// cache fits its budget.
     fn evict(&self, keep: &str, datasets: &Datasets) {
@@ -329,6 +414,7 @@ impl Studies {
                 continue;
             }
             datasets.remove(&id);
+            let _ = std::fs::remove_dir_all(self.cache.join(PREVIEWS).join(format!("{id}.zarr")));
             match std::fs::remove_dir_all(&path) {
                 Ok(()) => {
                     total -= bytes;

@@ -1369,6 +1369,10 @@ async fn the_server_searches_the_pacs_opens_series_into_its_cache_and_refuses_ba
     };
     let (status, body) = render(first.clone()).await;
     assert_eq!(status, 200, "{body}");
+    assert!(
+        !cache.join(".preview").exists(),
+        "no preview of a series of 40 images"
+    );
     // A second series past the 1 MiB budget: the first, used least
     // recently, is removed and no longer offered.
     assert_eq!(open(second).await.expect("POST").status().as_u16(), 200);

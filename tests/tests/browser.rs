@@ -2731,6 +2731,7 @@ async fn iid_launch(
     server: &TestServer,
     study: &str,
     series: &str,
+    cache: &std::path::Path,
 ) -> Result<(), String> {
     let launched = Instant::now();
     client
@@ -2739,9 +2740,34 @@ async fn iid_launch(
         )))
         .await
         .map_err(|e| format!("opening the launch URL: {e}"))?;
+    // The whole series (its preview, a sample of the images, shown first
+    // while the rest arrives, is gone).
     let shown = format!(
-        "return document.getElementById('dataset').value === '{series}' && document.getElementById('opening').hidden ? 1 : 0;"
+        "return document.getElementById('dataset').value === '{series}' && document.getElementById('opening').hidden
+           && document.getElementById('preview-note').hidden ? 1 : 0;"
     );
+    // While the preview shows, a look at it (kept, not required: a fast
+    // fetch may show it only briefly).
+    let mut looked = false;
+    while number(client, "the whole series shown", &shown).await? != 1.0
+        && launched.elapsed() < PATIENCE
+    {
+        let previewing = number(
+            client,
+            "the preview",
+            "return document.getElementById('preview-note').hidden ? 0 : Number(document.getElementById('view').dataset.frames || 0);",
+        )
+        .await?;
+        if !looked && previewing > 1.0 {
+            looked = true;
+            println!(
+                "the preview's first frame after {:.1} s",
+                launched.elapsed().as_secs_f64()
+            );
+            keep_screenshot(client, "iid-preview").await?;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
     wait_for(client, "the study's series shown", &shown, |v| v == 1.0).await?;
     let frames = number(client, "frames", FRAMES).await?;
     wait_for(client, "a frame of the study", FRAMES, |n| n > frames).await?;
@@ -2751,6 +2777,13 @@ async fn iid_launch(
     );
     wait_for(client, "the study's view finished", FINISHED, |v| v == 1.0).await?;
     keep_screenshot(client, "iid-study").await?;
+    if !cache
+        .join(".preview")
+        .join(format!("{series}.zarr"))
+        .is_dir()
+    {
+        return Err("no preview was made of the 234-image series".into());
+    }
     let list = datasets_json(server).await?;
     let offered = list
         .as_array()
@@ -2882,6 +2915,6 @@ async fn an_iid_launch_opens_the_study_from_the_pacs_and_an_unknown_one_says_so(
     let mut state = server::AppState::new(vec![phantom], renderer, StreamSettings::default());
     state.studies = Some(studies);
     let server = TestServer::serving(state).await;
-    let result = iid_launch(&client, &server, &uids.study, &uids.series).await;
+    let result = iid_launch(&client, &server, &uids.study, &uids.series, cache.path()).await;
     finish(test, client, result).await;
 }

@@ -72,20 +72,153 @@ pub async fn fetch_series(
     options: FetchOptions,
     progress: Progress<'_>,
 ) -> Result<Fetched, PacsError> {
+    fetch_series_with_preview(web, study, series, spool_in, options, progress, None).await
+}
+
+/// Instances a series needs for a preview to be taken first.
+pub const PREVIEW_MIN_INSTANCES: usize = 64;
+/// Images a preview holds, about.
+pub const PREVIEW_IMAGES: usize = 32;
+
+/// A receiver of a series' preview (see [`fetch_series_with_preview`]).
+pub type Preview<'a> = Box<dyn FnOnce(Fetched) + Send + 'a>;
+
+/// The instances of a preview: every k-th image in InstanceNumber order,
+/// about [`PREVIEW_IMAGES`] of them, for a series of at least
+/// [`PREVIEW_MIN_INSTANCES`] single-frame images all numbered (else none).
+fn preview_sample(instances: &[InstanceRecord]) -> Vec<usize> {
+    if instances.len() < PREVIEW_MIN_INSTANCES
+        || instances
+            .iter()
+            .any(|i| i.frames != 1 || i.number.is_none())
+    {
+        return Vec::new();
+    }
+    let mut order: Vec<usize> = (0..instances.len()).collect();
+    order.sort_by_key(|&i| instances[i].number);
+    let stride = instances.len().div_ceil(PREVIEW_IMAGES);
+    order.into_iter().step_by(stride).collect()
+}
+
+/// [`fetch_series`], retrieving a sample of the series first when it is
+/// large enough ([`preview_sample`]): `preview` gets that sample, in a
+/// spool folder of its own, while the rest is retrieved (nothing when
+/// there is no sample). The sample's images are in the whole series too.
+pub async fn fetch_series_with_preview(
+    web: &DicomWeb,
+    study: &str,
+    series: &str,
+    spool_in: &Path,
+    options: FetchOptions,
+    progress: Progress<'_>,
+    preview: Option<Preview<'_>>,
+) -> Result<Fetched, PacsError> {
     check_uid("StudyInstanceUID", study).map_err(|what| malformed(web, study, series, what))?;
     check_uid("SeriesInstanceUID", series).map_err(|what| malformed(web, study, series, what))?;
     let start = Instant::now();
     let instances = with_retries(options, || web.series_instances(study, series)).await?;
-    let dir = tempfile::Builder::new()
-        .prefix(".voxserve-fetch-")
-        .tempdir_in(spool_in)
-        .map_err(|source| PacsError::Io {
-            path: spool_in.display().to_string(),
-            source,
-        })?;
-    let total = instances.len();
-    let (done, bytes) = (AtomicUsize::new(0), AtomicU64::new(0));
-    progress(0, total, 0);
+    let spool = || {
+        tempfile::Builder::new()
+            .prefix(".voxserve-fetch-")
+            .tempdir_in(spool_in)
+            .map_err(|source| PacsError::Io {
+                path: spool_in.display().to_string(),
+                source,
+            })
+    };
+    let dir = spool()?;
+    let url = web.url(&["studies", study, "series", series]).to_string();
+    let count = Counts {
+        total: instances.len(),
+        done: AtomicUsize::new(0),
+        bytes: AtomicU64::new(0),
+    };
+    progress(0, count.total, 0);
+    let sample = if preview.is_some() {
+        preview_sample(&instances)
+    } else {
+        Vec::new()
+    };
+    let mut rest: Vec<InstanceRecord> = instances.clone();
+    if let Some(hand_over) = preview
+        && !sample.is_empty()
+    {
+        let chosen: Vec<InstanceRecord> = sample.iter().map(|&i| instances[i].clone()).collect();
+        let sample_dir = spool()?;
+        retrieve(
+            web,
+            study,
+            series,
+            &chosen,
+            sample_dir.path(),
+            options,
+            &count,
+            progress,
+        )
+        .await?;
+        for instance in &chosen {
+            let name = format!("{}.dcm", instance.sop_uid);
+            let (from, to) = (sample_dir.path().join(&name), dir.path().join(&name));
+            std::fs::hard_link(&from, &to)
+                .or_else(|_| std::fs::copy(&from, &to).map(drop))
+                .map_err(|source| PacsError::Io {
+                    path: to.display().to_string(),
+                    source,
+                })?;
+        }
+        rest.retain(|i| !chosen.iter().any(|c| c.sop_uid == i.sop_uid));
+        hand_over(Fetched {
+            dir: sample_dir,
+            study: study.to_owned(),
+            series: series.to_owned(),
+            instances: chosen,
+            bytes: count.bytes.load(Ordering::Relaxed),
+            seconds: start.elapsed().as_secs_f64(),
+            url: url.clone(),
+        });
+    }
+    retrieve(
+        web,
+        study,
+        series,
+        &rest,
+        dir.path(),
+        options,
+        &count,
+        progress,
+    )
+    .await?;
+    Ok(Fetched {
+        dir,
+        study: study.to_owned(),
+        series: series.to_owned(),
+        instances,
+        bytes: count.bytes.into_inner(),
+        seconds: start.elapsed().as_secs_f64(),
+        url,
+    })
+}
+
+/// Instances retrieved of all, and bytes, over a fetch's parts.
+struct Counts {
+    total: usize,
+    done: AtomicUsize,
+    bytes: AtomicU64,
+}
+
+/// Retrieves `instances` into `dir`, several at a time, counting them in
+/// `count`.
+#[expect(clippy::too_many_arguments, reason = "one fetch's parts, all needed")]
+async fn retrieve(
+    web: &DicomWeb,
+    study: &str,
+    series: &str,
+    instances: &[InstanceRecord],
+    dir: &Path,
+    options: FetchOptions,
+    count: &Counts,
+    progress: Progress<'_>,
+) -> Result<(), PacsError> {
     // By index, not by reference: a closure over `&InstanceRecord` would be
     // higher-ranked, and the future could not be spawned.
     futures_util::stream::iter(0..instances.len())
@@ -93,8 +226,7 @@ pub async fn fetch_series(
             let instance = &instances[i];
             // Named by the SOP instance UID (digits and dots), so that an
             // error reading the file names the instance.
-            let dest = dir.path().join(format!("{}.dcm", instance.sop_uid));
-            let (done, bytes) = (&done, &bytes);
+            let dest = dir.join(format!("{}.dcm", instance.sop_uid));
             async move {
                 let n = with_retries(options, || {
                     web.retrieve_instance(
@@ -106,24 +238,16 @@ pub async fn fetch_series(
                     )
                 })
                 .await?;
-                let b = bytes.fetch_add(n, Ordering::Relaxed) + n;
-                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                progress(d, total, b);
+                let b = count.bytes.fetch_add(n, Ordering::Relaxed) + n;
+                let d = count.done.fetch_add(1, Ordering::Relaxed) + 1;
+                progress(d, count.total, b);
                 Ok::<(), PacsError>(())
             }
         })
         .buffer_unordered(options.concurrency.max(1))
         .try_collect::<Vec<()>>()
         .await?;
-    Ok(Fetched {
-        dir,
-        study: study.to_owned(),
-        series: series.to_owned(),
-        instances,
-        bytes: bytes.into_inner(),
-        seconds: start.elapsed().as_secs_f64(),
-        url: web.url(&["studies", study, "series", series]).to_string(),
-    })
+    Ok(())
 }
 
 /// `request`, tried up to `options.attempts` times while its failure may
