@@ -190,6 +190,14 @@ impl Studies {
         series: &str,
         datasets: &Datasets,
     ) -> Job {
+        // A series being opened (its preview perhaps offered already) is
+        // not ready: its job says how far it is.
+        if let Some(job) = self
+            .job(series)
+            .filter(|j| j.state == "fetching" || j.state == "bricking")
+        {
+            return job;
+        }
         if datasets.contains(series) {
             touch(&self.cache.join(format!("{series}.zarr")));
             return Job {
