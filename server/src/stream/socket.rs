@@ -666,6 +666,24 @@ mod tests {
                 other => panic!("expected JSON text, got {other:?}"),
             }
         }
+
+        /// The next JSON message, acknowledging the frames that come
+        /// before it (a view still refining while the session answers).
+        async fn next_json_after_frames(&mut self) -> serde_json::Value {
+            loop {
+                match self.next().await {
+                    Message::Text(text) => {
+                        return serde_json::from_str(text.as_str()).expect("JSON");
+                    }
+                    Message::Binary(bytes) => {
+                        let header = FrameHeader::parse(&bytes).expect("a header");
+                        self.send(serde_json::json!({"type": "ack", "frame": header.frame_id}))
+                            .await;
+                    }
+                    other => panic!("expected JSON text or a frame, got {other:?}"),
+                }
+            }
+        }
     }
 
     /// Runs the loop of a new session of `state` on channels.
@@ -912,7 +930,7 @@ mod tests {
         client
             .send(serde_json::json!({"type": "probe", "id": 3, "at": [at(3), at(20), at(9)]}))
             .await;
-        let probe = client.next_json().await;
+        let probe = client.next_json_after_frames().await;
         assert_eq!(
             probe["voxel"]["index"],
             serde_json::json!([3, 20, 9]),
@@ -923,11 +941,14 @@ mod tests {
         client
             .send(serde_json::json!({"type": "probe", "id": 4, "at": [0, 0, 1000]}))
             .await;
-        assert_eq!(client.next_json().await["voxel"], serde_json::Value::Null);
+        assert_eq!(
+            client.next_json_after_frames().await["voxel"],
+            serde_json::Value::Null
+        );
         client
             .send(serde_json::json!({"type": "probe", "id": 5, "at": [0, 0]}))
             .await;
-        let refused = client.next_json().await;
+        let refused = client.next_json_after_frames().await;
         assert_eq!(
             (&refused["type"], &refused["id"]),
             (&"error".into(), &5.into())
@@ -936,7 +957,7 @@ mod tests {
         client
             .send(serde_json::json!({"type": "pick", "id": 6, "xy": [16, 16]}))
             .await;
-        let pick = client.next_json().await;
+        let pick = client.next_json_after_frames().await;
         assert_eq!(
             (&pick["type"], &pick["id"]),
             (&"pick".into(), &6.into()),
@@ -947,7 +968,10 @@ mod tests {
         client
             .send(serde_json::json!({"type": "pick", "id": 7, "xy": [0, 0]}))
             .await;
-        assert_eq!(client.next_json().await["at"], serde_json::Value::Null);
+        assert_eq!(
+            client.next_json_after_frames().await["at"],
+            serde_json::Value::Null
+        );
         state.shutdown.cancel();
         running.await.expect("the loop ends");
     }
