@@ -84,6 +84,26 @@ pub struct Job {
     pub error: Option<String>,
 }
 
+impl Job {
+    /// A job of `series` in `state`, nothing done yet.
+    fn new(pacs: &DicomWeb, study: &str, series: &str, state: &'static str) -> Job {
+        Job {
+            state,
+            pacs: pacs.name().to_owned(),
+            study: study.to_owned(),
+            series: series.to_owned(),
+            fetched: 0,
+            total: 0,
+            bytes: 0,
+            bricked: 0,
+            slices: 0,
+            dataset: None,
+            preview: false,
+            error: None,
+        }
+    }
+}
+
 /// The PACS the server searches, its cache of fetched series and their jobs.
 #[derive(Debug)]
 pub struct Studies {
@@ -200,20 +220,9 @@ impl Studies {
         }
         if datasets.contains(series) {
             touch(&self.cache.join(format!("{series}.zarr")));
-            return Job {
-                state: "ready",
-                pacs: pacs.name().to_owned(),
-                study: study.to_owned(),
-                series: series.to_owned(),
-                fetched: 0,
-                total: 0,
-                bytes: 0,
-                bricked: 0,
-                slices: 0,
-                dataset: Some(series.to_owned()),
-                preview: false,
-                error: None,
-            };
+            let mut job = Job::new(pacs, study, series, "ready");
+            job.dataset = Some(series.to_owned());
+            return job;
         }
         let job = {
             let mut jobs = self.lock();
@@ -231,20 +240,7 @@ impl Studies {
             {
                 jobs.remove(i);
             }
-            let job = Job {
-                state: "fetching",
-                pacs: pacs.name().to_owned(),
-                study: study.to_owned(),
-                series: series.to_owned(),
-                fetched: 0,
-                total: 0,
-                bytes: 0,
-                bricked: 0,
-                slices: 0,
-                dataset: None,
-                preview: false,
-                error: None,
-            };
+            let job = Job::new(pacs, study, series, "fetching");
             jobs.push(job.clone());
             job
         };

@@ -189,35 +189,17 @@ impl Auth {
 
     /// Whether `principal` may read `/metrics`.
     pub fn may_read_metrics(&self, principal: &Principal) -> bool {
-        match principal.proof {
-            Proof::Anonymous => true,
-            _ => {
-                let allowed = policy::metrics_roles(self.policy.as_ref());
-                principal.roles.iter().any(|r| allowed.contains(r))
-            }
-        }
+        has_role(principal, &policy::metrics_roles(self.policy.as_ref()))
     }
 
     /// Whether `principal` may store studies (STOW-RS).
     pub fn may_store(&self, principal: &Principal) -> bool {
-        match principal.proof {
-            Proof::Anonymous => true,
-            _ => {
-                let allowed = policy::store_roles(self.policy.as_ref());
-                principal.roles.iter().any(|r| allowed.contains(r))
-            }
-        }
+        has_role(principal, &policy::store_roles(self.policy.as_ref()))
     }
 
     /// Whether `principal` may search and open studies from the PACS.
     pub fn may_use_pacs(&self, principal: &Principal) -> bool {
-        match principal.proof {
-            Proof::Anonymous => true,
-            _ => {
-                let allowed = policy::pacs_roles(self.policy.as_ref());
-                principal.roles.iter().any(|r| allowed.contains(r))
-            }
-        }
+        has_role(principal, &policy::pacs_roles(self.policy.as_ref()))
     }
 
     /// What the web client needs to log in, for `GET /api/auth`.
@@ -337,6 +319,15 @@ pub async fn require(State(state): State<AppState>, mut request: Request, next: 
             );
             error.into_response()
         }
+    }
+}
+
+/// Whether `principal` has one of `allowed` (anonymous access, where the
+/// server needs no authentication, has them all).
+fn has_role(principal: &Principal, allowed: &[String]) -> bool {
+    match principal.proof {
+        Proof::Anonymous => true,
+        _ => principal.roles.iter().any(|r| allowed.contains(r)),
     }
 }
 
