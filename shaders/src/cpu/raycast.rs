@@ -9,7 +9,7 @@ use super::occupancy::cell_at;
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit, voxel_edge,
 };
-use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON};
+use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON, cubic_gradient_of};
 use super::texture::{Texture3d, floor3};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::{FLAG_CUBIC_GRADIENT, FLAG_SKIP_EMPTY, RaycastParams};
@@ -155,6 +155,9 @@ impl Storage for PackedTexture {
                 // Every read in the block: its 4³ texels are in the slot.
                 return self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
             }
+            if let Some(g) = self.cubic_gradient_across(loc, centre, low, high) {
+                return g / per_voxel;
+            }
             // Near a face: the reads in the block from its slot, the others
             // where `sample_neighbour` finds them (slot position x is level
             // voxel x − 1 of the block, centred at (x + ½)·per_voxel).
@@ -255,6 +258,97 @@ impl Storage for PackedTexture {
 }
 
 impl PackedTexture {
+    /// [`SlotAtlas::cubic_gradient`] (per texel of `loc`'s level) at slot
+    /// position `centre` whose reads, from `low` to `high`, cross a face of
+    /// `loc`'s block, where every block they reach is stored at its level:
+    /// then each read beyond the face, which `sample_neighbour` takes from
+    /// the neighbour's slot, blends the texels the neighbour's slot and this
+    /// one's apron hold alike, so the 4³ texels are gathered from the slots
+    /// they lie in and weighed directly. `None` where a block they reach is
+    /// empty, outside the grid or at another level (the reads then go
+    /// through `sample_neighbour`).
+    ///
+    /// [`SlotAtlas::cubic_gradient`]: super::SlotAtlas::cubic_gradient
+    #[inline]
+    fn cubic_gradient_across(
+        &self,
+        loc: &BlockLocation,
+        centre: Vec3,
+        low: Vec3,
+        high: Vec3,
+    ) -> Option<Vec3> {
+        let edge = loc.slot_edge as i32;
+        let face = edge as f32 - 1.5;
+        let interior = edge - 2 * SLOT_APRON as i32;
+        let level = self.index[self.block_index(loc.block)][3];
+        // Per axis, the neighbour the reads reach (−1, 0 or +1).
+        let mut side = [0i32; 3];
+        for a in 0..3 {
+            let (below, above) = (low[a] < 0.5, high[a] >= face);
+            side[a] = match (below, above) {
+                (false, false) => 0,
+                (true, false) => -1,
+                (false, true) => 1,
+                (true, true) => return None,
+            };
+        }
+        // The slots of the blocks reached, by which axes step to the side
+        // (bit 0 x, 1 y, 2 z).
+        let mut bases = [0usize; 8];
+        for (c, base) in bases.iter_mut().enumerate() {
+            let mut block = loc.block;
+            let mut skip = false;
+            for a in 0..3 {
+                if c >> a & 1 != 0 {
+                    skip |= side[a] == 0;
+                    block[a] += side[a];
+                }
+            }
+            if skip {
+                continue;
+            }
+            if (0..3).any(|a| !(0..self.grid[a] as i32).contains(&block[a])) {
+                return None;
+            }
+            let b = self.block_index(block);
+            if self.index[b][3] != level {
+                return None;
+            }
+            *base = self.atlas.slot_base(b)?;
+        }
+        // Per axis and texel of the 4³: whether it lies beyond the face, and
+        // where in its slot.
+        let i = centre.floor();
+        let first = [i.x as i32 - 1, i.y as i32 - 1, i.z as i32 - 1];
+        let mut at = [[(0usize, 0usize); 4]; 3];
+        for a in 0..3 {
+            for (t, slot) in at[a].iter_mut().enumerate() {
+                let x = first[a] + t as i32;
+                *slot = if x < 0 {
+                    if side[a] != -1 {
+                        return None;
+                    }
+                    (1 << a, (x + interior) as usize)
+                } else if x > edge - 1 {
+                    if side[a] != 1 {
+                        return None;
+                    }
+                    (1 << a, (x - interior) as usize)
+                } else {
+                    (0, x as usize)
+                };
+            }
+        }
+        let texels = self.atlas.texels();
+        let e = loc.slot_edge;
+        Some(cubic_gradient_of(centre - i, |k, j| {
+            let (bz, z) = at[2][k];
+            let (by, y) = at[1][j];
+            let row = (z * e + y) * e;
+            f32x4::from(at[0].map(|(bx, x)| texels[bases[bx | by | bz] + row + x]))
+        }))
+    }
+
     /// The stretch of the ray in `block`, which it leaves at the smallest of
     /// `t_max` (never before `t`).
     fn block_span(

@@ -252,42 +252,14 @@ impl SlotAtlas {
     #[inline(always)]
     pub fn cubic_gradient(&self, base: usize, edge: usize, p: Vec3) -> Vec3 {
         let i = p.floor();
-        let a = p - i;
-        let b = Vec3::ONE - a;
-        // Per axis, the B-spline's weights w and its derivative's d for the
-        // texels floor(p) − 1 … floor(p) + 2.
-        let w = [
-            b * b * b / 6.0,
-            (3.0 * a * a * a - 6.0 * a * a + Vec3::splat(4.0)) / 6.0,
-            (-3.0 * a * a * a + 3.0 * a * a + 3.0 * a + Vec3::ONE) / 6.0,
-            a * a * a / 6.0,
-        ];
-        let d = [
-            -0.5 * b * b,
-            a * (1.5 * a - Vec3::splat(2.0)),
-            (-3.0 * a * a + 2.0 * a + Vec3::ONE) * 0.5,
-            0.5 * a * a,
-        ];
         let first =
             base + ((i.z as usize - 1) * edge + (i.y as usize - 1)) * edge + (i.x as usize - 1);
-        // Along x per row (smooth and derivative), then y, then z.
-        let mut g = Vec3::ZERO;
-        for (k, (wz, dz)) in w.iter().zip(&d).enumerate() {
-            let (mut s_xy, mut dx_y, mut sx_dy) = (0.0f32, 0.0f32, 0.0f32);
-            for (j, (wy, dy)) in w.iter().zip(&d).enumerate() {
-                let row = &self.texels[first + (k * edge + j) * edge..][..4];
-                let (mut s, mut dx) = (0.0f32, 0.0f32);
-                for (t, (wx, ddx)) in row.iter().zip(w.iter().zip(&d)) {
-                    s += wx.x * t;
-                    dx += ddx.x * t;
-                }
-                s_xy += wy.y * s;
-                dx_y += wy.y * dx;
-                sx_dy += dy.y * s;
-            }
-            g += Vec3::new(wz.z * dx_y, wz.z * sx_dy, dz.z * s_xy);
-        }
-        g
+        cubic_gradient_of(p - i, |k, j| {
+            let row: &[f32; 4] = self.texels[first + (k * edge + j) * edge..][..4]
+                .try_into()
+                .expect("four texels");
+            f32x4::from(*row)
+        })
     }
 
     /// `sample_slot(p + a) − sample_slot(p − a)` for the unit steps `a`
@@ -325,6 +297,46 @@ impl SlotAtlas {
         let [dx, dy, dz, _] = lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array();
         Some(Vec3::new(dx, dy, dz))
     }
+}
+
+/// The cubic B-spline's derivative along x, y and z (per texel) at
+/// fraction `a` past texel 1 of a 4³ neighbourhood whose row `j` of slice
+/// `k` (x along the row) `row(k, j)` gives: the rows weighed along z and y
+/// in SIMD lanes (smooth·smooth, smooth·derivative, derivative·smooth), then
+/// along x.
+#[inline(always)]
+pub fn cubic_gradient_of(a: Vec3, row: impl Fn(usize, usize) -> f32x4) -> Vec3 {
+    let b = Vec3::ONE - a;
+    // Per axis, the B-spline's weights w and its derivative's d for the
+    // texels floor(p) − 1 … floor(p) + 2.
+    let w = [
+        b * b * b / 6.0,
+        (3.0 * a * a * a - 6.0 * a * a + Vec3::splat(4.0)) / 6.0,
+        (-3.0 * a * a * a + 3.0 * a * a + 3.0 * a + Vec3::ONE) / 6.0,
+        a * a * a / 6.0,
+    ];
+    let d = [
+        -0.5 * b * b,
+        a * (1.5 * a - Vec3::splat(2.0)),
+        (-3.0 * a * a + 2.0 * a + Vec3::ONE) * 0.5,
+        0.5 * a * a,
+    ];
+    let (mut smooth, mut along_y, mut along_z) = (f32x4::ZERO, f32x4::ZERO, f32x4::ZERO);
+    for k in 0..4 {
+        for j in 0..4 {
+            let r = row(k, j);
+            smooth += f32x4::splat(w[k].z * w[j].y) * r;
+            along_y += f32x4::splat(w[k].z * d[j].y) * r;
+            along_z += f32x4::splat(d[k].z * w[j].y) * r;
+        }
+    }
+    let wx = f32x4::from([w[0].x, w[1].x, w[2].x, w[3].x]);
+    let dx = f32x4::from([d[0].x, d[1].x, d[2].x, d[3].x]);
+    Vec3::new(
+        (smooth * dx).reduce_add(),
+        (along_y * wx).reduce_add(),
+        (along_z * wx).reduce_add(),
+    )
 }
 
 /// Texels of level `level`'s `region`: its slots, `slot_edge(level)³` each.
