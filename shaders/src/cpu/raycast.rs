@@ -264,9 +264,11 @@ impl PackedTexture {
     /// then each read beyond the face, which `sample_neighbour` takes from
     /// the neighbour's slot, blends the texels the neighbour's slot and this
     /// one's apron hold alike, so the 4³ texels are gathered from the slots
-    /// they lie in and weighed directly. `None` where a block they reach is
-    /// empty, outside the grid or at another level (the reads then go
-    /// through `sample_neighbour`).
+    /// they lie in and weighed directly. Where no block they reach is stored,
+    /// `sample_neighbour` reads this block's slot clamped to its apron, so
+    /// the texels beyond its edge are its edge's. `None` where a block they
+    /// reach is at another level, or some are stored and some not (the reads
+    /// then go through `sample_neighbour`).
     ///
     /// [`SlotAtlas::cubic_gradient`]: super::SlotAtlas::cubic_gradient
     #[inline]
@@ -293,11 +295,16 @@ impl PackedTexture {
             };
         }
         // The slots of the blocks reached, by which axes step to the side
-        // (bit 0 x, 1 y, 2 z).
-        let mut bases = [0usize; 8];
+        // (bit 0 x, 1 y, 2 z). Either every block reached is stored at this
+        // level (`Some(true)`), or none is (`Some(false)`: empty, or outside
+        // the grid where `block_of` finds this block again), and
+        // `sample_neighbour` reads this slot, clamped to its apron, as a
+        // clamp to the edge of its texels does.
+        let mut bases = [loc.slot; 8];
+        let mut stored = None;
         for (c, base) in bases.iter_mut().enumerate() {
             let mut block = loc.block;
-            let mut skip = false;
+            let mut skip = c == 0;
             for a in 0..3 {
                 if c >> a & 1 != 0 {
                     skip |= side[a] == 0;
@@ -307,15 +314,30 @@ impl PackedTexture {
             if skip {
                 continue;
             }
-            if (0..3).any(|a| !(0..self.grid[a] as i32).contains(&block[a])) {
+            let inside = (0..3).all(|a| (0..self.grid[a] as i32).contains(&block[a]));
+            let here = if inside {
+                let b = self.block_index(block);
+                match self.index[b][3] {
+                    EMPTY_LEVEL => false,
+                    l if l == level => {
+                        *base = self.atlas.slot_base(b)?;
+                        true
+                    }
+                    _ => return None,
+                }
+            } else {
+                let last = self.grid.map(|n| n as i32 - 1);
+                let clamped = [0, 1, 2].map(|a| block[a].clamp(0, last[a]));
+                if clamped != loc.block {
+                    return None;
+                }
+                false
+            };
+            if *stored.get_or_insert(here) != here {
                 return None;
             }
-            let b = self.block_index(block);
-            if self.index[b][3] != level {
-                return None;
-            }
-            *base = self.atlas.slot_base(b)?;
         }
+        let beyond = stored.unwrap_or(false);
         // Per axis and texel of the 4³: whether it lies beyond the face, and
         // where in its slot.
         let i = centre.floor();
@@ -324,19 +346,17 @@ impl PackedTexture {
         for a in 0..3 {
             for (t, slot) in at[a].iter_mut().enumerate() {
                 let x = first[a] + t as i32;
-                *slot = if x < 0 {
-                    if side[a] != -1 {
-                        return None;
-                    }
-                    (1 << a, (x + interior) as usize)
+                let (step, inside) = if x < 0 {
+                    (-1, if beyond { x + interior } else { 0 })
                 } else if x > edge - 1 {
-                    if side[a] != 1 {
-                        return None;
-                    }
-                    (1 << a, (x - interior) as usize)
+                    (1, if beyond { x - interior } else { edge - 1 })
                 } else {
-                    (0, x as usize)
+                    (0, x)
                 };
+                if step != 0 && step != side[a] {
+                    return None;
+                }
+                *slot = (usize::from(step != 0) << a, inside as usize);
             }
         }
         let texels = self.atlas.texels();
@@ -345,7 +365,9 @@ impl PackedTexture {
             let (bz, z) = at[2][k];
             let (by, y) = at[1][j];
             let row = (z * e + y) * e;
-            f32x4::from(at[0].map(|(bx, x)| texels[bases[bx | by | bz] + row + x]))
+            let [(b0, x0), (b1, x1), (b2, x2), (b3, x3)] = at[0];
+            let texel = |b: usize, x: usize| texels[bases[b | by | bz] + row + x];
+            f32x4::from([texel(b0, x0), texel(b1, x1), texel(b2, x2), texel(b3, x3)])
         }))
     }
 
@@ -395,4 +417,124 @@ pub fn raycast(
     output: &mut [u8],
 ) {
     march(params, packed, transfer_function, output);
+}
+
+#[cfg(test)]
+mod tests {
+    use blocks::lod::{EMPTY, LodSelection};
+    use blocks::packing::{Packing, slot_edge};
+    use glam::Vec3;
+
+    use super::super::march::{Storage, cubic_gradient_at};
+    use super::super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture};
+    use super::super::slot_atlas::SlotAtlas;
+    use crate::raycast::{FLAG_CUBIC_GRADIENT, RaycastParams};
+
+    /// A smooth but uneven field of a level's voxel position.
+    fn field(v: Vec3) -> f32 {
+        (v.x * 0.37).sin() * (v.y * 0.23 + 0.4).cos() + 0.05 * v.z + 0.01 * v.x * v.y
+    }
+
+    /// 3³ blocks of 16³ voxels: most at level 0, one beside the centre
+    /// empty, one at level 1 beside it, and two side by side at level 1 in
+    /// a corner; every slot (apron included) holds the field at its level.
+    fn blocks() -> (PackedTexture, RaycastParams) {
+        let n = 3usize;
+        let mut lod = vec![0u8; n * n * n];
+        let at = |x: usize, y: usize, z: usize| (z * n + y) * n + x;
+        lod[at(2, 1, 1)] = EMPTY;
+        lod[at(1, 2, 1)] = 1;
+        lod[at(0, 0, 0)] = 1;
+        lod[at(1, 0, 0)] = 1;
+        let selection = LodSelection {
+            kept_voxels: 0,
+            budget_voxels: 0,
+            capped: false,
+            full_voxels: 0,
+            non_empty: lod.iter().filter(|&&l| l != EMPTY).count(),
+            over_budget: false,
+            error: 0.0,
+            lod: lod.clone(),
+        };
+        let packing = Packing::new(&selection, 2048).expect("packing");
+        let mut atlas = SlotAtlas::new(&packing);
+        let mut index = Vec::new();
+        for (b, &level) in lod.iter().enumerate() {
+            if level == EMPTY {
+                index.push([0, 0, 0, EMPTY_LEVEL]);
+                continue;
+            }
+            index.push([0, 0, 0, u16::from(level)]);
+            let level = usize::from(level);
+            let edge = slot_edge(level) as usize;
+            let voxels = (BLOCK as usize) >> level;
+            let corner =
+                Vec3::new((b % n) as f32, (b / n % n) as f32, (b / (n * n)) as f32) * voxels as f32;
+            let slot = atlas.slot_mut(b, level).expect("slot");
+            for (i, t) in slot.iter_mut().enumerate() {
+                let texel = Vec3::new(
+                    (i % edge) as f32,
+                    (i / edge % edge) as f32,
+                    (i / (edge * edge)) as f32,
+                );
+                *t = field(corner + texel - Vec3::ONE);
+            }
+        }
+        let packed = PackedTexture {
+            atlas,
+            index,
+            grid: [n as u32; 3],
+            light: None,
+            light_cache: None,
+            visible_cells: None,
+            visible_texels: None,
+        };
+        let mut params: RaycastParams = bytemuck::Zeroable::zeroed();
+        let voxels = (n as f32) * BLOCK;
+        params.volume.texel = [1.0 / voxels; 3];
+        params.volume.volume_dims = [voxels; 3];
+        params.volume.block_grid = [n as u32; 3];
+        params.flags = FLAG_CUBIC_GRADIENT;
+        (packed, params)
+    }
+
+    #[test]
+    fn cubic_gradients_near_block_faces_equal_the_shaders_reads_through_the_neighbours() {
+        let (packed, params) = blocks();
+        let dir = Vec3::new(0.6, 0.48, 0.64);
+        let (mut compared, mut near_face) = (0, 0);
+        for i in 0..20_000u32 {
+            // Positions all over the volume, many within two voxels of a face.
+            let u = |k: u32| ((i.wrapping_mul(k) % 9973) as f32 + 0.5) / 9973.0;
+            let mut v = Vec3::new(u(7919), u(104_729), u(1_299_709)) * 48.0;
+            if i % 2 == 0 {
+                // Onto a face along one axis, give or take two voxels.
+                let a = (i / 2 % 3) as usize;
+                v[a] = (v[a] / BLOCK).round() * BLOCK + (u(31) - 0.5) * 4.0;
+                v[a] = v[a].clamp(0.01, 47.99);
+            }
+            let tc = v / 48.0;
+            let span = packed.span(&params, tc, dir, 0.0);
+            if span.loc.empty {
+                continue;
+            }
+            let local = v - Vec3::from(span.loc.block.map(|b| b as f32)) * BLOCK;
+            if local.min_element() < 2.0 || local.max_element() > BLOCK - 2.0 {
+                near_face += 1;
+            }
+            let direct = packed.gradient_in(&params, &span, 0.0, tc);
+            let reads = cubic_gradient_at(&packed, &params, tc, &span.loc);
+            let scale = reads.abs().max_element().max(1.0);
+            assert!(
+                (direct - reads).abs().max_element() < 1e-3 * scale,
+                "at voxel {v} (block {:?}): {direct} vs {reads}",
+                span.loc.block
+            );
+            compared += 1;
+        }
+        assert!(
+            compared > 15_000 && near_face > 5_000,
+            "{compared}, {near_face}"
+        );
+    }
 }
