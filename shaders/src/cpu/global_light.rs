@@ -13,9 +13,9 @@ use std::time::Instant;
 use blocks::TransferFunction;
 use blocks::packing::Packing;
 
-use super::Texture3d;
 use super::march::{classify_table, corrected_opacity, intersect_box};
-use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_coord, empty_exit};
+use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit};
+use super::{SlotAtlas, Texture3d};
 use crate::global_light::update::{LightStages, update_light};
 use crate::global_light::{
     DirectLightMethod, LightParams, LightSetup, LightTimings, ScatterDirection, Stage, seam_passes,
@@ -161,13 +161,18 @@ pub fn local_opacity(
         let ray = light_ray(p, tc0);
         let end = p.segment.min(ray.length);
         let mut transparency = 1.0;
+        // The block of the last sample, which the next often shares.
+        let mut loc = packed.locate(&g, tc0);
         for i in 1..=p.max_steps {
             let t = i as f32 * p.step;
             if t > end {
                 break;
             }
             let tc = tc0 + ray.dir * t;
-            let loc = packed.locate(&g, tc);
+            let block = block_of(&g, tc);
+            if block != loc.block {
+                loc = packed.locate_block(block);
+            }
             if !loc.empty {
                 transparency *= 1.0 - opacity_at(p, packed, tf, tc, &loc);
             }
@@ -181,7 +186,7 @@ pub fn local_opacity(
 /// that `svr_blocks` ([`crate::illumination::near_blocks`] for the SVR's margin) marks 0 are left 0.
 pub fn global_opacity(
     p: &LightParams,
-    local_opacity: &Texture3d,
+    local_opacity: &SlotAtlas,
     index: &PackedTexture,
     svr_blocks: &[u32],
 ) -> Vec<f32> {
@@ -207,17 +212,24 @@ pub fn global_opacity(
         let ray = light_ray(p, tc0);
         let mut transparency = 1.0;
         let mut t = 0.0f32;
+        // The block of the last segment's end, which the next often shares.
+        let mut loc = index.locate(&g, tc0);
         for _k in 0..p.max_steps {
             if t >= ray.length || transparency < OPAQUE {
                 break;
             }
             let tc = tc0 + ray.dir * t;
-            let loc = index.locate(&g, tc);
+            let block = block_of(&g, tc);
+            if block != loc.block {
+                loc = index.locate_block(block);
+            }
             if loc.empty {
                 t = t.max(empty_exit(&g, tc0, ray.dir, &loc)) + RESUME;
                 continue;
             }
-            let a = local_opacity.sample_level(atlas_coord(&g, tc, &loc));
+            // atlas_coord's texel in the slot (the same eight texels, the
+            // same weights up to rounding).
+            let a = local_opacity.sample_block(&g, tc, &loc);
             transparency *= 1.0 - a;
             t += p.segment;
         }
@@ -259,6 +271,7 @@ pub fn in_scatter(
     light_volume: &mut [f32],
 ) {
     let g = p.volume;
+    let direct_slots = packed.atlas.with_texels_of(direct_light, &packed.index);
     let stored = light_volume.to_vec();
     let [w, h, _] = p.atlas_dims();
     let next = per_texel(p.atlas_dims(), |gid| {
@@ -281,20 +294,27 @@ pub fn in_scatter(
             let ray = ray_along(p, tc0, towards, p.scatter_radius);
             let mut transparency = 1.0;
             let mut i = 0u32;
+            // The block of the last sample, which the next often shares.
+            let mut loc = packed.locate(&g, tc0);
             for _k in 0..p.max_steps {
                 let t = i as f32 * p.step;
                 if t > ray.length || transparency < OPAQUE {
                     break;
                 }
                 let tc = tc0 + ray.dir * t;
-                let loc = packed.locate(&g, tc);
+                let block = block_of(&g, tc);
+                if block != loc.block {
+                    loc = packed.locate_block(block);
+                }
                 if loc.empty {
                     let exit = empty_exit(&g, tc0, ray.dir, &loc);
                     i = (i + 1).max((exit / p.step).ceil() as u32);
                     continue;
                 }
                 let a = opacity_at(p, packed, tf, tc, &loc);
-                let lit = direct_light.sample_level(atlas_coord(&g, tc, &loc));
+                // atlas_coord's texel in the slot (the same eight texels,
+                // the same weights up to rounding).
+                let lit = direct_slots.sample_block(&g, tc, &loc);
                 light += transparency * a * lit;
                 transparency *= 1.0 - a;
                 i += 1;
@@ -552,7 +572,11 @@ pub fn run(stage: Stage, inputs: &LightInputs<'_>, state: &mut LightState) {
             state.local_opacity = local_opacity(p, inputs.packed, inputs.tf, inputs.slot_blocks);
         }
         (Stage::GlobalOpacity, _) => {
-            state.shadow_volume = global_opacity(p, &local(), inputs.packed, inputs.svr_blocks);
+            let local = inputs
+                .packed
+                .atlas
+                .with_texels_of(&local(), &inputs.packed.index);
+            state.shadow_volume = global_opacity(p, &local, inputs.packed, inputs.svr_blocks);
         }
         (Stage::DirectLight, DirectLightMethod::Piecewise) => {
             state.direct_light = direct_light(p, &local(), &shadow(), inputs.slot_blocks);

@@ -8,7 +8,6 @@ use blocks::packing::slot_edge;
 use blocks::store::LEVELS;
 
 use super::march::intersect_box;
-use super::slot_atlas::SLOT_APRON;
 use super::texture::floor3;
 use super::{SlotAtlas, Texture3d};
 use crate::packed_volume::PackedVolume;
@@ -64,6 +63,7 @@ pub fn voxel_edge(loc: &BlockLocation) -> f32 {
 }
 
 /// WGSL `block_of`.
+#[inline(always)]
 pub fn block_of(g: &PackedVolume, tc: Vec3) -> [i32; 3] {
     let last = g.block_grid.map(|n| n as i32 - 1);
     let b = floor3(tc * Vec3::from(g.volume_dims) / BLOCK);
@@ -116,10 +116,7 @@ impl PackedTexture {
     /// finding each of the eight texels' slot from its atlas position.
     #[inline]
     pub fn sample_block(&self, g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> f32 {
-        // `atlas_texel` within the slot, whose apron starts one texel before
-        // the block's first interior texel.
-        let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
-        self.atlas.sample_slot(loc.slot, loc.slot_edge, in_slot)
+        self.atlas.sample_block(g, tc, loc)
     }
 
     /// WGSL `locate`.
@@ -135,6 +132,7 @@ impl PackedTexture {
     }
 
     /// The location of every sample in `block`: the index entry read.
+    #[inline(always)]
     pub fn locate_block(&self, block: [i32; 3]) -> BlockLocation {
         let b = self.block_index(block);
         let entry = self.index[b];

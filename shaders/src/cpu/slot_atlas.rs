@@ -14,7 +14,12 @@ use blocks::store::LEVELS;
 use glam::Vec3;
 use wide::f32x4;
 
+use rayon::prelude::*;
+
+use super::Texture3d;
+use super::packed::{BlockLocation, atlas_texel};
 use super::texture::{floor3, round_down, split, trilinear};
+use crate::packed_volume::PackedVolume;
 
 /// The atlas of one packing, slot by slot; see the module docs.
 #[derive(Debug, Clone)]
@@ -78,6 +83,62 @@ impl SlotAtlas {
     pub fn region_texels(&self, level: usize) -> std::ops::Range<usize> {
         let start = self.region_base[level];
         start..start + region_len(level, &self.regions[level])
+    }
+
+    /// These slots holding `atlas`'s texels instead (a texture of the GPU
+    /// atlas's shape, such as a light stage's), each slot's copied from where
+    /// `index` (per block: atlas position of its first interior texel, level)
+    /// places it, so that it is read slot by slot as the data is.
+    pub fn with_texels_of(&self, atlas: &Texture3d, index: &[[u16; 4]]) -> SlotAtlas {
+        let mut copy = SlotAtlas {
+            dims: self.dims,
+            regions: self.regions,
+            region_base: self.region_base,
+            block_base: self.block_base.clone(),
+            texels: vec![0.0; self.texels.len()],
+        };
+        // Per level and slot, the atlas position of its first texel (the apron's).
+        let mut corners: [Vec<Option<[i32; 3]>>; LEVELS] = std::array::from_fn(|level| {
+            let e = slot_edge(level) as usize;
+            vec![None; self.region_texels(level).len() / (e * e * e)]
+        });
+        for (&base, entry) in self.block_base.iter().zip(index) {
+            let level = usize::from(entry[3]);
+            if base == usize::MAX || level >= LEVELS {
+                continue;
+            }
+            let e = slot_edge(level) as usize;
+            let slot = (base - self.region_base[level]) / (e * e * e);
+            let at = |a: usize| i32::from(entry[a]) - APRON as i32;
+            corners[level][slot] = Some([at(0), at(1), at(2)]);
+        }
+        for (level, corners) in corners.iter().enumerate() {
+            let e = slot_edge(level) as usize;
+            let range = copy.region_texels(level);
+            copy.texels[range]
+                .par_chunks_mut(e * e * e)
+                .zip(corners)
+                .for_each(|(texels, corner)| {
+                    let Some([x0, y0, z0]) = *corner else {
+                        return;
+                    };
+                    for (i, t) in texels.iter_mut().enumerate() {
+                        let (x, y, z) = ((i % e) as i32, (i / e % e) as i32, (i / (e * e)) as i32);
+                        *t = atlas.load(x0 + x, y0 + y, z0 + z);
+                    }
+                });
+        }
+        copy
+    }
+
+    /// The texels at `tc` in block `loc`'s slot (positions outside the block
+    /// clamped to its apron), filtered as the GPU filters its atlas there.
+    #[inline]
+    pub fn sample_block(&self, g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> f32 {
+        // `atlas_texel` within the slot, whose apron starts one texel before
+        // the block's first interior texel.
+        let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
+        self.sample_slot(loc.slot, loc.slot_edge, in_slot)
     }
 
     /// Atlas size in texels, as the GPU texture's.
