@@ -114,10 +114,6 @@ impl Backend {
 
 /// A [`Renderer`] or a [`CpuRenderer`]: the calls they share.
 #[derive(Debug)]
-#[expect(
-    clippy::large_enum_variant,
-    reason = "one per resident dataset, made once and kept in place"
-)]
 pub enum AnyRenderer {
     /// On the GPU.
     Gpu(Renderer),

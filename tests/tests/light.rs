@@ -15,7 +15,6 @@
 
 use blocks::Preset;
 use server::Dataset;
-use shaders::cpu::Texture3d;
 use shaders::cpu::global_light::{self as twin, LightInputs};
 use shaders::global_light::{DirectLightMethod, LightParams, LightSource, Stage};
 use shaders::illumination::{near_blocks, slot_blocks};
@@ -128,7 +127,7 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
     // The lit frame: the CPU ray caster lit by the GPU's light volume, so only
     // the ray caster's arithmetic differs.
     let mut cpu_packed = packed;
-    cpu_packed.light = Some(Texture3d::new(params.atlas_dims(), gpu_state.light_volume));
+    cpu_packed.set_light(gpu_state.light_volume);
     let cpu_frame = cpu_raycast(dataset, &desc, &packing, &cpu_packed, request, &table);
     let tolerance = voxserve_tests::Tolerance {
         max_mean: 0.5,

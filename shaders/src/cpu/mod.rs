@@ -107,7 +107,7 @@ pub fn illuminate(
                 table,
                 request.light.method,
             ));
-            packed.light = Some(Texture3d::new(packing.atlas_dims, state.light_volume));
+            packed.set_light(state.light_volume);
         }
         Mode::Extinction => {
             let params = ExtinctionParams::new(desc, &request.extinction, layout, tf_len);

@@ -27,8 +27,9 @@ pub struct PackedTexture {
     pub index: Vec<[u16; 4]>,
     /// Blocks along x, y, z.
     pub grid: [u32; 3],
-    /// The stored light I_s, atlas-shaped (lit rendering only).
-    pub light: Option<Texture3d>,
+    /// The stored light I_s (lit rendering only), in the atlas's slots
+    /// ([`SlotAtlas::with_texels_of`] the atlas-shaped light volume).
+    pub light: Option<SlotAtlas>,
     /// The light cache of extinction-based illumination, grid-shaped, one
     /// texture per channel r, g, b.
     pub light_cache: Option<[Texture3d; 3]>,
@@ -117,6 +118,13 @@ impl PackedTexture {
     #[inline]
     pub fn sample_block(&self, g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> f32 {
         self.atlas.sample_block(g, tc, loc)
+    }
+
+    /// Lights the ray caster with `light_volume`, the light I_s in the
+    /// atlas's shape (as the light stages write it), read slot by slot.
+    pub fn set_light(&mut self, light_volume: Vec<f32>) {
+        let light = Texture3d::new(self.atlas.dims(), light_volume);
+        self.light = Some(self.atlas.with_texels_of(&light, &self.index));
     }
 
     /// WGSL `locate`.

@@ -7,7 +7,7 @@ use wide::f32x4;
 use super::march::{Cell, CubicReads, Span, Storage, far_face_crossing, march};
 use super::occupancy::cell_at;
 use super::packed::{
-    BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, atlas_texel, block_of, empty_exit, voxel_edge,
+    BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
 };
 use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON, cubic_gradient_of};
 use super::texture::{Texture3d, floor3};
@@ -241,12 +241,17 @@ impl Storage for PackedTexture {
             // shared/light_cache.wgsl: grid-shaped, read at tc.
             return Texture3d::sample_level3(channels, tc);
         }
-        // shared/light_volume.wgsl: in the block tc lies in, else in `loc`'s.
+        // shared/light_volume.wgsl: in the block tc lies in, else in `loc`'s,
+        // read from that block's slot (its eight texels are in it).
         match &self.light {
             Some(light) => {
-                let there = <Self as Storage>::locate(self, p, tc);
+                let block = block_of(&p.volume, tc);
+                if block == loc.block {
+                    return Vec3::splat(light.sample_block(&p.volume, tc, loc));
+                }
+                let there = self.locate_block(block);
                 let home = if there.empty { loc } else { &there };
-                Vec3::splat(light.sample_texel(atlas_texel(&p.volume, tc, home)))
+                Vec3::splat(light.sample_block(&p.volume, tc, home))
             }
             None => Vec3::ONE,
         }

@@ -24,7 +24,7 @@ use blocks::transfer_function::TABLE_LEN;
 
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::occupancy::{visible_cells, visible_texels};
-use super::{Texture3d, illuminate, raycast};
+use super::{illuminate, raycast};
 use crate::extinction::ExtinctionSettings;
 use crate::illumination::{Mode, Refine, Timings};
 use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
@@ -227,8 +227,7 @@ impl CpuRenderer {
             .update(inputs, request, data_version, tf, refine)?;
         let texture = &mut atlas.texture;
         if timings.recomputed || timings.in_scatter_ms > 0.0 || texture.light.is_none() {
-            let light = self.global_light.light_volume().to_vec();
-            texture.light = Some(Texture3d::new(atlas.packing.atlas_dims, light));
+            texture.set_light(self.global_light.light_volume().to_vec());
         }
         Ok(Some(Timings::GlobalLight(timings)))
     }
