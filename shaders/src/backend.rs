@@ -106,8 +106,10 @@ impl Backend {
         budget_bytes: u64,
     ) -> Result<AnyRenderer, GpuError> {
         Ok(match self {
-            Backend::Gpu(gpu) => AnyRenderer::Gpu(Renderer::new(gpu.clone(), cache, budget_bytes)?),
-            Backend::Cpu => AnyRenderer::Cpu(CpuRenderer::new(cache, budget_bytes)),
+            Backend::Gpu(gpu) => {
+                AnyRenderer::Gpu(Box::new(Renderer::new(gpu.clone(), cache, budget_bytes)?))
+            }
+            Backend::Cpu => AnyRenderer::Cpu(Box::new(CpuRenderer::new(cache, budget_bytes))),
         })
     }
 }
@@ -115,10 +117,10 @@ impl Backend {
 /// A [`Renderer`] or a [`CpuRenderer`]: the calls they share.
 #[derive(Debug)]
 pub enum AnyRenderer {
-    /// On the GPU.
-    Gpu(Renderer),
+    /// On the GPU (both boxed: each is kilobytes, of sizes that change).
+    Gpu(Box<Renderer>),
     /// On the CPU.
-    Cpu(CpuRenderer),
+    Cpu(Box<CpuRenderer>),
 }
 
 impl AnyRenderer {

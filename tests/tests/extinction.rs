@@ -16,8 +16,8 @@
 
 use blocks::Preset;
 use server::Dataset;
+use shaders::cpu::ColourTexture;
 use shaders::cpu::extinction::{self as twin, ExtinctionInputs, ExtinctionState};
-use shaders::cpu::light_cache_textures;
 use shaders::extinction::{
     AoMethod, ExtinctionLight, ExtinctionLightKind, ExtinctionParams, ExtinctionSettings,
     ShadowMethod, Stage,
@@ -168,7 +168,7 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
     }
     // The lit frame: the CPU ray caster reading the GPU's light cache.
     let mut cpu_packed = packed;
-    cpu_packed.light_cache = Some(light_cache_textures(params.grid, &gpu_state.light_cache));
+    cpu_packed.light_cache = Some(ColourTexture::new(params.grid, &gpu_state.light_cache));
     let cpu_frame = cpu_raycast(dataset, &desc, &packing, &cpu_packed, request, &table);
     let tolerance = voxserve_tests::Tolerance {
         max_mean: 0.5,

@@ -44,7 +44,7 @@ pub use raycast::raycast;
 pub use reference::reference;
 pub use renderer::{CPU_FEATURES, CpuRenderer};
 pub use slot_atlas::SlotAtlas;
-pub use texture::Texture3d;
+pub use texture::{ColourTexture, Texture3d};
 
 use std::sync::Arc;
 
@@ -81,11 +81,6 @@ pub fn render_packed(
     Ok((frame, selection))
 }
 
-/// The light cache as the `raycast` twin samples it: one texture per channel.
-pub fn light_cache_textures(grid: [u32; 3], cache: &[[f32; 4]]) -> [Texture3d; 3] {
-    [0, 1, 2].map(|ch| Texture3d::new(grid, cache.iter().map(|t| t[ch]).collect()))
-}
-
 /// Computes illumination mode `mode`'s light for `request` on the CPU
 /// (converged: every stage, every refinement) and puts it where the `raycast`
 /// twin reads it.
@@ -119,7 +114,7 @@ pub fn illuminate(
                 tf: table,
                 near_blocks: &near,
             });
-            packed.light_cache = Some(light_cache_textures(params.grid, &state.light_cache));
+            packed.light_cache = Some(ColourTexture::new(params.grid, &state.light_cache));
         }
     }
 }

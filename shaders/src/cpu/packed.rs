@@ -9,7 +9,7 @@ use blocks::store::LEVELS;
 
 use super::march::intersect_box;
 use super::texture::floor3;
-use super::{SlotAtlas, Texture3d};
+use super::{ColourTexture, SlotAtlas, Texture3d};
 use crate::packed_volume::PackedVolume;
 
 /// Edge of a block in level-0 voxels.
@@ -30,9 +30,9 @@ pub struct PackedTexture {
     /// The stored light I_s (lit rendering only), in the atlas's slots
     /// ([`SlotAtlas::with_texels_of`] the atlas-shaped light volume).
     pub light: Option<SlotAtlas>,
-    /// The light cache of extinction-based illumination, grid-shaped, one
-    /// texture per channel r, g, b.
-    pub light_cache: Option<[Texture3d; 3]>,
+    /// The light cache of extinction-based illumination, grid-shaped, its
+    /// colour channels side by side.
+    pub light_cache: Option<ColourTexture>,
     /// CPU only: per block, its cells that may be visible under the current
     /// transfer function ([`super::occupancy`]); `None`: all may be.
     pub visible_cells: Option<Vec<u64>>,

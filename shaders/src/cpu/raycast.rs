@@ -10,7 +10,7 @@ use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
 };
 use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON, cubic_gradient_of};
-use super::texture::{Texture3d, floor3};
+use super::texture::floor3;
 use crate::packed_volume::PackedVolume;
 use crate::raycast::{FLAG_CUBIC_GRADIENT, FLAG_SKIP_EMPTY, RaycastParams};
 
@@ -237,9 +237,9 @@ impl Storage for PackedTexture {
     }
 
     fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> Vec3 {
-        if let Some(channels) = &self.light_cache {
+        if let Some(cache) = &self.light_cache {
             // shared/light_cache.wgsl: grid-shaped, read at tc.
-            return Texture3d::sample_level3(channels, tc);
+            return cache.sample_level(tc);
         }
         // shared/light_volume.wgsl: in the block tc lies in, else in `loc`'s,
         // read from that block's slot (its eight texels are in it).

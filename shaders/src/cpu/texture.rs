@@ -116,25 +116,6 @@ impl Texture3d {
         self.sample_texel(tc * dims - 0.5)
     }
 
-    /// [`Texture3d::sample_level`] of three textures of one size at once
-    /// (the channels of a colour), the weights found once.
-    pub fn sample_level3(channels: &[Texture3d; 3], tc: Vec3) -> Vec3 {
-        let [r, g, b] = channels;
-        let [nx, ny, nz] = r.dims.map(|d| d as i32);
-        let p = tc * Vec3::new(nx as f32, ny as f32, nz as f32) - 0.5;
-        let base = floor3(p);
-        let (x, y, z) = (base.x as i32, base.y as i32, base.z as i32);
-        let same = g.dims == r.dims && b.dims == r.dims;
-        if same && x >= 0 && y >= 0 && z >= 0 && x + 1 < nx && y + 1 < ny && z + 1 < nz {
-            let (row, slice) = (nx as usize, (nx * ny) as usize);
-            let first = (z as usize * ny as usize + y as usize) * row + x as usize;
-            let f = p - base;
-            let blend = |t: &Texture3d| trilinear(&t.texels, first, row, slice, f);
-            return Vec3::new(blend(r), blend(g), blend(b));
-        }
-        Vec3::new(r.sample_level(tc), g.sample_level(tc), b.sample_level(tc))
-    }
-
     /// Trilinear sample at texel position `p` (texel centres at integers): the
     /// eight texels around it read straight from memory when all are inside,
     /// else through [`Texture3d::load`]'s clamp to the edge.
@@ -162,9 +143,106 @@ impl Texture3d {
     }
 }
 
+/// A 3D texture of colours (r, g, b and a fourth channel), sampled like a
+/// [`Texture3d`] in every channel at once, the channels in SIMD lanes.
+#[derive(Debug, Clone)]
+pub struct ColourTexture {
+    dims: [u32; 3],
+    texels: Vec<f32x4>,
+}
+
+impl ColourTexture {
+    /// A texture of `dims` texels; `texels.len()` must equal their product.
+    pub fn new(dims: [u32; 3], texels: &[[f32; 4]]) -> ColourTexture {
+        assert_eq!(
+            texels.len(),
+            dims.iter().map(|&d| d as usize).product::<usize>(),
+            "texel count must match dims {dims:?}"
+        );
+        let texels = texels.iter().map(|&t| f32x4::from(t)).collect();
+        ColourTexture { dims, texels }
+    }
+
+    /// The texel at integer coordinates, clamped to the edge.
+    fn load(&self, x: i32, y: i32, z: i32) -> f32x4 {
+        let clamp = |v: i32, n: u32| v.clamp(0, n as i32 - 1) as usize;
+        let (nx, ny) = (self.dims[0] as usize, self.dims[1] as usize);
+        let (x, y, z) = (
+            clamp(x, self.dims[0]),
+            clamp(y, self.dims[1]),
+            clamp(z, self.dims[2]),
+        );
+        self.texels[(z * ny + y) * nx + x]
+    }
+
+    /// The colour (r, g, b) [`Texture3d::sample_level`] gives per channel at
+    /// texture coordinates `tc`, the same arithmetic lane by lane.
+    pub fn sample_level(&self, tc: Vec3) -> Vec3 {
+        let [nx, ny, nz] = self.dims.map(|d| d as i32);
+        let p = tc * Vec3::new(nx as f32, ny as f32, nz as f32) - 0.5;
+        let base = floor3(p);
+        let f = p - base;
+        let (x, y, z) = (base.x as i32, base.y as i32, base.z as i32);
+        let corners: [f32x4; 8] =
+            if x >= 0 && y >= 0 && z >= 0 && x + 1 < nx && y + 1 < ny && z + 1 < nz {
+                let (row, slice) = (nx as usize, (nx * ny) as usize);
+                let first = (z as usize * ny as usize + y as usize) * row + x as usize;
+                let t = &self.texels[first..first + slice + row + 2];
+                [
+                    t[0],
+                    t[1],
+                    t[row],
+                    t[row + 1],
+                    t[slice],
+                    t[slice + 1],
+                    t[slice + row],
+                    t[slice + row + 1],
+                ]
+            } else {
+                [0, 1, 2, 3, 4, 5, 6, 7]
+                    .map(|c| self.load(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2)))
+            };
+        let lerp = |a: f32x4, b: f32x4, t: f32| a + (b - a) * f32x4::splat(t);
+        let [c000, c100, c010, c110, c001, c101, c011, c111] = corners;
+        let c00 = lerp(c000, c100, f.x);
+        let c10 = lerp(c010, c110, f.x);
+        let c01 = lerp(c001, c101, f.x);
+        let c11 = lerp(c011, c111, f.x);
+        let [r, g, b, _] = lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z).to_array();
+        Vec3::new(r, g, b)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_colour_texture_samples_each_channel_as_a_texture_of_it_does() {
+        let dims = [5u32, 4, 3];
+        let n = 5 * 4 * 3;
+        let texels: Vec<[f32; 4]> = (0..n)
+            .map(|i| {
+                let v = (i * 7919 % 101) as f32 / 100.0;
+                [v, 1.0 - v, (i as f32 * 0.3).sin(), 0.0]
+            })
+            .collect();
+        let colour = ColourTexture::new(dims, &texels);
+        let channels =
+            [0, 1, 2].map(|c| Texture3d::new(dims, texels.iter().map(|t| t[c]).collect()));
+        // Inside, and past every edge (clamped).
+        for i in 0..500 {
+            let u = |k: u32| ((i * k) % 997) as f32 / 996.0 * 1.4 - 0.2;
+            let tc = Vec3::new(u(31), u(57), u(89));
+            let got = colour.sample_level(tc);
+            let want = Vec3::new(
+                channels[0].sample_level(tc),
+                channels[1].sample_level(tc),
+                channels[2].sample_level(tc),
+            );
+            assert_eq!(got, want, "at {tc}");
+        }
+    }
 
     #[test]
     fn texel_centres_return_texels_and_midpoints_average() {
