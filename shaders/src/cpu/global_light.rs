@@ -119,7 +119,12 @@ fn opacity_at(
     tc: Vec3,
     loc: &BlockLocation,
 ) -> f32 {
-    let value = packed.sample_block(&p.volume, tc, loc);
+    opacity_of(p, tf, packed.sample_block(&p.volume, tc, loc))
+}
+
+/// WGSL `opacity_at` of a sample whose value is `value`.
+#[inline]
+fn opacity_of(p: &LightParams, tf: &[[f32; 4]], value: f32) -> f32 {
     let a = classify_table(
         p.volume.tf_len,
         tf,
@@ -311,10 +316,10 @@ pub fn in_scatter(
                     i = (i + 1).max((exit / p.step).ceil() as u32);
                     continue;
                 }
-                let a = opacity_at(p, packed, tf, tc, &loc);
-                // atlas_coord's texel in the slot (the same eight texels,
-                // the same weights up to rounding).
-                let lit = direct_slots.sample_block(&g, tc, &loc);
+                // The data and, at atlas_coord's texel in the slot (the same
+                // eight texels, the same weights up to rounding), I_d.
+                let (value, lit) = packed.atlas.sample_block_with(&direct_slots, &g, tc, &loc);
+                let a = opacity_of(p, tf, value);
                 light += transparency * a * lit;
                 transparency *= 1.0 - a;
                 i += 1;

@@ -141,6 +141,26 @@ impl SlotAtlas {
         self.sample_slot(loc.slot, loc.slot_edge, in_slot)
     }
 
+    /// [`SlotAtlas::sample_block`] of these slots and of `other`, an atlas
+    /// of the same slots (such as [`SlotAtlas::with_texels_of`] makes), at
+    /// once: the position and weights found once, the same values.
+    #[inline]
+    pub fn sample_block_with(
+        &self,
+        other: &SlotAtlas,
+        g: &PackedVolume,
+        tc: Vec3,
+        loc: &BlockLocation,
+    ) -> (f32, f32) {
+        let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
+        let edge = loc.slot_edge;
+        let (first, f) = slot_corner(loc.slot, edge, in_slot);
+        (
+            trilinear(&self.texels, first, edge, edge * edge, f),
+            trilinear(&other.texels, first, edge, edge * edge, f),
+        )
+    }
+
     /// Atlas size in texels, as the GPU texture's.
     pub fn dims(&self) -> [u32; 3] {
         self.dims
@@ -220,19 +240,8 @@ impl SlotAtlas {
     /// there, since every texel it touches is the slot's.
     #[inline(always)]
     pub fn sample_slot(&self, base: usize, edge: usize, p: Vec3) -> f32 {
-        let p = p.clamp(Vec3::ZERO, Vec3::splat(last_position(edge)));
-        let (x, fx) = split(p.x);
-        let (y, fy) = split(p.y);
-        let (z, fz) = split(p.z);
-        let (x, y, z) = (x as usize, y as usize, z as usize);
-        let first = base + (z * edge + y) * edge + x;
-        trilinear(
-            &self.texels,
-            first,
-            edge,
-            edge * edge,
-            Vec3::new(fx, fy, fz),
-        )
+        let (first, f) = slot_corner(base, edge, p);
+        trilinear(&self.texels, first, edge, edge * edge, f)
     }
 
     /// [`SlotAtlas::sample_slot`] at four positions at once, their
@@ -398,6 +407,18 @@ pub fn cubic_gradient_of(a: Vec3, row: impl Fn(usize, usize) -> f32x4) -> Vec3 {
         (along_y * wx).reduce_add(),
         (along_z * wx).reduce_add(),
     )
+}
+
+/// Where trilinear filtering at `p` in the slot at `base` of edge `edge`
+/// starts (its lowest texel) and its weights, `p` kept in the slot.
+#[inline(always)]
+fn slot_corner(base: usize, edge: usize, p: Vec3) -> (usize, Vec3) {
+    let p = p.clamp(Vec3::ZERO, Vec3::splat(last_position(edge)));
+    let (x, fx) = split(p.x);
+    let (y, fy) = split(p.y);
+    let (z, fz) = split(p.z);
+    let (x, y, z) = (x as usize, y as usize, z as usize);
+    (base + (z * edge + y) * edge + x, Vec3::new(fx, fy, fz))
 }
 
 /// Texels of level `level`'s `region`: its slots, `slot_edge(level)³` each.
