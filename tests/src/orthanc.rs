@@ -44,7 +44,8 @@ impl Orthanc {
     /// Starts Orthanc, or says why it cannot (not installed).
     ///
     /// # Panics
-    /// When it is installed but does not answer within 30 s.
+    /// When it is installed but does not answer within 30 s, or exits at
+    /// start three times.
     pub fn start() -> Result<Orthanc, String> {
         Orthanc::start_with(&serde_json::json!({}))
     }
@@ -62,6 +63,28 @@ impl Orthanc {
                 "{DICOMWEB_PLUGIN} is missing (Debian: orthanc-dicomweb)"
             ));
         }
+        // The port is free when chosen, but another test's listener may
+        // take it before Orthanc binds it: Orthanc then exits, and starts
+        // again on another port.
+        let mut exits = Vec::new();
+        for _ in 0..3 {
+            match Orthanc::launch(&binary, servers)? {
+                Ok(orthanc) => return Ok(orthanc),
+                Err(exit) => exits.push(exit),
+            }
+        }
+        panic!("Orthanc exited at start three times: {}", exits.join("; "));
+    }
+
+    /// Orthanc on a port free when chosen: `Ok(Err(why))` where it exits
+    /// before it answers (with the end of its log).
+    ///
+    /// # Panics
+    /// When it runs but does not answer within 30 s.
+    fn launch(
+        binary: &Path,
+        servers: &serde_json::Value,
+    ) -> Result<Result<Orthanc, String>, String> {
         let dir = tempfile::tempdir().map_err(|e| format!("no temporary folder: {e}"))?;
         let port = std::net::TcpListener::bind("127.0.0.1:0")
             .and_then(|l| l.local_addr())
@@ -91,20 +114,26 @@ impl Orthanc {
             .stderr(log)
             .spawn()
             .map_err(|e| format!("cannot start Orthanc: {e}"))?;
-        let orthanc = Orthanc {
+        let mut orthanc = Orthanc {
             child,
             url: format!("http://127.0.0.1:{port}"),
             _dir: dir,
         };
         let start = Instant::now();
         while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            if let Ok(Some(status)) = orthanc.child.try_wait() {
+                let log = std::fs::read_to_string(orthanc._dir.path().join("orthanc.log"))
+                    .unwrap_or_default();
+                let tail: String = log.lines().rev().take(3).collect::<Vec<_>>().join(" | ");
+                return Ok(Err(format!("port {port}: {status}: {tail}")));
+            }
             assert!(
                 start.elapsed() < Duration::from_secs(30),
                 "Orthanc did not answer on port {port} within 30 s"
             );
             std::thread::sleep(Duration::from_millis(50));
         }
-        Ok(orthanc)
+        Ok(Ok(orthanc))
     }
 
     /// [`Orthanc::start`], or `None` after saying why `test` is skipped.
