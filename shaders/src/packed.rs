@@ -347,6 +347,7 @@ impl Atlas for CpuAtlas {
                 grid,
                 light: None,
                 light_cache: None,
+                lit_by: None,
                 visible_cells: None,
                 visible_texels: None,
             },

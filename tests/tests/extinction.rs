@@ -168,7 +168,7 @@ fn compare_stages(gpu: &GpuContext, dataset: &Dataset, case: &str, request: &Fra
     }
     // The lit frame: the CPU ray caster reading the GPU's light cache.
     let mut cpu_packed = packed;
-    cpu_packed.light_cache = Some(ColourTexture::new(params.grid, &gpu_state.light_cache));
+    cpu_packed.set_light_cache(ColourTexture::new(params.grid, &gpu_state.light_cache));
     let cpu_frame = cpu_raycast(dataset, &desc, &packing, &cpu_packed, request, &table);
     let tolerance = voxserve_tests::Tolerance {
         max_mean: 0.5,

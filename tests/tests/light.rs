@@ -448,3 +448,41 @@ fn a_lit_smooth_surface_shows_no_rings() {
         assert!(rms < 2.0, "{side}: rings, high-pass RMS {rms:.2}");
     }
 }
+
+/// One CPU renderer drawing global light and extinction-based light in turn
+/// (two sessions on one dataset) draws each as a renderer of that mode alone.
+#[test]
+fn a_renderer_drawing_both_lit_modes_in_turn_draws_each_with_its_own_light() {
+    let dataset = phantom_64_dataset();
+    let mut request = lit_request(LightSettings::default(), 4.0);
+    request.width = 48;
+    request.height = 48;
+    let global = request.clone();
+    let extinction = FrameRequest {
+        shading: Shading::Extinction,
+        ..request
+    };
+    let alone = |r: &FrameRequest| {
+        shaders::cpu::CpuRenderer::new(dataset.cache.clone(), 512 << 20)
+            .render_converged(r)
+            .expect("render")
+    };
+    let (global_alone, extinction_alone) = (alone(&global), alone(&extinction));
+    assert_ne!(
+        global_alone.rgba, extinction_alone.rgba,
+        "the two lights differ on the phantom"
+    );
+    let mut both = shaders::cpu::CpuRenderer::new(dataset.cache.clone(), 512 << 20);
+    for (i, (r, want)) in [
+        (&global, &global_alone),
+        (&extinction, &extinction_alone),
+        (&global, &global_alone),
+        (&extinction, &extinction_alone),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let got = both.render_converged(r).expect("render");
+        assert!(got.rgba == want.rgba, "frame {i} ({:?})", r.shading);
+    }
+}

@@ -114,7 +114,7 @@ pub fn illuminate(
                 tf: table,
                 near_blocks: &near,
             });
-            packed.light_cache = Some(ColourTexture::new(params.grid, &state.light_cache));
+            packed.set_light_cache(ColourTexture::new(params.grid, &state.light_cache));
         }
     }
 }

@@ -10,6 +10,7 @@ use blocks::store::LEVELS;
 use super::march::intersect_box;
 use super::texture::floor3;
 use super::{ColourTexture, SlotAtlas, Texture3d};
+use crate::illumination::Mode;
 use crate::packed_volume::PackedVolume;
 
 /// Edge of a block in level-0 voxels.
@@ -33,6 +34,11 @@ pub struct PackedTexture {
     /// The light cache of extinction-based illumination, grid-shaped, its
     /// colour channels side by side.
     pub light_cache: Option<ColourTexture>,
+    /// Which of the two lights the ray caster reads, as the GPU compiles
+    /// the mode's `raycast` stage (with `light_volume.wgsl` or
+    /// `light_cache.wgsl`): a renderer keeps both while frames of either
+    /// mode come.
+    pub lit_by: Option<Mode>,
     /// CPU only: per block, its cells that may be visible under the current
     /// transfer function ([`super::occupancy`]); `None`: all may be.
     pub visible_cells: Option<Vec<u64>>,
@@ -125,6 +131,14 @@ impl PackedTexture {
     pub fn set_light(&mut self, light_volume: Vec<f32>) {
         let light = Texture3d::new(self.atlas.dims(), light_volume);
         self.light = Some(self.atlas.with_texels_of(&light, &self.index));
+        self.lit_by = Some(Mode::GlobalLight);
+    }
+
+    /// Lights the ray caster with `cache`, extinction-based illumination's
+    /// light cache.
+    pub fn set_light_cache(&mut self, cache: ColourTexture) {
+        self.light_cache = Some(cache);
+        self.lit_by = Some(Mode::Extinction);
     }
 
     /// WGSL `locate`.

@@ -11,6 +11,7 @@ use super::packed::{
 };
 use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON, cubic_gradient_of};
 use super::texture::floor3;
+use crate::illumination::Mode;
 use crate::packed_volume::PackedVolume;
 use crate::raycast::{FLAG_CUBIC_GRADIENT, FLAG_SKIP_EMPTY, RaycastParams};
 
@@ -237,14 +238,12 @@ impl Storage for PackedTexture {
     }
 
     fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> Vec3 {
-        if let Some(cache) = &self.light_cache {
+        match (self.lit_by, &self.light_cache, &self.light) {
             // shared/light_cache.wgsl: grid-shaped, read at tc.
-            return cache.sample_level(tc);
-        }
-        // shared/light_volume.wgsl: in the block tc lies in, else in `loc`'s,
-        // read from that block's slot (its eight texels are in it).
-        match &self.light {
-            Some(light) => {
+            (Some(Mode::Extinction), Some(cache), _) => cache.sample_level(tc),
+            // shared/light_volume.wgsl: in the block tc lies in, else in
+            // `loc`'s, read from that block's slot (its eight texels are in it).
+            (Some(Mode::GlobalLight), _, Some(light)) => {
                 let block = block_of(&p.volume, tc);
                 if block == loc.block {
                     return Vec3::splat(light.sample_block(&p.volume, tc, loc));
@@ -253,7 +252,7 @@ impl Storage for PackedTexture {
                 let home = if there.empty { loc } else { &there };
                 Vec3::splat(light.sample_block(&p.volume, tc, home))
             }
-            None => Vec3::ONE,
+            _ => Vec3::ONE,
         }
     }
 
@@ -491,6 +490,7 @@ mod tests {
             grid: [n as u32; 3],
             light: None,
             light_cache: None,
+            lit_by: None,
             visible_cells: None,
             visible_texels: None,
         };

@@ -182,6 +182,10 @@ impl CpuRenderer {
             Some(Mode::Extinction) => self.update_extinction(request, &tf),
             None => {}
         }
+        // Frames of the other mode may have left their light beside this one's.
+        if let Some(atlas) = self.residency.atlas_mut() {
+            atlas.texture.lit_by = Mode::of(request.shading);
+        }
         self.draw(request, stats)
     }
 
