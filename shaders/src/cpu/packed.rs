@@ -89,7 +89,7 @@ pub fn atlas_coord(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
 /// [`atlas_coord`] in texels (texel centres at integers), what
 /// [`Texture3d::sample_texel`] reads: inside the block's slot, its apron
 /// included, so every texel trilinear filtering touches is the block's own.
-#[inline]
+#[inline(always)]
 pub fn atlas_texel(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
     let p = tc * Vec3::from(g.volume_dims);
     let block = Vec3::new(

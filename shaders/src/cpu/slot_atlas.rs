@@ -133,7 +133,7 @@ impl SlotAtlas {
 
     /// The texels at `tc` in block `loc`'s slot (positions outside the block
     /// clamped to its apron), filtered as the GPU filters its atlas there.
-    #[inline]
+    #[inline(always)]
     pub fn sample_block(&self, g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> f32 {
         // `atlas_texel` within the slot, whose apron starts one texel before
         // the block's first interior texel.
@@ -144,7 +144,7 @@ impl SlotAtlas {
     /// [`SlotAtlas::sample_block`] of these slots and of `other`, an atlas
     /// of the same slots (such as [`SlotAtlas::with_texels_of`] makes), at
     /// once: the position and weights found once, the same values.
-    #[inline]
+    #[inline(always)]
     pub fn sample_block_with(
         &self,
         other: &SlotAtlas,
