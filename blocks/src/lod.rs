@@ -164,6 +164,23 @@ impl LodSelection {
         1.0 - self.non_empty as f64 / self.lod.len() as f64
     }
 
+    /// A selection of the levels `lod` chosen without a budget (no budget,
+    /// cap or error; the full volume's voxels 0, unknown here): voxels and
+    /// blocks kept counted.
+    pub fn from_levels(lod: Vec<u8>) -> LodSelection {
+        LodSelection {
+            lod: Vec::new(),
+            kept_voxels: 0,
+            budget_voxels: 0,
+            capped: false,
+            full_voxels: 0,
+            non_empty: 0,
+            over_budget: false,
+            error: 0.0,
+        }
+        .with_levels(lod)
+    }
+
     /// This selection with the levels `lod` instead (a renderer showing some
     /// blocks coarser while their finer data loads): voxels and blocks kept
     /// counted anew; the budget and error stay the selection's.

@@ -286,16 +286,7 @@ mod tests {
     use super::*;
 
     fn selection(lod: Vec<u8>) -> LodSelection {
-        LodSelection {
-            kept_voxels: 0,
-            budget_voxels: 0,
-            capped: false,
-            full_voxels: 0,
-            non_empty: lod.iter().filter(|&&l| l != EMPTY).count(),
-            over_budget: false,
-            error: 0.0,
-            lod,
-        }
+        LodSelection::from_levels(lod)
     }
 
     /// No two blocks' slots overlap, and every slot lies inside the atlas.

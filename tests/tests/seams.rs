@@ -154,16 +154,9 @@ fn checkerboard(grid: [u32; 3]) -> Vec<u8> {
 /// description and the packed volume.
 fn packing_of(lod: &[u8], grid: [u32; 3]) -> (Packing, VolumeTexture, PackedVolume) {
     let selection = LodSelection {
-        lod: Vec::new(),
-        kept_voxels: 0,
-        budget_voxels: 0,
-        capped: false,
         full_voxels: u64::from(DIMS.iter().product::<u32>()),
-        non_empty: 0,
-        over_budget: false,
-        error: 0.0,
-    }
-    .with_levels(lod.to_vec());
+        ..LodSelection::from_levels(lod.to_vec())
+    };
     let packing = Packing::new(&selection, CPU_MAX_EDGE).expect("packing");
     let desc = VolumeTexture::for_volume(&ramp_volume(), shaders::cpu::CPU_FEATURES);
     assert_eq!(

@@ -14,7 +14,7 @@ use blocks::TransferFunction;
 use blocks::packing::Packing;
 
 use super::march::{classify_table, corrected_opacity, intersect_box};
-use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit};
+use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, empty_exit};
 use super::{SlotAtlas, Texture3d};
 use crate::global_light::update::{LightStages, update_light};
 use crate::global_light::{
@@ -174,10 +174,7 @@ pub fn local_opacity(
                 break;
             }
             let tc = tc0 + ray.dir * t;
-            let block = block_of(&g, tc);
-            if block != loc.block {
-                loc = packed.locate_block(block);
-            }
+            loc = packed.locate_near(&g, tc, &loc);
             if !loc.empty {
                 transparency *= 1.0 - opacity_at(p, packed, tf, tc, &loc);
             }
@@ -224,10 +221,7 @@ pub fn global_opacity(
                 break;
             }
             let tc = tc0 + ray.dir * t;
-            let block = block_of(&g, tc);
-            if block != loc.block {
-                loc = index.locate_block(block);
-            }
+            loc = index.locate_near(&g, tc, &loc);
             if loc.empty {
                 t = t.max(empty_exit(&g, tc0, ray.dir, &loc)) + RESUME;
                 continue;
@@ -307,10 +301,7 @@ pub fn in_scatter(
                     break;
                 }
                 let tc = tc0 + ray.dir * t;
-                let block = block_of(&g, tc);
-                if block != loc.block {
-                    loc = packed.locate_block(block);
-                }
+                loc = packed.locate_near(&g, tc, &loc);
                 if loc.empty {
                     let exit = empty_exit(&g, tc0, ray.dir, &loc);
                     i = (i + 1).max((exit / p.step).ceil() as u32);

@@ -146,6 +146,17 @@ impl PackedTexture {
         self.locate_block(block_of(g, tc))
     }
 
+    /// [`PackedTexture::locate`] for a step from `last`, the location of the
+    /// step before, whose block the next often shares (then not looked up).
+    #[inline(always)]
+    pub fn locate_near(&self, g: &PackedVolume, tc: Vec3, last: &BlockLocation) -> BlockLocation {
+        let block = block_of(g, tc);
+        if block == last.block {
+            return *last;
+        }
+        self.locate_block(block)
+    }
+
     /// Where `block` (in the grid) is in the index and the per-block tables.
     #[inline]
     pub fn block_index(&self, block: [i32; 3]) -> usize {

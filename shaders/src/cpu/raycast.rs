@@ -244,11 +244,7 @@ impl Storage for PackedTexture {
             // shared/light_volume.wgsl: in the block tc lies in, else in
             // `loc`'s, read from that block's slot (its eight texels are in it).
             (Some(Mode::GlobalLight), _, Some(light)) => {
-                let block = block_of(&p.volume, tc);
-                if block == loc.block {
-                    return Vec3::splat(light.sample_block(&p.volume, tc, loc));
-                }
-                let there = self.locate_block(block);
+                let there = self.locate_near(&p.volume, tc, loc);
                 let home = if there.empty { loc } else { &there };
                 Vec3::splat(light.sample_block(&p.volume, tc, home))
             }
@@ -450,16 +446,7 @@ mod tests {
         lod[at(1, 2, 1)] = 1;
         lod[at(0, 0, 0)] = 1;
         lod[at(1, 0, 0)] = 1;
-        let selection = LodSelection {
-            kept_voxels: 0,
-            budget_voxels: 0,
-            capped: false,
-            full_voxels: 0,
-            non_empty: lod.iter().filter(|&&l| l != EMPTY).count(),
-            over_budget: false,
-            error: 0.0,
-            lod: lod.clone(),
-        };
+        let selection = LodSelection::from_levels(lod.clone());
         let packing = Packing::new(&selection, 2048).expect("packing");
         let mut atlas = SlotAtlas::new(&packing);
         let mut index = Vec::new();

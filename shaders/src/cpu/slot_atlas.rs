@@ -135,10 +135,9 @@ impl SlotAtlas {
     /// clamped to its apron), filtered as the GPU filters its atlas there.
     #[inline(always)]
     pub fn sample_block(&self, g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> f32 {
-        // `atlas_texel` within the slot, whose apron starts one texel before
-        // the block's first interior texel.
-        let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
-        self.sample_slot(loc.slot, loc.slot_edge, in_slot)
+        let (first, f) = block_corner(g, tc, loc);
+        let edge = loc.slot_edge;
+        trilinear(&self.texels, first, edge, edge * edge, f)
     }
 
     /// [`SlotAtlas::sample_block`] of these slots and of `other`, an atlas
@@ -152,9 +151,8 @@ impl SlotAtlas {
         tc: Vec3,
         loc: &BlockLocation,
     ) -> (f32, f32) {
-        let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
+        let (first, f) = block_corner(g, tc, loc);
         let edge = loc.slot_edge;
-        let (first, f) = slot_corner(loc.slot, edge, in_slot);
         (
             trilinear(&self.texels, first, edge, edge * edge, f),
             trilinear(&other.texels, first, edge, edge * edge, f),
@@ -409,6 +407,14 @@ pub fn cubic_gradient_of(a: Vec3, row: impl Fn(usize, usize) -> f32x4) -> Vec3 {
     )
 }
 
+/// [`slot_corner`] at `tc` in block `loc`'s slot: `atlas_texel` within the
+/// slot, whose apron starts one texel before the block's first interior texel.
+#[inline(always)]
+fn block_corner(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> (usize, Vec3) {
+    let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
+    slot_corner(loc.slot, loc.slot_edge, in_slot)
+}
+
 /// Where trilinear filtering at `p` in the slot at `base` of edge `edge`
 /// starts (its lowest texel) and its weights, `p` kept in the slot.
 #[inline(always)]
@@ -467,17 +473,7 @@ mod tests {
     #[test]
     fn cubic_gradients_weighed_directly_equal_the_shaders_trilinear_reads() {
         // A level-0 and a level-2 slot filled with uneven values.
-        let lod = vec![0u8, 2];
-        let selection = LodSelection {
-            kept_voxels: 0,
-            budget_voxels: 0,
-            capped: false,
-            full_voxels: 0,
-            non_empty: 2,
-            over_budget: false,
-            error: 0.0,
-            lod,
-        };
+        let selection = LodSelection::from_levels(vec![0u8, 2]);
         let packing = Packing::new(&selection, 2048).expect("packing");
         let mut atlas = SlotAtlas::new(&packing);
         for (b, level) in [(0usize, 0usize), (1, 2)] {

@@ -59,6 +59,14 @@ pub fn floor3(v: Vec3) -> Vec3 {
     Vec3::new(floor(v.x), floor(v.y), floor(v.z))
 }
 
+/// Where the texel at integer coordinates, clamped to the edge, lies in a
+/// texture of `dims` texels stored x fastest.
+fn clamped_index(dims: [u32; 3], x: i32, y: i32, z: i32) -> usize {
+    let clamp = |v: i32, n: u32| v.clamp(0, n as i32 - 1) as usize;
+    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+    (clamp(z, dims[2]) * ny + clamp(y, dims[1])) * nx + clamp(x, dims[0])
+}
+
 /// Texel values x fastest, sampled at texture coordinates in 0..1 with texel
 /// centres at (i + 0.5) / n.
 #[derive(Debug, Clone)]
@@ -95,14 +103,7 @@ impl Texture3d {
 
     /// The texel at integer coordinates, clamped to the edge.
     pub fn load(&self, x: i32, y: i32, z: i32) -> f32 {
-        let clamp = |v: i32, n: u32| v.clamp(0, n as i32 - 1) as usize;
-        let (nx, ny) = (self.dims[0] as usize, self.dims[1] as usize);
-        let (x, y, z) = (
-            clamp(x, self.dims[0]),
-            clamp(y, self.dims[1]),
-            clamp(z, self.dims[2]),
-        );
-        self.texels[(z * ny + y) * nx + x]
+        self.texels[clamped_index(self.dims, x, y, z)]
     }
 
     /// Trilinear sample at texture coordinates `tc` (what `textureSampleLevel`
@@ -165,14 +166,7 @@ impl ColourTexture {
 
     /// The texel at integer coordinates, clamped to the edge.
     fn load(&self, x: i32, y: i32, z: i32) -> f32x4 {
-        let clamp = |v: i32, n: u32| v.clamp(0, n as i32 - 1) as usize;
-        let (nx, ny) = (self.dims[0] as usize, self.dims[1] as usize);
-        let (x, y, z) = (
-            clamp(x, self.dims[0]),
-            clamp(y, self.dims[1]),
-            clamp(z, self.dims[2]),
-        );
-        self.texels[(z * ny + y) * nx + x]
+        self.texels[clamped_index(self.dims, x, y, z)]
     }
 
     /// The colour (r, g, b) [`Texture3d::sample_level`] gives per channel at
