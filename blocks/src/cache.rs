@@ -13,7 +13,8 @@
 //! # Reading off the render thread
 //! A renderer must never wait for storage: [`BlockCache::pin_with_apron`]
 //! hands it a block's chunks only when they are in memory, and otherwise
-//! asks [`reader_pool`] threads to read and decode them in the background
+//! asks [`reader_pool`] threads (for a store on object storage,
+//! [`remote_reader_pool`] threads) to read and decode them in the background
 //! ([`BlockCache::request`]). Each chunk that arrives bumps
 //! [`BlockCache::arrivals`] and wakes whoever waits
 //! ([`BlockCache::wait_for_arrivals`], [`BlockCache::subscribe`]); a chunk whose
@@ -28,7 +29,7 @@ use quick_cache::Weighter;
 use quick_cache::sync::Cache;
 use rayon::prelude::*;
 
-use crate::store::{BLOCK, LEVELS, Store, sub_cube};
+use crate::store::{BLOCK, LEVELS, Store, StoreLocation, sub_cube};
 use crate::{Error, VoxelData};
 
 /// A chunk's key: level and chunk position (x, y, z).
@@ -56,19 +57,45 @@ pub fn reader_pool() -> &'static rayon::ThreadPool {
     static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
     POOL.get_or_init(|| {
         let threads = std::thread::available_parallelism().map_or(2, |n| n.get().max(2));
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .thread_name(|i| format!("block-reader-{i}"))
-            .build()
-            .unwrap_or_else(|_| {
-                // Without threads of its own the pool would not read at all:
-                // one thread is the least that keeps renders refining.
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(1)
-                    .build()
-                    .unwrap_or_else(|e| panic!("cannot start a block reader thread: {e}"))
-            })
+        start_pool(threads, "block-reader")
     })
+}
+
+/// Requests in flight at once to a store on object storage: each waits a
+/// round trip (tens of milliseconds to S3) while the CPU is idle, so a
+/// reader thread per request rather than per core.
+pub const REMOTE_READERS: usize = 32;
+
+/// The threads that read chunks of stores on object storage
+/// ([`REMOTE_READERS`]), shared by every cache of such a store.
+pub fn remote_reader_pool() -> &'static rayon::ThreadPool {
+    static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
+    POOL.get_or_init(|| start_pool(REMOTE_READERS, "remote-reader"))
+}
+
+/// The pool that reads `store`'s chunks.
+fn pool_of(store: &Store) -> &'static rayon::ThreadPool {
+    match store.location() {
+        StoreLocation::Remote(_) => remote_reader_pool(),
+        StoreLocation::Folder(_) | StoreLocation::Memory(_) => reader_pool(),
+    }
+}
+
+/// A pool of `threads` named `name-N`, or of one thread where that many
+/// cannot start.
+fn start_pool(threads: usize, name: &'static str) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(move |i| format!("{name}-{i}"))
+        .build()
+        .unwrap_or_else(|_| {
+            // Without threads of its own the pool would not read at all:
+            // one thread is the least that keeps renders refining.
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap_or_else(|e| panic!("cannot start a block reader thread: {e}"))
+        })
 }
 
 /// What the background reads are doing.
@@ -136,15 +163,16 @@ impl BlockCache {
             })
             .collect();
         let store = &self.store;
-        let chunks: Vec<(ChunkKey, Arc<VoxelData>)> = keys
-            .into_par_iter()
-            .map(|key| {
-                Ok((
-                    key,
-                    Arc::new(store.read_chunk_record(usize::from(key.0), key.1)?),
-                ))
-            })
-            .collect::<Result<_, Error>>()?;
+        let chunks: Vec<(ChunkKey, Arc<VoxelData>)> = pool_of(store).install(|| {
+            keys.into_par_iter()
+                .map(|key| {
+                    Ok((
+                        key,
+                        Arc::new(store.read_chunk_record(usize::from(key.0), key.1)?),
+                    ))
+                })
+                .collect::<Result<_, Error>>()
+        })?;
         self.resident.extend(chunks);
         Ok(())
     }
@@ -244,7 +272,7 @@ impl BlockCache {
             }
             loads.in_flight.insert(key);
             let cache = Arc::clone(self);
-            reader_pool().spawn(move || cache.read_in_background(key));
+            pool_of(&self.store).spawn(move || cache.read_in_background(key));
         }
     }
 
@@ -318,7 +346,7 @@ impl BlockCache {
 
     /// Many chunks at once: the missing ones are read and decoded in parallel.
     pub fn chunks(&self, keys: &[ChunkKey]) -> Vec<Result<Arc<VoxelData>, Error>> {
-        keys.par_iter().map(|&k| self.chunk(k)).collect()
+        pool_of(&self.store).install(|| keys.par_iter().map(|&k| self.chunk(k)).collect())
     }
 
     /// Loads `keys` ahead of use; errors show up when the chunks are asked for.

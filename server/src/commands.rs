@@ -314,6 +314,17 @@ pub fn load_dataset(name: &str, data: &DataArgs) -> anyhow::Result<Dataset> {
         );
         return Ok(dataset);
     }
+    if blocks::store::is_url(name) {
+        let store = blocks::store::Store::open_remote(name)?;
+        let id = Dataset::id_of(store.location().file("").to_string_lossy().as_ref());
+        let dataset = Dataset::new(id, store, data.cache_bytes())?;
+        tracing::info!(
+            "opened {name} ({:?} voxels) in {:.0} ms",
+            dataset.dims(),
+            start.elapsed().as_secs_f64() * 1e3
+        );
+        return Ok(dataset);
+    }
     let path = std::path::Path::new(name);
     if !path.exists() {
         anyhow::bail!(
@@ -364,6 +375,32 @@ pub fn stores_in(dir: &std::path::Path) -> anyhow::Result<Vec<PathBuf>> {
     Ok(stores)
 }
 
+/// The brick stores directly under the object-store prefix `url`: its
+/// folders holding a manifest, by URL. Hidden folders are never stores.
+pub fn remote_stores_in(url: &str) -> anyhow::Result<Vec<String>> {
+    let remote = blocks::store::Remote::parse(url)?;
+    let mut stores = Vec::new();
+    for folder in remote.folders()? {
+        let store = remote.child(&folder);
+        if folder.starts_with('.') {
+            continue;
+        }
+        let listed = store.get(
+            blocks::store::manifest::MANIFEST_KEY,
+            blocks::store::manifest::MAX_MANIFEST_BYTES,
+        );
+        match listed {
+            Ok(Some(_)) => stores.push(store.url().to_owned()),
+            Ok(None) => {}
+            Err(e) => tracing::error!("not serving {}: {e}", store.url()),
+        }
+    }
+    if stores.is_empty() {
+        tracing::warn!("--data {url}: no brick stores in it");
+    }
+    Ok(stores)
+}
+
 /// Writes a line to standard output (the command's result, not a log line).
 pub fn say(line: &str) -> anyhow::Result<()> {
     let mut out = std::io::stdout().lock();
@@ -393,12 +430,21 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         datasets.push(load_dataset(name, &args.data)?);
     }
     if let Some(dir) = &args.data_dir {
-        for path in stores_in(dir)? {
+        let dir_name = dir.to_string_lossy();
+        let names: Vec<String> = if blocks::store::is_url(&dir_name) {
+            remote_stores_in(&dir_name)?
+        } else {
+            stores_in(dir)?
+                .iter()
+                .map(|p| p.to_string_lossy().into_owned())
+                .collect()
+        };
+        for name in names {
             // A store that does not open is left out, named in the log; the
             // others are served.
-            match load_dataset(&path.to_string_lossy(), &args.data) {
+            match load_dataset(&name, &args.data) {
                 Ok(dataset) => datasets.push(dataset),
-                Err(e) => tracing::error!("not serving {}: {e:#}", path.display()),
+                Err(e) => tracing::error!("not serving {name}: {e:#}"),
             }
         }
     }
@@ -833,6 +879,33 @@ fn write_store(
             .ok()
             .and_then(|v| blocks::store::ingest::FaultPoint::parse(&v)),
     };
+    // A store for object storage is written to a local folder first, then
+    // uploaded (blocks::store::remote).
+    let out_name = out.to_string_lossy().into_owned();
+    let remote = if blocks::store::is_url(&out_name) {
+        let remote = blocks::store::Remote::parse(&out_name)?;
+        let existing = remote.get("zarr.json", blocks::store::manifest::MAX_METADATA_BYTES)?;
+        if existing.is_some() && !force {
+            anyhow::bail!(
+                "--out {out_name}: a store is there already: expected --force to replace it"
+            );
+        }
+        let staging = tempfile::Builder::new()
+            .prefix("voxserve-ingest-")
+            .tempdir()
+            .context("cannot make a folder to write the store in before uploading it")?;
+        Some((remote, staging))
+    } else {
+        None
+    };
+    let local;
+    let out = match &remote {
+        Some((remote, staging)) => {
+            local = staging.path().join(remote.name());
+            local.as_path()
+        }
+        None => out,
+    };
     let bar = progress_bar(nz, "value range");
     let summary = blocks::store::ingest(source, out, &options, &mut |p| match p {
         blocks::store::IngestProgress::Scanning(z, _) => bar.set_position(u64::from(z)),
@@ -844,11 +917,22 @@ fn write_store(
         }
     })?;
     bar.finish_and_clear();
+    let mut written = out.display().to_string();
+    if let Some((remote, _)) = &remote {
+        let start = Instant::now();
+        let (files, bytes) = remote.upload(out)?;
+        tracing::info!(
+            "uploaded {files} files, {:.1} MB, to {} in {:.1} s",
+            bytes as f64 / 1e6,
+            remote.url(),
+            start.elapsed().as_secs_f64()
+        );
+        written = remote.url().to_owned();
+    }
     let [x, y, z] = summary.dims;
     say(&format!(
-        "wrote {}: {x} × {y} × {z} {} voxels, {} blocks of 16³ ({} uniform) at 5 levels; \
+        "wrote {written}: {x} × {y} × {z} {} voxels, {} blocks of 16³ ({} uniform) at 5 levels; \
          {:.1} MB of voxels in {:.1} MB (compression {:.2}:1); {:.1} s, {:.0} MB/s",
-        out.display(),
         summary.voxel_type.name(),
         summary.blocks,
         summary.uniform_blocks,

@@ -142,18 +142,25 @@ impl Dataset {
             let mut source = ingest::open(path, options)?;
             ingest_in_memory(source.as_mut(), &IngestOptions::default())?
         };
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "volume".to_owned());
-        let id = [
+        Dataset::new(Dataset::id_of(&path.to_string_lossy()), store, cache_bytes)
+    }
+
+    /// The id of the dataset at `name` (a path or a URL): its last part without
+    /// the extension (`…/engine_256x256x128_uint8.raw` → `engine_256x256x128_uint8`).
+    pub fn id_of(name: &str) -> String {
+        let name = name
+            .trim_end_matches('/')
+            .rsplit('/')
+            .next()
+            .filter(|n| !n.is_empty())
+            .unwrap_or("volume");
+        [
             ".nii.gz", ".raw", ".nrrd", ".nhdr", ".nii", ".mha", ".mhd", ".dcm", ".zarr",
         ]
         .iter()
         .find_map(|ext| name.strip_suffix(ext))
-        .unwrap_or(&name)
-        .to_owned();
-        Dataset::new(id, store, cache_bytes)
+        .unwrap_or(name)
+        .to_owned()
     }
 
     /// Waits until a chunk read in the background has arrived since

@@ -20,6 +20,8 @@
 //!   (RS256, ES256), rotates keys, and logs browsers in (PKCE).
 //! - [`orthanc`]: a real PACS (Orthanc with DICOMweb) on a loopback port,
 //!   loaded through its REST API.
+//! - [`s3`]: a real S3-compatible server (`s3s-fs`) on a loopback port,
+//!   which can be stopped, started again and slowed.
 //! - [`malformed`]: a generated corpus of malformed and hostile volume files,
 //!   as a table of cases with the words each error must contain.
 
@@ -34,6 +36,7 @@ pub mod phantom;
 #[path = "../../server/src/bench/reference_data.rs"]
 pub mod reference_data;
 pub mod render;
+pub mod s3;
 pub mod server;
 
 pub use gpu::{gpu_or_skip, require_gpu};

@@ -3,14 +3,17 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-/// Where a brick store lives: a folder on a local file system, or memory (the
-/// built-in phantom, a file rendered without an ingest). Messages about the
-/// store and its files name it through [`StoreLocation::file`]; a remote
-/// location (an object-store URL) becomes one more variant.
+/// Where a brick store lives: a folder on a local file system, an object
+/// store ([`super::remote`]), or memory (the built-in phantom, a file
+/// rendered without an ingest). Messages about the store and its files name
+/// it through [`StoreLocation::file`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum StoreLocation {
     /// A folder on a local file system.
     Folder(PathBuf),
+    /// A prefix of an object store, by URL (`s3://bucket/prefix/name.zarr`),
+    /// without a trailing `/`.
+    Remote(String),
     /// A store held in memory, under the name of what it was made from.
     Memory(String),
 }
@@ -20,17 +23,19 @@ impl StoreLocation {
     pub fn folder(&self) -> Option<&Path> {
         match self {
             StoreLocation::Folder(path) => Some(path),
-            StoreLocation::Memory(_) => None,
+            StoreLocation::Remote(_) | StoreLocation::Memory(_) => None,
         }
     }
 
     /// How messages name `key` (a `/`-separated path inside the store, `""`
-    /// for the store itself): the file's path in a folder, `memory:NAME/KEY`
-    /// in memory.
+    /// for the store itself): the file's path in a folder, its URL in an
+    /// object store, `memory:NAME/KEY` in memory.
     pub fn file(&self, key: &str) -> PathBuf {
         match self {
             StoreLocation::Folder(path) if key.is_empty() => path.clone(),
             StoreLocation::Folder(path) => path.join(key),
+            StoreLocation::Remote(url) if key.is_empty() => url.into(),
+            StoreLocation::Remote(url) => format!("{url}/{key}").into(),
             StoreLocation::Memory(name) if key.is_empty() => format!("memory:{name}").into(),
             StoreLocation::Memory(name) => format!("memory:{name}/{key}").into(),
         }
@@ -81,5 +86,12 @@ mod tests {
             Path::new("memory:phantom/zarr.json")
         );
         assert_eq!(memory.folder(), None);
+        let remote = StoreLocation::Remote("s3://bucket/scans/head.zarr".into());
+        assert_eq!(
+            remote.file("0/c/0/0/1"),
+            Path::new("s3://bucket/scans/head.zarr/0/c/0/0/1")
+        );
+        assert_eq!(remote.to_string(), "s3://bucket/scans/head.zarr");
+        assert_eq!(remote.folder(), None);
     }
 }

@@ -23,14 +23,14 @@ use zarrs::storage::{
     MaybeBytes, MaybeBytesIterator, ReadableStorageTraits, StorageError, StoreKey,
 };
 
-use super::store_error;
+use super::{StoreLocation, store_error};
 use crate::Error;
 
 /// Where the manifest lives inside a store.
 pub const MANIFEST_KEY: &str = "voxserve/manifest.json";
 /// The largest manifest read (a store of 2048³ voxels lists about 5 000 files
 /// in under 1 MB).
-const MAX_MANIFEST_BYTES: u64 = 64 << 20;
+pub const MAX_MANIFEST_BYTES: u64 = 64 << 20;
 /// The most files a manifest may list.
 const MAX_FILES: usize = 1 << 20;
 /// The largest metadata file (`zarr.json`) read: a store's are a few KB.
@@ -119,12 +119,7 @@ impl Manifest {
         let path = folder.join(MANIFEST_KEY);
         let file = std::fs::File::open(&path).map_err(|source| {
             if source.kind() == std::io::ErrorKind::NotFound {
-                store_error(
-                    &path,
-                    "manifest",
-                    "missing: expected the list of the store's files that every complete \
-                     store holds (the ingest did not finish or the file was deleted; ingest again)",
-                )
+                Manifest::missing(&path)
             } else {
                 Error::Io {
                     path: path.clone(),
@@ -139,16 +134,31 @@ impl Manifest {
                 path: path.clone(),
                 source,
             })?;
+        Manifest::parse(&text, &path)
+    }
+
+    /// The error for a store without its manifest at `path`.
+    pub fn missing(path: &Path) -> Error {
+        store_error(
+            path,
+            "manifest",
+            "missing: expected the list of the store's files that every complete \
+             store holds (the ingest did not finish or the file was deleted; ingest again)",
+        )
+    }
+
+    /// The manifest in `text`, read from `path`.
+    pub fn parse(text: &[u8], path: &Path) -> Result<Manifest, Error> {
         if text.len() as u64 > MAX_MANIFEST_BYTES {
             return Err(store_error(
-                &path,
+                path,
                 "manifest",
                 format!("larger than {MAX_MANIFEST_BYTES} bytes: expected a store's file list"),
             ));
         }
-        let manifest: Manifest = serde_json::from_slice(&text)
-            .map_err(|e| store_error(&path, "manifest", e.to_string()))?;
-        manifest.checked(&path)?;
+        let manifest: Manifest = serde_json::from_slice(text)
+            .map_err(|e| store_error(path, "manifest", e.to_string()))?;
+        manifest.checked(path)?;
         Ok(manifest)
     }
 
@@ -200,39 +210,55 @@ impl Manifest {
     /// Checks that every listed file is in `folder` with its size, and that the
     /// metadata files (`zarr.json`) are unchanged: what opening a store checks.
     pub fn check_quick(&self, folder: &Path) -> Result<(), Error> {
+        self.check_with(
+            &|key| folder.join(key),
+            &|key| {
+                std::fs::metadata(folder.join(key))
+                    .ok()
+                    .filter(std::fs::Metadata::is_file)
+                    .map(|m| m.len())
+            },
+            &|key| hash_file(&folder.join(key)).map(|(_, sha256)| sha256),
+        )
+    }
+
+    /// What [`Manifest::check_quick`] checks, anywhere: `name` names a key in
+    /// messages, `size` is its size (`None`: missing), `sha256` hashes it.
+    pub fn check_with(
+        &self,
+        name: &dyn Fn(&str) -> PathBuf,
+        size: &dyn Fn(&str) -> Option<u64>,
+        sha256: &dyn Fn(&str) -> Result<String, Error>,
+    ) -> Result<(), Error> {
         let mut missing = Vec::new();
         for (key, entry) in &self.files {
-            let path = folder.join(key);
-            match std::fs::metadata(&path) {
-                Ok(m) if m.is_file() && m.len() == entry.bytes => {}
-                Ok(m) if m.is_file() => {
+            match size(key) {
+                Some(bytes) if bytes == entry.bytes => {}
+                Some(bytes) => {
                     return Err(Error::Corrupt {
-                        path,
+                        path: name(key),
                         codec: "store manifest".into(),
                         detail: format!(
-                            "{} bytes: the manifest says {}; the file was changed after ingest \
-                             (run voxserve verify)",
-                            m.len(),
+                            "{bytes} bytes: the manifest says {}; the file was changed after \
+                             ingest (run voxserve verify)",
                             entry.bytes
                         ),
                     });
                 }
-                _ => missing.push(path),
+                None => missing.push(name(key)),
             }
         }
         if !missing.is_empty() {
             return Err(missing_files(&missing));
         }
-        let metadata: Vec<_> = self
+        for (key, entry) in self
             .files
             .iter()
             .filter(|(key, _)| key.ends_with("zarr.json"))
-            .collect();
-        for (key, entry) in metadata {
-            let path = folder.join(key);
+        {
             if entry.bytes > MAX_METADATA_BYTES {
                 return Err(store_error(
-                    &path,
+                    &name(key),
                     "size",
                     format!(
                         "{} bytes: expected metadata of at most {MAX_METADATA_BYTES} bytes",
@@ -240,10 +266,9 @@ impl Manifest {
                     ),
                 ));
             }
-            let (_, sha256) = hash_file(&path)?;
-            if sha256 != entry.sha256 {
+            if sha256(key)? != entry.sha256 {
                 return Err(Error::Corrupt {
-                    path,
+                    path: name(key),
                     codec: "store manifest".into(),
                     detail: "its SHA-256 differs from the manifest's: the metadata was changed \
                              after ingest (run voxserve verify; ingest again)"
@@ -253,6 +278,14 @@ impl Manifest {
         }
         Ok(())
     }
+}
+
+/// The SHA-256 of `bytes`, lowercase hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// The error for files the manifest lists that the store lacks.
@@ -423,29 +456,29 @@ pub fn sync_folder(folder: &Path) -> Result<(), Error> {
 pub struct ManifestStorage {
     inner: Arc<dyn ReadableStorageTraits>,
     manifest: Arc<Manifest>,
-    folder: PathBuf,
+    location: StoreLocation,
 }
 
 impl std::fmt::Debug for ManifestStorage {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ManifestStorage")
-            .field("folder", &self.folder)
+            .field("location", &self.location)
             .field("listed", &self.manifest.files.len())
             .finish_non_exhaustive()
     }
 }
 
 impl ManifestStorage {
-    /// Wraps `inner`, the storage of the store in `folder`.
+    /// Wraps `inner`, the storage of the store at `location`.
     pub fn new(
         inner: Arc<dyn ReadableStorageTraits>,
         manifest: Arc<Manifest>,
-        folder: &Path,
+        location: StoreLocation,
     ) -> ManifestStorage {
         ManifestStorage {
             inner,
             manifest,
-            folder: folder.to_owned(),
+            location,
         }
     }
 
@@ -456,7 +489,7 @@ impl ManifestStorage {
                 std::io::ErrorKind::NotFound,
                 format!(
                     "{}: missing: the store's manifest lists it",
-                    self.folder.join(key.as_str()).display()
+                    self.location.file(key.as_str()).display()
                 ),
             ))));
         }

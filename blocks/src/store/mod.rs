@@ -49,6 +49,7 @@ pub mod ingest;
 mod location;
 pub mod manifest;
 pub mod pyramid;
+pub mod remote;
 pub mod stats;
 
 use std::path::{Path, PathBuf};
@@ -67,6 +68,7 @@ pub use ingest::{IngestOptions, IngestProgress, IngestSummary, ingest, ingest_in
 pub use location::StoreLocation;
 pub use manifest::{Manifest, Verification, verify};
 pub use pyramid::{LEVELS, level_dims};
+pub use remote::{Remote, is_url};
 pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
 
 use crate::geometry::GeometryFields;
@@ -201,6 +203,9 @@ impl Store {
     /// that made it.
     pub fn open(location: impl Into<StoreLocation>) -> Result<Store, Error> {
         let location = location.into();
+        if let StoreLocation::Remote(url) = &location {
+            return Store::open_remote(url);
+        }
         let Some(path) = location.folder() else {
             return Err(store_error(
                 &location.file(""),
@@ -231,10 +236,86 @@ impl Store {
         let files: Arc<dyn ReadableStorageTraits> = Arc::new(
             FilesystemStore::new(path).map_err(|e| store_error(path, "store", format!("{e}")))?,
         );
+        Store::with_manifest(files, manifest, location)
+    }
+
+    /// Opens the complete store at `url` on object storage ([`remote`]):
+    /// checks its listing against the manifest as [`Store::open`] checks a
+    /// folder (for a plain HTTP store, which cannot list, missing files are
+    /// found when read).
+    pub fn open_remote(url: &str) -> Result<Store, Error> {
+        let remote = Arc::new(Remote::parse(url)?);
+        let location = StoreLocation::Remote(remote.url().to_owned());
+        let listing = if remote.lists() {
+            Some(remote.list()?)
+        } else {
+            None
+        };
+        let Some(text) = remote.get(manifest::MANIFEST_KEY, manifest::MAX_MANIFEST_BYTES)? else {
+            let root = remote.get("zarr.json", manifest::MAX_METADATA_BYTES)?;
+            return Err(match root {
+                Some(_) => Manifest::missing(&remote.file(manifest::MANIFEST_KEY)),
+                None => store_error(
+                    &remote.file("zarr.json"),
+                    "zarr.json",
+                    "missing: expected a voxserve brick store (made by `voxserve ingest \
+                         --out URL`)",
+                ),
+            });
+        };
+        let manifest = Arc::new(Manifest::parse(
+            &text,
+            &remote.file(manifest::MANIFEST_KEY),
+        )?);
+        // The objects read: those the manifest lists, with their ETags where
+        // the store lists.
+        let objects: std::collections::BTreeMap<String, remote::Object> = manifest
+            .files
+            .iter()
+            .filter_map(|(key, entry)| {
+                let object = match &listing {
+                    Some(listing) => listing.get(key)?.clone(),
+                    None => remote::Object {
+                        bytes: entry.bytes,
+                        e_tag: None,
+                    },
+                };
+                Some((key.clone(), object))
+            })
+            .collect();
+        let storage = remote::ObjectStorage::new(remote.clone(), objects.clone());
+        manifest.check_with(
+            &|key| remote.file(key),
+            &|key| objects.get(key).map(|o| o.bytes),
+            &|key| {
+                let bytes = storage
+                    .get(
+                        &zarrs::storage::StoreKey::new(key)
+                            .map_err(|e| store_error(&remote.file(key), "key", format!("{e}")))?,
+                    )
+                    .map_err(|e| store_error(&remote.file(key), "object", format!("{e}")))?
+                    .ok_or_else(|| Error::Missing {
+                        path: remote.file(key),
+                        detail: "the store's manifest lists it".into(),
+                    })?;
+                Ok(manifest::sha256_hex(&bytes))
+            },
+        )?;
+        Store::with_manifest(Arc::new(storage), manifest, location)
+    }
+
+    /// Opens the store in `files` whose manifest is `manifest`: reads go
+    /// through [`manifest::ManifestStorage`], and the shards it leaves out
+    /// are checked against the statistics.
+    fn with_manifest(
+        files: Arc<dyn ReadableStorageTraits>,
+        manifest: Arc<Manifest>,
+        location: StoreLocation,
+    ) -> Result<Store, Error> {
         let storage: Arc<dyn ReadableStorageTraits> = Arc::new(manifest::ManifestStorage::new(
             files,
             manifest.clone(),
-            path,
+            location.clone(),
         ));
         let mut store = Store::from_storage(&storage, location)?;
         store.check_left_out_shards(&manifest)?;
@@ -527,9 +608,14 @@ impl Store {
         let level = array.level;
         let key = shard_key(&array.key, chunk);
         let shard = self.location.file(&key);
+        let missing = match self.location.folder() {
+            Some(_) => !shard.is_file(),
+            // ManifestStorage's error for a listed object the store lacks.
+            None => is_not_found(&e),
+        };
         if let Some(manifest) = &self.manifest
             && manifest.lists(&key)
-            && !shard.is_file()
+            && missing
         {
             return Error::Missing {
                 path: shard,
@@ -553,6 +639,21 @@ impl Store {
             ),
         }
     }
+}
+
+/// Whether `e` comes from an I/O error of kind `NotFound`.
+fn is_not_found(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut source = Some(e);
+    while let Some(e) = source {
+        let io = e
+            .downcast_ref::<std::io::Error>()
+            .or_else(|| e.downcast_ref::<Arc<std::io::Error>>().map(AsRef::as_ref));
+        if io.is_some_and(|io| io.kind() == std::io::ErrorKind::NotFound) {
+            return true;
+        }
+        source = e.source();
+    }
+    false
 }
 
 /// Inner chunks per shard along each axis.

@@ -1,0 +1,618 @@
+//! Brick stores on object storage: S3 and S3-compatible servers, Google Cloud
+//! Storage, Azure Blob Storage (through `object_store`), and read-only stores
+//! behind plain HTTP(S).
+//!
+//! A store there has the same keys as on disk, under a prefix
+//! (`s3://bucket/prefix/name.zarr/0/c/0/0/0`), so any Zarr reader can read it.
+//! [`Remote`] is one such prefix. [`ObjectStorage`] reads it for `zarrs`: one
+//! request per byte range (sizes come from the listing or the manifest, so
+//! no `HEAD` precedes a range read), on a small runtime of its own, so
+//! readers on any thread (inside an async runtime or not) block only
+//! themselves. Every read carries the ETag the object had when the store was
+//! opened (`If-Match`): an object replaced since (another ingest to the same
+//! prefix) fails the read instead of mixing two volumes' blocks.
+//!
+//! Credentials and endpoints come from the usual environment variables
+//! (`AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`, `AWS_SESSION_TOKEN`,
+//! `AWS_REGION`, `AWS_ENDPOINT_URL` for an S3-compatible server; the
+//! `GOOGLE_*` and `AZURE_*` ones), or from instance metadata where
+//! `object_store` finds it. An `http://` endpoint is allowed when
+//! `AWS_ENDPOINT_URL` names one.
+//!
+//! Writing ([`Remote::upload`]): an ingest writes the store to a local folder
+//! first, then uploads it: the old manifest is deleted first (a store without
+//! one is refused as incomplete), then every file, then objects of an older
+//! store that the new one lacks, and the manifest last.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use futures_util::{StreamExt, TryStreamExt};
+use object_store::path::Path as ObjectPath;
+use object_store::{
+    ClientOptions, GetOptions, GetRange, ObjectStore, ObjectStoreExt, PutPayload, RetryConfig,
+};
+use zarrs::storage::byte_range::{ByteRange, ByteRangeIterator};
+use zarrs::storage::{
+    Bytes, MaybeBytes, MaybeBytesIterator, ReadableStorageTraits, StorageError, StoreKey,
+};
+
+use super::manifest::{MANIFEST_KEY, Manifest};
+use crate::Error;
+
+/// The URL schemes of object stores.
+pub const SCHEMES: [&str; 8] = ["s3", "s3a", "gs", "az", "abfs", "abfss", "http", "https"];
+/// Requests in flight at once while uploading or checking a store.
+const IN_FLIGHT: usize = 16;
+/// A request's longest wait for a response (a stalled server fails the read,
+/// which is retried).
+const REQUEST_TIMEOUT: Duration = Duration::from_secs(15);
+/// The longest wait for a connection.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
+/// Retries of a failed request (with exponential backoff), and how long they
+/// may take in all.
+const RETRIES: usize = 4;
+const RETRY_TIMEOUT: Duration = Duration::from_secs(30);
+/// Files up to this size are uploaded in one request; larger ones in parts.
+const PART_BYTES: usize = 8 << 20;
+
+/// Whether `name` is an object-store URL (`s3://…`, `https://…`).
+pub fn is_url(name: &str) -> bool {
+    name.split_once("://")
+        .is_some_and(|(scheme, _)| SCHEMES.contains(&scheme.to_ascii_lowercase().as_str()))
+}
+
+/// One prefix of an object store holding one brick store (or, for `serve
+/// --data`, several).
+pub struct Remote {
+    /// The URL, without a trailing `/`.
+    url: String,
+    /// The bucket or container (the host for HTTP).
+    bucket: String,
+    store: Arc<dyn ObjectStore>,
+    prefix: ObjectPath,
+    /// Whether the store can list (plain HTTP cannot).
+    lists: bool,
+}
+
+impl std::fmt::Debug for Remote {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Remote")
+            .field("url", &self.url)
+            .finish_non_exhaustive()
+    }
+}
+
+/// An object of a listing: its size and ETag.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Object {
+    /// Its size in bytes.
+    pub bytes: u64,
+    /// Its ETag, when the store gives one.
+    pub e_tag: Option<String>,
+}
+
+/// The runtime that drives every object-store request: its own, so that a
+/// request can be waited for from any thread.
+fn io_runtime() -> &'static tokio::runtime::Runtime {
+    static RUNTIME: OnceLock<tokio::runtime::Runtime> = OnceLock::new();
+    RUNTIME.get_or_init(|| {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("object-store-io")
+            .enable_all()
+            .build()
+            .unwrap_or_else(|e| panic!("cannot start the object-store I/O runtime: {e}"))
+    })
+}
+
+/// Runs `future` on the I/O runtime and waits for it on this thread.
+fn run<T: Send + 'static>(future: impl Future<Output = T> + Send + 'static) -> Option<T> {
+    let (done, result) = std::sync::mpsc::sync_channel(1);
+    io_runtime().spawn(async move {
+        // The waiter may have gone (it never does before the result).
+        let _ = done.send(future.await);
+    });
+    result.recv().ok()
+}
+
+impl Remote {
+    /// The object store at `url`, with credentials and endpoint from the
+    /// environment.
+    pub fn parse(url: &str) -> Result<Remote, Error> {
+        let trimmed = url.trim_end_matches('/');
+        let bad = |message: String| Error::Field {
+            path: PathBuf::from(url),
+            field: "url".into(),
+            message,
+        };
+        let parsed = url::Url::parse(trimmed).map_err(|e| {
+            bad(format!(
+                "{e}: expected an object-store URL such as s3://bucket/prefix/name.zarr"
+            ))
+        })?;
+        let scheme = parsed.scheme().to_ascii_lowercase();
+        if !SCHEMES.contains(&scheme.as_str()) {
+            return Err(bad(format!(
+                "scheme '{scheme}': expected one of {}",
+                SCHEMES.join(", ")
+            )));
+        }
+        let bucket = parsed.host_str().unwrap_or_default().to_owned();
+        if bucket.is_empty() {
+            return Err(bad(
+                "no bucket: expected s3://bucket/prefix/name.zarr".into()
+            ));
+        }
+        let client = ClientOptions::new()
+            .with_timeout(REQUEST_TIMEOUT)
+            .with_connect_timeout(CONNECT_TIMEOUT);
+        let retry = RetryConfig {
+            max_retries: RETRIES,
+            retry_timeout: RETRY_TIMEOUT,
+            ..RetryConfig::default()
+        };
+        let built: Result<(Arc<dyn ObjectStore>, ObjectPath), object_store::Error> =
+            if scheme == "s3" || scheme == "s3a" {
+                let endpoint = std::env::var("AWS_ENDPOINT_URL")
+                    .or_else(|_| std::env::var("AWS_ENDPOINT"))
+                    .unwrap_or_default();
+                object_store::aws::AmazonS3Builder::from_env()
+                    .with_url(trimmed)
+                    .with_client_options(client.with_allow_http(endpoint.starts_with("http://")))
+                    .with_retry(retry)
+                    .build()
+                    .map(|s| {
+                        let path = ObjectPath::from_url_path(parsed.path()).unwrap_or_default();
+                        (Arc::new(s) as Arc<dyn ObjectStore>, path)
+                    })
+            } else {
+                let mut options: Vec<(String, String)> = std::env::vars()
+                    .filter(|(k, _)| k.starts_with("GOOGLE_") || k.starts_with("AZURE_"))
+                    .map(|(k, v)| (k.to_ascii_lowercase(), v))
+                    .collect();
+                options.push(("timeout".into(), format!("{}s", REQUEST_TIMEOUT.as_secs())));
+                options.push((
+                    "connect_timeout".into(),
+                    format!("{}s", CONNECT_TIMEOUT.as_secs()),
+                ));
+                if scheme == "http" {
+                    options.push(("allow_http".into(), "true".into()));
+                }
+                object_store::parse_url_opts(&parsed, options)
+                    .map(|(store, path)| (Arc::from(store), path))
+            };
+        let (store, prefix) = built.map_err(|e| bad(format!("{e}")))?;
+        Ok(Remote {
+            url: trimmed.to_owned(),
+            bucket,
+            store,
+            prefix,
+            lists: !scheme.starts_with("http"),
+        })
+    }
+
+    /// The URL, without a trailing `/`.
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// The last part of the URL's path (`head.zarr`).
+    pub fn name(&self) -> &str {
+        self.url.rsplit('/').next().unwrap_or(&self.url)
+    }
+
+    /// Whether the store can list its objects (plain HTTP cannot).
+    pub fn lists(&self) -> bool {
+        self.lists
+    }
+
+    /// How messages name `key` inside this prefix.
+    pub fn file(&self, key: &str) -> PathBuf {
+        if key.is_empty() {
+            PathBuf::from(&self.url)
+        } else {
+            PathBuf::from(format!("{}/{key}", self.url))
+        }
+    }
+
+    /// The same store under `key` (a `/`-separated path inside this prefix).
+    pub fn child(&self, key: &str) -> Remote {
+        Remote {
+            url: format!("{}/{}", self.url, key.trim_matches('/')),
+            bucket: self.bucket.clone(),
+            store: self.store.clone(),
+            prefix: self.path(key.trim_matches('/')),
+            lists: self.lists,
+        }
+    }
+
+    fn path(&self, key: &str) -> ObjectPath {
+        key.split('/')
+            .filter(|p| !p.is_empty())
+            .fold(self.prefix.clone(), ObjectPath::join)
+    }
+
+    /// The error for a failed request about `key`, naming the object and,
+    /// when access was refused, the bucket.
+    fn error(&self, key: &str, e: &object_store::Error) -> Error {
+        let path = self.file(key);
+        // S3 errors other than on a single object (a listing's) come as
+        // `Generic` with the HTTP status only in their text.
+        let text = e.to_string();
+        let refused = matches!(
+            e,
+            object_store::Error::PermissionDenied { .. }
+                | object_store::Error::Unauthenticated { .. }
+        ) || text.contains(" 403 Forbidden")
+            || text.contains(" 401 Unauthorized");
+        let message = match e {
+            _ if refused => {
+                format!(
+                    "access denied to bucket '{}' ({e}): expected credentials that may read it \
+                     (AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, or a role)",
+                    self.bucket
+                )
+            }
+            object_store::Error::Precondition { .. } => {
+                "the object changed after the store was opened (another ingest to the same \
+                 place?): its blocks are not mixed with the old ones; open the store again"
+                    .into()
+            }
+            other => format!("{other}: the object store did not answer as expected"),
+        };
+        Error::Field {
+            path,
+            field: "object".into(),
+            message,
+        }
+    }
+
+    /// Every object under this prefix, by key inside it.
+    pub fn list(&self) -> Result<BTreeMap<String, Object>, Error> {
+        let store = self.store.clone();
+        let prefix = self.prefix.clone();
+        let listed = run(async move {
+            store
+                .list(Some(&prefix))
+                .map_ok(|meta| {
+                    let key = meta
+                        .location
+                        .prefix_match(&prefix)
+                        .map(|parts| {
+                            parts
+                                .map(|p| p.as_ref().to_owned())
+                                .collect::<Vec<_>>()
+                                .join("/")
+                        })
+                        .unwrap_or_default();
+                    (
+                        key,
+                        Object {
+                            bytes: meta.size,
+                            e_tag: meta.e_tag,
+                        },
+                    )
+                })
+                .try_collect::<BTreeMap<_, _>>()
+                .await
+        })
+        .ok_or_else(|| self.ended(""))?;
+        listed.map_err(|e| self.error("", &e))
+    }
+
+    /// The folders directly under this prefix.
+    pub fn folders(&self) -> Result<Vec<String>, Error> {
+        let store = self.store.clone();
+        let prefix = self.prefix.clone();
+        let listed = run(async move { store.list_with_delimiter(Some(&prefix)).await })
+            .ok_or_else(|| self.ended(""))?
+            .map_err(|e| self.error("", &e))?;
+        Ok(listed
+            .common_prefixes
+            .iter()
+            .filter_map(|p| p.filename().map(str::to_owned))
+            .collect())
+    }
+
+    fn ended(&self, key: &str) -> Error {
+        Error::Field {
+            path: self.file(key),
+            field: "object".into(),
+            message: "the object-store I/O runtime stopped".into(),
+        }
+    }
+
+    /// The object `key` whole, `None` when there is none; refused over
+    /// `max_bytes`.
+    pub fn get(&self, key: &str, max_bytes: u64) -> Result<Option<Bytes>, Error> {
+        let store = self.store.clone();
+        let path = self.path(key);
+        let got = run(async move {
+            let head = match store.head(&path).await {
+                Ok(head) => head,
+                Err(e) => return Err(e),
+            };
+            if head.size > max_bytes {
+                return Ok(Err(head.size));
+            }
+            let options = GetOptions {
+                if_match: head.e_tag,
+                ..GetOptions::default()
+            };
+            Ok(Ok(store.get_opts(&path, options).await?.bytes().await?))
+        })
+        .ok_or_else(|| self.ended(key))?;
+        match got {
+            Ok(Ok(bytes)) => Ok(Some(bytes)),
+            Ok(Err(size)) => Err(Error::Field {
+                path: self.file(key),
+                field: "size".into(),
+                message: format!("{size} bytes: expected at most {max_bytes}"),
+            }),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(self.error(key, &e)),
+        }
+    }
+
+    /// Uploads the complete store in `folder` here (see the module's
+    /// documentation for the order), `IN_FLIGHT` files at a time; returns
+    /// the files and bytes uploaded.
+    pub fn upload(&self, folder: &Path) -> Result<(usize, u64), Error> {
+        let manifest = Manifest::read(folder)?;
+        let before = self.list()?;
+        let store = self.store.clone();
+        if before.contains_key(MANIFEST_KEY) {
+            let path = self.path(MANIFEST_KEY);
+            let store = store.clone();
+            run(async move { store.delete(&path).await })
+                .ok_or_else(|| self.ended(MANIFEST_KEY))?
+                .map_err(|e| self.error(MANIFEST_KEY, &e))?;
+        }
+        let files: Vec<(String, PathBuf, ObjectPath)> = manifest
+            .files
+            .keys()
+            .map(|key| (key.clone(), folder.join(key), self.path(key)))
+            .collect();
+        let bytes: u64 = manifest.files.values().map(|f| f.bytes).sum();
+        let count = files.len();
+        let uploads = {
+            let store = store.clone();
+            run(async move {
+                futures_util::stream::iter(files)
+                    .map(|(key, file, path)| {
+                        let store = store.clone();
+                        async move { upload_file(store, &file, &path).await.map_err(|e| (key, e)) }
+                    })
+                    .buffer_unordered(IN_FLIGHT)
+                    .try_collect::<Vec<()>>()
+                    .await
+            })
+        };
+        match uploads.ok_or_else(|| self.ended(""))? {
+            Ok(_) => {}
+            Err((key, UploadError::Read(source))) => {
+                return Err(Error::Io {
+                    path: folder.join(key),
+                    source,
+                });
+            }
+            Err((key, UploadError::Store(e))) => return Err(self.error(&key, &e)),
+        }
+        let stale: Vec<ObjectPath> = before
+            .keys()
+            .filter(|key| *key != MANIFEST_KEY && !manifest.lists(key))
+            .map(|key| self.path(key))
+            .collect();
+        if !stale.is_empty() {
+            let store = store.clone();
+            run(async move {
+                let paths =
+                    futures_util::stream::iter(stale.into_iter().map(Ok::<_, object_store::Error>))
+                        .boxed();
+                store.delete_stream(paths).try_collect::<Vec<_>>().await
+            })
+            .ok_or_else(|| self.ended(""))?
+            .map_err(|e| self.error("", &e))?;
+        }
+        let manifest_file = folder.join(MANIFEST_KEY);
+        let manifest_path = self.path(MANIFEST_KEY);
+        run(async move { upload_file(store, &manifest_file, &manifest_path).await })
+            .ok_or_else(|| self.ended(MANIFEST_KEY))?
+            .map_err(|e| match e {
+                UploadError::Read(source) => Error::Io {
+                    path: folder.join(MANIFEST_KEY),
+                    source,
+                },
+                UploadError::Store(e) => self.error(MANIFEST_KEY, &e),
+            })?;
+        Ok((count + 1, bytes))
+    }
+}
+
+/// Why a file's upload failed.
+#[derive(Debug)]
+enum UploadError {
+    Read(std::io::Error),
+    Store(object_store::Error),
+}
+
+/// Uploads `file` to `path`: in one request, or in parts of `PART_BYTES`.
+async fn upload_file(
+    store: Arc<dyn ObjectStore>,
+    file: &Path,
+    path: &ObjectPath,
+) -> Result<(), UploadError> {
+    use tokio::io::AsyncReadExt;
+    let mut reader = tokio::fs::File::open(file)
+        .await
+        .map_err(UploadError::Read)?;
+    let size = reader.metadata().await.map_err(UploadError::Read)?.len();
+    if size <= PART_BYTES as u64 {
+        let mut bytes = Vec::with_capacity(size as usize);
+        reader
+            .read_to_end(&mut bytes)
+            .await
+            .map_err(UploadError::Read)?;
+        store
+            .put(path, PutPayload::from(bytes))
+            .await
+            .map_err(UploadError::Store)?;
+        return Ok(());
+    }
+    let upload = store
+        .put_multipart(path)
+        .await
+        .map_err(UploadError::Store)?;
+    let mut parts = object_store::WriteMultipart::new_with_chunk_size(upload, PART_BYTES);
+    let mut buffer = vec![0; 1 << 20];
+    loop {
+        let n = reader.read(&mut buffer).await.map_err(UploadError::Read)?;
+        if n == 0 {
+            break;
+        }
+        parts
+            .wait_for_capacity(2)
+            .await
+            .map_err(UploadError::Store)?;
+        parts.write(&buffer[..n]);
+    }
+    parts.finish().await.map_err(UploadError::Store)?;
+    Ok(())
+}
+
+/// A store on object storage read by `zarrs`: the objects a listing (or the
+/// manifest) names, each read with the ETag it had then. An object it does
+/// not name reads as absent.
+pub struct ObjectStorage {
+    remote: Arc<Remote>,
+    objects: BTreeMap<String, Object>,
+}
+
+impl std::fmt::Debug for ObjectStorage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ObjectStorage")
+            .field("remote", &self.remote)
+            .field("objects", &self.objects.len())
+            .finish()
+    }
+}
+
+impl ObjectStorage {
+    /// Reads `objects` of `remote`.
+    pub fn new(remote: Arc<Remote>, objects: BTreeMap<String, Object>) -> ObjectStorage {
+        ObjectStorage { remote, objects }
+    }
+
+    fn failed(&self, key: &str, e: &object_store::Error) -> StorageError {
+        StorageError::Other(self.remote.error(key, e).to_string())
+    }
+}
+
+impl ReadableStorageTraits for ObjectStorage {
+    fn get_partial_many<'a>(
+        &'a self,
+        key: &StoreKey,
+        byte_ranges: ByteRangeIterator<'a>,
+    ) -> Result<MaybeBytesIterator<'a>, StorageError> {
+        let Some(object) = self.objects.get(key.as_str()) else {
+            return Ok(None);
+        };
+        let ranges: Vec<Range<u64>> = byte_ranges
+            .map(|range: ByteRange| range.to_range(object.bytes))
+            .collect();
+        if ranges
+            .iter()
+            .any(|r| r.start > r.end || r.end > object.bytes)
+        {
+            return Err(StorageError::Other(format!(
+                "{}: a byte range beyond its {} bytes",
+                self.remote.file(key.as_str()).display(),
+                object.bytes
+            )));
+        }
+        let store = self.remote.store.clone();
+        let path = self.remote.path(key.as_str());
+        let e_tag = object.e_tag.clone();
+        let read = run(async move {
+            futures_util::stream::iter(ranges)
+                .map(|range| {
+                    let (store, path, e_tag) = (store.clone(), path.clone(), e_tag.clone());
+                    async move {
+                        if range.is_empty() {
+                            return Ok(Bytes::new());
+                        }
+                        let options = GetOptions {
+                            if_match: e_tag,
+                            range: Some(GetRange::Bounded(range)),
+                            ..GetOptions::default()
+                        };
+                        store.get_opts(&path, options).await?.bytes().await
+                    }
+                })
+                .buffered(IN_FLIGHT)
+                .try_collect::<Vec<Bytes>>()
+                .await
+        })
+        .ok_or_else(|| StorageError::Other("the object-store I/O runtime stopped".into()))?;
+        match read {
+            Ok(parts) => Ok(Some(Box::new(parts.into_iter().map(Ok)))),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(self.failed(key.as_str(), &e)),
+        }
+    }
+
+    fn get(&self, key: &StoreKey) -> Result<MaybeBytes, StorageError> {
+        let Some(object) = self.objects.get(key.as_str()) else {
+            return Ok(None);
+        };
+        let whole = ByteRange::FromStart(0, Some(object.bytes));
+        match self.get_partial_many(key, Box::new(std::iter::once(whole)))? {
+            Some(mut parts) => parts.next().transpose(),
+            None => Ok(None),
+        }
+    }
+
+    fn size_key(&self, key: &StoreKey) -> Result<Option<u64>, StorageError> {
+        Ok(self.objects.get(key.as_str()).map(|o| o.bytes))
+    }
+
+    fn supports_get_partial(&self) -> bool {
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls_name_object_stores_and_refuse_other_schemes() {
+        assert!(is_url("s3://bucket/head.zarr"));
+        assert!(is_url("HTTPS://example.org/head.zarr"));
+        assert!(!is_url("/data/head.zarr"));
+        assert!(!is_url("ftp://host/head.zarr"));
+        let e = Remote::parse("s3:///head.zarr")
+            .expect_err("no bucket")
+            .to_string();
+        assert!(e.contains("no bucket"), "{e}");
+        let remote = Remote::parse("s3://bucket/prefix/head.zarr/").expect("an S3 URL");
+        assert_eq!(remote.url(), "s3://bucket/prefix/head.zarr");
+        assert_eq!(remote.name(), "head.zarr");
+        assert_eq!(
+            remote.file("0/c/0/0/0"),
+            Path::new("s3://bucket/prefix/head.zarr/0/c/0/0/0")
+        );
+        assert_eq!(
+            remote.path("0/zarr.json").as_ref(),
+            "prefix/head.zarr/0/zarr.json"
+        );
+        assert_eq!(
+            remote.child("x.zarr").url(),
+            "s3://bucket/prefix/head.zarr/x.zarr"
+        );
+    }
+}

@@ -1,0 +1,150 @@
+//! Brick stores on S3: `voxserve ingest --out s3://…` and `render s3://…`
+//! against a real S3-compatible server (`s3s-fs`) on a loopback port, as a
+//! user runs them, with the endpoint and credentials in the environment.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use voxserve_tests::s3::S3Server;
+
+const VOXSERVE: &str = env!("CARGO_BIN_EXE_voxserve");
+
+fn voxserve(env: &[(String, String)], args: &[&str]) -> Output {
+    Command::new(VOXSERVE)
+        .args(args)
+        .envs(env.iter().map(|(k, v)| (k, v)))
+        .output()
+        .unwrap_or_else(|e| panic!("running voxserve {args:?}: {e}"))
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// Renders `dataset` on the CPU at 192² into `out`; its pixels, or the
+/// failed run's standard error.
+fn render(env: &[(String, String)], dataset: &str, out: &Path) -> Result<image::RgbaImage, String> {
+    let run = voxserve(
+        env,
+        &[
+            "render",
+            dataset,
+            "--renderer",
+            "cpu",
+            "--width",
+            "192",
+            "--height",
+            "192",
+            "--out",
+            out.to_str().expect("utf-8"),
+        ],
+    );
+    if !run.status.success() {
+        return Err(text(&run.stderr));
+    }
+    Ok(image::open(out).expect("a PNG").to_rgba8())
+}
+
+#[test]
+fn a_store_ingested_to_s3_renders_pixel_for_pixel_as_the_same_store_on_disk() {
+    let test = "a_store_ingested_to_s3_renders_pixel_for_pixel_as_the_same_store_on_disk";
+    let Some(data) = voxserve_tests::data::shared_data(test) else {
+        return;
+    };
+    let engine = data.join("raw/engine_256x256x128_uint8.raw");
+    let engine = engine.to_str().expect("utf-8");
+    let dir = tempfile::tempdir().expect("temp");
+    let s3 = S3Server::start(&["scans"]);
+    let env = s3.env();
+    let url = "s3://scans/ct/engine.zarr";
+
+    let out = voxserve(&env, &["ingest", engine, "--out", url]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stdout).contains(url), "{}", text(&out.stdout));
+    assert!(
+        s3.object_file("scans", "ct/engine.zarr/voxserve/manifest.json")
+            .is_file()
+    );
+    let local = dir.path().join("engine.zarr");
+    let out = voxserve(
+        &[],
+        &["ingest", engine, "--out", local.to_str().expect("utf-8")],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+
+    let from_s3 = render(&env, url, &dir.path().join("s3.png")).expect("a frame from S3");
+    let from_disk = render(
+        &[],
+        local.to_str().expect("utf-8"),
+        &dir.path().join("disk.png"),
+    )
+    .expect("a frame from disk");
+    assert!(
+        voxserve_tests::checks::coverage(&from_disk) > 0.05,
+        "the engine is drawn"
+    );
+    assert!(
+        from_s3 == from_disk,
+        "the frame from S3 differs from the frame of the same store on disk"
+    );
+
+    // An ingest onto a store replaces it only when asked to.
+    let out = voxserve(&env, &["ingest", engine, "--out", url]);
+    assert!(!out.status.success());
+    let stderr = text(&out.stderr);
+    assert!(
+        stderr.contains(url) && stderr.contains("--force"),
+        "{stderr}"
+    );
+    let out = voxserve(&env, &["ingest", engine, "--out", url, "--force"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let again = render(&env, url, &dir.path().join("again.png")).expect("a frame from S3");
+    assert!(
+        again == from_disk,
+        "the replaced store draws the same frame"
+    );
+}
+
+#[test]
+fn refused_credentials_and_missing_objects_are_named() {
+    let dir = tempfile::tempdir().expect("temp");
+    // A 40 × 30 × 70 uint16 volume.
+    let raw = dir.path().join("scan_40x30x70_uint16.raw");
+    let bytes: Vec<u8> = (0..40 * 30 * 70u32)
+        .flat_map(|i| (((i * 7) % 4000) as u16).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).expect("raw");
+    let s3 = S3Server::start(&["scans"]);
+    let url = "s3://scans/scan.zarr";
+    let out = voxserve(
+        &s3.env(),
+        &["ingest", raw.to_str().expect("utf-8"), "--out", url],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let png = dir.path().join("scan.png");
+    render(&s3.env(), url, &png).expect("a frame");
+
+    // Wrong credentials: the bucket is named, and what would let it be read.
+    let wrong = s3.env_with_secret("not-the-secret");
+    let stderr = render(&wrong, url, &png).expect_err("refused");
+    assert!(
+        stderr.contains("access denied to bucket 'scans'")
+            && stderr.contains("AWS_SECRET_ACCESS_KEY"),
+        "{stderr}"
+    );
+
+    // No store there.
+    let stderr = render(&s3.env(), "s3://scans/none.zarr", &png).expect_err("no store");
+    assert!(
+        stderr.contains("s3://scans/none.zarr/zarr.json") && stderr.contains("missing"),
+        "{stderr}"
+    );
+
+    // A shard deleted behind the store's back is missing data, not air.
+    std::fs::remove_file(s3.object_file("scans", "scan.zarr/0/c/0/0/0")).expect("a shard");
+    let stderr = render(&s3.env(), url, &png).expect_err("a missing shard");
+    assert!(
+        stderr.contains("s3://scans/scan.zarr/0/c/0/0/0") && stderr.contains("manifest lists it"),
+        "{stderr}"
+    );
+}
