@@ -18,12 +18,13 @@
 //! ([`BlockCache::request`]). Each chunk that arrives bumps
 //! [`BlockCache::arrivals`] and wakes whoever waits
 //! ([`BlockCache::wait_for_arrivals`], [`BlockCache::subscribe`]); a chunk whose
-//! read failed keeps its error, which the next pin returns.
+//! read failed keeps its error, which the next pin returns (for
+//! [`RETRY_AFTER`] only where the store did not answer: then it is read again).
 
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, OnceLock, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use quick_cache::Weighter;
 use quick_cache::sync::Cache;
@@ -46,6 +47,21 @@ impl Weighter<ChunkKey, Arc<VoxelData>> for Bytes {
 
 /// The chunks a block needs, pinned in memory: chunk position → voxels.
 pub type Pinned = HashMap<[u32; 3], Arc<VoxelData>>;
+
+impl Loads {
+    /// The error of `key`'s failed read, unless it was that the store did
+    /// not answer, [`RETRY_AFTER`] or longer ago: then it is forgotten, so
+    /// the chunk is read again.
+    fn failure(&mut self, key: ChunkKey) -> Option<Arc<Error>> {
+        let (error, when) = self.failed.get(&key)?;
+        let passing = matches!(error.as_ref(), Error::Unavailable { .. });
+        if passing && when.elapsed() >= RETRY_AFTER {
+            self.failed.remove(&key);
+            return None;
+        }
+        Some(error.clone())
+    }
+}
 
 /// A callback run after each chunk arrives.
 type Listener = Box<dyn Fn() + Send + Sync>;
@@ -98,13 +114,18 @@ fn start_pool(threads: usize, name: &'static str) -> rayon::ThreadPool {
         })
 }
 
+/// How long a chunk whose store did not answer ([`Error::Unavailable`])
+/// keeps that error before it is read again; other failures (missing,
+/// corrupt) are kept.
+pub const RETRY_AFTER: Duration = Duration::from_secs(1);
+
 /// What the background reads are doing.
 #[derive(Default)]
 struct Loads {
     /// Chunks being read now.
     in_flight: HashSet<ChunkKey>,
-    /// Chunks whose read failed, with the error.
-    failed: HashMap<ChunkKey, Arc<Error>>,
+    /// Chunks whose read failed, with the error and when.
+    failed: HashMap<ChunkKey, (Arc<Error>, Instant)>,
     /// Called after each arrival.
     listeners: Vec<Listener>,
 }
@@ -264,7 +285,7 @@ impl BlockCache {
         let mut loads = self.lock_loads();
         for &key in keys {
             if loads.in_flight.contains(&key)
-                || loads.failed.contains_key(&key)
+                || loads.failure(key).is_some()
                 || self.resident.contains_key(&key)
                 || self.chunks.peek(&key).is_some()
             {
@@ -283,7 +304,7 @@ impl BlockCache {
         match read {
             Ok(voxels) => self.chunks.insert(key, Arc::new(voxels)),
             Err(e) => {
-                loads.failed.insert(key, Arc::new(e));
+                loads.failed.insert(key, (Arc::new(e), Instant::now()));
             }
         }
         loads.in_flight.remove(&key);
@@ -332,10 +353,7 @@ impl BlockCache {
         if missing.is_empty() {
             return Ok(Some(pinned));
         }
-        if let Some(e) = missing
-            .iter()
-            .find_map(|k| self.lock_loads().failed.get(k).cloned())
-        {
+        if let Some(e) = missing.iter().find_map(|&k| self.lock_loads().failure(k)) {
             return Err(Error::Shared(e));
         }
         if request {

@@ -56,6 +56,21 @@ pub enum Error {
         /// Which files, and what it means for the view.
         detail: String,
     },
+    /// A store on object storage did not answer (refused connections,
+    /// timeouts after retries, server errors): its data is unknown for now,
+    /// and reads are tried again ([`crate::BlockCache`] after
+    /// [`crate::cache::RETRY_AFTER`]).
+    #[error(
+        "{}: unavailable: {detail}; what it holds is not drawn until the store answers \
+         again (it is read again at a later frame)",
+        path.display()
+    )]
+    Unavailable {
+        /// The object.
+        path: PathBuf,
+        /// The store's or the network's reason.
+        detail: String,
+    },
     /// A decoder voxserve does not own panicked on this file (caught at the
     /// boundary of [`crate::ingest::boundary::guard`]).
     #[error(

@@ -148,3 +148,92 @@ fn refused_credentials_and_missing_objects_are_named() {
         "{stderr}"
     );
 }
+
+/// `GET path` of `base`: the status, the body, and `X-Pending-Blocks`.
+async fn get(base: &str, path: &str) -> (u16, Vec<u8>, Option<String>) {
+    let response = reqwest::get(format!("{base}{path}"))
+        .await
+        .expect("a response");
+    let status = response.status().as_u16();
+    let pending = response
+        .headers()
+        .get("x-pending-blocks")
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_owned);
+    (
+        status,
+        response.bytes().await.expect("a body").to_vec(),
+        pending,
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_server_whose_object_store_stops_names_what_it_lacks_and_recovers_when_it_returns() {
+    let test = "a_server_whose_object_store_stops_names_what_it_lacks_and_recovers_when_it_returns";
+    let Some(data) = voxserve_tests::data::shared_data(test) else {
+        return;
+    };
+    let engine = data.join("raw/engine_256x256x128_uint8.raw");
+    let engine = engine.to_str().expect("utf-8");
+    let dir = tempfile::tempdir().expect("temp");
+    let mut s3 = S3Server::start(&["scans"]);
+    let url = "s3://scans/ct/engine.zarr";
+    let out = voxserve(&s3.env(), &["ingest", engine, "--out", url]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let local = dir.path().join("engine.zarr");
+    let out = voxserve(
+        &[],
+        &["ingest", engine, "--out", local.to_str().expect("utf-8")],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let serve = |dataset: String, env: Vec<(String, String)>| async move {
+        let args = [
+            "serve",
+            &dataset,
+            "--addr",
+            "127.0.0.1:0",
+            "--renderer",
+            "cpu",
+        ];
+        voxserve_tests::server::Spawned::start_with_env(VOXSERVE, &args, &env)
+            .await
+            .unwrap_or_else(|e| panic!("serve {dataset}: {e}"))
+    };
+    let from_s3 = serve(url.to_owned(), s3.env()).await;
+    let from_disk = serve(local.to_string_lossy().into_owned(), Vec::new()).await;
+    let view = "/api/render?w=160&h=160&preset=generic";
+
+    // Opened (metadata, levels 3 and 4); the finer blocks are still on S3
+    // when it stops: the frame is refused, naming the object and why.
+    s3.stop();
+    let (status, body, _) = get(&from_s3.url, view).await;
+    let message = String::from_utf8_lossy(&body).into_owned();
+    assert!(
+        status >= 500
+            && message.contains("s3://scans/ct/engine.zarr/")
+            && message.contains("unavailable"),
+        "{status}: {message}"
+    );
+
+    // Back: after RETRY_AFTER the same view reads them and draws what the
+    // store on disk draws.
+    s3.resume();
+    tokio::time::sleep(blocks::cache::RETRY_AFTER + std::time::Duration::from_millis(200)).await;
+    let (status, frame, pending) = get(&from_s3.url, view).await;
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&frame));
+    assert_eq!(pending.as_deref(), Some("0"));
+    let (status, expected, _) = get(&from_disk.url, view).await;
+    assert_eq!(status, 200);
+    let frame = image::load_from_memory(&frame).expect("a PNG").to_rgba8();
+    let expected = image::load_from_memory(&expected)
+        .expect("a PNG")
+        .to_rgba8();
+    assert!(
+        voxserve_tests::checks::coverage(&expected) > 0.05,
+        "the engine is drawn"
+    );
+    assert!(
+        frame == expected,
+        "the recovered frame differs from the store on disk's"
+    );
+}

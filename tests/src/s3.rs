@@ -94,7 +94,8 @@ impl S3Server {
     /// Stops serving: the port is closed and open connections are dropped.
     pub fn stop(&mut self) {
         if let Some(runtime) = self.runtime.take() {
-            runtime.shutdown_timeout(Duration::from_secs(1));
+            // Without waiting, so a test's async code may stop it too.
+            runtime.shutdown_background();
         }
     }
 
@@ -114,20 +115,27 @@ impl S3Server {
         let mut builder = S3ServiceBuilder::new(fs);
         builder.set_auth(SimpleAuth::from_single(ACCESS_KEY, SECRET_KEY));
         let service = builder.build();
+        // Bound here (a stopped server's port may take a moment to close),
+        // without blocking on the runtime, so async tests may call this.
         let wanted = self.addr;
-        let listener = runtime.block_on(async {
-            let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
-            loop {
-                match tokio::net::TcpListener::bind(wanted).await {
-                    Ok(listener) => return listener,
-                    Err(e) if tokio::time::Instant::now() > deadline => {
-                        panic!("S3 server: cannot bind {wanted}: {e}")
-                    }
-                    Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        let listener = loop {
+            match std::net::TcpListener::bind(wanted) {
+                Ok(listener) => break listener,
+                Err(e) if std::time::Instant::now() > deadline => {
+                    panic!("S3 server: cannot bind {wanted}: {e}")
                 }
+                Err(_) => std::thread::sleep(Duration::from_millis(50)),
             }
-        });
+        };
+        listener
+            .set_nonblocking(true)
+            .expect("a non-blocking listener");
         self.addr = listener.local_addr().expect("the S3 server's address");
+        let listener = {
+            let _inside = runtime.enter();
+            tokio::net::TcpListener::from_std(listener).expect("a tokio listener")
+        };
         let delay = self.delay_ms.clone();
         runtime.spawn(async move {
             loop {

@@ -161,9 +161,25 @@ impl Spawned {
     /// When it cannot be started, prints nothing within a minute, or prints
     /// a line without a URL.
     pub async fn start(binary: &str, args: &[&str]) -> Result<Spawned, String> {
+        Spawned::start_with_env(binary, args, &[]).await
+    }
+
+    /// [`Spawned::start`] with `env` added to the server's environment.
+    ///
+    /// # Errors
+    /// As [`Spawned::start`].
+    ///
+    /// # Panics
+    /// As [`Spawned::start`].
+    pub async fn start_with_env(
+        binary: &str,
+        args: &[&str],
+        env: &[(String, String)],
+    ) -> Result<Spawned, String> {
         use std::io::{BufRead, BufReader, Read};
         let mut child = std::process::Command::new(binary)
             .args(args)
+            .envs(env.iter().map(|(k, v)| (k, v)))
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::piped())
             .spawn()

@@ -626,6 +626,12 @@ impl Store {
                 ),
             };
         }
+        if let Some(why) = unreachable(&e) {
+            return Error::Unavailable {
+                path: shard,
+                detail: format!("inner chunk {chunk:?} of level {level}: {why}"),
+            };
+        }
         match e {
             ArrayError::CodecError(codec) => Error::Corrupt {
                 path: shard,
@@ -641,19 +647,32 @@ impl Store {
     }
 }
 
-/// Whether `e` comes from an I/O error of kind `NotFound`.
-fn is_not_found(e: &(dyn std::error::Error + 'static)) -> bool {
-    let mut source = Some(e);
-    while let Some(e) = source {
-        let io = e
-            .downcast_ref::<std::io::Error>()
-            .or_else(|| e.downcast_ref::<Arc<std::io::Error>>().map(AsRef::as_ref));
-        if io.is_some_and(|io| io.kind() == std::io::ErrorKind::NotFound) {
-            return true;
-        }
-        source = e.source();
+/// The I/O error a storage read failed with, where `e` is one (zarrs
+/// forwards I/O errors transparently, so they are not among its sources).
+fn storage_io(e: &ArrayError) -> Option<&std::io::Error> {
+    use zarrs::array::codec::api::CodecError;
+    use zarrs::storage::StorageError;
+    match e {
+        ArrayError::StorageError(StorageError::IOError(io))
+        | ArrayError::CodecError(
+            CodecError::StorageError(StorageError::IOError(io)) | CodecError::IOError(io),
+        ) => Some(io),
+        _ => None,
     }
-    false
+}
+
+/// Why an object store did not answer, where `e` comes from that
+/// ([`remote::Unreachable`]).
+fn unreachable(e: &ArrayError) -> Option<String> {
+    storage_io(e)?
+        .get_ref()?
+        .downcast_ref::<remote::Unreachable>()
+        .map(|why| why.0.clone())
+}
+
+/// Whether `e` comes from an I/O error of kind `NotFound`.
+fn is_not_found(e: &ArrayError) -> bool {
+    storage_io(e).is_some_and(|io| io.kind() == std::io::ErrorKind::NotFound)
 }
 
 /// Inner chunks per shard along each axis.

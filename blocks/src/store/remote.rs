@@ -484,6 +484,19 @@ async fn upload_file(
     Ok(())
 }
 
+/// Why an object store's read failed in a way that may pass: it did not
+/// answer, or answered with a server error.
+#[derive(Debug)]
+pub struct Unreachable(pub String);
+
+impl std::fmt::Display for Unreachable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Unreachable {}
+
 /// A store on object storage read by `zarrs`: the objects a listing (or the
 /// manifest) names, each read with the ETag it had then. An object it does
 /// not name reads as absent.
@@ -507,8 +520,23 @@ impl ObjectStorage {
         ObjectStorage { remote, objects }
     }
 
+    /// The storage error for a failed request about `key`: one that may
+    /// pass (no answer, a server error) is an [`Unreachable`] I/O error,
+    /// which the store reads as [`Error::Unavailable`].
     fn failed(&self, key: &str, e: &object_store::Error) -> StorageError {
-        StorageError::Other(self.remote.error(key, e).to_string())
+        let error = self.remote.error(key, e);
+        let lasting = matches!(
+            e,
+            object_store::Error::Precondition { .. }
+                | object_store::Error::PermissionDenied { .. }
+                | object_store::Error::Unauthenticated { .. }
+                | object_store::Error::InvalidPath { .. }
+        ) || error.to_string().contains("access denied");
+        if lasting {
+            StorageError::Other(error.to_string())
+        } else {
+            StorageError::IOError(Arc::new(std::io::Error::other(Unreachable(format!("{e}")))))
+        }
     }
 }
 
