@@ -19,7 +19,8 @@
 //! [`BlockCache::arrivals`] and wakes whoever waits
 //! ([`BlockCache::wait_for_arrivals`], [`BlockCache::subscribe`]); a chunk whose
 //! read failed keeps its error, which the next pin returns (for
-//! [`RETRY_AFTER`] only where the store did not answer: then it is read again).
+//! [`RETRY_AFTER`] after a pin returned it, where the store did not answer:
+//! then it is read again).
 
 use std::collections::{HashMap, HashSet};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -49,17 +50,27 @@ impl Weighter<ChunkKey, Arc<VoxelData>> for Bytes {
 pub type Pinned = HashMap<[u32; 3], Arc<VoxelData>>;
 
 impl Loads {
-    /// The error of `key`'s failed read, unless it was that the store did
-    /// not answer, [`RETRY_AFTER`] or longer ago: then it is forgotten, so
-    /// the chunk is read again.
+    /// The error of `key`'s failed read. One that says the store did not
+    /// answer is forgotten [`RETRY_AFTER`] after a pin first returned it
+    /// (never before anyone saw it), so the chunk is read again.
     fn failure(&mut self, key: ChunkKey) -> Option<Arc<Error>> {
-        let (error, when) = self.failed.get(&key)?;
+        let (error, reported) = self.failed.get(&key)?;
         let passing = matches!(error.as_ref(), Error::Unavailable { .. });
-        if passing && when.elapsed() >= RETRY_AFTER {
+        if passing && reported.is_some_and(|t| t.elapsed() >= RETRY_AFTER) {
             self.failed.remove(&key);
             return None;
         }
         Some(error.clone())
+    }
+
+    /// Marks the failures of `keys` not reported before as reported now.
+    fn report(&mut self, keys: &[ChunkKey]) {
+        let now = Instant::now();
+        for key in keys {
+            if let Some((_, reported @ None)) = self.failed.get_mut(key) {
+                *reported = Some(now);
+            }
+        }
     }
 }
 
@@ -115,8 +126,8 @@ fn start_pool(threads: usize, name: &'static str) -> rayon::ThreadPool {
 }
 
 /// How long a chunk whose store did not answer ([`Error::Unavailable`])
-/// keeps that error before it is read again; other failures (missing,
-/// corrupt) are kept.
+/// keeps that error, once a pin has returned it, before it is read again;
+/// other failures (missing, corrupt) are kept.
 pub const RETRY_AFTER: Duration = Duration::from_secs(1);
 
 /// What the background reads are doing.
@@ -124,8 +135,9 @@ pub const RETRY_AFTER: Duration = Duration::from_secs(1);
 struct Loads {
     /// Chunks being read now.
     in_flight: HashSet<ChunkKey>,
-    /// Chunks whose read failed, with the error and when.
-    failed: HashMap<ChunkKey, (Arc<Error>, Instant)>,
+    /// Chunks whose read failed, with the error and when a pin first
+    /// returned it.
+    failed: HashMap<ChunkKey, (Arc<Error>, Option<Instant>)>,
     /// Called after each arrival.
     listeners: Vec<Listener>,
 }
@@ -304,7 +316,7 @@ impl BlockCache {
         match read {
             Ok(voxels) => self.chunks.insert(key, Arc::new(voxels)),
             Err(e) => {
-                loads.failed.insert(key, (Arc::new(e), Instant::now()));
+                loads.failed.insert(key, (Arc::new(e), None));
             }
         }
         loads.in_flight.remove(&key);
@@ -353,9 +365,12 @@ impl BlockCache {
         if missing.is_empty() {
             return Ok(Some(pinned));
         }
-        if let Some(e) = missing.iter().find_map(|&k| self.lock_loads().failure(k)) {
+        let mut loads = self.lock_loads();
+        if let Some(e) = missing.iter().find_map(|&k| loads.failure(k)) {
+            loads.report(&missing);
             return Err(Error::Shared(e));
         }
+        drop(loads);
         if request {
             self.request(&missing);
         }

@@ -719,7 +719,10 @@ pub fn info(args: &InfoArgs) -> anyhow::Result<()> {
         .file_name()
         .and_then(|n| blocks::store::ingest::leftover_of(&n.to_string_lossy()).map(|_| ()))
         .is_some();
-    if blocks::store::Store::is_store(&args.path) || (leftover && args.path.is_dir()) {
+    if blocks::store::is_url(&args.path.to_string_lossy())
+        || blocks::store::Store::is_store(&args.path)
+        || (leftover && args.path.is_dir())
+    {
         return store_info(args);
     }
     let Opened { mut source, series } = open_for_info(args)?;
@@ -946,7 +949,12 @@ fn write_store(
 
 /// `voxserve verify STORE`: every file against the manifest.
 pub fn verify(args: &VerifyArgs) -> anyhow::Result<()> {
-    let report = blocks::store::verify(&args.store)?;
+    let name = args.store.to_string_lossy();
+    let report = if blocks::store::is_url(&name) {
+        blocks::store::remote::verify(&name)?
+    } else {
+        blocks::store::verify(&args.store)?
+    };
     let problems = report.problems.len();
     if problems > 0 {
         let lines: Vec<String> = report.problems.iter().map(ToString::to_string).collect();
@@ -978,7 +986,17 @@ fn store_info(args: &InfoArgs) -> anyhow::Result<()> {
             lo == hi
         })
         .count();
-    let usage = blocks::store::ingest::folder_usage(&args.path);
+    let usage = match (store.location(), store.manifest()) {
+        (blocks::store::StoreLocation::Remote(_), Some(manifest)) => {
+            let bytes = manifest.files.values().map(|f| f.bytes).sum();
+            blocks::store::ingest::FolderUsage {
+                files: manifest.files.len() as u64 + 1,
+                bytes,
+                allocated: bytes,
+            }
+        }
+        _ => blocks::store::ingest::folder_usage(&args.path),
+    };
     let source_bytes = m.geometry.voxel_count() as f64 * store.voxel_type().size() as f64;
     if args.json {
         return say(&serde_json::to_string_pretty(&serde_json::json!({

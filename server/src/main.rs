@@ -26,6 +26,8 @@ struct Cli {
     /// What to do.
     #[command(subcommand)]
     command: Subcommands,
+    #[command(flatten)]
+    store: server::cli::ObjectStoreArgs,
 }
 
 /// The server's subcommands, and `bench`.
@@ -50,6 +52,7 @@ fn main() -> ExitCode {
     // error (see blocks::ingest::boundary), not as a crash.
     blocks::ingest::boundary::install_panic_hook();
     let cli = Cli::parse();
+    blocks::store::remote::set_policy(cli.store.policy());
     let result = match cli.command {
         Subcommands::Server(command) => server::commands::run(*command),
         Subcommands::Bench(args) => bench::run(&args),

@@ -124,6 +124,36 @@ fn refused_credentials_and_missing_objects_are_named() {
     let png = dir.path().join("scan.png");
     render(&s3.env(), url, &png).expect("a frame");
 
+    // info and verify read it where it is.
+    let out = voxserve(&s3.env(), &["info", url]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let info = text(&out.stdout);
+    assert!(
+        info.contains(url) && info.contains("40 × 30 × 70"),
+        "{info}"
+    );
+    let out = voxserve(&s3.env(), &["verify", url]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("intact"),
+        "{}",
+        text(&out.stdout)
+    );
+    let shard = s3.object_file("scans", "scan.zarr/1/c/0/0/0");
+    let mut bytes = std::fs::read(&shard).expect("a shard");
+    let last = bytes.len() - 1;
+    bytes[last / 2] ^= 0x40;
+    std::fs::write(&shard, &bytes).expect("a changed shard");
+    let out = voxserve(&s3.env(), &["verify", url]);
+    assert!(!out.status.success());
+    let stderr = text(&out.stderr);
+    assert!(
+        stderr.contains("s3://scans/scan.zarr/1/c/0/0/0: changed"),
+        "{stderr}"
+    );
+    bytes[last / 2] ^= 0x40;
+    std::fs::write(&shard, &bytes).expect("the shard as it was");
+
     // Wrong credentials: the bucket is named, and what would let it be read.
     let wrong = s3.env_with_secret("not-the-secret");
     let stderr = render(&wrong, url, &png).expect_err("refused");
@@ -235,5 +265,101 @@ async fn a_server_whose_object_store_stops_names_what_it_lacks_and_recovers_when
     assert!(
         frame == expected,
         "the recovered frame differs from the store on disk's"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_answers_within_the_timeout_are_waited_for_and_slower_ones_reported_after_retries() {
+    let dir = tempfile::tempdir().expect("temp");
+    let raw = dir.path().join("scan_40x30x70_uint16.raw");
+    let bytes: Vec<u8> = (0..40 * 30 * 70u32)
+        .flat_map(|i| (((i * 7) % 4000) as u16).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, bytes).expect("raw");
+    let s3 = S3Server::start(&["scans"]);
+    let url = "s3://scans/scan.zarr";
+    let out = voxserve(
+        &s3.env(),
+        &["ingest", raw.to_str().expect("utf-8"), "--out", url],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let local = dir.path().join("scan.zarr");
+    let out = voxserve(
+        &[],
+        &[
+            "ingest",
+            raw.to_str().expect("utf-8"),
+            "--out",
+            local.to_str().expect("utf-8"),
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let policy = ["--store-timeout-s", "1", "--store-retries", "1"];
+    let args = |dataset: &str| {
+        let mut args = vec![
+            "serve",
+            dataset,
+            "--addr",
+            "127.0.0.1:0",
+            "--renderer",
+            "cpu",
+        ];
+        args.extend(policy);
+        args.into_iter().map(str::to_owned).collect::<Vec<_>>()
+    };
+    let start = |args: Vec<String>, env: Vec<(String, String)>| async move {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        voxserve_tests::server::Spawned::start_with_env(VOXSERVE, &args, &env)
+            .await
+            .unwrap_or_else(|e| panic!("serve: {e}"))
+    };
+    let from_s3 = start(args(url), s3.env()).await;
+    let from_disk = start(args(local.to_str().expect("utf-8")), Vec::new()).await;
+    let view = "/api/render?w=96&h=96&preset=generic";
+
+    // Every answer 2.5 s late, past the 1 s timeout: each read fails, is
+    // tried once more, and the view is refused naming an object.
+    s3.set_delay(std::time::Duration::from_millis(2500));
+    let started = std::time::Instant::now();
+    let (status, body, pending) = get(&from_s3.url, view).await;
+    let message = String::from_utf8_lossy(&body).into_owned();
+    assert!(
+        status >= 500
+            && message.contains("s3://scans/scan.zarr/")
+            && message.contains("unavailable"),
+        "{status} after {:?}, pending {pending:?}: {}",
+        started.elapsed(),
+        message.chars().take(300).collect::<String>()
+    );
+    assert!(
+        started.elapsed() >= std::time::Duration::from_secs(2),
+        "a timed-out read was tried again before it was reported ({:?})",
+        started.elapsed()
+    );
+
+    // 300 ms late, within the timeout: waited for, and the view is drawn
+    // as from the store on disk (after at most one more refusal: reads that
+    // were under way when the first was reported fail later, and are
+    // reported once too).
+    s3.set_delay(std::time::Duration::from_millis(300));
+    let mut answers = Vec::new();
+    let frame = loop {
+        tokio::time::sleep(blocks::cache::RETRY_AFTER).await;
+        let (status, frame, pending) = get(&from_s3.url, view).await;
+        if status == 200 {
+            assert_eq!(pending.as_deref(), Some("0"));
+            break frame;
+        }
+        answers.push(format!("{status}: {}", String::from_utf8_lossy(&frame)));
+        assert!(answers.len() < 3, "not drawn again: {answers:?}");
+    };
+    let (_, expected, _) = get(&from_disk.url, view).await;
+    let frame = image::load_from_memory(&frame).expect("a PNG").to_rgba8();
+    let expected = image::load_from_memory(&expected)
+        .expect("a PNG")
+        .to_rgba8();
+    assert!(
+        frame == expected,
+        "the frame read slowly differs from the store on disk's"
     );
 }

@@ -48,21 +48,28 @@ impl fmt::Display for StoreLocation {
     }
 }
 
+/// A path as given on a command line: an object-store URL
+/// ([`super::is_url`]) is a remote location, anything else a folder.
 impl From<&Path> for StoreLocation {
     fn from(path: &Path) -> StoreLocation {
-        StoreLocation::Folder(path.to_owned())
+        match path.to_str() {
+            Some(name) if super::is_url(name) => {
+                StoreLocation::Remote(name.trim_end_matches('/').to_owned())
+            }
+            _ => StoreLocation::Folder(path.to_owned()),
+        }
     }
 }
 
 impl From<&PathBuf> for StoreLocation {
     fn from(path: &PathBuf) -> StoreLocation {
-        StoreLocation::Folder(path.clone())
+        StoreLocation::from(path.as_path())
     }
 }
 
 impl From<PathBuf> for StoreLocation {
     fn from(path: PathBuf) -> StoreLocation {
-        StoreLocation::Folder(path)
+        StoreLocation::from(path.as_path())
     }
 }
 
@@ -93,5 +100,9 @@ mod tests {
         );
         assert_eq!(remote.to_string(), "s3://bucket/scans/head.zarr");
         assert_eq!(remote.folder(), None);
+        assert_eq!(
+            StoreLocation::from(Path::new("s3://bucket/scans/head.zarr/")),
+            remote
+        );
     }
 }

@@ -441,6 +441,12 @@ impl Store {
         Ok(())
     }
 
+    /// The files a store on disk or on object storage must hold (none for
+    /// one in memory).
+    pub fn manifest(&self) -> Option<&Manifest> {
+        self.manifest.as_deref()
+    }
+
     /// Where the store lives.
     pub fn location(&self) -> &StoreLocation {
         &self.location

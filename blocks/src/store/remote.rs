@@ -47,15 +47,36 @@ use crate::Error;
 pub const SCHEMES: [&str; 8] = ["s3", "s3a", "gs", "az", "abfs", "abfss", "http", "https"];
 /// Requests in flight at once while uploading or checking a store.
 const IN_FLIGHT: usize = 16;
-/// A request's longest wait for a response (a stalled server fails the read,
-/// which is retried).
-const REQUEST_TIMEOUT: Duration = Duration::from_secs(15);
 /// The longest wait for a connection.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
-/// Retries of a failed request (with exponential backoff), and how long they
-/// may take in all.
-const RETRIES: usize = 4;
-const RETRY_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// How requests to object stores wait and retry (`--store-timeout-s`,
+/// `--store-retries`, whose defaults are the server's); set once per
+/// process with [`set_policy`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Policy {
+    /// A request's longest wait for its whole answer: a stalled server
+    /// fails the request, which is retried.
+    pub timeout: Duration,
+    /// Retries of a failed request (with exponential backoff) before the
+    /// read fails.
+    pub retries: usize,
+}
+
+static POLICY: OnceLock<Policy> = OnceLock::new();
+
+/// Sets how every later request waits and retries; the first call wins.
+pub fn set_policy(policy: Policy) {
+    let _ = POLICY.set(policy);
+}
+
+/// The policy set, or the defaults.
+fn policy() -> Policy {
+    *POLICY.get_or_init(|| Policy {
+        timeout: Duration::from_secs(15),
+        retries: 4,
+    })
+}
 /// Files up to this size are uploaded in one request; larger ones in parts.
 const PART_BYTES: usize = 8 << 20;
 
@@ -147,12 +168,15 @@ impl Remote {
                 "no bucket: expected s3://bucket/prefix/name.zarr".into()
             ));
         }
+        let Policy { timeout, retries } = policy();
         let client = ClientOptions::new()
-            .with_timeout(REQUEST_TIMEOUT)
-            .with_connect_timeout(CONNECT_TIMEOUT);
+            .with_timeout(timeout)
+            .with_connect_timeout(CONNECT_TIMEOUT.min(timeout));
+        // Retries end at whichever comes first: their count, or twice the
+        // time they could take without backoff.
         let retry = RetryConfig {
-            max_retries: RETRIES,
-            retry_timeout: RETRY_TIMEOUT,
+            max_retries: retries,
+            retry_timeout: timeout * 2 * (retries as u32 + 1),
             ..RetryConfig::default()
         };
         let built: Result<(Arc<dyn ObjectStore>, ObjectPath), object_store::Error> =
@@ -174,10 +198,10 @@ impl Remote {
                     .filter(|(k, _)| k.starts_with("GOOGLE_") || k.starts_with("AZURE_"))
                     .map(|(k, v)| (k.to_ascii_lowercase(), v))
                     .collect();
-                options.push(("timeout".into(), format!("{}s", REQUEST_TIMEOUT.as_secs())));
+                options.push(("timeout".into(), format!("{}s", timeout.as_secs())));
                 options.push((
                     "connect_timeout".into(),
-                    format!("{}s", CONNECT_TIMEOUT.as_secs()),
+                    format!("{}s", CONNECT_TIMEOUT.min(timeout).as_secs()),
                 ));
                 if scheme == "http" {
                     options.push(("allow_http".into(), "true".into()));
@@ -431,6 +455,67 @@ impl Remote {
             })?;
         Ok((count + 1, bytes))
     }
+}
+
+/// Checks every object of the store at `url` against its manifest, as
+/// [`super::verify`] checks a folder: sizes and SHA-256 of every listed
+/// object (read `REMOTE_READERS` at a time), and no objects beside them.
+pub fn verify(url: &str) -> Result<super::Verification, Error> {
+    use rayon::prelude::*;
+    let remote = Remote::parse(url)?;
+    let text = remote
+        .get(MANIFEST_KEY, super::manifest::MAX_MANIFEST_BYTES)?
+        .ok_or_else(|| Manifest::missing(&remote.file(MANIFEST_KEY)))?;
+    let manifest = Manifest::parse(&text, &remote.file(MANIFEST_KEY))?;
+    let listing = remote.list()?;
+    let problem = |key: &str, what: String| super::manifest::Problem {
+        path: remote.file(key),
+        what,
+    };
+    let mut problems: Vec<super::manifest::Problem> =
+        crate::cache::remote_reader_pool().install(|| {
+            manifest
+                .files
+                .par_iter()
+                .filter_map(|(key, entry)| {
+                    let missing = || "missing: the manifest lists it".to_owned();
+                    let what = match listing.get(key) {
+                        None => missing(),
+                        Some(object) if object.bytes != entry.bytes => {
+                            format!("{} bytes: the manifest says {}", object.bytes, entry.bytes)
+                        }
+                        Some(_) => match remote.get(key, entry.bytes) {
+                            Ok(None) => missing(),
+                            Err(e) => format!("unreadable: {e}"),
+                            Ok(Some(bytes))
+                                if super::manifest::sha256_hex(&bytes) != entry.sha256 =>
+                            {
+                                "changed: its SHA-256 differs from the manifest's".to_owned()
+                            }
+                            Ok(Some(_)) => return None,
+                        },
+                    };
+                    Some(problem(key, what))
+                })
+                .collect()
+        });
+    problems.extend(
+        listing
+            .keys()
+            .filter(|key| *key != MANIFEST_KEY && !manifest.lists(key))
+            .map(|key| {
+                problem(
+                    key,
+                    "not in the manifest: the ingest did not write it".into(),
+                )
+            }),
+    );
+    problems.sort_by(|a, b| a.path.cmp(&b.path));
+    Ok(super::Verification {
+        files: manifest.files.len(),
+        bytes: manifest.files.values().map(|f| f.bytes).sum(),
+        problems,
+    })
 }
 
 /// Why a file's upload failed.

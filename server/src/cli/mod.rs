@@ -340,6 +340,33 @@ impl InputArgs {
     }
 }
 
+/// How stores on object storage are reached (flags of every command).
+#[derive(Debug, Clone, Copy, Args)]
+pub struct ObjectStoreArgs {
+    /// Longest wait, in seconds, for an object store's whole answer to one
+    /// request (s3://, gs://, az://, https:// stores); a request that waits
+    /// longer fails and is retried.
+    #[arg(long, global = true, default_value_t = 15, value_name = "S",
+          value_parser = clap::value_parser!(u64).range(1..=600))]
+    pub store_timeout_s: u64,
+    /// Retries of a failed object-store request, with exponential backoff,
+    /// before its blocks are reported unavailable (they are read again at a
+    /// later frame).
+    #[arg(long, global = true, default_value_t = 4, value_name = "N",
+          value_parser = clap::value_parser!(u64).range(0..=20))]
+    pub store_retries: u64,
+}
+
+impl ObjectStoreArgs {
+    /// The policy of every object-store request.
+    pub fn policy(&self) -> blocks::store::remote::Policy {
+        blocks::store::remote::Policy {
+            timeout: std::time::Duration::from_secs(self.store_timeout_s),
+            retries: self.store_retries as usize,
+        }
+    }
+}
+
 /// `voxserve ingest`.
 #[derive(Debug, Args)]
 pub struct IngestArgs {
