@@ -372,7 +372,9 @@ impl ObjectStoreArgs {
 pub struct IngestArgs {
     /// A volume file (raw, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd, .dcm) or a folder of DICOM files.
     pub input: PathBuf,
-    /// The store to write (a folder; written under a temporary name and renamed when complete).
+    /// The store to write: a folder (written under a temporary name and renamed
+    /// when complete), or an object-store URL (s3://bucket/prefix/name.zarr:
+    /// written locally, then uploaded, its manifest last).
     #[arg(long, short)]
     pub out: PathBuf,
     /// Replace the brick store at --out if there is one (only a brick store: any
@@ -390,14 +392,16 @@ pub struct IngestArgs {
 /// `voxserve verify`.
 #[derive(Debug, Args)]
 pub struct VerifyArgs {
-    /// The brick store (a folder written by `voxserve ingest`).
+    /// The brick store (a folder written by `voxserve ingest`, or its
+    /// object-store URL).
     pub store: PathBuf,
 }
 
 /// `voxserve info`.
 #[derive(Debug, Args)]
 pub struct InfoArgs {
-    /// A volume file (raw, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd, .dcm) or a folder of DICOM files.
+    /// A volume file (raw, .nrrd, .nhdr, .nii, .nii.gz, .mha, .mhd, .dcm), a folder of DICOM
+    /// files, or a brick store (a folder or an object-store URL).
     pub path: PathBuf,
     /// Print JSON instead of text.
     #[arg(long)]
@@ -427,11 +431,13 @@ fn parse_notice(text: &str) -> Result<String, String> {
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// The datasets to serve, the first being the default: `phantom` (the
-    /// built-in CT head phantom), brick stores (`voxserve ingest`), volume
-    /// files or folders of DICOM files (bricked in memory at start).
+    /// built-in CT head phantom), brick stores (`voxserve ingest`; folders, or
+    /// s3://, gs://, az:// or https:// URLs), volume files or folders of DICOM
+    /// files (bricked in memory at start).
     #[arg(default_values_t = [PHANTOM_ID.to_owned()], value_name = "DATASET")]
     pub datasets: Vec<String>,
-    /// Also serve every brick store in this folder (after the DATASETs).
+    /// Also serve every brick store in this folder or object-store prefix
+    /// (s3://bucket/prefix/), after the DATASETs.
     #[arg(long = "data", value_name = "DIR")]
     pub data_dir: Option<PathBuf>,
     /// Receive studies (STOW-RS, `POST /dicom-web/studies`) into this
@@ -751,7 +757,8 @@ impl StreamArgs {
 #[derive(Debug, Args)]
 pub struct RenderArgs {
     /// The dataset to render: `phantom` (the built-in CT head phantom), a brick
-    /// store (`voxserve ingest`), a volume file or a folder of DICOM files.
+    /// store (`voxserve ingest`; a folder, or an s3://, gs://, az:// or https://
+    /// URL), a volume file or a folder of DICOM files.
     #[arg(default_value = PHANTOM_ID)]
     pub dataset: String,
     /// The PNG file to write [default: DATASET.png].
