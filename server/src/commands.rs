@@ -887,7 +887,10 @@ fn write_store(
     let out_name = out.to_string_lossy().into_owned();
     let remote = if blocks::store::is_url(&out_name) {
         let remote = blocks::store::Remote::parse(&out_name)?;
-        let existing = remote.get("zarr.json", blocks::store::manifest::MAX_METADATA_BYTES)?;
+        let existing = remote.get(
+            blocks::store::manifest::MANIFEST_KEY,
+            blocks::store::manifest::MAX_MANIFEST_BYTES,
+        )?;
         if existing.is_some() && !force {
             anyhow::bail!(
                 "--out {out_name}: a store is there already: expected --force to replace it"

@@ -20,9 +20,11 @@
 //! `AWS_ENDPOINT_URL` names one.
 //!
 //! Writing ([`Remote::upload`]): an ingest writes the store to a local folder
-//! first, then uploads it: the old manifest is deleted first (a store without
-//! one is refused as incomplete), then every file, then objects of an older
-//! store that the new one lacks, and the manifest last.
+//! first, then uploads it, only to an empty prefix or over a brick store:
+//! the old manifest is deleted first (a store without one is refused as
+//! incomplete), then every file goes up, then the files the old manifest
+//! listed and the new one lacks are deleted (no other object), and the
+//! manifest goes last.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -388,6 +390,23 @@ impl Remote {
     pub fn upload(&self, folder: &Path) -> Result<(usize, u64), Error> {
         let manifest = Manifest::read(folder)?;
         let before = self.list()?;
+        // What the old store listed: only its files are ever deleted, never
+        // other objects under the prefix.
+        let old = match self.get(MANIFEST_KEY, super::manifest::MAX_MANIFEST_BYTES)? {
+            Some(text) => Some(Manifest::parse(&text, &self.file(MANIFEST_KEY))?),
+            None => None,
+        };
+        if old.is_none() && !before.is_empty() {
+            return Err(Error::Field {
+                path: self.file(""),
+                field: "output".into(),
+                message: format!(
+                    "holds {} objects but no brick store: expected an empty prefix or a brick \
+                     store to replace (nothing was written)",
+                    before.len()
+                ),
+            });
+        }
         let store = self.store.clone();
         if before.contains_key(MANIFEST_KEY) {
             let path = self.path(MANIFEST_KEY);
@@ -426,9 +445,10 @@ impl Remote {
             }
             Err((key, UploadError::Store(e))) => return Err(self.error(&key, &e)),
         }
-        let stale: Vec<ObjectPath> = before
-            .keys()
-            .filter(|key| *key != MANIFEST_KEY && !manifest.lists(key))
+        let stale: Vec<ObjectPath> = old
+            .iter()
+            .flat_map(|old| old.files.keys())
+            .filter(|key| before.contains_key(*key) && !manifest.lists(key))
             .map(|key| self.path(key))
             .collect();
         if !stale.is_empty() {
