@@ -63,11 +63,15 @@ impl Loads {
         Some(error.clone())
     }
 
-    /// Marks the failures of `keys` not reported before as reported now.
-    fn report(&mut self, keys: &[ChunkKey]) {
+    /// Marks every failure not reported before as reported now, those of
+    /// other chunks too: one refusal stands for them all (they are the same
+    /// store not answering), so once it answers again they are all read
+    /// again together rather than refusing one view after another, each
+    /// for the next chunk that failed during the outage.
+    fn report_all(&mut self) {
         let now = Instant::now();
-        for key in keys {
-            if let Some((_, reported @ None)) = self.failed.get_mut(key) {
+        for (_, reported) in self.failed.values_mut() {
+            if reported.is_none() {
                 *reported = Some(now);
             }
         }
@@ -367,7 +371,7 @@ impl BlockCache {
         }
         let mut loads = self.lock_loads();
         if let Some(e) = missing.iter().find_map(|&k| loads.failure(k)) {
-            loads.report(&missing);
+            loads.report_all();
             return Err(Error::Shared(e));
         }
         drop(loads);
