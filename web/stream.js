@@ -144,8 +144,12 @@ export class ViewStream {
         this.retryRefused();
         return;
       }
-      this.fail('connection to the server lost: reconnecting…');
-      setTimeout(() => this.connect(), 1000);
+      // 1001: the server (a node behind a load balancer) is draining; the
+      // next session may open on another node at once.
+      const away = event.code === 1001;
+      this.fail(away ? 'the server is restarting: reconnecting…'
+        : 'connection to the server lost: reconnecting…');
+      setTimeout(() => this.connect(), away ? 250 : 1000);
     };
     this.socket = socket;
   }

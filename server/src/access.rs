@@ -13,6 +13,10 @@
 //!   browser: scripts, the benchmarks), when its `Origin` names the host the
 //!   request went to (the server's own pages), or when it is one of
 //!   [`Access::allowed_origins`]; else 403.
+//! - **Client address**: the connection's peer, or, where the peer is one of
+//!   [`Access::trusted_proxies`] (a load balancer), the address its
+//!   `X-Forwarded-For` names ([`crate::listen::forwarded_client`]): what
+//!   the audit trail records and per-client limits count.
 //! - **Response headers** (every response, [`security_headers`]): a
 //!   Content-Security-Policy that lets the web client load only its own
 //!   scripts, styles and images and talk only to this server and the
@@ -48,6 +52,10 @@ pub struct Access {
     pub frame_ancestors: Vec<String>,
     /// How often one client may call the API.
     pub requests: crate::client::RequestRate,
+    /// Load balancers and reverse proxies whose `X-Forwarded-For` names
+    /// the client ([`crate::listen::forwarded_client`]); their own
+    /// connections are not capped per client.
+    pub trusted_proxies: Vec<IpAddr>,
 }
 
 /// Why a request was not let in.

@@ -11,7 +11,7 @@
 //! | `GET /api/datasets/{id}` | one dataset's description; 404 for an unknown id |
 //! | `GET /api/datasets/{id}/render?…` | `GET /api/render` for that dataset (thumbnails, embedding) |
 //! | `GET /metrics` | OpenMetrics text: [`crate::metrics`] |
-//! | `GET /healthz` | `{"status":"ok"}` (and the `adapter` when the server has no authentication) |
+//! | `GET /healthz` | `{"status":"ok"}` when the node can render ([`crate::health`]); 503 with `status` `starting`, `unavailable` or `draining` when not (with the `adapter`, and the `error`, when the server has no authentication) |
 //! | `POST /dicom-web/studies`, `POST /dicom-web/studies/{study}` | STOW-RS: [`crate::receive`] (with `--receive`; a store role) |
 //! | `GET /api/auth` | how to log in: `{"required":…,"oidc":{"issuer","client_id","scopes","authorization_endpoint","token_endpoint"}|null,"api_tokens":…}` |
 //!
@@ -50,6 +50,10 @@ use crate::metrics::{Format, FrameTimes, Metrics, Quality, Source};
 use crate::stream::{Sessions, StreamSettings};
 use crate::{AppError, Dataset, RenderService, View, encode, web};
 
+/// How long sessions may take to finish their frames when the server
+/// drains, unless `serve --drain-s` says otherwise.
+pub const DEFAULT_DRAIN: Duration = Duration::from_secs(30);
+
 /// What every handler shares.
 #[derive(Debug, Clone)]
 pub struct AppState {
@@ -65,6 +69,16 @@ pub struct AppState {
     /// Cancelled when the server shuts down ([`run`] does it): every view
     /// session then closes (1001, going away).
     pub shutdown: CancellationToken,
+    /// Cancelled when the server starts draining ([`run`]): `/healthz`
+    /// answers 503, new sessions are refused, and each session finishes
+    /// the frame it renders, then closes (1001, on which the web client
+    /// reconnects, through a load balancer to another node).
+    pub draining: CancellationToken,
+    /// How long [`run`] lets sessions finish their frames before it closes
+    /// them (`serve --drain-s`).
+    pub drain_timeout: Duration,
+    /// The health probes' results, for `/healthz` ([`crate::health`]).
+    pub health: Arc<crate::health::Health>,
     /// What the server has done, for `GET /metrics`.
     pub metrics: Arc<Metrics>,
     /// Who may reach the server, and how many connections it keeps.
@@ -160,6 +174,9 @@ impl AppState {
             stream,
             sessions: Sessions::new(stream.max_sessions, stream.sessions_per_client),
             shutdown: CancellationToken::new(),
+            draining: CancellationToken::new(),
+            drain_timeout: DEFAULT_DRAIN,
+            health: Arc::default(),
             metrics: Arc::new(metrics),
             access: Arc::new(Access::default()),
             auth: Arc::new(Auth::default()),
@@ -297,9 +314,13 @@ pub fn router(state: AppState) -> Router {
 }
 
 /// Serves the application on `listener` under `state.access`'s connection
-/// limits ([`crate::listen`]) until `shutdown` resolves, then finishes the
-/// requests in flight, closes the view sessions (cancelling
-/// `state.shutdown`) and returns once every session has ended.
+/// limits ([`crate::listen`]) until `shutdown` resolves, then drains: stops
+/// accepting connections (a load balancer sends new ones to another node),
+/// answers `/healthz` with 503 `draining` on connections still open,
+/// finishes the requests in flight, lets each view session finish the
+/// frame it renders and close (`state.draining`), closes those still open
+/// after `state.drain_timeout` (`state.shutdown`), and returns once every
+/// session has ended. The first health probe starts here.
 pub async fn run(
     listener: TcpListener,
     state: AppState,
@@ -307,20 +328,44 @@ pub async fn run(
 ) -> std::io::Result<()> {
     let sessions = state.sessions.clone();
     let token = state.shutdown.clone();
+    let draining = state.draining.clone();
+    let drain = state.drain_timeout;
     let limits = state.access.connections;
     let tls = state.tls.clone();
     let stop = CancellationToken::new();
     let stopping = stop.clone();
+    let starting = draining.clone();
     tokio::spawn(async move {
         shutdown.await;
+        starting.cancel();
         stopping.cancel();
-        token.cancel();
     });
-    let served = crate::listen::serve(listener, router(state), limits, tls, stop.clone()).await;
+    // The drain's deadline counts from when it begins, whatever the
+    // requests in flight take.
+    let (begun, closing, open) = (draining.clone(), token.clone(), sessions.clone());
+    tokio::spawn(async move {
+        begun.cancelled().await;
+        let at_start = open.open();
+        tokio::time::sleep(drain).await;
+        if open.open() > 0 {
+            tracing::warn!(
+                "{} of {at_start} view sessions still open after {} s of draining: closing them",
+                open.open(),
+                drain.as_secs_f64()
+            );
+        }
+        closing.cancel();
+    });
+    crate::health::Health::refresh(&state);
+    let trusted: Arc<[IpAddr]> = state.access.trusted_proxies.clone().into();
+    let served =
+        crate::listen::serve(listener, router(state), limits, trusted, tls, stop.clone()).await;
     stop.cancel();
+    draining.cancel();
     // Upgraded connections are no longer the listener's: it does not wait
     // for them, so wait for the sessions here.
     sessions.all_closed().await;
+    token.cancel();
     served
 }
 
@@ -328,12 +373,39 @@ async fn static_file(uri: Uri) -> Result<Response, AppError> {
     web::asset(&uri)
 }
 
-async fn healthz(State(state): State<AppState>) -> Json<serde_json::Value> {
-    if state.auth.required() {
-        Json(serde_json::json!({ "status": "ok" }))
-    } else {
-        Json(serde_json::json!({ "status": "ok", "adapter": state.renderer.adapter() }))
+/// 200 `{"status":"ok"}` when the node can render ([`crate::health`]),
+/// else 503 with `status` `starting`, `unavailable` or `draining`; without
+/// authentication also the `adapter`, and why an unavailable node is.
+async fn healthz(State(state): State<AppState>) -> Response {
+    use crate::health::{Health, Readiness};
+    let readiness = Health::readiness(&state).await;
+    let (code, status, why) = match readiness {
+        Readiness::Ready => (axum::http::StatusCode::OK, "ok", None),
+        Readiness::Starting => (
+            axum::http::StatusCode::SERVICE_UNAVAILABLE,
+            "starting",
+            Some("the first probe frame has not rendered yet".to_owned()),
+        ),
+        Readiness::Unready(why) => (
+            axum::http::StatusCode::SERVICE_UNAVAILABLE,
+            "unavailable",
+            Some(why),
+        ),
+        Readiness::Draining => (
+            axum::http::StatusCode::SERVICE_UNAVAILABLE,
+            "draining",
+            Some("the server is shutting down".to_owned()),
+        ),
+    };
+    let mut body = serde_json::json!({ "status": status });
+    // Strangers learn nothing more of a server with authentication.
+    if !state.auth.required() {
+        body["adapter"] = state.renderer.adapter().into();
+        if let Some(why) = why {
+            body["error"] = why.into();
+        }
     }
+    (code, Json(body)).into_response()
 }
 
 async fn auth_config(State(state): State<AppState>) -> Json<serde_json::Value> {

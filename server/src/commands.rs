@@ -265,6 +265,24 @@ async fn auth_of(args: &AuthArgs) -> anyhow::Result<(crate::auth::Auth, crate::a
     Ok((auth, audit))
 }
 
+/// Resolves on `SIGTERM` (an orchestrator, systemd, a deployment script
+/// asking the server to drain).
+#[cfg(unix)]
+fn terminated() -> anyhow::Result<impl Future<Output = ()>> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut terminate = signal(SignalKind::terminate()).context("cannot listen for SIGTERM")?;
+    Ok(async move {
+        terminate.recv().await;
+    })
+}
+
+/// Never resolves: there is no `SIGTERM` here (Ctrl-C drains).
+#[cfg(not(unix))]
+#[expect(clippy::unnecessary_wraps, reason = "the same signature as on unix")]
+fn terminated() -> anyhow::Result<impl Future<Output = ()>> {
+    Ok(std::future::pending())
+}
+
 /// On `SIGHUP`: reads the TLS certificate again and reopens the audit log.
 #[cfg(unix)]
 fn reload_on_hangup(state: &AppState) -> anyhow::Result<()> {
@@ -541,6 +559,7 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .with_access(access)
         .with_auth(auth, audit)
         .with_notice(args.notice.clone());
+    state.drain_timeout = std::time::Duration::from_secs(args.drain_s);
     if let Some(tls) = tls {
         state = state.with_tls(tls);
     }
@@ -570,12 +589,19 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         names.join(", "),
         state.renderer.adapter()
     ))?;
-    let shutdown = async {
-        if let Err(e) = tokio::signal::ctrl_c().await {
-            tracing::error!("cannot listen for Ctrl-C: {e}");
-            std::future::pending::<()>().await;
+    let terminated = terminated()?;
+    let drain_s = args.drain_s;
+    let shutdown = async move {
+        tokio::select! {
+            interrupted = tokio::signal::ctrl_c() => {
+                if let Err(e) = interrupted {
+                    tracing::error!("cannot listen for Ctrl-C: {e}");
+                    std::future::pending::<()>().await;
+                }
+            }
+            () = terminated => {}
         }
-        tracing::info!("shutting down");
+        tracing::info!("draining: sessions finish their frames (at most {drain_s} s), then close");
     };
     crate::run(listener, state, shutdown).await?;
     Ok(())

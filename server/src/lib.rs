@@ -3,8 +3,9 @@
 //!
 //! # Layout
 //! - [`app`]: the axum router, [`AppState`], and [`run`](app::run), which serves on
-//!   a listener until a shutdown future resolves, then closes the view sessions
-//!   and returns when they have ended (tests use port 0).
+//!   a listener until a shutdown future resolves, then drains (the view
+//!   sessions finish their frames and close) and returns when they have ended
+//!   (tests use port 0); [`health`]: what `/healthz` answers (probes).
 //! - [`access`]: [`access::Access`], who may reach the server: the `Host`
 //!   names it answers to, the web origins that may open view sessions.
 //! - [`auth`]: [`auth::Auth`], who is asking (OpenID Connect access tokens,
@@ -59,6 +60,7 @@ pub mod dataset;
 pub mod dimse;
 pub mod encode;
 pub mod error;
+pub mod health;
 pub mod listen;
 pub mod metrics;
 pub mod pacs;

@@ -26,7 +26,7 @@
 use std::collections::HashMap;
 use std::future::Future;
 use std::io;
-use std::net::IpAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::pin::{Pin, pin};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -284,13 +284,35 @@ impl AsyncWrite for Tracked {
     }
 }
 
+/// The client a trusted proxy forwarded a request for: the rightmost
+/// address of `X-Forwarded-For` that is not itself one of `trusted` (those
+/// left of it are whatever the client sent, and prove nothing). `None` when
+/// there is no such header, every address in it is trusted, or an entry is
+/// not an IP address (then the proxy itself counts as the client).
+pub fn forwarded_client(headers: &axum::http::HeaderMap, trusted: &[IpAddr]) -> Option<IpAddr> {
+    let mut entries = Vec::new();
+    for value in headers.get_all("x-forwarded-for") {
+        entries.extend(value.to_str().ok()?.split(',').map(str::trim));
+    }
+    for entry in entries.iter().rev() {
+        let address: IpAddr = entry.parse().ok()?;
+        if !trusted.contains(&address) {
+            return Some(address);
+        }
+    }
+    None
+}
+
 /// Serves `router` on `listener` under `limits` until `stop` is cancelled,
 /// then lets every connection finish its requests in flight and returns when
-/// they have (upgraded connections are not waited for).
+/// they have (upgraded connections are not waited for). A request from one
+/// of `trusted` counts as from the client it forwards
+/// ([`forwarded_client`]); their connections are not capped per client.
 pub async fn serve(
     listener: TcpListener,
     router: Router,
     limits: ConnectionLimits,
+    trusted: Arc<[IpAddr]>,
     tls: Option<Arc<crate::tls::Tls>>,
     stop: CancellationToken,
 ) -> io::Result<()> {
@@ -325,7 +347,17 @@ pub async fn serve(
         if let Err(e) = stream.set_nodelay(true) {
             tracing::debug!("TCP_NODELAY on a connection from {client}: {e}");
         }
-        let (id, activity, close) = connections.lock().admit(client.ip(), &limits);
+        let proxy = trusted.contains(&client.ip());
+        let capped = if proxy {
+            ConnectionLimits {
+                per_client: usize::MAX,
+                ..limits
+            }
+        } else {
+            limits
+        };
+        let (id, activity, close) = connections.lock().admit(client.ip(), &capped);
+        let trusted = trusted.clone();
         let tracked = Tracked {
             stream,
             activity: activity.clone(),
@@ -336,7 +368,13 @@ pub async fn serve(
                 .clone()
                 .map_request(
                     move |mut request: axum::extract::Request<hyper::body::Incoming>| {
-                        request.extensions_mut().insert(ConnectInfo(client));
+                        let from = if proxy {
+                            forwarded_client(request.headers(), &trusted)
+                                .map_or(client, |ip| SocketAddr::new(ip, client.port()))
+                        } else {
+                            client
+                        };
+                        request.extensions_mut().insert(ConnectInfo(from));
                         request
                     },
                 )
@@ -460,6 +498,35 @@ async fn accept_failed(error: &io::Error, connections: &Connections) {
 mod tests {
     use super::*;
 
+    #[test]
+    fn a_trusted_proxy_s_client_is_the_rightmost_untrusted_forwarded_address() {
+        let proxy: IpAddr = [10, 0, 0, 1].into();
+        let inner: IpAddr = [10, 0, 0, 2].into();
+        let with = |values: &[&str]| {
+            let mut headers = axum::http::HeaderMap::new();
+            for value in values {
+                headers.append("x-forwarded-for", value.parse().expect("a header value"));
+            }
+            forwarded_client(&headers, &[proxy, inner])
+        };
+        // What the client wrote itself (left) proves nothing.
+        assert_eq!(with(&["6.6.6.6, 192.0.2.7"]), Some([192, 0, 2, 7].into()));
+        // Proxies in a chain are skipped, over several header lines too.
+        assert_eq!(
+            with(&["192.0.2.7, 10.0.0.2", "10.0.0.1"]),
+            Some([192, 0, 2, 7].into())
+        );
+        assert_eq!(
+            with(&["2001:db8::5"]),
+            Some("2001:db8::5".parse().expect("v6"))
+        );
+        // None: the proxy itself is the client.
+        assert_eq!(with(&[]), None);
+        assert_eq!(with(&["10.0.0.1"]), None);
+        assert_eq!(with(&["192.0.2.7, not-an-address"]), None);
+        assert_eq!(with(&["192.0.2.7:4711"]), None);
+    }
+
     fn limits(max_connections: usize, per_client: usize) -> ConnectionLimits {
         ConnectionLimits {
             max_connections,
@@ -525,7 +592,14 @@ mod tests {
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let addr = listener.local_addr().expect("address");
         let stop = CancellationToken::new();
-        tokio::spawn(serve(listener, router, limits, None, stop.clone()));
+        tokio::spawn(serve(
+            listener,
+            router,
+            limits,
+            Arc::from([]),
+            None,
+            stop.clone(),
+        ));
         let mut stream = TcpStream::connect(addr).await.expect("connect");
         stream
             .write_all(b"GET /slow HTTP/1.1\r\nHost: localhost\r\n\r\n")

@@ -73,8 +73,9 @@
 //! | 36 | f32 | milliseconds the render waited for the GPU behind other sessions |
 //! | 40 | f32 | share of the volume's blocks the transfer function leaves empty (0 to 1; skipped, not counted in the reduction) |
 //!
-//! When the server shuts down it closes every session with code 1001 (going
-//! away). A session without a message from the client for
+//! When the server shuts down (drains) it sends each session the frame it
+//! is rendering, then closes it with code 1001 (going away), on which the
+//! client reconnects and sends its whole view again. A session without a message from the client for
 //! [`crate::stream::StreamSettings::session_idle_s`] is closed with
 //! [`CLOSE_IDLE`] (the client reconnects when the user acts again); one
 //! whose peer has not answered a ping for [`PEER_PATIENCE`] seconds is

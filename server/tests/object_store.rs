@@ -4,6 +4,7 @@
 
 use std::path::Path;
 use std::process::{Command, Output};
+use std::time::Duration;
 
 use voxserve_tests::s3::S3Server;
 
@@ -270,6 +271,14 @@ async fn a_server_whose_object_store_stops_names_what_it_lacks_and_recovers_when
         "{status}: {message}"
     );
 
+    // /healthz says so once a probe has read the store's root again (the
+    // last success is answered until then): 503 unavailable, naming it.
+    let health = healthz_until(&from_s3.url, 503, Duration::from_secs(60)).await;
+    assert!(
+        health.contains("\"unavailable\"") && health.contains("s3://scans/ct/engine.zarr/"),
+        "{health}"
+    );
+
     // Back: after RETRY_AFTER the same view reads them and draws what the
     // store on disk draws (after at most one more refusal: reads under way
     // when the first was reported fail later, and are reported once too).
@@ -299,6 +308,26 @@ async fn a_server_whose_object_store_stops_names_what_it_lacks_and_recovers_when
         frame == expected,
         "the recovered frame differs from the store on disk's"
     );
+    // Ready again.
+    healthz_until(&from_s3.url, 200, Duration::from_secs(30)).await;
+}
+
+/// Asks `base`'s `/healthz` every 200 ms until it answers `status`, within
+/// `patience`; the body.
+async fn healthz_until(base: &str, status: u16, patience: Duration) -> String {
+    let start = std::time::Instant::now();
+    loop {
+        let (answer, body, _) = get(base, "/healthz").await;
+        let body = String::from_utf8_lossy(&body).into_owned();
+        if answer == status {
+            return body;
+        }
+        assert!(
+            start.elapsed() < patience,
+            "/healthz did not answer {status} within {patience:?}: {answer} {body}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -352,7 +381,7 @@ async fn slow_answers_within_the_timeout_are_waited_for_and_slower_ones_reported
 
     // Every answer 2.5 s late, past the 1 s timeout: each read fails, is
     // tried once more, and the view is refused naming an object.
-    s3.set_delay(std::time::Duration::from_millis(2500));
+    s3.set_delay(Duration::from_millis(2500));
     let started = std::time::Instant::now();
     let (status, body, pending) = get(&from_s3.url, view).await;
     let message = String::from_utf8_lossy(&body).into_owned();
@@ -365,7 +394,7 @@ async fn slow_answers_within_the_timeout_are_waited_for_and_slower_ones_reported
         message.chars().take(300).collect::<String>()
     );
     assert!(
-        started.elapsed() >= std::time::Duration::from_secs(2),
+        started.elapsed() >= Duration::from_secs(2),
         "a timed-out read was tried again before it was reported ({:?})",
         started.elapsed()
     );
@@ -374,7 +403,7 @@ async fn slow_answers_within_the_timeout_are_waited_for_and_slower_ones_reported
     // as from the store on disk (after at most one more refusal: reads that
     // were under way when the first was reported fail later, and are
     // reported once too).
-    s3.set_delay(std::time::Duration::from_millis(300));
+    s3.set_delay(Duration::from_millis(300));
     let mut answers = Vec::new();
     let frame = loop {
         tokio::time::sleep(blocks::cache::RETRY_AFTER).await;

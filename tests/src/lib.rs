@@ -22,6 +22,8 @@
 //!   loaded through its REST API.
 //! - [`s3`]: a real S3-compatible server (`s3s-fs`) on a loopback port,
 //!   which can be stopped, started again and slowed.
+//! - [`nginx`]: nginx on a loopback port as the load balancer in front of
+//!   render nodes, with the configuration the README documents.
 //! - [`malformed`]: a generated corpus of malformed and hostile volume files,
 //!   as a table of cases with the words each error must contain.
 
@@ -31,6 +33,7 @@ pub mod gpu;
 pub mod image_compare;
 pub mod issuer;
 pub mod malformed;
+pub mod nginx;
 pub mod orthanc;
 pub mod phantom;
 #[path = "../../server/src/bench/reference_data.rs"]

@@ -32,7 +32,8 @@ impl Drop for Orthanc {
     }
 }
 
-fn find(program: &str) -> Option<PathBuf> {
+/// `program` on the `PATH`, or in `/usr/sbin` (Debian's daemons).
+pub(crate) fn find(program: &str) -> Option<PathBuf> {
     let path = std::env::var_os("PATH").unwrap_or_default();
     std::env::split_paths(&path)
         .chain([PathBuf::from("/usr/sbin")])

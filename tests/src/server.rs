@@ -226,6 +226,39 @@ impl Spawned {
         self.child.id()
     }
 
+    /// Asks the server to drain and exit (SIGTERM), as an orchestrator does.
+    ///
+    /// # Panics
+    /// When `kill` cannot be run or fails.
+    pub fn terminate(&self) {
+        let sent = std::process::Command::new("kill")
+            .args(["-TERM", &self.pid().to_string()])
+            .status()
+            .expect("running kill");
+        assert!(sent.success(), "kill -TERM {}: {sent}", self.pid());
+    }
+
+    /// Waits up to `patience` for the server to exit: its exit status and
+    /// what it wrote to stderr, or `Err(self)` while it still runs.
+    ///
+    /// # Errors
+    /// The server itself, when it is still running after `patience`.
+    pub fn wait_exit(
+        mut self,
+        patience: std::time::Duration,
+    ) -> Result<(std::process::ExitStatus, String), Spawned> {
+        let start = std::time::Instant::now();
+        loop {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Ok((status, self.stderr_text()));
+            }
+            if start.elapsed() > patience {
+                return Err(self);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+
     /// Stops the server and returns what it wrote to stderr.
     pub fn stop(mut self) -> String {
         let _ = self.child.kill();

@@ -161,6 +161,8 @@ pub struct Store {
     stats: BlockStats,
     /// The files a store on disk must hold (none for a store in memory).
     manifest: Option<Arc<Manifest>>,
+    /// Where its files are read from ([`Store::check_readable`]).
+    storage: Arc<dyn ReadableStorageTraits>,
 }
 
 impl std::fmt::Debug for Store {
@@ -393,7 +395,45 @@ impl Store {
             arrays,
             stats,
             manifest: None,
+            storage: storage.clone(),
         })
+    }
+
+    /// Reads the store's root metadata (`zarr.json`) again, through the
+    /// storage its blocks come from: whether that answers now. A store on
+    /// object storage that does not answer is [`Error::Unavailable`]; a
+    /// root that is gone is [`Error::Missing`].
+    pub fn check_readable(&self) -> Result<(), Error> {
+        let path = self.location.file("zarr.json");
+        let key = zarrs::storage::StoreKey::new("zarr.json")
+            .map_err(|e| store_error(&path, "key", format!("{e}")))?;
+        match self.storage.get(&key) {
+            Ok(Some(_)) => Ok(()),
+            Ok(None) => Err(Error::Missing {
+                path,
+                detail: "the store's root metadata is gone since the store was opened".into(),
+            }),
+            Err(zarrs::storage::StorageError::IOError(io)) => {
+                if let Some(why) = io
+                    .get_ref()
+                    .and_then(|inner| inner.downcast_ref::<remote::Unreachable>())
+                {
+                    return Err(Error::Unavailable {
+                        path,
+                        detail: why.0.clone(),
+                    });
+                }
+                if io.kind() == std::io::ErrorKind::NotFound {
+                    return Err(Error::Missing {
+                        path,
+                        detail: "the store's root metadata is gone since the store was opened"
+                            .into(),
+                    });
+                }
+                Err(store_error(&path, "zarr.json", io.to_string()))
+            }
+            Err(e) => Err(store_error(&path, "zarr.json", e.to_string())),
+        }
     }
 
     /// Checks that every shard the manifest does not list is one `zarrs` left

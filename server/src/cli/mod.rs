@@ -510,6 +510,13 @@ pub struct ServeArgs {
     /// use" (at most 200 characters, no control characters).
     #[arg(long, value_name = "TEXT", value_parser = parse_notice)]
     pub notice: Option<String>,
+    /// Seconds the view sessions get to finish their frames when the server
+    /// drains on SIGTERM or Ctrl-C (it stops accepting connections at once;
+    /// each session sends the frame it renders and closes with 1001, on
+    /// which the viewer reconnects: behind a load balancer, to another
+    /// node); sessions still open then are closed.
+    #[arg(long, value_name = "SECONDS", default_value_t = crate::app::DEFAULT_DRAIN.as_secs(), value_parser = clap::value_parser!(u64).range(0..=3600))]
+    pub drain_s: u64,
     #[command(flatten)]
     pub auth: AuthArgs,
     #[command(flatten)]
@@ -633,6 +640,13 @@ pub struct AccessArgs {
     /// API requests one client may make at once above that rate.
     #[arg(long, default_value_t = crate::client::RequestRate::DEFAULT.burst, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub request_burst: u32,
+    /// The IP address of a load balancer or reverse proxy in front of the
+    /// server: for its requests the client is the address its
+    /// X-Forwarded-For header names (the audit trail records it; per-client
+    /// limits count it), and its own connections are not capped per client.
+    /// Repeat for more.
+    #[arg(long = "trusted-proxy", value_name = "ADDRESS")]
+    pub trusted_proxies: Vec<std::net::IpAddr>,
 }
 
 impl AccessArgs {
@@ -651,6 +665,7 @@ impl AccessArgs {
                 per_second: self.requests_per_second,
                 burst: self.request_burst,
             },
+            trusted_proxies: self.trusted_proxies.clone(),
             ..crate::access::Access::default()
         }
     }

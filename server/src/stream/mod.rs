@@ -240,6 +240,14 @@ pub async fn handler(
         .access
         .check_origin(&uri, &headers)
         .map_err(IntoResponse::into_response)?;
+    if state.draining.is_cancelled() {
+        return Err(AppError::Busy(
+            "this server is shutting down: open the session again (through a load balancer, \
+             on another node)"
+                .into(),
+        )
+        .into_response());
+    }
     let place = state
         .sessions
         .try_open(client, address.ip())

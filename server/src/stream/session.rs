@@ -168,6 +168,9 @@ pub struct Session {
     acked: u32,
     /// The server is shutting down.
     closing: bool,
+    /// The server drains: the render in flight finishes, then the session
+    /// closes.
+    draining: bool,
 }
 
 impl Session {
@@ -197,6 +200,7 @@ impl Session {
             sent: 0,
             acked: 0,
             closing: false,
+            draining: false,
         }
     }
 
@@ -367,9 +371,21 @@ impl Session {
         self.closing = true;
     }
 
+    /// The server drains (SIGTERM): the render in flight, if any, finishes
+    /// and its frame goes out; then the next action is [`Action::Close`],
+    /// and no other render begins.
+    pub fn drain(&mut self) {
+        self.draining = true;
+    }
+
+    /// Whether [`Session::drain`] was called.
+    pub fn is_draining(&self) -> bool {
+        self.draining
+    }
+
     /// What to do at `now`. A [`Action::Render`] counts as begun.
     pub fn next_action(&mut self, now: Instant) -> Action {
-        if self.closing {
+        if self.closing || (self.draining && self.rendering.is_none()) {
             return Action::Close;
         }
         if self.rendering.is_some() {
@@ -917,6 +933,26 @@ mod tests {
         s.shut_down();
         assert!(matches!(s.next_action(t0), Action::Close));
         assert!(matches!(s.next_action(t0 + ms(1)), Action::Close));
+    }
+
+    #[test]
+    fn draining_finishes_the_render_in_flight_then_closes() {
+        let mut s = session();
+        let t0 = Instant::now();
+        view(&mut s, t0, 1, serde_json::json!({}));
+        render(s.next_action(t0));
+        s.drain();
+        // The frame is still coming: nothing else to do meanwhile.
+        assert!(waits_for_input(&s.next_action(t0 + ms(1))));
+        // A view message changes the view but starts no render.
+        view(&mut s, t0 + ms(2), 2, serde_json::json!({"az": 40}));
+        assert!(waits_for_input(&s.next_action(t0 + ms(3))));
+        s.on_frame_sent(false, None);
+        assert!(matches!(s.next_action(t0 + ms(4)), Action::Close));
+        // A session rendering nothing closes at once.
+        let mut idle = session();
+        idle.drain();
+        assert!(matches!(idle.next_action(t0), Action::Close));
     }
 
     /// View message `id` for `pane` setting `set`, at `now`; the reply.

@@ -96,6 +96,7 @@ pub(super) struct Caller {
 #[derive(Debug)]
 enum Event {
     Shutdown,
+    Drain,
     Rendered(Result<Encoded, String>),
     BlocksArrived,
     Received(Message),
@@ -281,6 +282,7 @@ where
         let event = tokio::select! {
             biased;
             () = state.shutdown.cancelled() => Event::Shutdown,
+            () = state.draining.cancelled(), if !session.is_draining() => Event::Drain,
             done = rendered(&mut job), if job.is_some() => Event::Rendered(done),
             incoming = stream.next() => match incoming {
                 Some(Ok(message)) => Event::Received(message),
@@ -341,6 +343,10 @@ where
     let reply = match event {
         Event::Shutdown => {
             session.shut_down();
+            None
+        }
+        Event::Drain => {
+            session.drain();
             None
         }
         Event::Still | Event::Received(Message::Ping(_) | Message::Pong(_)) => None,
