@@ -265,22 +265,45 @@ async fn auth_of(args: &AuthArgs) -> anyhow::Result<(crate::auth::Auth, crate::a
     Ok((auth, audit))
 }
 
-/// Resolves on `SIGTERM` (an orchestrator, systemd, a deployment script
-/// asking the server to drain).
-#[cfg(unix)]
-fn terminated() -> anyhow::Result<impl Future<Output = ()>> {
-    use tokio::signal::unix::{SignalKind, signal};
-    let mut terminate = signal(SignalKind::terminate()).context("cannot listen for SIGTERM")?;
+/// Ctrl-C or `SIGTERM` (an orchestrator, systemd, a deployment script):
+/// the first resolves the returned future (the server drains); a second
+/// exits at once with status 1, for an operator who will not wait.
+fn stop_signals(drain_s: u64) -> anyhow::Result<impl Future<Output = ()>> {
+    #[cfg(unix)]
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("cannot listen for SIGTERM")?;
+    let (first, drain) = tokio::sync::oneshot::channel::<()>();
+    tokio::spawn(async move {
+        let mut first = Some(first);
+        loop {
+            #[cfg(unix)]
+            let terminated = terminate.recv();
+            #[cfg(not(unix))]
+            let terminated = std::future::pending::<Option<()>>();
+            tokio::select! {
+                interrupted = tokio::signal::ctrl_c() => {
+                    if let Err(e) = interrupted {
+                        tracing::error!("cannot listen for Ctrl-C: {e}");
+                        std::future::pending::<()>().await;
+                    }
+                }
+                _ = terminated => {}
+            }
+            if let Some(first) = first.take() {
+                tracing::info!(
+                    "draining: sessions finish their frames (at most {drain_s} s), then close; \
+                     stop again to exit at once"
+                );
+                let _ = first.send(());
+            } else {
+                tracing::warn!("stopped again while draining: exiting at once");
+                std::process::exit(1);
+            }
+        }
+    });
     Ok(async move {
-        terminate.recv().await;
+        let _ = drain.await;
     })
-}
-
-/// Never resolves: there is no `SIGTERM` here (Ctrl-C drains).
-#[cfg(not(unix))]
-#[expect(clippy::unnecessary_wraps, reason = "the same signature as on unix")]
-fn terminated() -> anyhow::Result<impl Future<Output = ()>> {
-    Ok(std::future::pending())
 }
 
 /// On `SIGHUP`: reads the TLS certificate again and reopens the audit log.
@@ -589,20 +612,7 @@ pub async fn serve(args: ServeArgs) -> anyhow::Result<()> {
         names.join(", "),
         state.renderer.adapter()
     ))?;
-    let terminated = terminated()?;
-    let drain_s = args.drain_s;
-    let shutdown = async move {
-        tokio::select! {
-            interrupted = tokio::signal::ctrl_c() => {
-                if let Err(e) = interrupted {
-                    tracing::error!("cannot listen for Ctrl-C: {e}");
-                    std::future::pending::<()>().await;
-                }
-            }
-            () = terminated => {}
-        }
-        tracing::info!("draining: sessions finish their frames (at most {drain_s} s), then close");
-    };
+    let shutdown = stop_signals(args.drain_s)?;
     crate::run(listener, state, shutdown).await?;
     Ok(())
 }

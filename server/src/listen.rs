@@ -421,6 +421,10 @@ pub async fn serve(
             connections.lock().open.remove(&id);
         });
     }
+    // Closed now, not when the connections are done: a connection attempt
+    // meanwhile is refused at once (a load balancer tries another node)
+    // rather than left waiting in the backlog.
+    drop(listener);
     tasks.close();
     tasks.wait().await;
     Ok(())

@@ -919,3 +919,45 @@ fn info_render_and_verify_name_a_missing_shard_and_info_counts_every_file() {
         assert!(stderr.contains(&named), "{args:?}: {stderr}");
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serve_drains_on_sigterm_and_exits_at_once_when_stopped_again() {
+    let args = [
+        "serve",
+        "--addr",
+        "127.0.0.1:0",
+        "--phantom-size",
+        "128",
+        "--renderer",
+        "cpu",
+    ];
+    let server = voxserve_tests::server::Spawned::start(VOXSERVE, &args)
+        .await
+        .unwrap_or_else(|stderr| panic!("serve did not start: {stderr}"));
+    // A frame that takes seconds: the drain waits for it.
+    let big = format!("{}/api/render?w=4096&h=4096&step=0.25", server.url);
+    let big = tokio::spawn(async move { reqwest::get(&big).await.map(|r| r.status()) });
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    server.terminate();
+    let server = server
+        .wait_exit(Duration::from_secs(1))
+        .expect_err("the server waits for the frame in flight");
+    // It accepts no more connections meanwhile.
+    assert!(
+        reqwest::get(format!("{}/healthz", server.url))
+            .await
+            .is_err(),
+        "a draining server accepted a connection"
+    );
+    server.terminate();
+    let Ok((status, stderr)) = server.wait_exit(Duration::from_secs(10)) else {
+        panic!("stopped twice, the server did not exit within 10 s");
+    };
+    assert_eq!(status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("draining") && stderr.contains("exiting at once"),
+        "{stderr}"
+    );
+    // The frame was cut off with the process.
+    assert!(big.await.expect("the request task").is_err());
+}
