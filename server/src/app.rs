@@ -332,13 +332,10 @@ pub async fn run(
     let drain = state.drain_timeout;
     let limits = state.access.connections;
     let tls = state.tls.clone();
-    let stop = CancellationToken::new();
-    let stopping = stop.clone();
     let starting = draining.clone();
     tokio::spawn(async move {
         shutdown.await;
         starting.cancel();
-        stopping.cancel();
     });
     // The drain's deadline counts from when it begins, whatever the
     // requests in flight take.
@@ -358,9 +355,15 @@ pub async fn run(
     });
     crate::health::Health::refresh(&state);
     let trusted: Arc<[IpAddr]> = state.access.trusted_proxies.clone().into();
-    let served =
-        crate::listen::serve(listener, router(state), limits, trusted, tls, stop.clone()).await;
-    stop.cancel();
+    let served = crate::listen::serve(
+        listener,
+        router(state),
+        limits,
+        trusted,
+        tls,
+        draining.clone(),
+    )
+    .await;
     draining.cancel();
     // Upgraded connections are no longer the listener's: it does not wait
     // for them, so wait for the sessions here.
