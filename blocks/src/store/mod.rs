@@ -248,12 +248,23 @@ impl Store {
     pub fn open_remote(url: &str) -> Result<Store, Error> {
         let remote = Arc::new(Remote::parse(url)?);
         let location = StoreLocation::Remote(remote.url().to_owned());
-        let listing = if remote.lists() {
-            Some(remote.list()?)
-        } else {
-            None
-        };
-        let Some(text) = remote.get(manifest::MANIFEST_KEY, manifest::MAX_MANIFEST_BYTES)? else {
+        // The listing and the manifest are asked for at once.
+        let (listing, text) = std::thread::scope(|scope| {
+            let listing = remote.lists().then(|| scope.spawn(|| remote.list()));
+            let text = remote.get(manifest::MANIFEST_KEY, manifest::MAX_MANIFEST_BYTES);
+            let listing = listing.map(|l| {
+                l.join().unwrap_or_else(|_| {
+                    Err(store_error(
+                        &remote.file(""),
+                        "listing",
+                        "the listing thread failed",
+                    ))
+                })
+            });
+            (listing, text)
+        });
+        let listing = listing.transpose()?;
+        let Some(text) = text? else {
             let root = remote.get("zarr.json", manifest::MAX_METADATA_BYTES)?;
             return Err(match root {
                 Some(_) => Manifest::missing(&remote.file(manifest::MANIFEST_KEY)),
@@ -285,7 +296,14 @@ impl Store {
                 Some((key.clone(), object))
             })
             .collect();
-        let storage = remote::ObjectStorage::new(remote.clone(), objects.clone());
+        let storage = Arc::new(remote::ObjectStorage::new(remote.clone(), objects.clone()));
+        // What the opening reads, in one round of requests: every array's
+        // and group's metadata and the block statistics.
+        storage.read_ahead(manifest.files.keys().map(String::as_str).filter(|key| {
+            key.ends_with("zarr.json")
+                || key.starts_with("voxserve/block_min_max/")
+                || key.starts_with("voxserve/block_histogram/")
+        }))?;
         manifest.check_with(
             &|key| remote.file(key),
             &|key| objects.get(key).map(|o| o.bytes),
@@ -303,7 +321,9 @@ impl Store {
                 Ok(manifest::sha256_hex(&bytes))
             },
         )?;
-        Store::with_manifest(Arc::new(storage), manifest, location)
+        let opened = Store::with_manifest(storage.clone(), manifest, location);
+        storage.forget_read_ahead();
+        opened
     }
 
     /// Opens the store in `files` whose manifest is `manifest`: reads go
@@ -407,28 +427,19 @@ impl Store {
         let path = self.location.file("zarr.json");
         let key = zarrs::storage::StoreKey::new("zarr.json")
             .map_err(|e| store_error(&path, "key", format!("{e}")))?;
+        let gone = |path| Error::Missing {
+            path,
+            detail: "the store's root metadata is gone since the store was opened".into(),
+        };
         match self.storage.get(&key) {
             Ok(Some(_)) => Ok(()),
-            Ok(None) => Err(Error::Missing {
-                path,
-                detail: "the store's root metadata is gone since the store was opened".into(),
-            }),
+            Ok(None) => Err(gone(path)),
             Err(zarrs::storage::StorageError::IOError(io)) => {
-                if let Some(why) = io
-                    .get_ref()
-                    .and_then(|inner| inner.downcast_ref::<remote::Unreachable>())
-                {
-                    return Err(Error::Unavailable {
-                        path,
-                        detail: why.0.clone(),
-                    });
+                if let Some(detail) = unreachable_io(&io) {
+                    return Err(Error::Unavailable { path, detail });
                 }
                 if io.kind() == std::io::ErrorKind::NotFound {
-                    return Err(Error::Missing {
-                        path,
-                        detail: "the store's root metadata is gone since the store was opened"
-                            .into(),
-                    });
+                    return Err(gone(path));
                 }
                 Err(store_error(&path, "zarr.json", io.to_string()))
             }
@@ -710,8 +721,13 @@ fn storage_io(e: &ArrayError) -> Option<&std::io::Error> {
 /// Why an object store did not answer, where `e` comes from that
 /// ([`remote::Unreachable`]).
 fn unreachable(e: &ArrayError) -> Option<String> {
-    storage_io(e)?
-        .get_ref()?
+    storage_io(e).and_then(unreachable_io)
+}
+
+/// Why an object store did not answer, where the I/O error `io` says so
+/// ([`remote::Unreachable`]).
+fn unreachable_io(io: &std::io::Error) -> Option<String> {
+    io.get_ref()?
         .downcast_ref::<remote::Unreachable>()
         .map(|why| why.0.clone())
 }

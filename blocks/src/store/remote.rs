@@ -45,6 +45,9 @@ use zarrs::storage::{
 use super::manifest::{MANIFEST_KEY, Manifest};
 use crate::Error;
 
+/// The largest object [`ObjectStorage::read_ahead`] reads ahead.
+pub const READ_AHEAD_BYTES: u64 = 64 << 20;
+
 /// The URL schemes of object stores.
 pub const SCHEMES: [&str; 8] = ["s3", "s3a", "gs", "az", "abfs", "abfss", "http", "https"];
 /// Requests in flight at once while uploading or checking a store.
@@ -608,6 +611,9 @@ impl std::error::Error for Unreachable {}
 pub struct ObjectStorage {
     remote: Arc<Remote>,
     objects: BTreeMap<String, Object>,
+    /// Whole objects read ahead ([`ObjectStorage::read_ahead`]), served from
+    /// memory until [`ObjectStorage::forget_read_ahead`].
+    read_ahead: std::sync::RwLock<BTreeMap<String, Bytes>>,
 }
 
 impl std::fmt::Debug for ObjectStorage {
@@ -622,7 +628,65 @@ impl std::fmt::Debug for ObjectStorage {
 impl ObjectStorage {
     /// Reads `objects` of `remote`.
     pub fn new(remote: Arc<Remote>, objects: BTreeMap<String, Object>) -> ObjectStorage {
-        ObjectStorage { remote, objects }
+        ObjectStorage {
+            remote,
+            objects,
+            read_ahead: std::sync::RwLock::default(),
+        }
+    }
+
+    /// Reads the objects among `keys` that it reads (those of at most
+    /// [`READ_AHEAD_BYTES`]) whole, `IN_FLIGHT` at a time, and serves them
+    /// from memory from now on: an opening reads its metadata and block
+    /// statistics in one round of requests instead of one after another.
+    pub fn read_ahead<'k>(&self, keys: impl IntoIterator<Item = &'k str>) -> Result<(), Error> {
+        let wanted: Vec<(String, ObjectPath, Object)> = keys
+            .into_iter()
+            .filter_map(|key| {
+                let object = self.objects.get(key)?;
+                (object.bytes <= READ_AHEAD_BYTES)
+                    .then(|| (key.to_owned(), self.remote.path(key), object.clone()))
+            })
+            .collect();
+        let store = self.remote.store.clone();
+        let read = run(async move {
+            futures_util::stream::iter(wanted)
+                .map(|(key, path, object)| {
+                    let store = store.clone();
+                    async move {
+                        let options = GetOptions {
+                            if_match: object.e_tag,
+                            ..GetOptions::default()
+                        };
+                        let got = async { store.get_opts(&path, options).await?.bytes().await };
+                        match got.await {
+                            Ok(bytes) => Ok(Some((key, bytes))),
+                            // Left for the read that needs it to report.
+                            Err(object_store::Error::NotFound { .. }) => Ok(None),
+                            Err(e) => Err((key, e)),
+                        }
+                    }
+                })
+                .buffered(IN_FLIGHT)
+                .try_collect::<Vec<Option<(String, Bytes)>>>()
+                .await
+        })
+        .ok_or_else(|| self.remote.ended(""))?;
+        let read = read.map_err(|(key, e)| self.remote.error(&key, &e))?;
+        let mut held = self
+            .read_ahead
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        held.extend(read.into_iter().flatten());
+        Ok(())
+    }
+
+    /// Drops the objects read ahead: later reads go to the store again.
+    pub fn forget_read_ahead(&self) {
+        self.read_ahead
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clear();
     }
 
     /// The storage error for a failed request about `key`: one that may
@@ -666,6 +730,19 @@ impl ReadableStorageTraits for ObjectStorage {
                 self.remote.file(key.as_str()).display(),
                 object.bytes
             )));
+        }
+        if let Some(whole) = self
+            .read_ahead
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get(key.as_str())
+        {
+            // The ranges lie within the object's size, which its ETag fixes.
+            let parts: Vec<Bytes> = ranges
+                .iter()
+                .map(|r| whole.slice(r.start as usize..r.end as usize))
+                .collect();
+            return Ok(Some(Box::new(parts.into_iter().map(Ok))));
         }
         let store = self.remote.store.clone();
         let path = self.remote.path(key.as_str());
