@@ -89,6 +89,39 @@ fn a_store_ingested_to_s3_renders_pixel_for_pixel_as_the_same_store_on_disk() {
         "the frame from S3 differs from the frame of the same store on disk"
     );
 
+    // `bench store` times both from cold, alternating; a view session's
+    // first frame comes before or with the converged one, and the render
+    // worker never reads a chunk itself.
+    let out = voxserve(
+        &env,
+        &[
+            "bench",
+            "store",
+            url,
+            local.to_str().expect("utf-8"),
+            "--renderer",
+            "cpu",
+            "--rounds",
+            "1",
+            "--size",
+            "96",
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let lines: Vec<serde_json::Value> = text(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    let on: Vec<&str> = lines.iter().filter_map(|l| l["on"].as_str()).collect();
+    assert_eq!(on, ["object storage", "disk"], "{lines:?}");
+    for line in &lines {
+        let ms = |key: &str| line[key].as_f64().unwrap_or(f64::NAN);
+        assert!(ms("open_ms") > 0.0, "{line}");
+        assert!(ms("first_frame_ms") <= ms("converged_ms"), "{line}");
+        assert!(line["chunks_read"].as_u64() > Some(0), "{line}");
+        assert_eq!(line["render_worker_chunk_reads"], 0, "{line}");
+    }
+
     // An ingest onto a store replaces it only when asked to.
     let out = voxserve(&env, &["ingest", engine, "--out", url]);
     assert!(!out.status.success());

@@ -48,6 +48,11 @@ pub enum BenchCommand {
     /// and encode milliseconds and the frames drawn coarser while blocks
     /// were read.
     Slice(Box<BenchSliceArgs>),
+    /// Brick stores from cold, on disk or on object storage, alternating
+    /// round by round: opening (metadata, statistics, the coarse levels),
+    /// the first frame of a view session and its converged frame, chunks
+    /// read per second.
+    Store(Box<BenchStoreArgs>),
     /// Extinction-based illumination as its paper reports it: summed-area-table
     /// build time per grid size, ambient occlusion per shell count against
     /// explicit sampling, soft shadows per cone sampling against one shadow
@@ -242,6 +247,24 @@ pub struct BenchSliceArgs {
     /// Slab thickness in mm (0: one plane).
     #[arg(long, default_value_t = 0.0, value_parser = finite_in(0.0, 500.0))]
     pub slab: f32,
+    #[command(flatten)]
+    pub renderer: RendererArgs,
+    #[command(flatten)]
+    pub data: DataArgs,
+}
+
+/// `voxserve bench store`.
+#[derive(Debug, Args)]
+pub struct BenchStoreArgs {
+    /// Brick stores: folders, or URLs on object storage (`s3://…`).
+    #[arg(required = true)]
+    pub stores: Vec<String>,
+    /// Image edge in pixels (square).
+    #[arg(long, default_value_t = 512, value_parser = setting_value::<u32>("w"))]
+    pub size: u32,
+    /// Rounds; each opens every store afresh, in turn.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub rounds: u32,
     #[command(flatten)]
     pub renderer: RendererArgs,
     #[command(flatten)]

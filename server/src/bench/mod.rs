@@ -27,6 +27,7 @@ mod read;
 pub mod reference_data;
 mod render;
 mod slice;
+mod store;
 mod stream;
 
 use blocks::blocks;
@@ -37,6 +38,7 @@ use peer::peer;
 use read::read;
 use render::render;
 use slice::slice;
+use store::store;
 use stream::stream;
 
 /// Runs the benchmark `args` names.
@@ -48,6 +50,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Light(a) => light(a),
         BenchCommand::Stream(a) => stream(a),
         BenchCommand::Slice(a) => slice(a),
+        BenchCommand::Store(a) => store(a),
         BenchCommand::Extinction(a) => extinction(a),
         BenchCommand::Peer(a) => peer(a),
         BenchCommand::Pacs(a) => pacs(a),

@@ -162,7 +162,11 @@ pub(super) async fn next_frame_sized(
     }
 }
 
-async fn send_view(socket: &mut Socket, id: u32, set: serde_json::Value) -> anyhow::Result<()> {
+pub(super) async fn send_view(
+    socket: &mut Socket,
+    id: u32,
+    set: serde_json::Value,
+) -> anyhow::Result<()> {
     let view = serde_json::json!({"type": "view", "id": id, "set": set});
     socket.send(Message::Text(view.to_string().into())).await?;
     Ok(())
@@ -646,7 +650,10 @@ async fn camera_moves(
 
 /// Frames on `socket` until the lossless, converged one for message `id`,
 /// each with the milliseconds since this call.
-async fn until_converged(socket: &mut Socket, id: u32) -> anyhow::Result<Vec<(FrameHeader, f64)>> {
+pub(super) async fn until_converged(
+    socket: &mut Socket,
+    id: u32,
+) -> anyhow::Result<Vec<(FrameHeader, f64)>> {
     let start = Instant::now();
     let mut frames = Vec::new();
     loop {
