@@ -146,6 +146,12 @@ struct Loads {
     listeners: Vec<Listener>,
 }
 
+/// The coarse levels a dataset keeps in memory whole, outside the cache's
+/// budget ([`BlockCache::make_resident`]): a frame can always be drawn from
+/// them while finer blocks are read. Opening a store on object storage reads
+/// their shards whole, in the opening's one round of requests.
+pub const RESIDENT_LEVELS: [usize; 2] = [3, 4];
+
 /// Decoded chunks of one store; see the module docs.
 pub struct BlockCache {
     store: Arc<Store>,
@@ -187,7 +193,8 @@ impl BlockCache {
         }
     }
 
-    /// Reads every chunk of `levels` and keeps them outside the budget.
+    /// Reads every chunk of `levels` and keeps them outside the budget; then
+    /// the store's opening is over ([`Store::end_opening`]).
     pub fn make_resident(&mut self, levels: &[usize]) -> Result<(), Error> {
         let keys: Vec<ChunkKey> = levels
             .iter()
@@ -200,7 +207,7 @@ impl BlockCache {
             })
             .collect();
         let store = &self.store;
-        let chunks: Vec<(ChunkKey, Arc<VoxelData>)> = pool_of(store).install(|| {
+        let chunks: Result<Vec<(ChunkKey, Arc<VoxelData>)>, Error> = pool_of(store).install(|| {
             keys.into_par_iter()
                 .map(|key| {
                     Ok((
@@ -209,8 +216,9 @@ impl BlockCache {
                     ))
                 })
                 .collect::<Result<_, Error>>()
-        })?;
-        self.resident.extend(chunks);
+        });
+        store.end_opening();
+        self.resident.extend(chunks?);
         Ok(())
     }
 

@@ -340,7 +340,9 @@ fn the_cache_serves_concurrent_readers_within_its_budget_and_aprons_copy_neighbo
     let store = Arc::new(ingest_to(dir.path(), &mut source).expect("ingest"));
     let budget = 4 * 16 * 16 * 16 * 2; // four chunks
     let mut cache = BlockCache::new(store.clone(), budget);
-    cache.make_resident(&[3, 4]).expect("resident");
+    cache
+        .make_resident(&blocks::cache::RESIDENT_LEVELS)
+        .expect("resident");
     let keys: Vec<[u32; 3]> = (0..200)
         .map(|i| [i % 3, (i / 3) % 3, (i / 9) % 3])
         .collect();

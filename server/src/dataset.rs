@@ -108,7 +108,7 @@ impl Dataset {
     pub fn new(id: String, store: Store, cache_bytes: u64) -> Result<Dataset, blocks::Error> {
         let store = Arc::new(store);
         let mut cache = BlockCache::new(store.clone(), cache_bytes);
-        cache.make_resident(&[3, 4])?;
+        cache.make_resident(&blocks::cache::RESIDENT_LEVELS)?;
         let (arrival, arrived) = tokio::sync::watch::channel(0u64);
         cache.subscribe(move || arrival.send_modify(|n| *n += 1));
         let histogram = Arc::new(level0_histogram(&store));

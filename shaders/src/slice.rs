@@ -805,7 +805,9 @@ mod tests {
         let mut source = MemorySource::new(volume.clone(), "phantom");
         let store = ingest_in_memory(&mut source, &IngestOptions::default()).expect("store");
         let mut cache = BlockCache::new(Arc::new(store), 64 << 20);
-        cache.make_resident(&[3, 4]).expect("resident");
+        cache
+            .make_resident(&blocks::cache::RESIDENT_LEVELS)
+            .expect("resident");
         (volume, Arc::new(cache))
     }
 

@@ -163,6 +163,9 @@ pub struct Store {
     manifest: Option<Arc<Manifest>>,
     /// Where its files are read from ([`Store::check_readable`]).
     storage: Arc<dyn ReadableStorageTraits>,
+    /// A store on object storage: what its opening read ahead, held until
+    /// [`Store::end_opening`].
+    read_ahead: Option<Arc<remote::ObjectStorage>>,
 }
 
 impl std::fmt::Debug for Store {
@@ -298,11 +301,21 @@ impl Store {
             .collect();
         let storage = Arc::new(remote::ObjectStorage::new(remote.clone(), objects.clone()));
         // What the opening reads, in one round of requests: every array's
-        // and group's metadata and the block statistics.
+        // and group's metadata, the block statistics, and the shards of the
+        // levels a block cache keeps resident (and their box extremes), each
+        // whole instead of a request per inner chunk.
+        let resident: Vec<String> = ingest::voxel_arrays()
+            .into_iter()
+            .filter(|(level, _)| crate::cache::RESIDENT_LEVELS.contains(level))
+            .map(|(_, key)| format!("{}/", key.trim_start_matches('/')))
+            .collect();
         storage.read_ahead(manifest.files.keys().map(String::as_str).filter(|key| {
             key.ends_with("zarr.json")
                 || key.starts_with("voxserve/block_min_max/")
                 || key.starts_with("voxserve/block_histogram/")
+                || resident
+                    .iter()
+                    .any(|prefix| key.starts_with(prefix.as_str()))
         }))?;
         manifest.check_with(
             &|key| remote.file(key),
@@ -321,9 +334,19 @@ impl Store {
                 Ok(manifest::sha256_hex(&bytes))
             },
         )?;
-        let opened = Store::with_manifest(storage.clone(), manifest, location);
-        storage.forget_read_ahead();
-        opened
+        let mut store = Store::with_manifest(storage.clone(), manifest, location)?;
+        store.read_ahead = Some(storage);
+        Ok(store)
+    }
+
+    /// Drops what the opening of a store on object storage read ahead (its
+    /// metadata, statistics and resident levels' shards): later reads go to
+    /// the store again. [`crate::cache::BlockCache::make_resident`] calls it
+    /// once the resident levels are in memory.
+    pub fn end_opening(&self) {
+        if let Some(storage) = &self.read_ahead {
+            storage.forget_read_ahead();
+        }
     }
 
     /// Opens the store in `files` whose manifest is `manifest`: reads go
@@ -416,6 +439,7 @@ impl Store {
             stats,
             manifest: None,
             storage: storage.clone(),
+            read_ahead: None,
         })
     }
 

@@ -52,6 +52,10 @@ pub const READ_AHEAD_BYTES: u64 = 64 << 20;
 pub const SCHEMES: [&str; 8] = ["s3", "s3a", "gs", "az", "abfs", "abfss", "http", "https"];
 /// Requests in flight at once while uploading or checking a store.
 const IN_FLIGHT: usize = 16;
+/// Requests in flight at once while an opening reads ahead: its small
+/// objects (the block statistics are one object per chunk of them) cost a
+/// round trip each, not bandwidth.
+const READ_AHEAD_IN_FLIGHT: usize = 64;
 /// The longest wait for a connection.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(3);
 
@@ -636,7 +640,7 @@ impl ObjectStorage {
     }
 
     /// Reads the objects among `keys` that it reads (those of at most
-    /// [`READ_AHEAD_BYTES`]) whole, `IN_FLIGHT` at a time, and serves them
+    /// [`READ_AHEAD_BYTES`]) whole, `READ_AHEAD_IN_FLIGHT` at a time, and serves them
     /// from memory from now on: an opening reads its metadata and block
     /// statistics in one round of requests instead of one after another.
     pub fn read_ahead<'k>(&self, keys: impl IntoIterator<Item = &'k str>) -> Result<(), Error> {
@@ -667,7 +671,7 @@ impl ObjectStorage {
                         }
                     }
                 })
-                .buffered(IN_FLIGHT)
+                .buffered(READ_AHEAD_IN_FLIGHT)
                 .try_collect::<Vec<Option<(String, Bytes)>>>()
                 .await
         })
