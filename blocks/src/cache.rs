@@ -95,7 +95,7 @@ pub fn reader_pool() -> &'static rayon::ThreadPool {
 /// Requests in flight at once to a store on object storage: each waits a
 /// round trip (tens of milliseconds to S3) while the CPU is idle, so a
 /// reader thread per request rather than per core.
-pub const REMOTE_READERS: usize = 32;
+pub const REMOTE_READERS: usize = 96;
 
 /// The threads that read chunks of stores on object storage
 /// ([`REMOTE_READERS`]), shared by every cache of such a store.
