@@ -53,10 +53,20 @@ fn main() -> ExitCode {
     blocks::ingest::boundary::install_panic_hook();
     let cli = Cli::parse();
     blocks::store::remote::set_policy(cli.store.policy());
+    if let Some(folder) = &cli.store.store_cache
+        && let Err(e) = blocks::store::disk_cache::open(folder, cli.store.store_cache_mib)
+    {
+        tracing::error!("{e}");
+        return ExitCode::FAILURE;
+    }
     let result = match cli.command {
         Subcommands::Server(command) => server::commands::run(*command),
         Subcommands::Bench(args) => bench::run(&args),
     };
+    // Ranges still in memory go to disk before the process ends.
+    if let Some(cache) = blocks::store::disk_cache::get() {
+        cache.close();
+    }
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -11,6 +11,7 @@
 //! | `voxserve_queue_seconds` | time a frame waited for the render worker (histogram) |
 //! | `voxserve_block_cache_hits` / `_misses` | decoded-block reads served from memory / read from the store, so far |
 //! | `voxserve_block_cache_bytes` | decoded blocks held in memory under the cache budget |
+//! | `voxserve_store_cache_hits` / `_misses` | object-store reads answered from the disk cache (`--store-cache`) / not held there, so far |
 //! | `voxserve_render_abandoned` | frames dropped unrendered (or partly rendered) because their requester had gone, so far |
 //! | `voxserve_render_bands` | bands drawn of frames too costly for one turn of the render worker, so far |
 
@@ -94,6 +95,8 @@ pub struct Metrics {
     queue_seconds: Histogram,
     cache_hits: Gauge<u64, AtomicU64>,
     cache_misses: Gauge<u64, AtomicU64>,
+    store_cache_hits: Gauge<u64, AtomicU64>,
+    store_cache_misses: Gauge<u64, AtomicU64>,
     cache_bytes: Gauge<u64, AtomicU64>,
     render_abandoned: Gauge<u64, AtomicU64>,
     render_bands: Gauge<u64, AtomicU64>,
@@ -115,6 +118,8 @@ impl Default for Metrics {
             queue_seconds: seconds(),
             cache_hits: Gauge::default(),
             cache_misses: Gauge::default(),
+            store_cache_hits: Gauge::default(),
+            store_cache_misses: Gauge::default(),
             cache_bytes: Gauge::default(),
             render_abandoned: Gauge::default(),
             render_bands: Gauge::default(),
@@ -151,6 +156,16 @@ impl Default for Metrics {
             "block_cache_misses",
             "Decoded-block reads that read the store so far",
             m.cache_misses.clone(),
+        );
+        r.register(
+            "store_cache_hits",
+            "Object-store reads answered from the disk cache so far",
+            m.store_cache_hits.clone(),
+        );
+        r.register(
+            "store_cache_misses",
+            "Object-store reads the disk cache did not hold so far",
+            m.store_cache_misses.clone(),
         );
         r.register(
             "block_cache_bytes",
@@ -225,6 +240,10 @@ impl Metrics {
         self.cache_hits.set(hits);
         self.cache_misses.set(misses);
         self.cache_bytes.set(bytes);
+        if let Some(disk) = blocks::store::disk_cache::get() {
+            self.store_cache_hits.set(disk.hits());
+            self.store_cache_misses.set(disk.misses());
+        }
         let mut text = String::new();
         if let Err(e) = prometheus_client::encoding::text::encode(&mut text, &self.registry) {
             tracing::error!("encoding the metrics failed: {e}");

@@ -458,3 +458,116 @@ async fn slow_answers_within_the_timeout_are_waited_for_and_slower_ones_reported
         "the frame read slowly differs from the store on disk's"
     );
 }
+
+#[test]
+fn the_store_cache_answers_again_after_a_restart_and_never_for_a_replaced_store() {
+    let test = "the_store_cache_answers_again_after_a_restart_and_never_for_a_replaced_store";
+    let Some(data) = voxserve_tests::data::shared_data(test) else {
+        return;
+    };
+    let engine = data.join("raw/engine_256x256x128_uint8.raw");
+    let hydrogen = data.join("raw/hydrogen_atom_128x128x128_uint8.raw");
+    let (engine, hydrogen) = (
+        engine.to_str().expect("utf-8"),
+        hydrogen.to_str().expect("utf-8"),
+    );
+    let dir = tempfile::tempdir().expect("temp");
+    let s3 = S3Server::start(&["scans"]);
+    let env = s3.env();
+    let url = "s3://scans/ct/scan.zarr";
+    let out = voxserve(&env, &["ingest", engine, "--out", url]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let cache = dir.path().join("cache");
+    let cache = cache.to_str().expect("utf-8");
+    // Renders through the cache in a new process: its pixels, and the
+    // requests the S3 server was sent meanwhile.
+    let cached_render = |name: &str| {
+        let before = s3.requests();
+        let png = dir.path().join(name);
+        let run = voxserve(
+            &env,
+            &[
+                "render",
+                url,
+                "--renderer",
+                "cpu",
+                "--width",
+                "128",
+                "--height",
+                "128",
+                "--out",
+                png.to_str().expect("utf-8"),
+                "--store-cache",
+                cache,
+                "--store-cache-mib",
+                "64",
+            ],
+        );
+        assert!(run.status.success(), "{}", text(&run.stderr));
+        let image = image::open(&png).expect("a PNG").to_rgba8();
+        (image, s3.requests() - before)
+    };
+    let (first, cold) = cached_render("first.png");
+    let (again, warm) = cached_render("again.png");
+    assert!(
+        voxserve_tests::checks::coverage(&first) > 0.05,
+        "the engine is drawn"
+    );
+    assert!(again == first, "the frame from the cache differs");
+    // Warm: the listing and the manifest (which name the objects'
+    // versions) are asked for; every block comes from the cache.
+    assert!(
+        cold >= 20 && warm <= 4,
+        "requests to S3: {cold} with an empty cache, {warm} after a restart with it filled"
+    );
+
+    // One process per folder.
+    let lock =
+        std::fs::File::open(Path::new(cache).join("voxserve.lock")).expect("the cache's lock file");
+    lock.lock()
+        .expect("the lock, as another process would hold it");
+    let run = voxserve(&env, &["render", url, "--store-cache", cache]);
+    assert!(!run.status.success());
+    let stderr = text(&run.stderr);
+    assert!(
+        stderr.contains(cache) && stderr.contains("in use by another voxserve process"),
+        "{stderr}"
+    );
+    drop(lock);
+
+    // Another volume ingested over the store: its objects have other
+    // versions, so nothing of the engine's is answered from the cache.
+    let out = voxserve(&env, &["ingest", hydrogen, "--out", url, "--force"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let (replaced, _) = cached_render("replaced.png");
+    let local = dir.path().join("hydrogen.zarr");
+    let out = voxserve(
+        &[],
+        &["ingest", hydrogen, "--out", local.to_str().expect("utf-8")],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let run = voxserve(
+        &[],
+        &[
+            "render",
+            local.to_str().expect("utf-8"),
+            "--renderer",
+            "cpu",
+            "--width",
+            "128",
+            "--height",
+            "128",
+            "--out",
+            dir.path().join("expected.png").to_str().expect("utf-8"),
+        ],
+    );
+    assert!(run.status.success(), "{}", text(&run.stderr));
+    let expected = image::open(dir.path().join("expected.png"))
+        .expect("a PNG")
+        .to_rgba8();
+    assert!(replaced != first, "the replaced store drew the old volume");
+    assert!(
+        replaced == expected,
+        "the replaced store's frame through the cache differs from the new volume's"
+    );
+}

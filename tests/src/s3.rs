@@ -30,6 +30,8 @@ pub struct S3Server {
     runtime: Option<tokio::runtime::Runtime>,
     /// Milliseconds each response is held back.
     delay_ms: Arc<AtomicU64>,
+    /// Requests answered so far.
+    requests: Arc<AtomicU64>,
 }
 
 impl S3Server {
@@ -47,6 +49,7 @@ impl S3Server {
             addr: SocketAddr::from(([127, 0, 0, 1], 0)),
             runtime: None,
             delay_ms: Arc::new(AtomicU64::new(0)),
+            requests: Arc::new(AtomicU64::new(0)),
         };
         server.resume();
         server
@@ -83,6 +86,11 @@ impl S3Server {
     /// The environment a client needs to reach the server.
     pub fn env(&self) -> Vec<(String, String)> {
         self.env_with_secret(SECRET_KEY)
+    }
+
+    /// The requests it has been sent so far.
+    pub fn requests(&self) -> u64 {
+        self.requests.load(Ordering::Relaxed)
     }
 
     /// Holds every later response back by `delay`.
@@ -136,7 +144,7 @@ impl S3Server {
             let _inside = runtime.enter();
             tokio::net::TcpListener::from_std(listener).expect("a tokio listener")
         };
-        let delay = self.delay_ms.clone();
+        let (delay, requests) = (self.delay_ms.clone(), self.requests.clone());
         runtime.spawn(async move {
             loop {
                 let Ok((socket, _)) = listener.accept().await else {
@@ -145,9 +153,10 @@ impl S3Server {
                 // Each response leaves at once, as from a real S3 endpoint.
                 let _ = socket.set_nodelay(true);
                 let service = service.clone();
-                let delay = delay.clone();
+                let (delay, requests) = (delay.clone(), requests.clone());
                 tokio::spawn(async move {
                     let slow = hyper::service::service_fn(move |request| {
+                        requests.fetch_add(1, Ordering::Relaxed);
                         let service = service.clone();
                         let delay = Duration::from_millis(delay.load(Ordering::Relaxed));
                         async move {

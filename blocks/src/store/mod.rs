@@ -45,6 +45,7 @@
 //! - [`manifest`]: the store's files and their checksums; `verify`.
 //! - [`StoreLocation`]: where a store lives (a folder, memory).
 
+pub mod disk_cache;
 pub mod ingest;
 mod location;
 pub mod manifest;
@@ -284,7 +285,7 @@ impl Store {
             &remote.file(manifest::MANIFEST_KEY),
         )?);
         // The objects read: those the manifest lists, with their ETags where
-        // the store lists.
+        // the store lists, and the SHA-256 the manifest gives them.
         let objects: std::collections::BTreeMap<String, remote::Object> = manifest
             .files
             .iter()
@@ -294,9 +295,11 @@ impl Store {
                     None => remote::Object {
                         bytes: entry.bytes,
                         e_tag: None,
+                        sha256: None,
                     },
                 };
-                Some((key.clone(), object))
+                let sha256 = Some(entry.sha256.clone());
+                Some((key.clone(), remote::Object { sha256, ..object }))
             })
             .collect();
         let storage = Arc::new(remote::ObjectStorage::new(remote.clone(), objects.clone()));

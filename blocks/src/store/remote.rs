@@ -42,11 +42,26 @@ use zarrs::storage::{
     Bytes, MaybeBytes, MaybeBytesIterator, ReadableStorageTraits, StorageError, StoreKey,
 };
 
+use super::disk_cache::DiskCache;
 use super::manifest::{MANIFEST_KEY, Manifest};
 use crate::Error;
 
 /// The largest object [`ObjectStorage::read_ahead`] reads ahead.
 pub const READ_AHEAD_BYTES: u64 = 64 << 20;
+
+/// The disk cache and the key there of `range` of `object` at `url`: none
+/// without a cache, for an object that is neither listed with an ETag nor
+/// in a manifest, or for a range too large to keep.
+fn cached(url: &str, object: &Object, range: &Range<u64>) -> Option<(&'static DiskCache, String)> {
+    let cache = super::disk_cache::get()?;
+    let version = match (&object.e_tag, &object.sha256) {
+        (Some(e_tag), _) => format!("etag {e_tag}"),
+        (None, Some(sha256)) => format!("sha256 {sha256}"),
+        (None, None) => return None,
+    };
+    let small = range.end - range.start <= super::disk_cache::MAX_ENTRY_BYTES as u64;
+    (small && !range.is_empty()).then(|| (cache, DiskCache::key(url, &version, range)))
+}
 
 /// The URL schemes of object stores.
 pub const SCHEMES: [&str; 8] = ["s3", "s3a", "gs", "az", "abfs", "abfss", "http", "https"];
@@ -123,6 +138,8 @@ pub struct Object {
     pub bytes: u64,
     /// Its ETag, when the store gives one.
     pub e_tag: Option<String>,
+    /// Its SHA-256 by the store's manifest (lowercase hex), once known.
+    pub sha256: Option<String>,
 }
 
 /// The runtime that drives every object-store request: its own, so that a
@@ -140,7 +157,9 @@ fn io_runtime() -> &'static tokio::runtime::Runtime {
 }
 
 /// Runs `future` on the I/O runtime and waits for it on this thread.
-fn run<T: Send + 'static>(future: impl Future<Output = T> + Send + 'static) -> Option<T> {
+pub(super) fn run<T: Send + 'static>(
+    future: impl Future<Output = T> + Send + 'static,
+) -> Option<T> {
     let (done, result) = std::sync::mpsc::sync_channel(1);
     io_runtime().spawn(async move {
         // The waiter may have gone (it never does before the result).
@@ -327,6 +346,7 @@ impl Remote {
                         Object {
                             bytes: meta.size,
                             e_tag: meta.e_tag,
+                            sha256: None,
                         },
                     )
                 })
@@ -644,27 +664,40 @@ impl ObjectStorage {
     /// from memory from now on: an opening reads its metadata and block
     /// statistics in one round of requests instead of one after another.
     pub fn read_ahead<'k>(&self, keys: impl IntoIterator<Item = &'k str>) -> Result<(), Error> {
-        let wanted: Vec<(String, ObjectPath, Object)> = keys
+        let wanted: Vec<(String, ObjectPath, Object, String)> = keys
             .into_iter()
             .filter_map(|key| {
                 let object = self.objects.get(key)?;
+                let url = self.remote.file(key).to_string_lossy().into_owned();
                 (object.bytes <= READ_AHEAD_BYTES)
-                    .then(|| (key.to_owned(), self.remote.path(key), object.clone()))
+                    .then(|| (key.to_owned(), self.remote.path(key), object.clone(), url))
             })
             .collect();
         let store = self.remote.store.clone();
         let read = run(async move {
             futures_util::stream::iter(wanted)
-                .map(|(key, path, object)| {
+                .map(|(key, path, object, url)| {
                     let store = store.clone();
+                    let cached = cached(&url, &object, &(0..object.bytes));
                     async move {
+                        if let Some((cache, cache_key)) = &cached
+                            && let Some(bytes) = cache.read(cache_key).await
+                            && bytes.len() as u64 == object.bytes
+                        {
+                            return Ok(Some((key, bytes)));
+                        }
                         let options = GetOptions {
                             if_match: object.e_tag,
                             ..GetOptions::default()
                         };
                         let got = async { store.get_opts(&path, options).await?.bytes().await };
                         match got.await {
-                            Ok(bytes) => Ok(Some((key, bytes))),
+                            Ok(bytes) => {
+                                if let Some((cache, cache_key)) = cached {
+                                    cache.keep(cache_key, &bytes);
+                                }
+                                Ok(Some((key, bytes)))
+                            }
                             // Left for the read that needs it to report.
                             Err(object_store::Error::NotFound { .. }) => Ok(None),
                             Err(e) => Err((key, e)),
@@ -751,20 +784,37 @@ impl ReadableStorageTraits for ObjectStorage {
         let store = self.remote.store.clone();
         let path = self.remote.path(key.as_str());
         let e_tag = object.e_tag.clone();
+        let url = self
+            .remote
+            .file(key.as_str())
+            .to_string_lossy()
+            .into_owned();
+        let object = object.clone();
         let read = run(async move {
             futures_util::stream::iter(ranges)
                 .map(|range| {
                     let (store, path, e_tag) = (store.clone(), path.clone(), e_tag.clone());
+                    let cached = cached(&url, &object, &range);
                     async move {
                         if range.is_empty() {
                             return Ok(Bytes::new());
+                        }
+                        if let Some((cache, key)) = &cached
+                            && let Some(bytes) = cache.read(key).await
+                            && bytes.len() as u64 == range.end - range.start
+                        {
+                            return Ok(bytes);
                         }
                         let options = GetOptions {
                             if_match: e_tag,
                             range: Some(GetRange::Bounded(range)),
                             ..GetOptions::default()
                         };
-                        store.get_opts(&path, options).await?.bytes().await
+                        let bytes = store.get_opts(&path, options).await?.bytes().await?;
+                        if let Some((cache, key)) = cached {
+                            cache.keep(key, &bytes);
+                        }
+                        Ok(bytes)
                     }
                 })
                 .buffered(IN_FLIGHT)

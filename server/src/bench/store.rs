@@ -45,6 +45,8 @@ async fn run(args: &BenchStoreArgs) -> anyhow::Result<()> {
                 start_server(vec![dataset.clone()], renderer.clone(), settings).await?;
             let mut socket = connect(&url).await?;
             let read_before = cache.arrivals() + cache.inline_reads();
+            let disk = blocks::store::disk_cache::get();
+            let disk_before = disk.map(|d| (d.hits(), d.misses()));
             send_view(
                 &mut socket,
                 1,
@@ -79,6 +81,8 @@ async fn run(args: &BenchStoreArgs) -> anyhow::Result<()> {
                 "chunks_read": read,
                 "chunks_per_s": read as f64 / (converged_ms / 1e3),
                 "cache_mib": args.data.cache_bytes() >> 20,
+                "store_cache_hits": disk.zip(disk_before).map(|(d, b)| d.hits() - b.0),
+                "store_cache_misses": disk.zip(disk_before).map(|(d, b)| d.misses() - b.1),
             })
             .to_string())?;
         }

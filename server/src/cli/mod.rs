@@ -341,7 +341,7 @@ impl InputArgs {
 }
 
 /// How stores on object storage are reached (flags of every command).
-#[derive(Debug, Clone, Copy, Args)]
+#[derive(Debug, Clone, Args)]
 pub struct ObjectStoreArgs {
     /// Longest wait, in seconds, for an object store's whole answer to one
     /// request (s3://, gs://, az://, https:// stores); a request that waits
@@ -355,6 +355,17 @@ pub struct ObjectStoreArgs {
     #[arg(long, global = true, default_value_t = 4, value_name = "N",
           value_parser = clap::value_parser!(u64).range(0..=20))]
     pub store_retries: u64,
+    /// A folder on local disk that keeps what stores on object storage
+    /// answered (each chunk under its object's URL, ETag and byte range), so
+    /// that later reads, after a restart too, come from disk; one process
+    /// per folder. None by default: every read goes to the store.
+    #[arg(long, global = true, value_name = "DIR")]
+    pub store_cache: Option<PathBuf>,
+    /// The store cache's size on disk, MiB; the oldest ranges make room.
+    #[arg(long, global = true, default_value_t = 10_240, value_name = "MIB",
+          value_parser = clap::value_parser!(u64).range(
+              blocks::store::disk_cache::MIN_MIB..=(1 << 24)))]
+    pub store_cache_mib: u64,
 }
 
 impl ObjectStoreArgs {
