@@ -63,6 +63,26 @@ fn cached(url: &str, object: &Object, range: &Range<u64>) -> Option<(&'static Di
     (small && !range.is_empty()).then(|| (cache, DiskCache::key(url, &version, range)))
 }
 
+/// `len` bytes from the disk cache where `cached` ([`cached`]) holds them,
+/// else from `fetch`, kept there for next time.
+async fn read_through(
+    cached: Option<(&'static DiskCache, String)>,
+    len: u64,
+    fetch: impl Future<Output = Result<Bytes, object_store::Error>>,
+) -> Result<Bytes, object_store::Error> {
+    if let Some((cache, key)) = &cached
+        && let Some(bytes) = cache.read(key).await
+        && bytes.len() as u64 == len
+    {
+        return Ok(bytes);
+    }
+    let bytes = fetch.await?;
+    if let Some((cache, key)) = cached {
+        cache.keep(key, &bytes);
+    }
+    Ok(bytes)
+}
+
 /// The URL schemes of object stores.
 pub const SCHEMES: [&str; 8] = ["s3", "s3a", "gs", "az", "abfs", "abfss", "http", "https"];
 /// Requests in flight at once while uploading or checking a store.
@@ -680,24 +700,13 @@ impl ObjectStorage {
                     let store = store.clone();
                     let cached = cached(&url, &object, &(0..object.bytes));
                     async move {
-                        if let Some((cache, cache_key)) = &cached
-                            && let Some(bytes) = cache.read(cache_key).await
-                            && bytes.len() as u64 == object.bytes
-                        {
-                            return Ok(Some((key, bytes)));
-                        }
                         let options = GetOptions {
                             if_match: object.e_tag,
                             ..GetOptions::default()
                         };
-                        let got = async { store.get_opts(&path, options).await?.bytes().await };
-                        match got.await {
-                            Ok(bytes) => {
-                                if let Some((cache, cache_key)) = cached {
-                                    cache.keep(cache_key, &bytes);
-                                }
-                                Ok(Some((key, bytes)))
-                            }
+                        let fetch = async { store.get_opts(&path, options).await?.bytes().await };
+                        match read_through(cached, object.bytes, fetch).await {
+                            Ok(bytes) => Ok(Some((key, bytes))),
                             // Left for the read that needs it to report.
                             Err(object_store::Error::NotFound { .. }) => Ok(None),
                             Err(e) => Err((key, e)),
@@ -783,7 +792,6 @@ impl ReadableStorageTraits for ObjectStorage {
         }
         let store = self.remote.store.clone();
         let path = self.remote.path(key.as_str());
-        let e_tag = object.e_tag.clone();
         let url = self
             .remote
             .file(key.as_str())
@@ -793,28 +801,20 @@ impl ReadableStorageTraits for ObjectStorage {
         let read = run(async move {
             futures_util::stream::iter(ranges)
                 .map(|range| {
-                    let (store, path, e_tag) = (store.clone(), path.clone(), e_tag.clone());
+                    let (store, path, e_tag) = (store.clone(), path.clone(), object.e_tag.clone());
                     let cached = cached(&url, &object, &range);
                     async move {
                         if range.is_empty() {
                             return Ok(Bytes::new());
                         }
-                        if let Some((cache, key)) = &cached
-                            && let Some(bytes) = cache.read(key).await
-                            && bytes.len() as u64 == range.end - range.start
-                        {
-                            return Ok(bytes);
-                        }
+                        let len = range.end - range.start;
                         let options = GetOptions {
                             if_match: e_tag,
                             range: Some(GetRange::Bounded(range)),
                             ..GetOptions::default()
                         };
-                        let bytes = store.get_opts(&path, options).await?.bytes().await?;
-                        if let Some((cache, key)) = cached {
-                            cache.keep(key, &bytes);
-                        }
-                        Ok(bytes)
+                        let fetch = async { store.get_opts(&path, options).await?.bytes().await };
+                        read_through(cached, len, fetch).await
                     }
                 })
                 .buffered(IN_FLIGHT)
