@@ -356,7 +356,8 @@ pub struct ObjectStoreArgs {
           value_parser = clap::value_parser!(u64).range(0..=20))]
     pub store_retries: u64,
     /// A folder on local disk that keeps what stores on object storage
-    /// answered (each chunk under its object's URL, ETag and byte range), so
+    /// answered (each chunk under its object's URL, version — its ETag, or
+    /// the SHA-256 in the store's manifest — and byte range), so
     /// that later reads, after a restart too, come from disk; one process
     /// per folder. None by default: every read goes to the store.
     #[arg(long, global = true, value_name = "DIR")]
