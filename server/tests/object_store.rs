@@ -25,21 +25,30 @@ fn text(bytes: &[u8]) -> String {
 /// Renders `dataset` on the CPU at 192² into `out`; its pixels, or the
 /// failed run's standard error.
 fn render(env: &[(String, String)], dataset: &str, out: &Path) -> Result<image::RgbaImage, String> {
-    let run = voxserve(
-        env,
-        &[
-            "render",
-            dataset,
-            "--renderer",
-            "cpu",
-            "--width",
-            "192",
-            "--height",
-            "192",
-            "--out",
-            out.to_str().expect("utf-8"),
-        ],
-    );
+    render_with(env, dataset, out, &[])
+}
+
+/// [`render`] with the further arguments `more`.
+fn render_with(
+    env: &[(String, String)],
+    dataset: &str,
+    out: &Path,
+    more: &[&str],
+) -> Result<image::RgbaImage, String> {
+    let mut args = vec![
+        "render",
+        dataset,
+        "--renderer",
+        "cpu",
+        "--width",
+        "192",
+        "--height",
+        "192",
+        "--out",
+        out.to_str().expect("utf-8"),
+    ];
+    args.extend_from_slice(more);
+    let run = voxserve(env, &args);
     if !run.status.success() {
         return Err(text(&run.stderr));
     }
@@ -483,28 +492,9 @@ fn the_store_cache_answers_again_after_a_restart_and_never_for_a_replaced_store(
     // requests the S3 server was sent meanwhile.
     let cached_render = |name: &str| {
         let before = s3.requests();
-        let png = dir.path().join(name);
-        let run = voxserve(
-            &env,
-            &[
-                "render",
-                url,
-                "--renderer",
-                "cpu",
-                "--width",
-                "128",
-                "--height",
-                "128",
-                "--out",
-                png.to_str().expect("utf-8"),
-                "--store-cache",
-                cache,
-                "--store-cache-mib",
-                "64",
-            ],
-        );
-        assert!(run.status.success(), "{}", text(&run.stderr));
-        let image = image::open(&png).expect("a PNG").to_rgba8();
+        let more = ["--store-cache", cache, "--store-cache-mib", "64"];
+        let image = render_with(&env, url, &dir.path().join(name), &more)
+            .expect("a frame through the cache");
         (image, s3.requests() - before)
     };
     let (first, cold) = cached_render("first.png");
@@ -546,25 +536,12 @@ fn the_store_cache_answers_again_after_a_restart_and_never_for_a_replaced_store(
         &["ingest", hydrogen, "--out", local.to_str().expect("utf-8")],
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let run = voxserve(
+    let expected = render(
         &[],
-        &[
-            "render",
-            local.to_str().expect("utf-8"),
-            "--renderer",
-            "cpu",
-            "--width",
-            "128",
-            "--height",
-            "128",
-            "--out",
-            dir.path().join("expected.png").to_str().expect("utf-8"),
-        ],
-    );
-    assert!(run.status.success(), "{}", text(&run.stderr));
-    let expected = image::open(dir.path().join("expected.png"))
-        .expect("a PNG")
-        .to_rgba8();
+        local.to_str().expect("utf-8"),
+        &dir.path().join("expected.png"),
+    )
+    .expect("a frame of the new volume from disk");
     assert!(replaced != first, "the replaced store drew the old volume");
     assert!(
         replaced == expected,
