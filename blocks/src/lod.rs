@@ -343,7 +343,8 @@ impl Look {
         colour: &[[f64; 4]; HISTOGRAM_BINS],
         depth: &[f64; HISTOGRAM_BINS],
     ) -> Look {
-        let h = stats.histogram(0, b);
+        // Level 0's histograms are always held (BlockStats::histogram).
+        let h = stats.histogram(0, b).unwrap_or(&[0; HISTOGRAM_BINS]);
         let voxels = h.iter().map(|&c| f64::from(c)).sum::<f64>().max(1.0);
         let share = |k: usize| f64::from(h[k]) / voxels;
         let mean: [f64; 4] =

@@ -89,7 +89,12 @@ fn every_block_at_every_level_round_trips_for_odd_sizes() {
             }
         }
         assert_eq!(s.min_max(0, b), [lo, hi], "block {pos:?}");
-        let counted: u32 = s.histogram(0, b).iter().map(|&c| u32::from(c)).sum();
+        let counted: u32 = s
+            .histogram(0, b)
+            .expect("level 0")
+            .iter()
+            .map(|&c| u32::from(c))
+            .sum();
         let inside: u32 = (0..3).map(|a| (dims[a] - pos[a] * 16).min(16)).product();
         assert_eq!(counted, inside);
     }

@@ -317,7 +317,10 @@ fn level0_histogram(store: &Store) -> (Vec<u64>, [f64; 2]) {
     let stats = store.stats();
     let mut counts = vec![0u64; blocks::store::HISTOGRAM_BINS];
     for b in 0..stats.block_count() {
-        for (c, &n) in counts.iter_mut().zip(stats.histogram(0, b)) {
+        for (c, &n) in counts
+            .iter_mut()
+            .zip(stats.histogram(0, b).unwrap_or_default())
+        {
             *c += u64::from(n);
         }
     }

@@ -685,10 +685,19 @@ pub(super) fn read_stats(
     let mm: Vec<f64> = min_max
         .retrieve_array_subset_opt(&whole(&min_max), &CodecOptions::default())
         .map_err(|e| read_error("block_min_max", e))?;
+    // Level 0's histograms only (BlockStats::histogram): the first entry
+    // along the level axis.
+    let mut level_0 = histogram.shape().to_vec();
+    if let Some(levels) = level_0.first_mut() {
+        *levels = (*levels).min(1);
+    }
     let hist: Vec<u16> = histogram
-        .retrieve_array_subset_opt(&whole(&histogram), &CodecOptions::default())
+        .retrieve_array_subset_opt(
+            &ArraySubset::new_with_shape(level_0),
+            &CodecOptions::default(),
+        )
         .map_err(|e| read_error("block_histogram", e))?;
-    if mm.len() != stats.minmax.len() || hist.len() != stats.histogram.len() {
+    if mm.len() != stats.minmax.len() || hist.len() != stats.block_count() * HISTOGRAM_BINS {
         return Err(store_error(
             path,
             "voxserve statistics",

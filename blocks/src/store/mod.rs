@@ -315,7 +315,8 @@ impl Store {
         storage.read_ahead(manifest.files.keys().map(String::as_str).filter(|key| {
             key.ends_with("zarr.json")
                 || key.starts_with("voxserve/block_min_max/")
-                || key.starts_with("voxserve/block_histogram/")
+                // Level 0's histograms: the others are not read (BlockStats::histogram).
+                || key.starts_with("voxserve/block_histogram/c/0/")
                 || resident
                     .iter()
                     .any(|prefix| key.starts_with(prefix.as_str()))

@@ -23,7 +23,10 @@ pub struct BlockStats {
     pub range: [f64; 2],
     /// `[min, max]` per level and block, level-major, then z, y, x of the block.
     pub minmax: Vec<f64>,
-    /// [`HISTOGRAM_BINS`] counts per level and block, in the same order.
+    /// [`HISTOGRAM_BINS`] counts per level and block, in the same order: of
+    /// every level when written at ingest, of level 0 only when read from a
+    /// store (the only level the transfer function ranks blocks by; the
+    /// others would take four times its memory, 256 bytes per block).
     pub histogram: Vec<u16>,
 }
 
@@ -66,10 +69,12 @@ impl BlockStats {
         [self.minmax[i], self.minmax[i + 1]]
     }
 
-    /// The histogram of block `b` at `level`.
-    pub fn histogram(&self, level: usize, b: usize) -> &[u16] {
+    /// The histogram of block `b` at `level`; `None` for a level these
+    /// statistics do not hold (see [`BlockStats::histogram`]) or a block
+    /// outside the grid.
+    pub fn histogram(&self, level: usize, b: usize) -> Option<&[u16]> {
         let i = (level * self.block_count() + b) * HISTOGRAM_BINS;
-        &self.histogram[i..i + HISTOGRAM_BINS]
+        self.histogram.get(i..i + HISTOGRAM_BINS)
     }
 
     /// The stored-value interval of bin `k`.
@@ -236,15 +241,23 @@ mod tests {
         s.fill_row(0, &l, dims);
         assert_eq!(s.min_max(0, 0), [0.0, 0.0]);
         assert_eq!(s.min_max(0, 1), [0.0, 255.0]);
-        assert_eq!(s.histogram(0, 0)[0], 4096);
+        assert_eq!(s.histogram(0, 0).expect("level 0")[0], 4096);
         assert_eq!(
-            s.histogram(0, 1).iter().map(|&c| u32::from(c)).sum::<u32>(),
+            s.histogram(0, 1)
+                .expect("level 0")
+                .iter()
+                .map(|&c| u32::from(c))
+                .sum::<u32>(),
             4096
         );
         // Level 4 is one voxel per block: its value.
         assert_eq!(s.min_max(4, 1), [l[4].get(1), l[4].get(1)]);
         assert_eq!(
-            s.histogram(4, 1).iter().map(|&c| u32::from(c)).sum::<u32>(),
+            s.histogram(4, 1)
+                .expect("level 4")
+                .iter()
+                .map(|&c| u32::from(c))
+                .sum::<u32>(),
             1
         );
     }
