@@ -188,7 +188,9 @@ async fn pacs_fetch(args: PacsFetchArgs) -> anyhow::Result<()> {
     );
     tokio::task::spawn_blocking(move || {
         let mut source = crate::pacs::fetch::open_fetched(&fetched)?;
-        write_store(source.as_mut(), &out, force, level).with_context(|| what)
+        write_store(source.as_mut(), &out, force, level)
+            .with_context(|| what)?
+            .say()
     })
     .await?
 }
@@ -899,17 +901,50 @@ fn info_text(
 /// `voxserve ingest`: a brick store from a volume file or DICOM folder.
 pub fn ingest(args: &IngestArgs) -> anyhow::Result<()> {
     let mut source = ingest::open(&args.input, &args.input_options.open_options())?;
-    write_store(source.as_mut(), &args.out, args.force, args.zstd_level)
+    write_store(source.as_mut(), &args.out, args.force, args.zstd_level)?.say()
 }
 
-/// Writes `source` as a brick store at `out` with a progress bar, and says
-/// what was written.
-fn write_store(
+/// A brick store [`write_store`] wrote.
+#[derive(Debug, Clone)]
+pub struct Written {
+    /// Where: the folder, or the object-store URL.
+    pub store: String,
+    /// What the ingest wrote.
+    pub summary: blocks::store::IngestSummary,
+    /// Seconds the upload to object storage took (after the ingest into a
+    /// local folder), when the store went there.
+    pub upload_seconds: Option<f64>,
+}
+
+impl Written {
+    /// Says what was written, in one line.
+    pub fn say(&self) -> anyhow::Result<()> {
+        let summary = &self.summary;
+        let [x, y, z] = summary.dims;
+        say(&format!(
+            "wrote {}: {x} × {y} × {z} {} voxels, {} blocks of 16³ ({} uniform) at 5 levels; \
+             {:.1} MB of voxels in {:.1} MB (compression {:.2}:1); {:.1} s, {:.0} MB/s",
+            self.store,
+            summary.voxel_type.name(),
+            summary.blocks,
+            summary.uniform_blocks,
+            summary.source_bytes as f64 / 1e6,
+            summary.store_bytes as f64 / 1e6,
+            summary.compression_ratio(),
+            summary.seconds,
+            summary.mb_per_s(),
+        ))
+    }
+}
+
+/// Writes `source` as a brick store at `out` (a folder, or an object-store
+/// URL: written to a local folder, then uploaded) with a progress bar.
+pub fn write_store(
     source: &mut dyn VolumeSource,
     out: &std::path::Path,
     force: bool,
     zstd_level: i32,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Written> {
     let nz = u64::from(source.info().geometry.dims[2]);
     let options = blocks::store::IngestOptions {
         overwrite: force,
@@ -959,31 +994,25 @@ fn write_store(
         }
     })?;
     bar.finish_and_clear();
-    let mut written = out.display().to_string();
+    let mut store = out.display().to_string();
+    let mut upload_seconds = None;
     if let Some((remote, _)) = &remote {
         let start = Instant::now();
         let (files, bytes) = remote.upload(out)?;
+        let seconds = start.elapsed().as_secs_f64();
         tracing::info!(
-            "uploaded {files} files, {:.1} MB, to {} in {:.1} s",
+            "uploaded {files} files, {:.1} MB, to {} in {seconds:.1} s",
             bytes as f64 / 1e6,
             remote.url(),
-            start.elapsed().as_secs_f64()
         );
-        written = remote.url().to_owned();
+        store = remote.url().to_owned();
+        upload_seconds = Some(seconds);
     }
-    let [x, y, z] = summary.dims;
-    say(&format!(
-        "wrote {written}: {x} × {y} × {z} {} voxels, {} blocks of 16³ ({} uniform) at 5 levels; \
-         {:.1} MB of voxels in {:.1} MB (compression {:.2}:1); {:.1} s, {:.0} MB/s",
-        summary.voxel_type.name(),
-        summary.blocks,
-        summary.uniform_blocks,
-        summary.source_bytes as f64 / 1e6,
-        summary.store_bytes as f64 / 1e6,
-        summary.compression_ratio(),
-        summary.seconds,
-        summary.mb_per_s(),
-    ))
+    Ok(Written {
+        store,
+        summary,
+        upload_seconds,
+    })
 }
 
 /// `voxserve verify STORE`: every file against the manifest.

@@ -53,6 +53,12 @@ pub enum BenchCommand {
     /// the first frame of a view session and its converged frame, chunks
     /// read per second.
     Store(Box<BenchStoreArgs>),
+    /// A volume larger than memory end to end: a generated CT-like volume
+    /// ingested (MB/s, peak memory) into a store on disk or object storage,
+    /// then served: opening, the first frame at a high data reduction,
+    /// refinement within the memory budgets, and resident memory while the
+    /// view orbits and the transfer function changes.
+    OutOfCore(Box<BenchOutOfCoreArgs>),
     /// Extinction-based illumination as its paper reports it: summed-area-table
     /// build time per grid size, ambient occlusion per shell count against
     /// explicit sampling, soft shadows per cone sampling against one shadow
@@ -269,6 +275,45 @@ pub struct BenchStoreArgs {
     pub renderer: RendererArgs,
     #[command(flatten)]
     pub data: DataArgs,
+}
+
+/// `voxserve bench out-of-core`.
+#[derive(Debug, Args)]
+pub struct BenchOutOfCoreArgs {
+    /// Where the store goes: a folder, or a URL on object storage (`s3://…`).
+    #[arg(long)]
+    pub out: String,
+    /// Size of the generated volume, GiB of 16-bit voxels.
+    #[arg(long, default_value_t = 32.0, value_parser = finite_in(0.001, 4096.0))]
+    pub gib: f32,
+    /// Voxels along x and y of each slice of the generated volume; z makes up
+    /// the size (the ingest holds about one 16-slice slab of them in memory).
+    #[arg(long, default_value_t = 1536,
+          value_parser = clap::value_parser!(u32).range(16..=16384))]
+    pub slice_edge: u32,
+    /// Replace a store already at --out.
+    #[arg(long, conflicts_with = "reuse")]
+    pub force: bool,
+    /// Serve the store already at --out (from an earlier run) instead of
+    /// ingesting one.
+    #[arg(long)]
+    pub reuse: bool,
+    /// Image edge in pixels (square).
+    #[arg(long, default_value_t = 512, value_parser = setting_value::<u32>("w"))]
+    pub size: u32,
+    /// The data reduction of the first view; the views after it ask for full
+    /// detail (1:1), which the memory budgets cap.
+    #[arg(long, default_value_t = 200.0, value_parser = setting_value::<f32>("reduction"))]
+    pub first_reduction: f32,
+    /// Views of the orbit after the first two, each 360°/VIEWS further round;
+    /// every second one also changes the transfer-function preset.
+    #[arg(long, default_value_t = 8,
+          value_parser = clap::value_parser!(u32).range(1..=360))]
+    pub views: u32,
+    #[command(flatten)]
+    pub renderer: RendererArgs,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
 }
 
 /// `voxserve bench light`.

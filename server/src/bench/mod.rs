@@ -2,7 +2,7 @@
 //! that produced it. Speed and memory targets are checked here, never by tests.
 //!
 //! One module per benchmark (`render`, `read`, `blocks`, `light`, `stream`,
-//! `slice`, `extinction`, `peer`, `pacs`), its flags in `args`, the real datasets in `reference_data`;
+//! `slice`, `store`, `out_of_core`, `extinction`, `peer`, `pacs`), its flags in `args`, the real datasets in `reference_data`;
 //! this module dispatches and holds what several benchmarks share.
 
 use std::io::Write as _;
@@ -21,6 +21,7 @@ pub mod args;
 mod blocks;
 mod extinction;
 mod light;
+mod out_of_core;
 mod pacs;
 mod peer;
 mod read;
@@ -33,6 +34,7 @@ mod stream;
 use blocks::blocks;
 use extinction::extinction;
 use light::light;
+use out_of_core::out_of_core;
 use pacs::pacs;
 use peer::peer;
 use read::read;
@@ -51,6 +53,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         BenchCommand::Stream(a) => stream(a),
         BenchCommand::Slice(a) => slice(a),
         BenchCommand::Store(a) => store(a),
+        BenchCommand::OutOfCore(a) => out_of_core(a),
         BenchCommand::Extinction(a) => extinction(a),
         BenchCommand::Peer(a) => peer(a),
         BenchCommand::Pacs(a) => pacs(a),
@@ -140,10 +143,26 @@ impl Drop for Scratch {
 
 /// The process's peak resident memory in MiB (Linux: VmHWM), if known.
 fn peak_rss_mib() -> Option<f64> {
+    proc_status_mib("VmHWM:")
+}
+
+/// The process's resident memory now, MiB (Linux: VmRSS), if known.
+fn rss_mib() -> Option<f64> {
+    proc_status_mib("VmRSS:")
+}
+
+/// A memory figure of `/proc/self/status` (its line starting with `field`) in MiB.
+fn proc_status_mib(field: &str) -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let line = status.lines().find(|l| l.starts_with(field))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib / 1024.0)
+}
+
+/// Starts the peak of [`peak_rss_mib`] afresh from the memory resident now
+/// (Linux: writing 5 to `/proc/self/clear_refs`); whether it could.
+fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 
 /// Writes a little-endian uint16 raw volume of `dims`, voxel (x, y, z) =

@@ -36,6 +36,7 @@ use tokio::net::TcpListener;
 use tokio_tungstenite::tungstenite::Message;
 
 use super::args::BenchStreamArgs;
+use super::rss_mib;
 use server::commands::{load_dataset, say};
 use server::encode::Lossless;
 use server::protocol::FrameHeader;
@@ -177,14 +178,6 @@ pub(super) fn quantile(values: &mut [f64], q: f64) -> f64 {
     values.sort_by(f64::total_cmp);
     let i = ((values.len() as f64 * q).ceil() as usize).saturating_sub(1);
     values.get(i).copied().unwrap_or(f64::NAN)
-}
-
-/// The process's resident memory now, MiB (Linux: VmRSS), if known.
-fn rss_mib() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib / 1024.0)
 }
 
 /// Per format, a server in this process: latency lines per image size, and
