@@ -19,7 +19,10 @@
 //! below the toolbar, tries again at most 3 times in 7 s, and draws once the
 //! place frees. A fourth restarts
 //! the server on the same port without the dataset the page shows: the page
-//! switches to one the new server offers and draws it at its own size.
+//! switches to one the new server offers and draws it at its own size. A
+//! fifth loads the page through nginx (Debian's) in front of two nodes,
+//! drags the view round, shuts down the node serving it: the page reconnects
+//! through nginx to the other node and shows the same lossless frame.
 //!
 //! At 1400×900 a window/level drag across the transfer-function editor keeps
 //! it on the histogram, and the preset chosen again restores it; the status
@@ -778,6 +781,125 @@ async fn after_a_restart_without_its_dataset_the_page_shows_one_the_server_offer
     )
     .await;
     let result = restarted(&client, first).await;
+    finish(test, client, result).await;
+}
+
+/// The view sessions open on `server` (its `/metrics`).
+async fn sessions_open(server: &TestServer) -> Result<u32, String> {
+    let text = reqwest::get(server.url("/metrics"))
+        .await
+        .map_err(|e| format!("GET /metrics: {e}"))?
+        .text()
+        .await
+        .map_err(|e| format!("/metrics: {e}"))?;
+    text.lines()
+        .find_map(|line| line.strip_prefix("voxserve_sessions_open "))
+        .and_then(|n| n.trim().parse().ok())
+        .ok_or_else(|| format!("no voxserve_sessions_open in /metrics: {text}"))
+}
+
+/// The page, loaded through nginx, draws a view it was dragged to; the node
+/// serving it shuts down (its sessions closed with 1001, as a drain does);
+/// the page reconnects through nginx, reaches the other node with its view
+/// and shows the same lossless frame.
+async fn reconnected(
+    client: &Client,
+    nginx: &voxserve_tests::nginx::Nginx,
+    mut nodes: Vec<TestServer>,
+) -> Result<(), String> {
+    let url = format!("{}/", nginx.url);
+    client
+        .goto(&url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    wait_for(
+        client,
+        "the first full frame",
+        &full_frame_of("phantom"),
+        |v| v == 1.0,
+    )
+    .await?;
+    let first = pixels(client).await?;
+    // A view of its own: dragged round, then still and lossless again.
+    drag_across(client).await?;
+    wait_for(client, "a frame of the dragged view", PIXELS, |p| {
+        p != first
+    })
+    .await?;
+    wait_for(
+        client,
+        "the dragged view, full",
+        &full_frame_of("phantom"),
+        |v| v == 1.0,
+    )
+    .await?;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let view = pixels(client).await?;
+    let mut serving = None;
+    for (i, node) in nodes.iter().enumerate() {
+        if sessions_open(node).await? == 1 {
+            serving = Some(i);
+        }
+    }
+    let serving = serving.ok_or("the session is on neither node")?;
+    let frames = number(client, "frames", FRAMES).await?;
+    nodes
+        .remove(serving)
+        .shut_down()
+        .await
+        .map_err(|e| format!("shutting the serving node down: {e}"))?;
+    wait_for(client, "a frame from the other node", FRAMES, |n| {
+        n > frames
+    })
+    .await?;
+    wait_for(
+        client,
+        "the view again, full",
+        &full_frame_of("phantom"),
+        |v| v == 1.0,
+    )
+    .await?;
+    let again = pixels(client).await?;
+    let other = sessions_open(&nodes[0]).await?;
+    let fidelity = text(client, "fidelity", FIDELITY).await?;
+    println!("after the node shut down: {fidelity}; sessions on the other node: {other}");
+    if other != 1 {
+        return Err(format!(
+            "{other} sessions on the other node: expected the page's"
+        ));
+    }
+    if again != view {
+        return Err(format!(
+            "the view after reconnecting differs: canvas fingerprint {again} (before {view})"
+        ));
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn through_nginx_the_page_reconnects_to_the_other_node_with_its_view_when_its_node_goes() {
+    let test =
+        "through_nginx_the_page_reconnects_to_the_other_node_with_its_view_when_its_node_goes";
+    let Some((_driver, client)) = open_browser(test).await else {
+        return;
+    };
+    let nodes = vec![
+        phantom_on_cpu(StreamSettings::default()).await,
+        phantom_on_cpu(StreamSettings::default()).await,
+    ];
+    let addresses: Vec<String> = nodes
+        .iter()
+        .map(|n| n.base_url.trim_start_matches("http://").to_owned())
+        .collect();
+    let addresses: Vec<&str> = addresses.iter().map(String::as_str).collect();
+    let Some(nginx) = voxserve_tests::nginx::Nginx::start_or_skip(test, &addresses) else {
+        let _ = client.close().await;
+        return;
+    };
+    let result = reconnected(&client, &nginx, nodes).await;
+    if result.is_err() {
+        println!("nginx: {}", nginx.log());
+    }
     finish(test, client, result).await;
 }
 
