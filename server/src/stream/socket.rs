@@ -148,6 +148,15 @@ impl Liveness {
         self.expires.map_or(due, |at| due.min(at))
     }
 
+    /// A frame rendered from `started` to `now`. No ping goes out while one
+    /// renders (the timer waits for it), so the peer could not be heard
+    /// meanwhile: that time does not count as its silence (a render longer
+    /// than [`PEER_PATIENCE`] would otherwise close a live session). A ping
+    /// that fell due goes out at once.
+    fn after_render(&mut self, started: Instant, now: Instant) {
+        self.heard = (self.heard + now.saturating_duration_since(started)).min(now);
+    }
+
     fn on_received(&mut self, now: Instant, message: &Message) {
         self.heard = now;
         if matches!(message, Message::Text(_)) {
@@ -243,6 +252,8 @@ where
     E: std::fmt::Display,
 {
     let mut job: Option<Job> = None;
+    // When the render in `job` started.
+    let mut job_started = Instant::now();
     let idle = Duration::from_secs(state.stream.session_idle_s);
     let mut liveness = Liveness::new(Instant::now(), idle, caller.principal.expires);
     // The dataset last recorded as viewed in the audit trail.
@@ -263,6 +274,7 @@ where
                     state.audit(&line);
                 }
                 job = Some(render_job(state, place.client().clone(), *render));
+                job_started = Instant::now();
                 continue;
             }
             Action::WaitForBlocks { dataset, seen } => {
@@ -298,6 +310,7 @@ where
         let now = Instant::now();
         match &event {
             Event::Received(message) => liveness.on_received(now, message),
+            Event::Rendered(_) => liveness.after_render(job_started, now),
             Event::Timer => {
                 if liveness.expires.is_some_and(|at| now >= at) {
                     return End::Expired;
@@ -745,6 +758,28 @@ mod tests {
             });
             Watchdog { _done: done }
         }
+    }
+
+    #[test]
+    fn a_render_longer_than_the_peer_s_patience_is_not_its_silence() {
+        let start = Instant::now();
+        let mut liveness = Liveness::new(start, Duration::from_secs(3600), None);
+        // Last heard when a frame started, which rendered for 90 s: no ping
+        // could go out meanwhile.
+        let now = start + PEER_PATIENCE + Duration::from_secs(30);
+        liveness.after_render(start, now);
+        assert!(
+            now < liveness.heard + PEER_PATIENCE,
+            "a live session would close as silent after a long render"
+        );
+        // The ping that fell due during the render goes out at once.
+        assert!(liveness.due() <= now);
+        // Silence after the render still counts.
+        assert!(now + PEER_PATIENCE >= liveness.heard + PEER_PATIENCE);
+        // A quick render moves the silence clock on by its length only.
+        let mut quick = Liveness::new(start, Duration::from_secs(3600), None);
+        quick.after_render(start, start + Duration::from_millis(100));
+        assert_eq!(quick.heard, start + Duration::from_millis(100));
     }
 
     #[tokio::test(start_paused = true)]
