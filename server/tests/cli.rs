@@ -961,3 +961,99 @@ async fn serve_drains_on_sigterm_and_exits_at_once_when_stopped_again() {
     // The frame was cut off with the process.
     assert!(big.await.expect("the request task").is_err());
 }
+
+/// The JSON lines of `bench` output whose `bench` field is `kind`.
+fn bench_lines(stdout: &str, kind: &str) -> Vec<serde_json::Value> {
+    stdout
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter(|v| v["bench"] == kind)
+        .collect()
+}
+
+#[test]
+fn bench_out_of_core_ingests_a_generated_volume_then_serves_it_and_serves_it_again() {
+    let dir = tempfile::tempdir().expect("temp");
+    let store = dir.path().join("generated.zarr");
+    let store_arg = store.to_str().expect("utf-8");
+    // 64 × 64 slices of 16-bit voxels, as many as make 4 MiB: 512.
+    let args = [
+        "bench",
+        "out-of-core",
+        "--out",
+        store_arg,
+        "--gib",
+        "0.00390625",
+        "--slice-edge",
+        "64",
+        "--views",
+        "2",
+        "--size",
+        "64",
+        "--renderer",
+        "cpu",
+    ];
+    let out = voxserve(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let ingest = bench_lines(&stdout, "out-of-core-ingest");
+    assert_eq!(ingest.len(), 1, "{stdout}");
+    assert_eq!(
+        ingest[0]["dims"],
+        serde_json::json!([64, 64, 512]),
+        "{stdout}"
+    );
+    assert!(
+        ingest[0]["peak_rss_mib"].as_f64().is_some_and(|m| m > 0.0),
+        "{stdout}"
+    );
+    let opened = blocks::store::Store::open(&store).expect("the store opens");
+    assert_eq!(opened.meta().geometry.dims, [64, 64, 512]);
+    assert_eq!(opened.meta().unit.as_deref(), Some("HU"));
+
+    let served = |stdout: &str| {
+        let views = bench_lines(stdout, "out-of-core-view");
+        // The first view, full detail, and the orbit's two (the second with a preset).
+        assert_eq!(views.len(), 4, "{stdout}");
+        for view in &views {
+            let first = view["first_frame_ms"].as_f64().expect("a first frame");
+            let converged = view["converged_ms"].as_f64().expect("a converged frame");
+            assert!(first <= converged, "{view}");
+            assert!(view["rss_mib"].as_f64().is_some_and(|m| m > 0.0), "{view}");
+        }
+        assert!(views[0]["open_ms"].as_f64().is_some(), "{stdout}");
+        assert!(
+            views[3]["view"]
+                .as_str()
+                .is_some_and(|v| v.contains("preset ct-angio")),
+            "{stdout}"
+        );
+        let summary = bench_lines(stdout, "out-of-core-serve");
+        assert_eq!(summary.len(), 1, "{stdout}");
+        assert!(
+            summary[0]["peak_rss_mib"].as_f64().is_some_and(|m| m > 0.0),
+            "{stdout}"
+        );
+    };
+    served(&stdout);
+
+    // Again without --force: the store is not replaced.
+    let again = voxserve(&args);
+    assert!(!again.status.success(), "{}", text(&again.stdout));
+    assert!(
+        text(&again.stderr).contains("--force"),
+        "{}",
+        text(&again.stderr)
+    );
+    // --reuse serves the store the first run left, without ingesting.
+    let mut reuse = args.to_vec();
+    reuse.push("--reuse");
+    let out = voxserve(&reuse);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(
+        bench_lines(&stdout, "out-of-core-ingest").is_empty(),
+        "{stdout}"
+    );
+    served(&stdout);
+}
