@@ -281,31 +281,25 @@ pub struct CpuAtlas {
 }
 
 impl CpuAtlas {
-    /// Writes the slots of blocks `blocks` (their voxels with the apron)
-    /// from `source`, decoding in parallel.
+    /// Writes the slots of those of `blocks` that are stored (their voxels
+    /// with the apron) from `source`: one parallel pass, each block decoded
+    /// straight into its slot.
     fn write_slots(
         atlas: &mut SlotAtlas,
         packing: &Packing,
         desc: &VolumeTexture,
         source: BlockSource<'_>,
-        blocks: &[usize],
+        blocks: impl IntoIterator<Item = usize>,
     ) -> Result<(), GpuError> {
-        for chunk in blocks.chunks(256) {
-            let slots: Vec<(usize, Vec<f32>)> = chunk
-                .par_iter()
-                .filter(|&&b| packing.slot_origin(b).is_some())
-                .map(|&b| {
-                    let voxels = source(b, &packing.lod)?;
-                    Ok((b, desc.texel_values(&voxels)))
-                })
-                .collect::<Result<_, GpuError>>()?;
-            for (b, values) in slots {
-                if let Some(slot) = atlas.slot_mut(b, usize::from(packing.lod[b])) {
-                    slot.copy_from_slice(&values);
-                }
-            }
-        }
-        Ok(())
+        let lod = &packing.lod;
+        atlas
+            .slots_mut(blocks, lod)
+            .into_par_iter()
+            .try_for_each(|(b, slot)| {
+                let voxels = source(b, lod)?;
+                slot.copy_from_slice(&desc.texel_values(&voxels));
+                Ok(())
+            })
     }
 }
 
@@ -338,8 +332,7 @@ impl Atlas for CpuAtlas {
     ) -> Result<CpuAtlas, GpuError> {
         let dims = packing.atlas_dims;
         let mut atlas = SlotAtlas::new(&packing);
-        let blocks: Vec<usize> = (0..packing.lod.len()).collect();
-        CpuAtlas::write_slots(&mut atlas, &packing, desc, source, &blocks)?;
+        CpuAtlas::write_slots(&mut atlas, &packing, desc, source, 0..packing.lod.len())?;
         Ok(CpuAtlas {
             texture: PackedTexture {
                 atlas,
@@ -369,7 +362,7 @@ impl Atlas for CpuAtlas {
     ) -> Result<(), GpuError> {
         let atlas = &mut self.texture.atlas;
         atlas.set_packing(&packing);
-        CpuAtlas::write_slots(atlas, &packing, desc, source, uploads)?;
+        CpuAtlas::write_slots(atlas, &packing, desc, source, uploads.iter().copied())?;
         self.texture.index = packing.block_index(self.layout.block_grid).entries;
         self.packing = packing;
         Ok(())

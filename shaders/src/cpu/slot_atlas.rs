@@ -170,6 +170,37 @@ impl SlotAtlas {
         self.block_base.get(b).copied().filter(|&s| s != usize::MAX)
     }
 
+    /// The slots of those of `blocks` that are stored (`lod`, the packing's
+    /// level per block, sizes them), each once and in texel order, to be
+    /// written at the same time.
+    pub fn slots_mut(
+        &mut self,
+        blocks: impl IntoIterator<Item = usize>,
+        lod: &[u8],
+    ) -> Vec<(usize, &mut [f32])> {
+        let mut wanted: Vec<(usize, usize, usize)> = blocks
+            .into_iter()
+            .filter_map(|b| {
+                let start = self.slot_base(b)?;
+                let e = slot_edge(usize::from(*lod.get(b)?)) as usize;
+                Some((start, e * e * e, b))
+            })
+            .collect();
+        wanted.sort_unstable();
+        let mut slots = Vec::with_capacity(wanted.len());
+        let (mut rest, mut at): (&mut [f32], usize) = (&mut self.texels, 0);
+        for (start, len, b) in wanted {
+            // A block named twice is written once.
+            if start < at || start + len > at + rest.len() {
+                continue;
+            }
+            let (slot, tail) = std::mem::take(&mut rest)[start - at..].split_at_mut(len);
+            slots.push((b, slot));
+            (rest, at) = (tail, start + len);
+        }
+        slots
+    }
+
     /// Every slot's texels.
     pub fn texels(&self) -> &[f32] {
         &self.texels
@@ -499,5 +530,31 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn slots_to_write_at_once_are_each_stored_block_s_own_once() {
+        let lod = vec![0u8, EMPTY, 2, 0, 1];
+        let packing = Packing::new(&LodSelection::from_levels(lod.clone()), 2048).expect("packing");
+        let mut atlas = SlotAtlas::new(&packing);
+        // Named out of order, one twice, one not stored, one beyond the grid.
+        for (b, slot) in atlas.slots_mut([4, 0, 1, 3, 0, 2, 9], &lod) {
+            slot.fill(b as f32 + 1.0);
+        }
+        for b in [0usize, 2, 3, 4] {
+            let slot = atlas.slot_mut(b, usize::from(lod[b])).expect("stored");
+            let e = slot_edge(usize::from(lod[b])) as usize;
+            assert_eq!(slot.len(), e * e * e);
+            assert!(
+                slot.iter().all(|&t| t == b as f32 + 1.0),
+                "block {b}'s slot"
+            );
+        }
+        let written = atlas.texels().iter().filter(|&&t| t != 0.0).count();
+        let slots: usize = [0usize, 2, 3, 4]
+            .iter()
+            .map(|&b| (slot_edge(usize::from(lod[b])) as usize).pow(3))
+            .sum();
+        assert_eq!(written, slots, "texels outside the slots");
     }
 }
