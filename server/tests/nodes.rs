@@ -15,7 +15,7 @@ use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode;
 use voxserve_tests::nginx::Nginx;
 use voxserve_tests::s3::S3Server;
-use voxserve_tests::server::Spawned;
+use voxserve_tests::server::{Spawned, sessions_open};
 
 const VOXSERVE: &str = env!("CARGO_BIN_EXE_voxserve");
 
@@ -54,16 +54,6 @@ async fn get(url: &str) -> (u16, String) {
         .unwrap_or_else(|e| panic!("GET {url}: {e}"));
     let status = response.status().as_u16();
     (status, response.text().await.expect("a body"))
-}
-
-/// The view sessions open on the node at `url` (its `/metrics`).
-async fn sessions_open(url: &str) -> u32 {
-    let (status, text) = get(&format!("{url}/metrics")).await;
-    assert_eq!(status, 200, "{text}");
-    text.lines()
-        .find_map(|line| line.strip_prefix("voxserve_sessions_open "))
-        .and_then(|n| n.trim().parse().ok())
-        .unwrap_or_else(|| panic!("no voxserve_sessions_open in {text}"))
 }
 
 /// A frame as it came: its header's message id and flags, and the encoded
@@ -252,7 +242,7 @@ async fn a_viewer_whose_node_drains_reconnects_through_nginx_to_the_other_with_i
     let first = full_frame(&mut socket, 1).await;
     let mut serving = None;
     for (i, node) in nodes.iter().enumerate() {
-        if sessions_open(&node.url).await == 1 {
+        if sessions_open(&node.url).await.expect("the node's /metrics") == 1 {
             assert!(serving.is_none(), "the session is on both nodes");
             serving = Some(i);
         }
@@ -335,7 +325,9 @@ async fn a_viewer_whose_node_drains_reconnects_through_nginx_to_the_other_with_i
     full_frame(&mut socket, 1).await;
     let survivor = &nodes[0];
     assert_eq!(
-        sessions_open(&survivor.url).await,
+        sessions_open(&survivor.url)
+            .await
+            .expect("the survivor's /metrics"),
         1,
         "the session reopened on the other node (index {other})"
     );

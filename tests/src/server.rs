@@ -280,3 +280,20 @@ impl Drop for Spawned {
         let _ = self.child.wait();
     }
 }
+
+/// The view sessions open on the node at `base_url` (`http://host:port`), as
+/// its `/metrics` counts them.
+pub async fn sessions_open(base_url: &str) -> Result<u32, String> {
+    let url = format!("{base_url}/metrics");
+    let text = reqwest::get(&url)
+        .await
+        .and_then(reqwest::Response::error_for_status)
+        .map_err(|e| format!("GET {url}: {e}"))?
+        .text()
+        .await
+        .map_err(|e| format!("{url}: {e}"))?;
+    text.lines()
+        .find_map(|line| line.strip_prefix("voxserve_sessions_open "))
+        .and_then(|n| n.trim().parse().ok())
+        .ok_or_else(|| format!("no voxserve_sessions_open in {url}: {text}"))
+}

@@ -61,7 +61,7 @@ use server::stream::StreamSettings;
 use voxserve_tests::gpu::report_skip;
 use voxserve_tests::gpu_or_skip;
 use voxserve_tests::issuer::Issuer;
-use voxserve_tests::server::TestServer;
+use voxserve_tests::server::{TestServer, sessions_open};
 
 /// How long the page may take to show each expected change.
 const PATIENCE: Duration = Duration::from_secs(120);
@@ -727,21 +727,21 @@ fn full_frame_of(dataset: &str) -> String {
     )
 }
 
+/// Loads the page at `url` and waits for its full-size frame of the
+/// phantom (`what` names it in a timeout).
+async fn open_full(client: &Client, url: &str, what: &str) -> Result<(), String> {
+    client
+        .goto(url)
+        .await
+        .map_err(|e| format!("loading {url}: {e}"))?;
+    wait_for(client, what, &full_frame_of("phantom"), |v| v == 1.0).await?;
+    Ok(())
+}
+
 /// The page draws the phantom; the server restarts on the same port
 /// offering only the ball; the page takes the ball and draws it full size.
 async fn restarted(client: &Client, first: TestServer) -> Result<(), String> {
-    let url = first.url("/");
-    client
-        .goto(&url)
-        .await
-        .map_err(|e| format!("loading {url}: {e}"))?;
-    wait_for(
-        client,
-        "the phantom, full size",
-        &full_frame_of("phantom"),
-        |v| v == 1.0,
-    )
-    .await?;
+    open_full(client, &first.url("/"), "the phantom, full size").await?;
     let address = first.base_url.trim_start_matches("http://").to_owned();
     first
         .shut_down()
@@ -784,20 +784,6 @@ async fn after_a_restart_without_its_dataset_the_page_shows_one_the_server_offer
     finish(test, client, result).await;
 }
 
-/// The view sessions open on `server` (its `/metrics`).
-async fn sessions_open(server: &TestServer) -> Result<u32, String> {
-    let text = reqwest::get(server.url("/metrics"))
-        .await
-        .map_err(|e| format!("GET /metrics: {e}"))?
-        .text()
-        .await
-        .map_err(|e| format!("/metrics: {e}"))?;
-    text.lines()
-        .find_map(|line| line.strip_prefix("voxserve_sessions_open "))
-        .and_then(|n| n.trim().parse().ok())
-        .ok_or_else(|| format!("no voxserve_sessions_open in /metrics: {text}"))
-}
-
 /// The page, loaded through nginx, draws a view it was dragged to; the node
 /// serving it shuts down (its sessions closed with 1001, as a drain does);
 /// the page reconnects through nginx, reaches the other node with its view
@@ -807,18 +793,7 @@ async fn reconnected(
     nginx: &voxserve_tests::nginx::Nginx,
     mut nodes: Vec<TestServer>,
 ) -> Result<(), String> {
-    let url = format!("{}/", nginx.url);
-    client
-        .goto(&url)
-        .await
-        .map_err(|e| format!("loading {url}: {e}"))?;
-    wait_for(
-        client,
-        "the first full frame",
-        &full_frame_of("phantom"),
-        |v| v == 1.0,
-    )
-    .await?;
+    open_full(client, &format!("{}/", nginx.url), "the first full frame").await?;
     let first = pixels(client).await?;
     // A view of its own: dragged round, then still and lossless again.
     drag_across(client).await?;
@@ -837,7 +812,7 @@ async fn reconnected(
     let view = pixels(client).await?;
     let mut serving = None;
     for (i, node) in nodes.iter().enumerate() {
-        if sessions_open(node).await? == 1 {
+        if sessions_open(&node.base_url).await? == 1 {
             serving = Some(i);
         }
     }
@@ -860,7 +835,7 @@ async fn reconnected(
     )
     .await?;
     let again = pixels(client).await?;
-    let other = sessions_open(&nodes[0]).await?;
+    let other = sessions_open(&nodes[0].base_url).await?;
     let fidelity = text(client, "fidelity", FIDELITY).await?;
     println!("after the node shut down: {fidelity}; sessions on the other node: {other}");
     if other != 1 {
