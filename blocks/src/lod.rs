@@ -376,25 +376,25 @@ impl Look {
     }
 }
 
-/// Per block, `None` when it is empty under `tf` (its level-0 value range has
-/// no opacity), else its [`Look`].
+/// The blocks `tf` shows (their level-0 value range has some opacity), in
+/// [`BlockStats`] order, each with its [`Look`]; the others are empty.
 fn classify_blocks(
     stats: &BlockStats,
     value_map: ValueMap,
     tf: &TransferFunction,
-) -> Vec<Option<Look>> {
+) -> Vec<(usize, Look)> {
     let colour = bin_colours(stats, value_map, tf);
     let depth = bin_depths(stats, value_map, tf);
     (0..stats.block_count())
         .into_par_iter()
-        .map(|b| {
+        .filter_map(|b| {
             let [lo, hi] = stats.min_max(0, b);
             if lo.is_nan() {
                 return None;
             }
             let (a, z) = (value_map.physical(lo), value_map.physical(hi));
             let opacity = tf.max_opacity(a.min(z) as f32, a.max(z) as f32);
-            (opacity > 0.0).then(|| Look::of(stats, b, &colour, &depth))
+            (opacity > 0.0).then(|| (b, Look::of(stats, b, &colour, &depth)))
         })
         .collect()
 }
@@ -433,6 +433,12 @@ fn transmittance(grid: [u32; 3], depth: &[f64], view: &Viewpoint) -> Vec<f64> {
         (c[axis], c[u], c[v]) = (slice, i, j);
         (c[2] * g[1] + c[1]) * g[0] + c[0]
     };
+    // What each block lets through along one block's length: most blocks are
+    // empty, and clear.
+    let through: Vec<f64> = depth
+        .par_iter()
+        .map(|&d| if d == 0.0 { 1.0 } else { (-d * length).exp() })
+        .collect();
     for k in 1..g[axis] {
         // The slice k blocks from the eye's side, and the one before it.
         let (slice, before) = if per_mm[axis] > 0.0 {
@@ -454,7 +460,7 @@ fn transmittance(grid: [u32; 3], depth: &[f64], view: &Viewpoint) -> Vec<f64> {
                             * wv
                             * if inside {
                                 let n = at(before, cu as usize, cv as usize);
-                                out[n] * (-depth[n] * length).exp()
+                                out[n] * through[n]
                             } else {
                                 1.0
                             };
@@ -503,35 +509,32 @@ fn block_refinements(e: &[f64; LEVELS]) -> ([f32; LEVELS], Targets) {
     (gains, targets)
 }
 
-/// Every refinement of every non-empty block, in the order they are tried:
-/// keys (gain, step, block) whose ascending order gives descending gain, and
-/// for equal gains a block's coarser step first (the step is `LEVELS − 1 −
-/// from`), so the sort never puts a refinement before its predecessor. The
-/// block is the key's low 28 bits. Also each block's targets.
-fn refinement_order(per_block: &[Option<[f64; LEVELS]>]) -> (Vec<u64>, Vec<Targets>) {
-    let refinements: Vec<Option<([f32; LEVELS], Targets)>> = per_block
+/// Every refinement of every block with errors in `per_block` (the
+/// non-empty ones), in the order they are tried: keys (gain, step, entry)
+/// whose ascending order gives descending gain, and for equal gains a
+/// block's coarser step first (the step is `LEVELS − 1 − from`), so the sort
+/// never puts a refinement before its predecessor. The entry of `per_block`
+/// is the key's low 28 bits. Also each entry's targets.
+fn refinement_order(per_block: &[(usize, [f64; LEVELS])]) -> (Vec<u64>, Vec<Targets>) {
+    let refinements: Vec<([f32; LEVELS], Targets)> = per_block
         .par_iter()
-        .map(|e| e.as_ref().map(block_refinements))
+        .map(|(_, e)| block_refinements(e))
         .collect();
     let mut steps: Vec<u64> = refinements
         .par_iter()
         .enumerate()
-        .filter_map(|(b, r)| r.map(|r| (b, r)))
-        .flat_map_iter(|(b, (gains, targets))| {
+        .flat_map_iter(|(i, &(gains, targets))| {
             (1..LEVELS)
                 .filter(move |&from| usize::from(targets[from]) < from)
                 .map(move |from| {
                     let step = (LEVELS - 1 - from) as u64;
                     // Positive f32s order like their bits; inverted for a descending sort.
-                    (u64::from(!gains[from].to_bits()) << 32) | (step << 28) | b as u64
+                    (u64::from(!gains[from].to_bits()) << 32) | (step << 28) | i as u64
                 })
         })
         .collect();
     steps.par_sort_unstable();
-    let targets = refinements
-        .into_iter()
-        .map(|r| r.map_or(STAY, |(_, t)| t))
-        .collect();
+    let targets = refinements.into_iter().map(|(_, t)| t).collect();
     (steps, targets)
 }
 
@@ -547,32 +550,30 @@ pub fn select(
 ) -> LodSelection {
     let looks = classify_blocks(stats, value_map, tf);
     let weights = view.map(|view| {
-        let depth: Vec<f64> = looks.iter().map(|l| l.map_or(0.0, |l| l.depth)).collect();
+        let mut depth = vec![0.0; stats.block_count()];
+        for &(b, l) in &looks {
+            depth[b] = l.depth;
+        }
         transmittance(stats.grid, &depth, view)
     });
-    let per_block: Vec<Option<[f64; LEVELS]>> = looks
-        .iter()
-        .enumerate()
-        .map(|(b, look)| {
+    // Per shown block, in block order, the error of each level.
+    let per_block: Vec<(usize, [f64; LEVELS])> = looks
+        .par_iter()
+        .map(|&(b, look)| {
             let seen = weights.as_ref().map_or(1.0, |w| w[b]);
-            look.map(|l| l.errors(HIDDEN_WEIGHT + (1.0 - HIDDEN_WEIGHT) * seen))
+            (b, look.errors(HIDDEN_WEIGHT + (1.0 - HIDDEN_WEIGHT) * seen))
         })
         .collect();
+    drop(looks);
 
-    let mut lod: Vec<u8> = per_block
-        .iter()
-        .map(|e| {
-            if e.is_some() {
-                (LEVELS - 1) as u8
-            } else {
-                EMPTY
-            }
-        })
-        .collect();
-    let non_empty = lod.iter().filter(|&&l| l != EMPTY).count();
+    let mut lod = vec![EMPTY; stats.block_count()];
+    for &(b, _) in &per_block {
+        lod[b] = (LEVELS - 1) as u8;
+    }
+    let non_empty = per_block.len();
     let (budget_voxels, capped) = budget.voxels_for(non_empty);
     let mut kept = non_empty as u64 * block_voxels(LEVELS - 1);
-    let mut error: f64 = per_block.iter().flatten().map(|e| e[LEVELS - 1]).sum();
+    let mut error: f64 = per_block.iter().map(|(_, e)| e[LEVELS - 1]).sum();
     let (steps, targets) = refinement_order(&per_block);
 
     let over_budget = kept > budget_voxels;
@@ -583,21 +584,20 @@ pub fn select(
             if budget_voxels - kept < least {
                 break;
             }
-            let b = (key & 0x0fff_ffff) as usize;
+            let i = (key & 0x0fff_ffff) as usize;
+            let (b, e) = per_block[i];
             let from = LEVELS - 1 - ((key >> 28) & 0xf) as usize;
             // A block whose earlier refinement did not fit stays where it is.
             if usize::from(lod[b]) != from {
                 continue;
             }
-            let to = usize::from(targets[b][from]);
+            let to = usize::from(targets[i][from]);
             let added = block_voxels(to) - block_voxels(from);
             if kept + added > budget_voxels {
                 continue;
             }
             kept += added;
-            if let Some(e) = per_block[b] {
-                error += e[to] - e[from];
-            }
+            error += e[to] - e[from];
             lod[b] = to as u8;
         }
     }
@@ -693,9 +693,9 @@ mod tests {
     fn the_budget_is_respected_and_nothing_that_fits_is_left_out() {
         let s = stats();
         let tf = Preset::Generic.transfer_function([0.0, 255.0]);
-        let per_block: Vec<Option<[f64; LEVELS]>> = classify_blocks(&s, ValueMap::IDENTITY, &tf)
+        let per_block: Vec<(usize, [f64; LEVELS])> = classify_blocks(&s, ValueMap::IDENTITY, &tf)
             .iter()
-            .map(|l| l.map(|l| l.errors(1.0)))
+            .map(|&(b, l)| (b, l.errors(1.0)))
             .collect();
         for budget in [4, 40, 300, 600, 4200, 9000, 20_000] {
             let sel = select(
@@ -710,9 +710,8 @@ mod tests {
                 sel.kept_voxels <= budget || sel.over_budget,
                 "{budget}: {sel:?}"
             );
-            for (b, e) in per_block.iter().enumerate() {
-                let Some(e) = e else { continue };
-                let from = usize::from(sel.lod[b]);
+            for (b, e) in &per_block {
+                let from = usize::from(sel.lod[*b]);
                 let to = usize::from(block_refinements(e).1[from]);
                 if to < from && !sel.over_budget {
                     let added = block_voxels(to) - block_voxels(from);

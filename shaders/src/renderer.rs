@@ -25,7 +25,7 @@ use crate::illumination::{Illumination, Inputs, Mode, Refine, Timings};
 use crate::packed::{Atlas, GpuAtlas};
 use crate::packed_volume::PackedLayout;
 use crate::raycast::{MarchBindings, MarchPipeline, Stage};
-use crate::residency::{Residency, ResidencyStats, viewpoint};
+use crate::residency::{Refresh, Residency, ResidencyStats, viewpoint};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
@@ -414,7 +414,7 @@ impl Renderer {
             &tf,
             request.reduction,
             viewpoint(request, &self.desc),
-            complete,
+            Refresh::for_band(request.drawn_rows(), complete),
         )?);
         let fitted = self.residency.fitted(request, &self.desc);
         let request = fitted.as_ref().unwrap_or(request);

@@ -57,6 +57,35 @@ pub struct ResidencyStats {
     pub pending_blocks: usize,
 }
 
+/// How far [`Residency::update`] brings the shown blocks towards a frame's
+/// target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refresh {
+    /// Only a new target (another transfer function, reduction or view) is
+    /// shown; blocks that arrived wait. A frame drawn band by band takes
+    /// this for every band after its first: all its bands draw the blocks
+    /// its first band drew (no band pays for an upload, and a frame never
+    /// joins two sets of blocks), and the next frame shows what arrived.
+    Target,
+    /// Also show the blocks that arrived since the last update.
+    Arrived,
+    /// Also wait on this thread until no block is pending (the command
+    /// line, tests and benchmarks; a server never waits).
+    Complete,
+}
+
+impl Refresh {
+    /// For a frame's band `rows`: [`Refresh::Target`] after its first band,
+    /// else [`Refresh::Complete`] when `complete`, else [`Refresh::Arrived`].
+    pub fn for_band(rows: crate::frame::Rows, complete: bool) -> Refresh {
+        match (complete, rows.first) {
+            (true, _) => Refresh::Complete,
+            (false, 0) => Refresh::Arrived,
+            (false, _) => Refresh::Target,
+        }
+    }
+}
+
 /// The selection a frame asks for.
 #[derive(Debug)]
 struct Target {
@@ -117,10 +146,10 @@ struct Shown<A> {
 }
 
 /// The levels to show per block now, the chunks pinned for the blocks to
-/// upload, and how many blocks wait for data.
+/// upload (by block: only those), and how many blocks wait for data.
 struct Plan {
     lod: Vec<u8>,
-    pins: Vec<Option<Pinned>>,
+    pins: HashMap<usize, Pinned>,
     pending: usize,
 }
 
@@ -209,7 +238,8 @@ impl<A: Atlas> Residency<A> {
 
     /// Brings the atlas towards the selection for `tf` at data reduction
     /// `reduction` (among the blocks `tf` shows), seen from `view` if given,
-    /// never reading storage on this thread: see the module docs.
+    /// never reading storage on this thread: see the module docs. Blocks
+    /// that arrived are shown unless `refresh` is [`Refresh::Target`].
     pub fn update(
         &mut self,
         device: &A::Device,
@@ -217,6 +247,7 @@ impl<A: Atlas> Residency<A> {
         tf: &TransferFunction,
         reduction: f32,
         view: Option<Viewpoint>,
+        refresh: Refresh,
     ) -> Result<ResidencyStats, GpuError> {
         let mut stats = ResidencyStats::default();
         let retarget = !self
@@ -235,7 +266,8 @@ impl<A: Atlas> Residency<A> {
                 view,
                 selection,
             });
-        } else if self.pending == 0 {
+        } else if self.pending == 0 || refresh == Refresh::Target {
+            stats.pending_blocks = self.pending;
             return Ok(stats);
         }
         let start = std::time::Instant::now();
@@ -245,10 +277,9 @@ impl<A: Atlas> Residency<A> {
         Ok(stats)
     }
 
-    /// [`Residency::update`], then, when `complete`, again as blocks arrive
-    /// until none is pending, waiting on this thread for the background
-    /// reads (the command line, tests and benchmarks; a server never waits):
-    /// the totals of every update.
+    /// [`Residency::update`], then, with [`Refresh::Complete`], again as
+    /// blocks arrive until none is pending, waiting on this thread for the
+    /// background reads: the totals of every update.
     pub fn update_complete(
         &mut self,
         device: &A::Device,
@@ -256,15 +287,15 @@ impl<A: Atlas> Residency<A> {
         tf: &TransferFunction,
         reduction: f32,
         view: Option<Viewpoint>,
-        complete: bool,
+        refresh: Refresh,
     ) -> Result<ResidencyStats, GpuError> {
-        let mut stats = self.update(device, desc, tf, reduction, view)?;
-        while complete && stats.pending_blocks > 0 {
+        let mut stats = self.update(device, desc, tf, reduction, view, refresh)?;
+        while refresh == Refresh::Complete && stats.pending_blocks > 0 {
             let seen = self.cache.arrivals();
             if self.cache.loading() > 0 {
                 self.cache.wait_for_arrivals(seen, ARRIVAL_PATIENCE);
             }
-            let more = self.update(device, desc, tf, reduction, view)?;
+            let more = self.update(device, desc, tf, reduction, view, refresh)?;
             stats = ResidencyStats {
                 uploaded_blocks: stats.uploaded_blocks + more.uploaded_blocks,
                 relayout: stats.relayout || more.relayout,
@@ -357,7 +388,7 @@ impl<A: Atlas> Residency<A> {
                 for (b, pins) in again {
                     match pins {
                         Some(pins) => {
-                            plan.pins[b] = Some(pins);
+                            plan.pins.insert(b, pins);
                             uploads.push(b);
                         }
                         // Its chunks are on their way: written when they arrive.
@@ -428,18 +459,20 @@ impl<A: Atlas> Residency<A> {
             return Err(GpuError::InvalidRequest("no selection to show".into()));
         };
         let stats = self.cache.store().stats();
-        let fresh: Vec<(u8, Option<Pinned>, bool)> = plan
-            .pins
-            .into_par_iter()
+        let Plan {
+            mut lod, mut pins, ..
+        } = plan;
+        // The blocks the plan kept as they were shown: pinned now.
+        let unpinned: Vec<usize> = lod
+            .par_iter()
             .enumerate()
-            .map(|(b, pins)| {
-                let (want, planned) = (target.selection.lod[b], plan.lod[b]);
-                if planned == EMPTY {
-                    return Ok((EMPTY, None, false));
-                }
-                if let Some(pins) = pins {
-                    return Ok((planned, Some(pins), planned != want));
-                }
+            .filter(|&(b, &planned)| planned != EMPTY && !pins.contains_key(&b))
+            .map(|(b, _)| b)
+            .collect();
+        let fresh: Vec<(usize, u8, Pinned)> = unpinned
+            .into_par_iter()
+            .map(|b| {
+                let (want, planned) = (target.selection.lod[b], lod[b]);
                 // Lower levels are finer: never keep one finer than the target.
                 let level = planned.max(want);
                 let block = stats.block_position(b);
@@ -448,17 +481,24 @@ impl<A: Atlas> Residency<A> {
                     self.cache
                         .pin_with_apron(usize::from(level), block, APRON, asked)?
                 {
-                    return Ok((level, Some(pins), level != want));
+                    return Ok((b, level, pins));
                 }
                 let (level, pins) = finest_in_memory(&self.cache, block, want)?;
-                Ok((level, Some(pins), true))
+                Ok((b, level, pins))
             })
             .collect::<Result<_, GpuError>>()?;
-        let plan = Plan {
-            pending: fresh.iter().filter(|f| f.2).count(),
-            lod: fresh.iter().map(|f| f.0).collect(),
-            pins: fresh.into_iter().map(|f| f.1).collect(),
-        };
+        for (b, level, chunks) in fresh {
+            lod[b] = level;
+            pins.insert(b, chunks);
+        }
+        // Shown coarser than the target: waiting for data.
+        let want = &target.selection.lod;
+        let pending = lod
+            .par_iter()
+            .zip(want.par_iter())
+            .filter(|&(&l, &w)| l != EMPTY && l != w)
+            .count();
+        let plan = Plan { lod, pins, pending };
         Ok((target.selection.with_levels(plan.lod.clone()), plan))
     }
 }
@@ -471,30 +511,35 @@ fn plan(
     shown: Option<&[u8]>,
 ) -> Result<Plan, GpuError> {
     let stats = cache.store().stats();
-    let planned: Vec<(u8, Option<Pinned>, bool)> = (0..target.lod.len())
-        .into_par_iter()
-        .map(|b| {
-            let want = target.lod[b];
+    let changes: Vec<(usize, u8, Option<Pinned>, bool)> = target
+        .lod
+        .par_iter()
+        .enumerate()
+        .filter(|&(b, &want)| want != EMPTY && want != shown.map_or(EMPTY, |s| s[b]))
+        .map(|(b, &want)| {
             let now = shown.map_or(EMPTY, |s| s[b]);
-            if want == EMPTY || want == now {
-                return Ok((want, None, false));
-            }
             let block = stats.block_position(b);
             if let Some(pins) = cache.pin_with_apron(usize::from(want), block, APRON, true)? {
-                return Ok((want, Some(pins), false));
+                return Ok((b, want, Some(pins), false));
             }
             if now != EMPTY {
-                return Ok((now, None, true));
+                return Ok((b, now, None, true));
             }
             let (level, pins) = finest_in_memory(cache, block, want)?;
-            Ok((level, Some(pins), true))
+            Ok((b, level, Some(pins), true))
         })
         .collect::<Result<_, GpuError>>()?;
-    Ok(Plan {
-        pending: planned.iter().filter(|p| p.2).count(),
-        lod: planned.iter().map(|p| p.0).collect(),
-        pins: planned.into_iter().map(|p| p.1).collect(),
-    })
+    let mut lod = target.lod.clone();
+    let mut pins = HashMap::with_capacity(changes.len());
+    let mut pending = 0;
+    for (b, level, chunks, waits) in changes {
+        lod[b] = level;
+        pending += usize::from(waits);
+        if let Some(chunks) = chunks {
+            pins.insert(b, chunks);
+        }
+    }
+    Ok(Plan { lod, pins, pending })
 }
 
 /// The finest level coarser than `want` at which `block`'s chunks are in
@@ -559,7 +604,7 @@ fn keep_thin_structures(
     cache: &BlockCache,
     tf: &TransferFunction,
     lod: &[u8],
-    pins: &mut [Option<Pinned>],
+    pins: &mut HashMap<usize, Pinned>,
     seams: &mut HashMap<usize, SeamChunks>,
 ) {
     if !cache.store().has_box_extremes() {
@@ -567,8 +612,7 @@ fn keep_thin_structures(
     }
     let coarse = |level: u8| level > 0 && usize::from(level) < LEVELS;
     let mut records: HashMap<ChunkKey, Arc<VoxelData>> = HashMap::new();
-    for (b, chunks) in pins.iter().enumerate() {
-        let Some(chunks) = chunks else { continue };
+    for (&b, chunks) in pins.iter() {
         let level = lod.get(b).copied().unwrap_or(EMPTY);
         if coarse(level) {
             for (&position, chunk) in chunks {
@@ -593,8 +637,7 @@ fn keep_thin_structures(
         .into_par_iter()
         .map(|(key, record)| (key, visibility::kept_chunk(&record, extinction)))
         .collect();
-    for (b, chunks) in pins.iter_mut().enumerate() {
-        let Some(chunks) = chunks else { continue };
+    for (&b, chunks) in pins.iter_mut() {
         let level = lod.get(b).copied().unwrap_or(EMPTY);
         for (&position, chunk) in chunks.iter_mut() {
             if let Some(k) = kept.get(&(level, position)) {
@@ -615,13 +658,13 @@ fn keep_thin_structures(
 /// meeting its neighbours' levels where their chunks are in `seams`.
 fn pinned_source<'a>(
     cache: &'a BlockCache,
-    pins: &'a [Option<Pinned>],
+    pins: &'a HashMap<usize, Pinned>,
     seams: &'a HashMap<usize, SeamChunks>,
 ) -> impl Fn(usize, &[u8]) -> Result<VoxelData, GpuError> + Sync + 'a {
     move |b, lod| {
         let block = cache.store().stats().block_position(b);
         let level = usize::from(lod[b]);
-        let mut voxels = match pins.get(b).and_then(Option::as_ref) {
+        let mut voxels = match pins.get(&b) {
             Some(pinned) => cache.assemble_with_apron(level, block, APRON, pinned),
             // Not planned to change: only a relayout uploads it, and relayouts pin every block.
             None => cache.block_with_apron(level, block, APRON)?,

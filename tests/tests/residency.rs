@@ -280,3 +280,51 @@ fn a_transfer_function_change_writes_the_coarse_blocks_again() {
         println!("updated vs fresh renderer: {diff:?}");
     }
 }
+
+/// A frame drawn band by band draws every band from the blocks its first
+/// band drew: blocks that arrive meanwhile wait for the next frame (no band
+/// pays for an upload, and one frame never joins two sets of blocks), on the
+/// CPU renderer (no GPU needed).
+#[test]
+fn the_bands_of_a_frame_draw_the_blocks_its_first_band_drew() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let dataset = phantom_64_on_disk(dir.path());
+    let cache = &dataset.cache;
+    let range = phantom_64().value_range;
+    let soft = FrameRequest::new(64, 64, Preset::CtSoftTissue.transfer_function(range));
+    let band = |first: u32| FrameRequest {
+        rows: Some(shaders::Rows { first, count: 16 }),
+        ..soft.clone()
+    };
+    let mut renderer = shaders::cpu::CpuRenderer::new(cache.clone(), 512 << 20);
+    let seen = cache.arrivals();
+    renderer.render_now(&band(0)).expect("first band");
+    let first = renderer.last_stats().clone();
+    assert!(first.pending_blocks > 0, "cold: blocks are read: {first:?}");
+    // Every block the first band asked for arrives before the later bands.
+    let mut arrived = cache.arrivals();
+    while cache.loading() > 0 {
+        arrived = cache.wait_for_arrivals(arrived, std::time::Duration::from_secs(5));
+    }
+    assert!(cache.arrivals() > seen, "blocks arrived");
+    for first_row in [16, 32, 48] {
+        renderer.render_now(&band(first_row)).expect("later band");
+        let stats = renderer.last_stats().clone();
+        assert_eq!(
+            (stats.uploaded_blocks, stats.relayout, stats.select_ms),
+            (0, false, 0.0),
+            "band at row {first_row}: {stats:?}"
+        );
+        assert_eq!(
+            stats.pending_blocks, first.pending_blocks,
+            "still drawn coarser, so the frame is drawn again"
+        );
+    }
+    // The next frame's first band shows what arrived.
+    renderer.render_now(&band(0)).expect("next frame");
+    let next = renderer.last_stats().clone();
+    assert!(
+        next.uploaded_blocks > 0 && next.pending_blocks < first.pending_blocks,
+        "{next:?}"
+    );
+}

@@ -31,7 +31,7 @@ use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
 use crate::renderer::RenderStats;
-use crate::residency::{Residency, viewpoint};
+use crate::residency::{Refresh, Residency, viewpoint};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Camera, Frame, FrameRequest, GpuError};
 
@@ -160,7 +160,7 @@ impl CpuRenderer {
             &tf,
             request.reduction,
             viewpoint(request, &self.desc),
-            complete,
+            Refresh::for_band(request.drawn_rows(), complete),
         )?);
         let fitted = self.residency.fitted(request, &self.desc);
         let request = fitted.as_ref().unwrap_or(request);
