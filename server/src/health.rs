@@ -5,8 +5,10 @@
 //! last probe succeeded. A probe reads the default dataset's root metadata
 //! again from its store (an object store that stopped answering makes the
 //! node unready even while the blocks it shows are cached) and renders a
-//! [`PROBE_EDGE`]² frame of it at the largest data reduction through the
-//! render worker, in turn with every other frame. The first probe starts
+//! [`PROBE_EDGE`]² frame of it through the render worker, in turn with
+//! every other frame: of the last view drawn of it, so its viewers' blocks
+//! and light stay as they are ([`crate::RenderService::probe`]), else at
+//! the largest data reduction. The first probe starts
 //! with the server, and `/healthz` waits up to [`FIRST_PROBE_PATIENCE`]
 //! for it; later ones start when `/healthz` finds the last result older
 //! than [`PROBE_EVERY`] ([`PROBE_AGAIN`] after a failure), and it answers
@@ -148,7 +150,7 @@ async fn probe(state: &AppState) -> Result<(), String> {
     let client = Client::User("voxserve health probe".into());
     state
         .renderer
-        .render_waiting(&client, &dataset, request)
+        .probe(&client, &dataset, request)
         .await
         .map(|_| ())
         .map_err(|e| format!("dataset '{}': the probe frame failed: {e}", dataset.id))

@@ -104,6 +104,9 @@ struct Job {
     rows_per_turn: u32,
     /// The bands drawn so far.
     drawn: Option<Drawn>,
+    /// A health probe's frame: drawn with the settings of the last view
+    /// the dataset's renderer drew, if any ([`RenderService::probe`]).
+    probe: bool,
 }
 
 /// The bands of a frame drawn so far, and what drawing them took.
@@ -365,6 +368,7 @@ impl Job {
             reply,
             samples,
             drawn: None,
+            probe: false,
         };
         (job, answer)
     }
@@ -436,7 +440,26 @@ impl Job {
                     })
                     .map_err(GpuError::Data)
             }
-            None => renderers.get(&self.dataset).and_then(|renderer| {
+            None => renderers.get(&self.dataset).and_then(|(renderer, last)| {
+                let request = match (self.probe, last.as_ref()) {
+                    // The last view's frame again, at the probe's size: its
+                    // blocks, light and classification serve it as they are,
+                    // where a frame of other settings would replace them and
+                    // the view's next frame would bring them back.
+                    (true, Some(last)) => FrameRequest {
+                        width: request.width,
+                        height: request.height,
+                        rows: None,
+                        ..last.clone()
+                    },
+                    (true, None) => request,
+                    (false, _) => {
+                        if rows.first == 0 {
+                            *last = Some(self.request.clone());
+                        }
+                        request
+                    }
+                };
                 let band = renderer.render_now(&request)?;
                 Ok((band, renderer.last_stats().clone(), None))
             }),
@@ -522,7 +545,9 @@ struct Renderers {
     backend: Backend,
     budget_bytes: u64,
     capacity: usize,
-    by_use: Vec<(String, Arc<BlockCache>, AnyRenderer)>,
+    /// Per dataset: its id, its block cache, its renderer and the last
+    /// frame request a view drew with it (what a health probe draws again).
+    by_use: Vec<(String, Arc<BlockCache>, AnyRenderer, Option<FrameRequest>)>,
 }
 
 impl Renderers {
@@ -531,8 +556,11 @@ impl Renderers {
     /// anew under the same id (a received series bricked again, a series
     /// opened again after it left the cache) has a new block cache: the
     /// renderer of the old one is dropped, never drawn from.
-    fn get(&mut self, dataset: &Dataset) -> Result<&mut AnyRenderer, GpuError> {
-        if let Some(i) = self.by_use.iter().position(|(id, _, _)| *id == dataset.id) {
+    fn get(
+        &mut self,
+        dataset: &Dataset,
+    ) -> Result<(&mut AnyRenderer, &mut Option<FrameRequest>), GpuError> {
+        if let Some(i) = self.by_use.iter().position(|(id, ..)| *id == dataset.id) {
             let entry = self.by_use.remove(i);
             if Arc::ptr_eq(&entry.1, &dataset.cache) {
                 self.by_use.push(entry);
@@ -546,22 +574,22 @@ impl Renderers {
         let current = self
             .by_use
             .last()
-            .is_some_and(|(id, cache, _)| *id == dataset.id && Arc::ptr_eq(cache, &dataset.cache));
+            .is_some_and(|(id, cache, ..)| *id == dataset.id && Arc::ptr_eq(cache, &dataset.cache));
         if !current {
             if self.by_use.len() >= self.capacity {
                 // Freed before the next one allocates.
-                let (id, _, _) = self.by_use.remove(0);
+                let (id, ..) = self.by_use.remove(0);
                 tracing::info!("released dataset '{id}' from the renderer");
             }
             let renderer = self
                 .backend
                 .renderer(dataset.cache.clone(), self.budget_bytes)?;
             self.by_use
-                .push((dataset.id.clone(), dataset.cache.clone(), renderer));
+                .push((dataset.id.clone(), dataset.cache.clone(), renderer, None));
         }
         self.by_use
             .last_mut()
-            .map(|(_, _, r)| r)
+            .map(|(_, _, r, last)| (r, last))
             .ok_or_else(|| GpuError::InvalidRequest("no renderer".into()))
     }
 }
@@ -720,6 +748,23 @@ impl RenderService {
         self.wait_in_turn(client, job, answer).await
     }
 
+    /// Renders a health probe's frame of `dataset` for `client`, always
+    /// queued: `request` (one band) when the dataset's renderer has drawn
+    /// no view yet, else the last view it drew at `request`'s size, so a
+    /// probe never changes the blocks, light or classification the views
+    /// of the dataset are drawn with.
+    pub async fn probe(
+        &self,
+        client: &Client,
+        dataset: &Dataset,
+        request: FrameRequest,
+    ) -> Result<RenderedFrame, AppError> {
+        let (mut job, answer) = Job::new(dataset, request, self.max_frame_cost())?;
+        job.probe = true;
+        job.rows_per_turn = job.request.height;
+        self.wait_in_turn(client, job, answer).await
+    }
+
     /// Renders a slice view's frame of `dataset` through `window` for
     /// `client`, always queued, in turn with every frame (view sessions).
     pub async fn render_slice_waiting(
@@ -865,6 +910,54 @@ mod tests {
         .concat();
         assert_eq!(turns(&mut queue), expected);
         assert!(queue.turns.is_empty());
+    }
+
+    #[test]
+    fn a_health_probe_leaves_the_views_blocks_as_they_are() {
+        let dataset = Dataset::phantom(32, 16 << 20).expect("phantom");
+        let service = RenderService::start(Backend::Cpu, 64 << 20, 1).expect("worker");
+        let viewer = Client::Address([127, 0, 0, 2].into());
+        let prober = Client::User("voxserve health probe".into());
+        let range = dataset.value_range();
+        let view = FrameRequest {
+            reduction: 1.0,
+            ..FrameRequest::new(64, 64, blocks::Preset::CtBone.transfer_function(range))
+        };
+        let probe = FrameRequest {
+            width: 16,
+            height: 16,
+            reduction: shaders::frame::MAX_REDUCTION as f32,
+            ..FrameRequest::default()
+        };
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .build()
+            .expect("runtime");
+        // Before any view the probe's own request is drawn.
+        let first = runtime
+            .block_on(service.probe(&prober, &dataset, probe.clone()))
+            .expect("probe before any view");
+        assert_eq!((first.frame.width, first.frame.height), (16, 16));
+        runtime
+            .block_on(service.render_waiting(&viewer, &dataset, view.clone()))
+            .expect("view");
+        let probed = runtime
+            .block_on(service.probe(&prober, &dataset, probe))
+            .expect("probe");
+        assert_eq!((probed.frame.width, probed.frame.height), (16, 16));
+        assert_eq!(probed.stats.select_ms, 0.0, "{:?}", probed.stats);
+        let again = runtime
+            .block_on(service.render_waiting(&viewer, &dataset, view))
+            .expect("view again");
+        assert_eq!(
+            (
+                again.stats.select_ms,
+                again.stats.uploaded_blocks,
+                again.stats.relayout
+            ),
+            (0.0, 0, false),
+            "the view's blocks stayed: {:?}",
+            again.stats
+        );
     }
 
     #[test]
