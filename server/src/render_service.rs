@@ -452,15 +452,13 @@ impl Job {
                         rows: None,
                         ..last.clone()
                     },
-                    (true, None) => request,
-                    (false, _) => {
-                        if rows.first == 0 {
-                            *last = Some(self.request.clone());
-                        }
-                        request
-                    }
+                    (true, None) | (false, _) => request,
                 };
                 let band = renderer.render_now(&request)?;
+                // Only a view that rendered is drawn again by a probe.
+                if !self.probe && rows.first == 0 {
+                    *last = Some(self.request.clone());
+                }
                 Ok((band, renderer.last_stats().clone(), None))
             }),
         };
