@@ -463,12 +463,16 @@ impl<A: Atlas> Residency<A> {
             mut lod, mut pins, ..
         } = plan;
         // The blocks the plan kept as they were shown: pinned now.
-        let fresh: Vec<(usize, u8, Pinned)> = lod
+        let unpinned: Vec<usize> = lod
             .par_iter()
             .enumerate()
             .filter(|&(b, &planned)| planned != EMPTY && !pins.contains_key(&b))
-            .map(|(b, &planned)| {
-                let want = target.selection.lod[b];
+            .map(|(b, _)| b)
+            .collect();
+        let fresh: Vec<(usize, u8, Pinned)> = unpinned
+            .into_par_iter()
+            .map(|b| {
+                let (want, planned) = (target.selection.lod[b], lod[b]);
                 // Lower levels are finer: never keep one finer than the target.
                 let level = planned.max(want);
                 let block = stats.block_position(b);
@@ -487,7 +491,13 @@ impl<A: Atlas> Residency<A> {
             lod[b] = level;
             pins.insert(b, chunks);
         }
-        let pending = waiting(&lod, &target.selection.lod);
+        // Shown coarser than the target: waiting for data.
+        let want = &target.selection.lod;
+        let pending = lod
+            .par_iter()
+            .zip(want.par_iter())
+            .filter(|&(&l, &w)| l != EMPTY && l != w)
+            .count();
         let plan = Plan { lod, pins, pending };
         Ok((target.selection.with_levels(plan.lod.clone()), plan))
     }
@@ -501,43 +511,35 @@ fn plan(
     shown: Option<&[u8]>,
 ) -> Result<Plan, GpuError> {
     let stats = cache.store().stats();
-    let changes: Vec<(usize, u8, Option<Pinned>)> = target
+    let changes: Vec<(usize, u8, Option<Pinned>, bool)> = target
         .lod
         .par_iter()
         .enumerate()
-        .map(|(b, &want)| (b, want, shown.map_or(EMPTY, |s| s[b])))
-        .filter(|&(_, want, now)| want != EMPTY && want != now)
-        .map(|(b, want, now)| {
+        .filter(|&(b, &want)| want != EMPTY && want != shown.map_or(EMPTY, |s| s[b]))
+        .map(|(b, &want)| {
+            let now = shown.map_or(EMPTY, |s| s[b]);
             let block = stats.block_position(b);
             if let Some(pins) = cache.pin_with_apron(usize::from(want), block, APRON, true)? {
-                return Ok((b, want, Some(pins)));
+                return Ok((b, want, Some(pins), false));
             }
             if now != EMPTY {
-                return Ok((b, now, None));
+                return Ok((b, now, None, true));
             }
             let (level, pins) = finest_in_memory(cache, block, want)?;
-            Ok((b, level, Some(pins)))
+            Ok((b, level, Some(pins), true))
         })
         .collect::<Result<_, GpuError>>()?;
     let mut lod = target.lod.clone();
     let mut pins = HashMap::with_capacity(changes.len());
-    for (b, level, chunks) in changes {
+    let mut pending = 0;
+    for (b, level, chunks, waits) in changes {
         lod[b] = level;
+        pending += usize::from(waits);
         if let Some(chunks) = chunks {
             pins.insert(b, chunks);
         }
     }
-    let pending = waiting(&lod, &target.lod);
     Ok(Plan { lod, pins, pending })
-}
-
-/// The blocks shown at levels `lod` coarser than the target's `want`:
-/// waiting for their data.
-fn waiting(lod: &[u8], want: &[u8]) -> usize {
-    lod.par_iter()
-        .zip(want.par_iter())
-        .filter(|&(&l, &w)| l != EMPTY && l != w)
-        .count()
 }
 
 /// The finest level coarser than `want` at which `block`'s chunks are in
