@@ -452,13 +452,15 @@ impl Job {
                         rows: None,
                         ..last.clone()
                     },
-                    (true, None) | (false, _) => request,
+                    (true, None) => request,
+                    (false, _) => {
+                        if rows.first == 0 {
+                            *last = Some(self.request.clone());
+                        }
+                        request
+                    }
                 };
                 let band = renderer.render_now(&request)?;
-                // Only a view that rendered is drawn again by a probe.
-                if !self.probe && rows.first == 0 {
-                    *last = Some(self.request.clone());
-                }
                 Ok((band, renderer.last_stats().clone(), None))
             }),
         };
