@@ -54,8 +54,8 @@ pub struct Access {
     pub requests: crate::client::RequestRate,
     /// Load balancers and reverse proxies whose `X-Forwarded-For` names
     /// the client ([`crate::listen::forwarded_client`]); their own
-    /// connections are not capped per client.
-    pub trusted_proxies: Vec<IpAddr>,
+    /// connections are not capped per client: addresses and networks.
+    pub trusted_proxies: Vec<ipnet::IpNet>,
 }
 
 /// Why a request was not let in.

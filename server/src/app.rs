@@ -354,7 +354,7 @@ pub async fn run(
         closing.cancel();
     });
     crate::health::Health::refresh(&state);
-    let trusted: Arc<[IpAddr]> = state.access.trusted_proxies.clone().into();
+    let trusted: Arc<[ipnet::IpNet]> = state.access.trusted_proxies.clone().into();
     let served = crate::listen::serve(
         listener,
         router(state),

@@ -284,19 +284,47 @@ impl AsyncWrite for Tracked {
     }
 }
 
+/// A `--trusted-proxy` value: an IP address, or a network in CIDR notation
+/// (host bits are dropped: `10.1.2.3/8` is `10.0.0.0/8`).
+pub fn parse_trusted_proxy(value: &str) -> Result<ipnet::IpNet, String> {
+    if let Ok(address) = value.parse::<IpAddr>() {
+        return Ok(ipnet::IpNet::from(address.to_canonical()));
+    }
+    value
+        .parse::<ipnet::IpNet>()
+        .map(|n| n.trunc())
+        .map_err(|_| {
+            format!(
+                "'{value}' is neither an IP address (10.0.0.1, fd00::1) nor a network in CIDR \
+             notation (10.0.0.0/8, fd00::/8)"
+            )
+        })
+}
+
+/// Whether `address` is one of `trusted` or in one of their networks (an
+/// IPv4 address mapped into IPv6, as a dual-stack socket reports it, as the
+/// IPv4 address it is).
+pub fn is_trusted(trusted: &[ipnet::IpNet], address: IpAddr) -> bool {
+    let address = address.to_canonical();
+    trusted.iter().any(|network| network.contains(&address))
+}
+
 /// The client a trusted proxy forwarded a request for: the rightmost
-/// address of `X-Forwarded-For` that is not itself one of `trusted` (those
-/// left of it are whatever the client sent, and prove nothing). `None` when
-/// there is no such header, every address in it is trusted, or an entry is
-/// not an IP address (then the proxy itself counts as the client).
-pub fn forwarded_client(headers: &axum::http::HeaderMap, trusted: &[IpAddr]) -> Option<IpAddr> {
+/// address of `X-Forwarded-For` that is not itself trusted ([`is_trusted`];
+/// those left of it are whatever the client sent, and prove nothing).
+/// `None` when there is no such header, every address in it is trusted, or
+/// an entry is not an IP address (then the proxy itself counts as the client).
+pub fn forwarded_client(
+    headers: &axum::http::HeaderMap,
+    trusted: &[ipnet::IpNet],
+) -> Option<IpAddr> {
     let mut entries = Vec::new();
     for value in headers.get_all("x-forwarded-for") {
         entries.extend(value.to_str().ok()?.split(',').map(str::trim));
     }
     for entry in entries.iter().rev() {
         let address: IpAddr = entry.parse().ok()?;
-        if !trusted.contains(&address) {
+        if !is_trusted(trusted, address) {
             return Some(address);
         }
     }
@@ -312,7 +340,7 @@ pub async fn serve(
     listener: TcpListener,
     router: Router,
     limits: ConnectionLimits,
-    trusted: Arc<[IpAddr]>,
+    trusted: Arc<[ipnet::IpNet]>,
     tls: Option<Arc<crate::tls::Tls>>,
     stop: CancellationToken,
 ) -> io::Result<()> {
@@ -347,7 +375,7 @@ pub async fn serve(
         if let Err(e) = stream.set_nodelay(true) {
             tracing::debug!("TCP_NODELAY on a connection from {client}: {e}");
         }
-        let proxy = trusted.contains(&client.ip());
+        let proxy = is_trusted(&trusted, client.ip());
         let capped = if proxy {
             ConnectionLimits {
                 per_client: usize::MAX,
@@ -511,7 +539,7 @@ mod tests {
             for value in values {
                 headers.append("x-forwarded-for", value.parse().expect("a header value"));
             }
-            forwarded_client(&headers, &[proxy, inner])
+            forwarded_client(&headers, &[proxy.into(), inner.into()])
         };
         // What the client wrote itself (left) proves nothing.
         assert_eq!(with(&["6.6.6.6, 192.0.2.7"]), Some([192, 0, 2, 7].into()));
@@ -529,6 +557,48 @@ mod tests {
         assert_eq!(with(&["10.0.0.1"]), None);
         assert_eq!(with(&["192.0.2.7, not-an-address"]), None);
         assert_eq!(with(&["192.0.2.7:4711"]), None);
+    }
+
+    #[test]
+    fn trusted_proxies_are_addresses_or_networks() {
+        let parse = |v: &str| parse_trusted_proxy(v).expect(v);
+        let trusted = [
+            parse("10.0.0.0/8"),
+            parse("192.0.2.7"),
+            parse("fd00::/8"),
+            parse("172.16.9.9/12"),
+        ];
+        assert_eq!(trusted[3].to_string(), "172.16.0.0/12", "host bits dropped");
+        let is = |a: &str| is_trusted(&trusted, a.parse().expect(a));
+        assert!(is("10.200.3.4") && is("192.0.2.7") && is("fd12::1") && is("172.31.0.1"));
+        assert!(!is("11.0.0.1") && !is("192.0.2.8") && !is("fe80::1") && !is("172.32.0.1"));
+        // As a dual-stack socket reports an IPv4 client.
+        assert!(is("::ffff:10.1.1.1") && !is("::ffff:11.1.1.1"));
+        // The nearest untrusted hop behind a chain of proxies in the networks.
+        let mut headers = axum::http::HeaderMap::new();
+        headers.append(
+            "x-forwarded-for",
+            "6.6.6.6, 198.51.100.3, 10.9.9.9, fd00::2"
+                .parse()
+                .expect("a header value"),
+        );
+        assert_eq!(
+            forwarded_client(&headers, &trusted),
+            Some([198, 51, 100, 3].into())
+        );
+        for bad in [
+            "10.0.0.0/33",
+            "proxy.example.org",
+            "10.0.0",
+            "",
+            "fd00::/129",
+        ] {
+            let message = parse_trusted_proxy(bad).expect_err(bad);
+            assert!(
+                message.contains("CIDR") && message.contains(bad),
+                "{message}"
+            );
+        }
     }
 
     fn limits(max_connections: usize, per_client: usize) -> ConnectionLimits {

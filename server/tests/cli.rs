@@ -135,6 +135,10 @@ fn bad_flags_are_refused_with_the_flag_named() {
         ),
         (vec!["serve", "--max-connections", "0"], "--max-connections"),
         (
+            vec!["serve", "--trusted-proxy", "10.0.0.0/33"],
+            "--trusted-proxy",
+        ),
+        (
             vec!["serve", "--sessions-per-client", "0"],
             "--sessions-per-client",
         ),

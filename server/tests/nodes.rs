@@ -208,9 +208,10 @@ async fn a_viewer_whose_node_drains_reconnects_through_nginx_to_the_other_with_i
         "cpu",
         "--drain-s",
         "20",
-        // nginx: the client is the address it forwards.
+        // nginx (a network of one address): the client is the address it
+        // forwards.
         "--trusted-proxy",
-        "127.0.0.1",
+        "127.0.0.1/32",
     ];
     let mut nodes = Vec::new();
     for _ in 0..2 {

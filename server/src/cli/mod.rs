@@ -653,12 +653,13 @@ pub struct AccessArgs {
     #[arg(long, default_value_t = crate::client::RequestRate::DEFAULT.burst, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub request_burst: u32,
     /// The IP address of a load balancer or reverse proxy in front of the
-    /// server: for its requests the client is the address its
+    /// server, or a network of them in CIDR notation (10.0.0.0/8,
+    /// fd00::/8): for their requests the client is the address their
     /// X-Forwarded-For header names (the audit trail records it; per-client
-    /// limits count it), and its own connections are not capped per client.
-    /// Repeat for more.
-    #[arg(long = "trusted-proxy", value_name = "ADDRESS")]
-    pub trusted_proxies: Vec<std::net::IpAddr>,
+    /// limits count it), and their own connections are not capped per
+    /// client. Repeat for more.
+    #[arg(long = "trusted-proxy", value_name = "ADDRESS|NETWORK", value_parser = crate::listen::parse_trusted_proxy)]
+    pub trusted_proxies: Vec<ipnet::IpNet>,
 }
 
 impl AccessArgs {
