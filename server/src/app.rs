@@ -319,7 +319,8 @@ pub fn router(state: AppState) -> Router {
 /// answers `/healthz` with 503 `draining` on connections still open,
 /// finishes the requests in flight, lets each view session finish the
 /// frame it renders and close (`state.draining`), closes those still open
-/// after `state.drain_timeout` (`state.shutdown`), and returns once every
+/// and the connections still answering a request after
+/// `state.drain_timeout` (`state.shutdown`), and returns once every
 /// session has ended. The first health probe starts here.
 pub async fn run(
     listener: TcpListener,
@@ -362,6 +363,7 @@ pub async fn run(
         trusted,
         tls,
         draining.clone(),
+        token.clone(),
     )
     .await;
     draining.cancel();

@@ -333,7 +333,8 @@ pub fn forwarded_client(
 
 /// Serves `router` on `listener` under `limits` until `stop` is cancelled,
 /// then lets every connection finish its requests in flight and returns when
-/// they have (upgraded connections are not waited for). A request from one
+/// they have (upgraded connections are not waited for), or when `deadline`
+/// is cancelled (the drain's deadline), closing those still answering. A request from one
 /// of `trusted` counts as from the client it forwards
 /// ([`forwarded_client`]); their connections are not capped per client.
 pub async fn serve(
@@ -343,6 +344,7 @@ pub async fn serve(
     trusted: Arc<[ipnet::IpNet]>,
     tls: Option<Arc<crate::tls::Tls>>,
     stop: CancellationToken,
+    deadline: CancellationToken,
 ) -> io::Result<()> {
     let connections = Connections::new();
     let tasks = TaskTracker::new();
@@ -418,6 +420,7 @@ pub async fn serve(
         let builder = builder.clone();
         let connections = connections.clone();
         let stop = stop.clone();
+        let deadline = deadline.clone();
         let acceptor = tls.as_ref().map(|tls| tls.acceptor());
         tasks.spawn(async move {
             let ended = match acceptor {
@@ -425,7 +428,15 @@ pub async fn serve(
                     let connection = pin!(
                         builder.serve_connection_with_upgrades(TokioIo::new(tracked), service)
                     );
-                    watch(connection, &activity, limits.idle_timeout, &close, &stop).await
+                    watch(
+                        connection,
+                        &activity,
+                        limits.idle_timeout,
+                        &close,
+                        &stop,
+                        &deadline,
+                    )
+                    .await
                 }
                 // The handshake counts as the headers: it must be done in time.
                 Some(acceptor) => {
@@ -436,7 +447,15 @@ pub async fn serve(
                             let io = TokioIo::new(stream);
                             let connection =
                                 pin!(builder.serve_connection_with_upgrades(io, service));
-                            watch(connection, &activity, limits.idle_timeout, &close, &stop).await
+                            watch(
+                                connection,
+                                &activity,
+                                limits.idle_timeout,
+                                &close,
+                                &stop,
+                                &deadline,
+                            )
+                            .await
                         }
                         Ok(Err(e)) => Err(format!("TLS handshake failed: {e}").into()),
                         Err(_) => Err("TLS handshake not done within the header timeout".into()),
@@ -454,7 +473,16 @@ pub async fn serve(
     // rather than left waiting in the backlog.
     drop(listener);
     tasks.close();
-    tasks.wait().await;
+    tokio::select! {
+        () = tasks.wait() => {}
+        () = deadline.cancelled() => {
+            tracing::warn!(
+                "{} connections still answering requests at the drain's deadline: closing them",
+                tasks.len()
+            );
+            tasks.wait().await;
+        }
+    }
     Ok(())
 }
 
@@ -488,6 +516,7 @@ async fn watch(
     idle_timeout: Duration,
     close: &CancellationToken,
     stop: &CancellationToken,
+    deadline: &CancellationToken,
 ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     let mut stopping = false;
     loop {
@@ -495,6 +524,9 @@ async fn watch(
         tokio::select! {
             served = connection.as_mut() => return served,
             () = close.cancelled() => return Ok(()),
+            () = deadline.cancelled() => {
+                return Err("closed at the drain's deadline with a request in flight".into());
+            }
             () = stop.cancelled(), if !stopping => {
                 stopping = true;
                 connection.as_mut().finish();
@@ -673,6 +705,7 @@ mod tests {
             Arc::from([]),
             None,
             stop.clone(),
+            CancellationToken::new(),
         ));
         let mut stream = TcpStream::connect(addr).await.expect("connect");
         stream
@@ -697,5 +730,64 @@ mod tests {
         assert!(matches!(end, Ok(0) | Err(_)), "{end:?}");
         assert!(started.elapsed() < Duration::from_secs(5));
         stop.cancel();
+    }
+
+    #[tokio::test]
+    async fn a_drain_answers_requests_in_flight_until_its_deadline_then_closes_them() {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let router = Router::new().route(
+            "/wait/{ms}",
+            axum::routing::get(
+                |axum::extract::Path(ms): axum::extract::Path<u64>| async move {
+                    tokio::time::sleep(Duration::from_millis(ms)).await;
+                    "done"
+                },
+            ),
+        );
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("address");
+        let (stop, deadline) = (CancellationToken::new(), CancellationToken::new());
+        let served = tokio::spawn(serve(
+            listener,
+            router,
+            ConnectionLimits::DEFAULT,
+            Arc::from([]),
+            None,
+            stop.clone(),
+            deadline.clone(),
+        ));
+        let ask = |ms: u64| async move {
+            let mut stream = TcpStream::connect(addr).await.expect("connect");
+            let request = format!("GET /wait/{ms} HTTP/1.1\r\nHost: localhost\r\n\r\n");
+            stream.write_all(request.as_bytes()).await.expect("send");
+            stream
+        };
+        let (mut quick, mut slow) = (ask(500).await, ask(60_000).await);
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        stop.cancel();
+        let started = Instant::now();
+        let mut answer = vec![0u8; 1024];
+        let n = tokio::time::timeout(Duration::from_secs(10), quick.read(&mut answer))
+            .await
+            .expect("an answer")
+            .expect("read");
+        let text = String::from_utf8_lossy(&answer[..n]);
+        assert!(
+            text.starts_with("HTTP/1.1 200"),
+            "answered while draining: {text}"
+        );
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert!(!served.is_finished(), "a request is still in flight");
+        deadline.cancel();
+        let end = tokio::time::timeout(Duration::from_secs(10), slow.read(&mut answer))
+            .await
+            .expect("closed at the deadline");
+        assert!(matches!(end, Ok(0) | Err(_)), "{end:?}");
+        tokio::time::timeout(Duration::from_secs(10), served)
+            .await
+            .expect("serve returned at the deadline")
+            .expect("joined")
+            .expect("served");
+        assert!(started.elapsed() < Duration::from_secs(10));
     }
 }
