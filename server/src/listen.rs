@@ -419,8 +419,11 @@ pub async fn serve(
         );
         let builder = builder.clone();
         let connections = connections.clone();
-        let stop = stop.clone();
-        let deadline = deadline.clone();
+        let ends = Ends {
+            close,
+            stop: stop.clone(),
+            deadline: deadline.clone(),
+        };
         let acceptor = tls.as_ref().map(|tls| tls.acceptor());
         tasks.spawn(async move {
             let ended = match acceptor {
@@ -428,15 +431,7 @@ pub async fn serve(
                     let connection = pin!(
                         builder.serve_connection_with_upgrades(TokioIo::new(tracked), service)
                     );
-                    watch(
-                        connection,
-                        &activity,
-                        limits.idle_timeout,
-                        &close,
-                        &stop,
-                        &deadline,
-                    )
-                    .await
+                    watch(connection, &activity, limits.idle_timeout, &ends).await
                 }
                 // The handshake counts as the headers: it must be done in time.
                 Some(acceptor) => {
@@ -447,15 +442,7 @@ pub async fn serve(
                             let io = TokioIo::new(stream);
                             let connection =
                                 pin!(builder.serve_connection_with_upgrades(io, service));
-                            watch(
-                                connection,
-                                &activity,
-                                limits.idle_timeout,
-                                &close,
-                                &stop,
-                                &deadline,
-                            )
-                            .await
+                            watch(connection, &activity, limits.idle_timeout, &ends).await
                         }
                         Ok(Err(e)) => Err(format!("TLS handshake failed: {e}").into()),
                         Err(_) => Err("TLS handshake not done within the header timeout".into()),
@@ -507,27 +494,35 @@ where
     }
 }
 
-/// Runs `connection` until it ends, it was `close`d (to make room), nothing
+/// What ends a connection [`watch`]es: its own close (a cap made room),
+/// the drain's start (it finishes its requests in flight, then ends) and
+/// the drain's deadline (it ends at once).
+struct Ends {
+    close: CancellationToken,
+    stop: CancellationToken,
+    deadline: CancellationToken,
+}
+
+/// Runs `connection` until it ends, it was closed (to make room), nothing
 /// was read or written for `idle_timeout` while no request was being
-/// answered, or, after `stop`, it has finished its requests in flight.
+/// answered, after the drain's start it has finished its requests in
+/// flight, or the drain's deadline came ([`Ends`]).
 async fn watch(
     mut connection: Pin<&mut impl Serving>,
     activity: &Activity,
     idle_timeout: Duration,
-    close: &CancellationToken,
-    stop: &CancellationToken,
-    deadline: &CancellationToken,
+    ends: &Ends,
 ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
     let mut stopping = false;
     loop {
         let idle_at = activity.last() + idle_timeout;
         tokio::select! {
             served = connection.as_mut() => return served,
-            () = close.cancelled() => return Ok(()),
-            () = deadline.cancelled() => {
+            () = ends.close.cancelled() => return Ok(()),
+            () = ends.deadline.cancelled() => {
                 return Err("closed at the drain's deadline with a request in flight".into());
             }
-            () = stop.cancelled(), if !stopping => {
+            () = ends.stop.cancelled(), if !stopping => {
                 stopping = true;
                 connection.as_mut().finish();
             }
