@@ -441,26 +441,28 @@ impl Job {
                     .map_err(GpuError::Data)
             }
             None => renderers.get(&self.dataset).and_then(|(renderer, last)| {
-                let request = match (self.probe, last.as_ref()) {
-                    // The last view's frame again, at the probe's size: its
-                    // blocks, light and classification serve it as they are,
-                    // where a frame of other settings would replace them and
-                    // the view's next frame would bring them back.
-                    (true, Some(last)) => FrameRequest {
+                let band = match (self.probe, last.as_ref()) {
+                    // The last view's frame again, at the probe's size, from
+                    // the blocks and light the views see: a frame of other
+                    // settings would replace them and the view's next frame
+                    // would bring them back.
+                    (true, Some(last)) => renderer.render_probe(&FrameRequest {
                         width: request.width,
                         height: request.height,
                         rows: None,
                         ..last.clone()
-                    },
-                    (true, None) => request,
+                    })?,
+                    (true, None) => renderer.render_probe(&request)?,
                     (false, _) => {
+                        let band = renderer.render_now(&request)?;
+                        // A view probes draw once it rendered: one that
+                        // fails would make every later probe fail.
                         if rows.first == 0 {
                             *last = Some(self.request.clone());
                         }
-                        request
+                        band
                     }
                 };
-                let band = renderer.render_now(&request)?;
                 Ok((band, renderer.last_stats().clone(), None))
             }),
         };
@@ -937,16 +939,28 @@ mod tests {
             .block_on(service.probe(&prober, &dataset, probe.clone()))
             .expect("probe before any view");
         assert_eq!((first.frame.width, first.frame.height), (16, 16));
-        runtime
+        // The view, until every block it wants is shown.
+        while runtime
             .block_on(service.render_waiting(&viewer, &dataset, view.clone()))
-            .expect("view");
+            .expect("view")
+            .stats
+            .pending_blocks
+            > 0
+        {
+            let seen = dataset.cache.arrivals();
+            if dataset.cache.loading() > 0 {
+                dataset
+                    .cache
+                    .wait_for_arrivals(seen, std::time::Duration::from_secs(5));
+            }
+        }
         let probed = runtime
-            .block_on(service.probe(&prober, &dataset, probe))
+            .block_on(service.probe(&prober, &dataset, probe.clone()))
             .expect("probe");
         assert_eq!((probed.frame.width, probed.frame.height), (16, 16));
         assert_eq!(probed.stats.select_ms, 0.0, "{:?}", probed.stats);
         let again = runtime
-            .block_on(service.render_waiting(&viewer, &dataset, view))
+            .block_on(service.render_waiting(&viewer, &dataset, view.clone()))
             .expect("view again");
         assert_eq!(
             (
@@ -958,6 +972,30 @@ mod tests {
             "the view's blocks stayed: {:?}",
             again.stats
         );
+        // Nor does a probe refine the view's light, or keep the view's
+        // next frame from refining it.
+        let lit = FrameRequest {
+            shading: shaders::Shading::GlobalLight,
+            ..view
+        };
+        let refinement = |drawn: &RenderedFrame| {
+            drawn
+                .stats
+                .illumination
+                .and_then(|t| t.refinement())
+                .expect("global light refines")
+        };
+        let first = runtime
+            .block_on(service.render_waiting(&viewer, &dataset, lit.clone()))
+            .expect("lit view");
+        let probed = runtime
+            .block_on(service.probe(&prober, &dataset, probe))
+            .expect("probe");
+        let second = runtime
+            .block_on(service.render_waiting(&viewer, &dataset, lit))
+            .expect("lit view again");
+        assert_eq!(refinement(&probed), refinement(&first));
+        assert_eq!(refinement(&second).0, refinement(&first).0 + 1);
     }
 
     #[test]

@@ -140,6 +140,14 @@ impl AnyRenderer {
         }
     }
 
+    /// See [`Renderer::render_probe`].
+    pub fn render_probe(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        match self {
+            AnyRenderer::Gpu(r) => r.render_probe(request),
+            AnyRenderer::Cpu(r) => r.render_probe(request),
+        }
+    }
+
     /// See [`Renderer::render_converged`].
     pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
         match self {

@@ -29,6 +29,46 @@ use crate::residency::{Refresh, Residency, ResidencyStats, viewpoint};
 use crate::volume_texture::{GpuVolume, VolumeDescription, VolumeTexture};
 use crate::{Frame, FrameRequest, GpuContext, GpuError, RaycastParams};
 
+/// What a frame may change: how far it brings the shown blocks towards its
+/// target and how far it refines the light. One per way of drawing, for
+/// both renderers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Draw {
+    /// Waits for every block; one refinement step (`render`).
+    Complete,
+    /// Shows the blocks that arrived; one refinement step (`render_now`).
+    Now,
+    /// Waits for every block; every refinement left (`render_converged`).
+    Converged,
+    /// Shows the blocks shown now; no refinement step (`render_probe`).
+    Probe,
+}
+
+impl Draw {
+    /// How far a frame's band brings the shown blocks towards its target:
+    /// every band after a frame's first shows the blocks the first did.
+    pub(crate) fn refresh(self, request: &FrameRequest) -> Refresh {
+        match self {
+            Draw::Complete | Draw::Converged => Refresh::Complete,
+            Draw::Probe => Refresh::Target,
+            Draw::Now => Refresh::for_band(request.drawn_rows(), false),
+        }
+    }
+
+    /// How far a frame's band refines the light: every step left for a
+    /// converged frame; not at all for a later band of a frame (it shows
+    /// the light its first band did), a probe, or when the renderer says
+    /// it may not `step` (a moving view); else one step.
+    pub(crate) fn refine(self, request: &FrameRequest, step: bool) -> Refine {
+        match self {
+            Draw::Converged => Refine::Converge,
+            Draw::Probe => Refine::Hold,
+            Draw::Complete | Draw::Now if request.drawn_rows().first > 0 || !step => Refine::Hold,
+            Draw::Complete | Draw::Now => Refine::Step,
+        }
+    }
+}
+
 /// Rows of a texture-to-buffer copy are padded to this many bytes.
 const ROW_ALIGN: u32 = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
 
@@ -380,32 +420,34 @@ impl Renderer {
     /// global light recomputed from the first stale stage, else refined by
     /// one more direction.
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, false, true)
+        self.render_lit(request, Draw::Complete)
     }
 
     /// Renders one frame from the blocks in memory now, never waiting for
     /// storage: blocks still being read are shown coarser
     /// ([`RenderStats::pending_blocks`]) and later frames refine them.
     pub fn render_now(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, false, false)
+        self.render_lit(request, Draw::Now)
+    }
+
+    /// Renders a health probe's frame: from the blocks shown now (blocks
+    /// that arrived wait for the next view's frame) and the light as it
+    /// is (no refinement step), so a probe drawing the last view's request
+    /// changes nothing the views see.
+    pub fn render_probe(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.render_lit(request, Draw::Probe)
     }
 
     /// Renders one frame with the light converged (every in-scattering
     /// direction in) at the detail the request selects (for still images
     /// and tests).
     pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, true, true)
+        self.render_lit(request, Draw::Converged)
     }
 
-    /// Prepares the blocks (all of them, waiting, when `complete`), brings the
-    /// request's light up to date (all of its refinements when `converge`)
-    /// and draws.
-    fn render_lit(
-        &mut self,
-        request: &FrameRequest,
-        converge: bool,
-        complete: bool,
-    ) -> Result<Frame, GpuError> {
+    /// Prepares the blocks and brings the request's light up to date as
+    /// `draw` says, and draws.
+    fn render_lit(&mut self, request: &FrameRequest, draw: Draw) -> Result<Frame, GpuError> {
         let tf = request.store_transfer_function(self.cache.store().meta());
         self.frame.prepare(&self.gpu, request, &tf, &self.desc)?;
         let mut stats = RenderStats::from(self.residency.update_complete(
@@ -414,13 +456,13 @@ impl Renderer {
             &tf,
             request.reduction,
             viewpoint(request, &self.desc),
-            Refresh::for_band(request.drawn_rows(), complete),
+            draw.refresh(request),
         )?);
         let fitted = self.residency.fitted(request, &self.desc);
         let request = fitted.as_ref().unwrap_or(request);
         stats.camera = fitted.as_ref().map(|r| r.camera);
         if let Some(mode) = Mode::of(request.shading) {
-            let refine = Refine::for_frame(request, converge, true);
+            let refine = draw.refine(request, true);
             stats.illumination = Some(self.update_illumination(mode, request, &tf, refine)?);
         }
         self.draw(request, &tf, stats)

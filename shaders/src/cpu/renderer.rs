@@ -30,8 +30,8 @@ use crate::illumination::{Mode, Refine, Timings};
 use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
 use crate::packed_volume::PackedVolume;
 use crate::raycast::RaycastParams;
-use crate::renderer::RenderStats;
-use crate::residency::{Refresh, Residency, viewpoint};
+use crate::renderer::{Draw, RenderStats};
+use crate::residency::{Residency, viewpoint};
 use crate::volume_texture::{VolumeDescription, VolumeTexture};
 use crate::{Camera, Frame, FrameRequest, GpuError};
 
@@ -128,30 +128,31 @@ impl CpuRenderer {
     /// global light refined by one direction when the view is the last
     /// frame's.
     pub fn render(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, false, true)
+        self.render_lit(request, Draw::Complete)
     }
 
     /// Renders one frame from the blocks in memory now, never waiting for
     /// storage (as [`crate::Renderer::render_now`]).
     pub fn render_now(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, false, false)
+        self.render_lit(request, Draw::Now)
+    }
+
+    /// Renders a health probe's frame, changing nothing the views see (as
+    /// [`crate::Renderer::render_probe`]; nor is its view the one light
+    /// refines for).
+    pub fn render_probe(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
+        self.render_lit(request, Draw::Probe)
     }
 
     /// Renders one frame with the light converged (as
     /// [`crate::Renderer::render_converged`]).
     pub fn render_converged(&mut self, request: &FrameRequest) -> Result<Frame, GpuError> {
-        self.render_lit(request, true, true)
+        self.render_lit(request, Draw::Converged)
     }
 
-    /// Prepares the blocks (all of them, waiting, when `complete`), brings
-    /// the request's light up to date (all of its refinements when
-    /// `converge`) and draws.
-    fn render_lit(
-        &mut self,
-        request: &FrameRequest,
-        converge: bool,
-        complete: bool,
-    ) -> Result<Frame, GpuError> {
+    /// Prepares the blocks and brings the request's light up to date as
+    /// `draw` says, and draws.
+    fn render_lit(&mut self, request: &FrameRequest, draw: Draw) -> Result<Frame, GpuError> {
         request.validate()?;
         let tf = request.store_transfer_function(self.cache.store().meta());
         let mut stats = RenderStats::from(self.residency.update_complete(
@@ -160,7 +161,7 @@ impl CpuRenderer {
             &tf,
             request.reduction,
             viewpoint(request, &self.desc),
-            Refresh::for_band(request.drawn_rows(), complete),
+            draw.refresh(request),
         )?);
         let fitted = self.residency.fitted(request, &self.desc);
         let request = fitted.as_ref().unwrap_or(request);
@@ -171,8 +172,8 @@ impl CpuRenderer {
         self.update_cells(&tf);
         // A moving view draws from the light there is.
         let view = (request.camera, request.width, request.height);
-        let refine = Refine::for_frame(request, converge, self.last_view == Some(view));
-        if request.drawn_rows().first == 0 {
+        let refine = draw.refine(request, self.last_view == Some(view));
+        if request.drawn_rows().first == 0 && draw != Draw::Probe {
             self.last_view = Some(view);
         }
         match Mode::of(request.shading) {

@@ -221,22 +221,6 @@ pub enum Refine {
     Converge,
 }
 
-impl Refine {
-    /// How far a frame of `request` refines: every step left when
-    /// `converge`; not at all for a later band of a frame (it shows the
-    /// light the frame's first band did) or when the renderer says it may
-    /// not `step`; else one step.
-    pub fn for_frame(request: &FrameRequest, converge: bool, step: bool) -> Refine {
-        if converge {
-            Refine::Converge
-        } else if request.drawn_rows().first > 0 || !step {
-            Refine::Hold
-        } else {
-            Refine::Step
-        }
-    }
-}
-
 /// What the renderer asks of a mode's GPU state.
 pub trait Illumination: fmt::Debug + Send {
     /// Brings the mode's stages up to date for `request`: from the first stage
