@@ -160,23 +160,24 @@ impl Storage for PackedTexture {
                 return g / per_voxel;
             }
             // Near a face: the reads in the block from its slot, the others
-            // where `sample_neighbour` finds them (slot position x is level
-            // voxel x − 1 of the block, centred at (x + ½)·per_voxel).
-            let first_voxel = Vec3::new(
-                loc.block[0] as f32,
-                loc.block[1] as f32,
-                loc.block[2] as f32,
-            ) * (BLOCK * loc.scale);
-            // The neighbour the last read beyond a face was in: near one
-            // face (most often) every such read is in the same one.
-            let mut near = *loc;
+            // from the slot of the block `sample_neighbour` finds them in,
+            // each block found once while the reads stay in it.
+            let interior = loc.slot_edge as f32 - 2.0 * SLOT_APRON;
+            let mut last: Option<Beyond> = None;
             let g = reads.gradient(|x| {
                 if inside(x) {
-                    self.atlas.sample_slot(loc.slot, loc.slot_edge, x)
-                } else {
-                    let tc = (x - Vec3::ONE + first_voxel + Vec3::splat(0.5)) * per_voxel;
-                    self.sample_neighbour_near(p, tc, loc, &mut near)
+                    return self.atlas.sample_slot(loc.slot, loc.slot_edge, x);
                 }
+                // Slot position x lies x − ½ level voxels from the block's
+                // corner: the blocks it is past along each axis.
+                let s = ((x - Vec3::splat(SLOT_APRON - 0.5)) / interior).floor();
+                let step = [s.x as i32, s.y as i32, s.z as i32];
+                let there = match last {
+                    Some(there) if there.step == step => there,
+                    _ => *last.insert(self.beyond(loc, step)),
+                };
+                self.atlas
+                    .sample_slot(there.slot, there.edge, there.position(x))
             });
             return g / per_voxel;
         }
@@ -227,8 +228,17 @@ impl Storage for PackedTexture {
     }
 
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &BlockLocation) -> f32 {
-        let mut near = *home;
-        self.sample_neighbour_near(p, tc, home, &mut near)
+        let g = p.volume;
+        let b = floor3(tc * Vec3::from(g.volume_dims) / BLOCK);
+        let block = [b.x as i32, b.y as i32, b.z as i32];
+        if block == home.block {
+            return self.sample_at(p, tc, home);
+        }
+        let other = Storage::locate(self, p, tc);
+        if other.empty {
+            return self.sample_at(p, tc, home);
+        }
+        self.sample_at(p, tc, &other)
     }
 
     fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> Vec3 {
@@ -252,30 +262,26 @@ impl Storage for PackedTexture {
 }
 
 impl PackedTexture {
-    /// [`Storage::sample_neighbour`], given `near`, the location a read
-    /// before this one found: not looked up again when the read is in the
-    /// same block, else replaced by the one this read finds.
-    #[inline]
-    fn sample_neighbour_near(
-        &self,
-        p: &RaycastParams,
-        tc: Vec3,
-        home: &BlockLocation,
-        near: &mut BlockLocation,
-    ) -> f32 {
-        let g = p.volume;
-        let b = floor3(tc * Vec3::from(g.volume_dims) / BLOCK);
-        let block = [b.x as i32, b.y as i32, b.z as i32];
-        if block == home.block {
-            return self.sample_at(p, tc, home);
+    /// Where reads at positions of `home`'s slot that lie `step` blocks
+    /// away (per axis) are read: in the slot of the block there (the grid's
+    /// edge block where that is outside it), or, where that block is
+    /// empty, in `home`'s own, clamped to its apron; as `sample_neighbour`
+    /// and `atlas_texel` find them.
+    fn beyond(&self, home: &BlockLocation, step: [i32; 3]) -> Beyond {
+        let last = self.grid.map(|n| n as i32 - 1);
+        let block = [0, 1, 2].map(|a| (home.block[a] + step[a]).clamp(0, last[a]));
+        let there = self.locate_block(block);
+        let read = if there.empty { home } else { &there };
+        let corner =
+            |l: &BlockLocation| Vec3::new(l.block[0] as f32, l.block[1] as f32, l.block[2] as f32);
+        Beyond {
+            step,
+            slot: read.slot,
+            edge: read.slot_edge,
+            ratio: read.scale / home.scale,
+            offset: ((corner(home) - corner(read)) * BLOCK - 0.5 / home.scale) * read.scale,
+            high: BLOCK * read.scale + 0.5,
         }
-        if block != near.block {
-            *near = Storage::locate(self, p, tc);
-        }
-        if near.empty {
-            return self.sample_at(p, tc, home);
-        }
-        self.sample_at(p, tc, near)
     }
 
     /// [`SlotAtlas::cubic_gradient`] (per texel of `loc`'s level) at slot
@@ -425,6 +431,34 @@ impl PackedTexture {
             local_per_t,
             t_max,
         }
+    }
+}
+
+/// The block that reads beyond a block's faces, `step` blocks away, are
+/// read from ([`PackedTexture::beyond`]): its slot, and how a position in
+/// the home block's slot maps into it.
+#[derive(Debug, Clone, Copy)]
+struct Beyond {
+    step: [i32; 3],
+    slot: usize,
+    edge: usize,
+    /// The block's texels per texel of the home block's level.
+    ratio: f32,
+    /// Where position 0 of the home block's slot lies, in this block's
+    /// level voxels from its corner.
+    offset: Vec3,
+    /// The block's edge in its level voxels, plus ½: `atlas_texel`
+    /// clamps to −½ … this.
+    high: f32,
+}
+
+impl Beyond {
+    /// The position in the block's slot of position `x` in the home
+    /// block's slot (`atlas_texel` within the slot: clamped to its apron).
+    #[inline(always)]
+    fn position(&self, x: Vec3) -> Vec3 {
+        (self.ratio * x + self.offset).clamp(Vec3::splat(-0.5), Vec3::splat(self.high))
+            + Vec3::splat(0.5)
     }
 }
 
