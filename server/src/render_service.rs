@@ -441,27 +441,29 @@ impl Job {
                     .map_err(GpuError::Data)
             }
             None => renderers.get(&self.dataset).and_then(|(renderer, last)| {
-                let band = match (self.probe, last.as_ref()) {
+                let band = if self.probe {
                     // The last view's frame again, at the probe's size, from
                     // the blocks and light the views see: a frame of other
                     // settings would replace them and the view's next frame
                     // would bring them back.
-                    (true, Some(last)) => renderer.render_probe(&FrameRequest {
-                        width: request.width,
-                        height: request.height,
-                        rows: None,
-                        ..last.clone()
-                    })?,
-                    (true, None) => renderer.render_probe(&request)?,
-                    (false, _) => {
-                        let band = renderer.render_now(&request)?;
-                        // A view probes draw once it rendered: one that
-                        // fails would make every later probe fail.
-                        if rows.first == 0 {
-                            *last = Some(self.request.clone());
-                        }
-                        band
+                    let probe = match last.as_ref() {
+                        Some(last) => FrameRequest {
+                            width: request.width,
+                            height: request.height,
+                            rows: None,
+                            ..last.clone()
+                        },
+                        None => request,
+                    };
+                    renderer.render_probe(&probe)?
+                } else {
+                    let band = renderer.render_now(&request)?;
+                    // A view probes draw once it rendered: one that fails
+                    // would make every later probe fail.
+                    if rows.first == 0 {
+                        *last = Some(self.request.clone());
                     }
+                    band
                 };
                 Ok((band, renderer.last_stats().clone(), None))
             }),

@@ -272,8 +272,7 @@ impl PackedTexture {
         let block = [0, 1, 2].map(|a| (home.block[a] + step[a]).clamp(0, last[a]));
         let there = self.locate_block(block);
         let read = if there.empty { home } else { &there };
-        let corner =
-            |l: &BlockLocation| Vec3::new(l.block[0] as f32, l.block[1] as f32, l.block[2] as f32);
+        let corner = |l: &BlockLocation| glam::IVec3::from(l.block).as_vec3();
         Beyond {
             step,
             slot: read.slot,
