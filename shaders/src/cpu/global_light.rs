@@ -14,7 +14,7 @@ use blocks::TransferFunction;
 use blocks::packing::Packing;
 
 use super::march::{classify_table, corrected_opacity, intersect_box};
-use super::packed::{BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, empty_exit};
+use super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture, RayBlocks};
 use super::{SlotAtlas, Texture3d};
 use crate::global_light::update::{LightStages, update_light};
 use crate::global_light::{
@@ -111,17 +111,6 @@ fn light_ray(p: &LightParams, tc0: Vec3) -> LightRay {
     ray_along(p, tc0, towards, distance)
 }
 
-/// WGSL `opacity_at`.
-fn opacity_at(
-    p: &LightParams,
-    packed: &PackedTexture,
-    tf: &[[f32; 4]],
-    tc: Vec3,
-    loc: &BlockLocation,
-) -> f32 {
-    opacity_of(p, tf, packed.sample_block(&p.volume, tc, loc))
-}
-
 /// WGSL `opacity_at` of a sample whose value is `value`.
 #[inline]
 fn opacity_of(p: &LightParams, tf: &[[f32; 4]], value: f32) -> f32 {
@@ -167,16 +156,19 @@ pub fn local_opacity(
         let end = p.segment.min(ray.length);
         let mut transparency = 1.0;
         // The block of the last sample, which the next often shares.
-        let mut loc = packed.locate(&g, tc0);
+        let mut blocks = RayBlocks::new(packed, &g, tc0, ray.dir);
         for i in 1..=p.max_steps {
             let t = i as f32 * p.step;
             if t > end {
                 break;
             }
-            let tc = tc0 + ray.dir * t;
-            loc = packed.locate_near(&g, tc, &loc);
+            let loc = *blocks.at(packed, &g, t);
             if !loc.empty {
-                transparency *= 1.0 - opacity_at(p, packed, tf, tc, &loc);
+                let value =
+                    packed
+                        .atlas
+                        .sample_slot(loc.slot, loc.slot_edge, blocks.slot_position(t));
+                transparency *= 1.0 - opacity_of(p, tf, value);
             }
         }
         1.0 - transparency
@@ -215,20 +207,19 @@ pub fn global_opacity(
         let mut transparency = 1.0;
         let mut t = 0.0f32;
         // The block of the last segment's end, which the next often shares.
-        let mut loc = index.locate(&g, tc0);
+        let mut blocks = RayBlocks::new(index, &g, tc0, ray.dir);
         for _k in 0..p.max_steps {
             if t >= ray.length || transparency < OPAQUE {
                 break;
             }
-            let tc = tc0 + ray.dir * t;
-            loc = index.locate_near(&g, tc, &loc);
+            let loc = *blocks.at(index, &g, t);
             if loc.empty {
-                t = t.max(empty_exit(&g, tc0, ray.dir, &loc)) + RESUME;
+                t = t.max(blocks.exit(&g)) + RESUME;
                 continue;
             }
             // atlas_coord's texel in the slot (the same eight texels, the
             // same weights up to rounding).
-            let a = local_opacity.sample_block(&g, tc, &loc);
+            let a = local_opacity.sample_slot(loc.slot, loc.slot_edge, blocks.slot_position(t));
             transparency *= 1.0 - a;
             t += p.segment;
         }
@@ -294,22 +285,25 @@ pub fn in_scatter(
             let mut transparency = 1.0;
             let mut i = 0u32;
             // The block of the last sample, which the next often shares.
-            let mut loc = packed.locate(&g, tc0);
+            let mut blocks = RayBlocks::new(packed, &g, tc0, ray.dir);
             for _k in 0..p.max_steps {
                 let t = i as f32 * p.step;
                 if t > ray.length || transparency < OPAQUE {
                     break;
                 }
-                let tc = tc0 + ray.dir * t;
-                loc = packed.locate_near(&g, tc, &loc);
+                let loc = *blocks.at(packed, &g, t);
                 if loc.empty {
-                    let exit = empty_exit(&g, tc0, ray.dir, &loc);
-                    i = (i + 1).max((exit / p.step).ceil() as u32);
+                    i = (i + 1).max((blocks.exit(&g) / p.step).ceil() as u32);
                     continue;
                 }
                 // The data and, at atlas_coord's texel in the slot (the same
                 // eight texels, the same weights up to rounding), I_d.
-                let (value, lit) = packed.atlas.sample_block_with(&direct_slots, &g, tc, &loc);
+                let (value, lit) = packed.atlas.sample_slot_with(
+                    &direct_slots,
+                    loc.slot,
+                    loc.slot_edge,
+                    blocks.slot_position(t),
+                );
                 let a = opacity_of(p, tf, value);
                 light += transparency * a * lit;
                 transparency *= 1.0 - a;
@@ -492,19 +486,22 @@ pub fn direct_light_reference(
         let ray = light_ray(p, tc0);
         let mut transparency = 1.0;
         let mut i = 1u32;
+        // The block of the last sample, which the next often shares.
+        let mut blocks = RayBlocks::new(packed, &g, tc0, ray.dir);
         for _k in 0..p.max_steps {
             let t = i as f32 * p.step;
             if t > ray.length || transparency < OPAQUE {
                 break;
             }
-            let tc = tc0 + ray.dir * t;
-            let loc = packed.locate(&g, tc);
+            let loc = *blocks.at(packed, &g, t);
             if loc.empty {
-                let exit = empty_exit(&g, tc0, ray.dir, &loc);
-                i = (i + 1).max((exit / p.step).ceil() as u32);
+                i = (i + 1).max((blocks.exit(&g) / p.step).ceil() as u32);
                 continue;
             }
-            transparency *= 1.0 - opacity_at(p, packed, tf, tc, &loc);
+            let value = packed
+                .atlas
+                .sample_slot(loc.slot, loc.slot_edge, blocks.slot_position(t));
+            transparency *= 1.0 - opacity_of(p, tf, value);
             i += 1;
         }
         p.intensity * transparency

@@ -432,9 +432,22 @@ pub fn far_face_crossing(cell: Vec3, edge: Vec3, origin: Vec3, dir: Vec3) -> Vec
 
 /// WGSL `intersect_box`.
 pub fn intersect_box(origin: Vec3, dir: Vec3, lo: Vec3, hi: Vec3) -> Vec2 {
+    intersect_box_inverse(origin, inverse_direction(dir), lo, hi)
+}
+
+/// The reciprocal of `dir` as WGSL `intersect_box` takes it (CPU only:
+/// found once per ray for many boxes).
+#[inline]
+pub fn inverse_direction(dir: Vec3) -> Vec3 {
     let tiny = dir.abs().cmplt(Vec3::splat(1e-12));
     let safe_dir = Vec3::select(tiny, Vec3::splat(1e-12), dir);
-    let inv = 1.0 / safe_dir;
+    1.0 / safe_dir
+}
+
+/// WGSL `intersect_box` for the ray whose direction's
+/// [`inverse_direction`] is `inv`.
+#[inline]
+pub fn intersect_box_inverse(origin: Vec3, inv: Vec3, lo: Vec3, hi: Vec3) -> Vec2 {
     let t0 = (lo - origin) * inv;
     let t1 = (hi - origin) * inv;
     let near = t0.min(t1);

@@ -7,8 +7,8 @@ use glam::Vec3;
 use blocks::packing::slot_edge;
 use blocks::store::LEVELS;
 
-use super::march::intersect_box;
-use super::texture::floor3;
+use super::march::{far_face_crossing, intersect_box_inverse, inverse_direction};
+use super::texture::floor_i32;
 use super::{ColourTexture, SlotAtlas, Texture3d};
 use crate::illumination::Mode;
 use crate::packed_volume::PackedVolume;
@@ -73,11 +73,11 @@ pub fn voxel_edge(loc: &BlockLocation) -> f32 {
 #[inline(always)]
 pub fn block_of(g: &PackedVolume, tc: Vec3) -> [i32; 3] {
     let last = g.block_grid.map(|n| n as i32 - 1);
-    let b = floor3(tc * Vec3::from(g.volume_dims) / BLOCK);
+    let b = tc * Vec3::from(g.volume_dims) / BLOCK;
     [
-        (b.x as i32).clamp(0, last[0]),
-        (b.y as i32).clamp(0, last[1]),
-        (b.z as i32).clamp(0, last[2]),
+        floor_i32(b.x).clamp(0, last[0]),
+        floor_i32(b.y).clamp(0, last[1]),
+        floor_i32(b.z).clamp(0, last[2]),
     ]
 }
 
@@ -105,6 +105,12 @@ pub fn atlas_texel(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
 
 /// WGSL `empty_exit`.
 pub fn empty_exit(g: &PackedVolume, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
+    empty_exit_inverse(g, origin, inverse_direction(dir), loc)
+}
+
+/// [`empty_exit`] for the ray whose direction's [`inverse_direction`] is `inv`.
+#[inline]
+fn empty_exit_inverse(g: &PackedVolume, origin: Vec3, inv: Vec3, loc: &BlockLocation) -> f32 {
     let block = Vec3::new(
         loc.block[0] as f32,
         loc.block[1] as f32,
@@ -113,7 +119,165 @@ pub fn empty_exit(g: &PackedVolume, origin: Vec3, dir: Vec3, loc: &BlockLocation
     let texel = Vec3::from(g.texel);
     let lo = block * BLOCK * texel;
     let hi = (lo + BLOCK * texel).min(Vec3::ONE);
-    intersect_box(origin, dir, lo, hi).y
+    intersect_box_inverse(origin, inv, lo, hi).y
+}
+
+/// CPU only: the blocks of the samples along a light stage's ray `origin +
+/// t·dir`, each the block WGSL `locate` finds. A walk of the block grid (a
+/// 3D DDA) proposes each sample's block with two comparisons; only a sample
+/// within a thousandth of a block of a face (where rounding decides) is
+/// located as the GPU locates it. Within a block the sample's slot position
+/// is an affine function of `t` (the same texels and weights as
+/// `atlas_texel` within the slot, up to rounding).
+#[derive(Debug, Clone, Copy)]
+pub struct RayBlocks {
+    /// The block of the last sample, and its location.
+    pub loc: BlockLocation,
+    /// The sample's position in `loc`'s slot is `slot_at_zero + t·slot_per_t`.
+    slot_at_zero: Vec3,
+    /// See `slot_at_zero`.
+    slot_per_t: Vec3,
+    /// The walk's block (`loc`'s, but near a face), where it leaves it
+    /// along each axis, and the distance between faces along each axis.
+    walk: [i32; 3],
+    t_max: Vec3,
+    t_delta: Vec3,
+    /// Where the walk entered its block.
+    entered: f32,
+    /// Where rounding at a face may decide the block: a thousandth of a
+    /// block along the axis the ray crosses fastest (`block_of`'s faces
+    /// move by about 10⁻⁵ of a block).
+    margin: f32,
+    /// The walk has left the grid (by rounding at its edge): every sample
+    /// is located.
+    lost: bool,
+    origin: Vec3,
+    dir: Vec3,
+    /// `dir`'s [`inverse_direction`].
+    inverse: Vec3,
+}
+
+impl RayBlocks {
+    /// The ray's blocks, at the block holding `origin`.
+    #[inline]
+    pub fn new(packed: &PackedTexture, g: &PackedVolume, origin: Vec3, dir: Vec3) -> RayBlocks {
+        let dims = Vec3::from(g.volume_dims);
+        let edge = Vec3::from(g.texel) * BLOCK;
+        let walk = block_of(g, origin);
+        let cell = Vec3::new(walk[0] as f32, walk[1] as f32, walk[2] as f32);
+        let mut blocks = RayBlocks {
+            loc: packed.locate_block(walk),
+            slot_at_zero: Vec3::ZERO,
+            slot_per_t: Vec3::ZERO,
+            walk,
+            t_max: far_face_crossing(cell, edge, origin, dir),
+            t_delta: (edge / dir.abs()).min(Vec3::INFINITY),
+            entered: f32::NEG_INFINITY,
+            margin: 1e-3 / (dir * dims / BLOCK).abs().max_element(),
+            lost: false,
+            origin,
+            dir,
+            inverse: inverse_direction(dir),
+        };
+        blocks.enter(g);
+        blocks
+    }
+
+    /// Moves to the block of the sample at `t` (WGSL `locate`; `t` never
+    /// less than the last sample's), and returns it.
+    #[inline(always)]
+    pub fn at(&mut self, packed: &PackedTexture, g: &PackedVolume, t: f32) -> &BlockLocation {
+        let exit = self.t_max.min_element();
+        if !self.lost && t >= self.entered + self.margin && t < exit - self.margin {
+            // Well inside the walk's block (the usual case).
+            if self.walk != self.loc.block {
+                self.move_to(packed, g, self.walk);
+            }
+            return &self.loc;
+        }
+        if !self.lost && t >= exit {
+            self.advance(packed, t);
+        }
+        if !self.lost
+            && t >= self.entered + self.margin
+            && t < self.t_max.min_element() - self.margin
+        {
+            if self.walk != self.loc.block {
+                self.move_to(packed, g, self.walk);
+            }
+            return &self.loc;
+        }
+        // Near a face: as the GPU locates it.
+        let block = block_of(g, self.origin + self.dir * t);
+        if block != self.loc.block {
+            self.move_to(packed, g, block);
+        }
+        &self.loc
+    }
+
+    /// On through the grid to the walk's block holding `t` (`t ≥ exit`).
+    #[inline]
+    fn advance(&mut self, packed: &PackedTexture, t: f32) {
+        let last = packed.grid.map(|n| n as i32 - 1);
+        loop {
+            let axis = nearest_axis(self.t_max);
+            self.entered = self.t_max[axis];
+            self.walk[axis] += if self.dir[axis] > 0.0 { 1 } else { -1 };
+            self.t_max[axis] += self.t_delta[axis];
+            if !(0..=last[axis]).contains(&self.walk[axis]) {
+                self.lost = true;
+                return;
+            }
+            if t < self.t_max.min_element() {
+                return;
+            }
+        }
+    }
+
+    /// `loc` becomes `block`.
+    #[inline]
+    fn move_to(&mut self, packed: &PackedTexture, g: &PackedVolume, block: [i32; 3]) {
+        self.loc = packed.locate_block(block);
+        self.enter(g);
+    }
+
+    /// WGSL `empty_exit` of the block.
+    #[inline]
+    pub fn exit(&self, g: &PackedVolume) -> f32 {
+        empty_exit_inverse(g, self.origin, self.inverse, &self.loc)
+    }
+
+    /// The slot position's affine map for the block just entered.
+    #[inline(always)]
+    fn enter(&mut self, g: &PackedVolume) {
+        let dims = Vec3::from(g.volume_dims);
+        let b = self.loc.block;
+        let corner = Vec3::new(b[0] as f32, b[1] as f32, b[2] as f32) * BLOCK;
+        // `atlas_texel` in the slot, whose first interior texel is at the
+        // apron's width (1): level-l texels from the block's corner, less ½.
+        self.slot_at_zero = (self.origin * dims - corner) * self.loc.scale + 0.5;
+        self.slot_per_t = self.dir * dims * self.loc.scale;
+    }
+
+    /// The position in the block's slot of the sample at `t` (not yet kept
+    /// in the slot: [`SlotAtlas::sample_slot`] keeps it).
+    #[inline(always)]
+    pub fn slot_position(&self, t: f32) -> Vec3 {
+        self.slot_at_zero + self.slot_per_t * t
+    }
+}
+
+/// The axis along which `t_max` is least (the face a walk crosses next;
+/// x before y before z on ties).
+#[inline(always)]
+pub fn nearest_axis(t_max: Vec3) -> usize {
+    if t_max.x <= t_max.y && t_max.x <= t_max.z {
+        0
+    } else if t_max.y <= t_max.z {
+        1
+    } else {
+        2
+    }
 }
 
 impl PackedTexture {

@@ -479,7 +479,7 @@ mod tests {
     use glam::Vec3;
 
     use super::super::march::{Storage, cubic_gradient_at};
-    use super::super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture};
+    use super::super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture, RayBlocks, block_of};
     use super::super::slot_atlas::SlotAtlas;
     use crate::raycast::{FLAG_CUBIC_GRADIENT, RaycastParams};
 
@@ -551,6 +551,46 @@ mod tests {
         params.volume.block_grid = [n as u32; 3];
         params.flags = FLAG_CUBIC_GRADIENT;
         (packed, params)
+    }
+
+    #[test]
+    fn a_light_ray_s_blocks_are_the_blocks_the_shader_locates() {
+        let (packed, params) = blocks();
+        let g = &params.volume;
+        let mut near_faces = 0;
+        for i in 0..2000u32 {
+            let u = |k: u32| ((i * k) % 1009) as f32 / 1008.0;
+            let origin = Vec3::new(u(37), u(101), u(53));
+            // Some rays along an axis, some starting on a block's face.
+            let dir = match i % 4 {
+                0 => Vec3::new(0.0, 0.0, 1.0),
+                1 => Vec3::new(u(71) - 0.5, u(13) - 0.5, u(29) - 0.5).normalize_or(Vec3::X),
+                _ => Vec3::new(u(71) - 0.5, u(13) - 0.5, u(29) - 0.5).normalize_or(Vec3::Y),
+            };
+            let origin = if i % 4 == 2 {
+                Vec3::new(16.0 / 48.0, origin.y, origin.z)
+            } else {
+                origin
+            };
+            let mut blocks = RayBlocks::new(&packed, g, origin, dir);
+            // Steps of a third of a voxel, and samples just either side of
+            // the faces the ray crosses.
+            let mut t = 0.0f32;
+            while t < 2.0 {
+                let want = block_of(g, origin + dir * t);
+                if want[0] < 0 || (0..3).any(|a| !(0.0..=1.0).contains(&(origin + dir * t)[a])) {
+                    break;
+                }
+                let got = blocks.at(&packed, g, t).block;
+                assert_eq!(got, want, "ray {i} from {origin} along {dir} at {t}");
+                let b = (origin + dir * t) * 3.0;
+                if (b - b.round()).abs().min_element() < 1e-3 {
+                    near_faces += 1;
+                }
+                t = (t + 1.0 / 144.0).next_up();
+            }
+        }
+        assert!(near_faces > 100, "only {near_faces} samples near faces");
     }
 
     #[test]

@@ -140,19 +140,18 @@ impl SlotAtlas {
         trilinear(&self.texels, first, edge, edge * edge, f)
     }
 
-    /// [`SlotAtlas::sample_block`] of these slots and of `other`, an atlas
+    /// [`SlotAtlas::sample_slot`] of these slots and of `other`, an atlas
     /// of the same slots (such as [`SlotAtlas::with_texels_of`] makes), at
     /// once: the position and weights found once, the same values.
     #[inline(always)]
-    pub fn sample_block_with(
+    pub fn sample_slot_with(
         &self,
         other: &SlotAtlas,
-        g: &PackedVolume,
-        tc: Vec3,
-        loc: &BlockLocation,
+        base: usize,
+        edge: usize,
+        p: Vec3,
     ) -> (f32, f32) {
-        let (first, f) = block_corner(g, tc, loc);
-        let edge = loc.slot_edge;
+        let (first, f) = slot_corner(base, edge, p);
         (
             trilinear(&self.texels, first, edge, edge * edge, f),
             trilinear(&other.texels, first, edge, edge * edge, f),

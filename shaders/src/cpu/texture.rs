@@ -53,6 +53,14 @@ pub fn round_down(x: f32x4) -> f32x4 {
     ((x - f32x4::splat(0.5)) + f32x4::splat(MAGIC)) - f32x4::splat(MAGIC)
 }
 
+/// `floor(x)` as a whole number (`floor(x) as i32`, saturating, 0 for
+/// NaN), branch-free: truncation, one less where that rounded up.
+#[inline(always)]
+pub fn floor_i32(x: f32) -> i32 {
+    let i = x as i32;
+    i.saturating_sub(i32::from(i as f32 > x))
+}
+
 /// [`floor`] per component.
 #[inline]
 pub fn floor3(v: Vec3) -> Vec3 {
@@ -235,6 +243,41 @@ mod tests {
                 channels[2].sample_level(tc),
             );
             assert_eq!(got, want, "at {tc}");
+        }
+    }
+
+    #[test]
+    fn floor_i32_is_floor_as_a_whole_number() {
+        let mut values = vec![
+            0.0f32,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            15.999_999,
+            16.0,
+            -16.000_002,
+            8_388_607.5,
+            8_388_608.0,
+            -8_388_609.0,
+            3e9,
+            -3e9,
+            f32::MAX,
+            f32::MIN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+        ];
+        let mut x = 1.0e-3f32;
+        while x < 1e10 {
+            values.extend([x, -x, x.next_up(), (-x).next_down()]);
+            x *= 1.37;
+        }
+        for v in values {
+            assert_eq!(floor_i32(v), floor(v) as i32, "floor of {v}");
         }
     }
 
