@@ -23,11 +23,13 @@ use shaders::extinction::{
     ShadowMethod, Stage,
 };
 use shaders::volume_texture::VolumeTexture;
-use shaders::{Camera, Compositing, FrameRequest, GpuContext, Shading};
+use shaders::{
+    AnyRenderer, Backend, Camera, Compositing, Frame, FrameRequest, GpuContext, Shading,
+};
 use voxserve_tests::gpu_or_skip;
 use voxserve_tests::image_compare::assert_similar;
 use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
-use voxserve_tests::render::{cpu_raycast, gpu_renderer};
+use voxserve_tests::render::{TEST_GPU_BUDGET_BYTES, cpu_raycast, gpu_renderer};
 
 /// Largest accepted mean and maximum absolute difference of ambient and light terms.
 const TERM_TOLERANCE: (f64, f64) = (2e-3, 0.03);
@@ -246,11 +248,31 @@ fn every_extinction_stage_agrees_with_its_cpu_twin() {
 
 #[test]
 fn light_cache_follows_algorithm_1() {
-    let Some(gpu) = gpu_or_skip("light_cache_follows_algorithm_1") else {
-        return;
-    };
     let dataset = phantom_64_dataset();
-    let mut renderer = gpu_renderer(gpu, dataset);
+    let cpu = || {
+        Backend::Cpu
+            .renderer(dataset.cache.clone(), TEST_GPU_BUDGET_BYTES)
+            .expect("CPU renderer")
+    };
+    // The CPU renderer's frames after each change equal a fresh renderer's,
+    // which computes every stage: what is kept is what would be recomputed.
+    let frames = follows_algorithm_1("CPU renderer", &mut cpu());
+    for (step, (request, frame)) in frames.iter().enumerate() {
+        let fresh = cpu().render(request).expect("render");
+        assert!(
+            fresh.rgba == frame.rgba,
+            "step {step}: the CPU renderer's frame differs from a fresh renderer's"
+        );
+    }
+    if let Some(gpu) = gpu_or_skip("light_cache_follows_algorithm_1 (GPU)") {
+        let mut renderer = AnyRenderer::Gpu(Box::new(gpu_renderer(gpu, dataset)));
+        follows_algorithm_1("GPU renderer", &mut renderer);
+    }
+}
+
+/// Checks that `renderer` recomputes the extinction stages a change affects
+/// and no others (algorithm 1); the requests and frames of each step.
+fn follows_algorithm_1(name: &str, renderer: &mut AnyRenderer) -> Vec<(FrameRequest, Frame)> {
     let mut request = extinction_request(ExtinctionSettings {
         sat_size: 24,
         ao_radius: 3,
@@ -258,8 +280,10 @@ fn light_cache_follows_algorithm_1() {
     });
     request.width = 32;
     request.height = 32;
+    let mut frames = Vec::new();
     let mut frame = |r: &FrameRequest| {
-        renderer.render(r).expect("render");
+        let frame = renderer.render(r).expect("render");
+        frames.push((r.clone(), frame));
         *renderer
             .last_stats()
             .extinction()
@@ -268,33 +292,34 @@ fn light_cache_follows_algorithm_1() {
     let first = frame(&request);
     assert!(
         first.sat_ms > 0.0 && first.ambient_occlusion_ms > 0.0 && first.soft_shadow_ms > 0.0,
-        "the first frame computes everything: {first:?}"
+        "{name}: the first frame computes everything: {first:?}"
     );
     request.camera.azimuth_deg += 40.0;
     let moved = frame(&request);
     assert!(
         moved.sat_ms == 0.0 && moved.ambient_occlusion_ms == 0.0 && moved.soft_shadow_ms == 0.0,
-        "a camera move recomputes nothing: {moved:?}"
+        "{name}: a camera move recomputes nothing: {moved:?}"
     );
     request.extinction.lights[0].kind = ExtinctionLightKind::Point([0.2, 0.8, 0.5]);
     let relit = frame(&request);
     assert!(
         relit.sat_ms == 0.0 && relit.ambient_occlusion_ms == 0.0 && relit.soft_shadow_ms > 0.0,
-        "a light change recomputes the shadows only: {relit:?}"
+        "{name}: a light change recomputes the shadows only: {relit:?}"
     );
     request.extinction.ao_radius = 2;
     request.extinction.ao_shells = 2;
     let ao = frame(&request);
     assert!(
         ao.sat_ms == 0.0 && ao.ambient_occlusion_ms > 0.0 && ao.soft_shadow_ms > 0.0,
-        "an AO change recomputes AO and the cache: {ao:?}"
+        "{name}: an AO change recomputes AO and the cache: {ao:?}"
     );
     request.tf = Some(Preset::CtBone.transfer_function(phantom_64().value_range));
     let tf = frame(&request);
     assert!(
         tf.sat_ms > 0.0 && tf.ambient_occlusion_ms > 0.0 && tf.soft_shadow_ms > 0.0,
-        "a transfer-function change recomputes everything: {tf:?}"
+        "{name}: a transfer-function change recomputes everything: {tf:?}"
     );
+    frames
 }
 
 /// The sum of `cells` (256³, x fastest) over lo..=hi clamped to the grid.

@@ -195,6 +195,8 @@ pub struct BenchExtinctionArgs {
     #[arg(long, value_name = "DIR")]
     pub images: Option<PathBuf>,
     #[command(flatten)]
+    pub renderer: RendererArgs,
+    #[command(flatten)]
     pub data: DataArgs,
 }
 

@@ -25,7 +25,7 @@ use shaders::colour_difference::{colour_difference, object_colour_difference};
 use shaders::extinction::{
     AoMethod, ExtinctionSettings, ExtinctionTimings, ShadowMethod, grid_dims,
 };
-use shaders::{Frame, FrameRequest, GpuContext, Renderer, Shading};
+use shaders::{AnyRenderer, Backend, Frame, FrameRequest, Shading};
 
 use super::args::BenchExtinctionArgs;
 use super::light::{adapter_json, merge, unlit_and_gradient_ms, write_images};
@@ -38,7 +38,7 @@ use server::commands::say;
 const SMALL_EDGE: u32 = 32;
 
 /// The extinction timings of the renderer's last frame.
-fn timings_of(renderer: &Renderer) -> anyhow::Result<ExtinctionTimings> {
+fn timings_of(renderer: &AnyRenderer) -> anyhow::Result<ExtinctionTimings> {
     renderer
         .last_stats()
         .extinction()
@@ -96,13 +96,13 @@ fn nudge_cone(settings: &ExtinctionSettings, r: u32) -> ExtinctionSettings {
 
 /// `voxserve bench extinction`; see the module docs.
 pub fn extinction(args: &BenchExtinctionArgs) -> anyhow::Result<()> {
-    let gpu = GpuContext::new()?;
-    let adapter = adapter_json(&gpu);
+    let backend = args.renderer.backend()?;
+    let adapter = adapter_json(&backend);
     for name in &args.datasets {
         let Some((dataset, tf)) = bench_dataset(name, &args.data_dir, &args.data)? else {
             continue;
         };
-        let mut bench = ExtinctionBench::new(&gpu, args, &adapter, name, &dataset, tf)?;
+        let mut bench = ExtinctionBench::new(&backend, args, &adapter, name, &dataset, tf)?;
         for &sat_size in &args.sat_sizes {
             bench.grid(sat_size)?;
         }
@@ -118,7 +118,7 @@ struct ExtinctionBench<'a> {
     name: &'a str,
     tf: TransferFunction,
     dims: [u32; 3],
-    renderer: Renderer,
+    renderer: AnyRenderer,
     /// The data reduction the first frame's selection reached.
     reduction: f64,
 }
@@ -138,18 +138,14 @@ impl<'a> ExtinctionBench<'a> {
     /// The renderer for `dataset`, after a first frame that selects and
     /// uploads the blocks.
     fn new(
-        gpu: &GpuContext,
+        backend: &Backend,
         args: &'a BenchExtinctionArgs,
         adapter: &'a serde_json::Value,
         name: &'a str,
         dataset: &Dataset,
         tf: TransferFunction,
     ) -> anyhow::Result<Self> {
-        let mut renderer = Renderer::new(
-            gpu.clone(),
-            dataset.cache.clone(),
-            args.data.gpu_budget_bytes(),
-        )?;
+        let mut renderer = backend.renderer(dataset.cache.clone(), args.data.gpu_budget_bytes())?;
         renderer.render(&FrameRequest {
             extinction: ExtinctionSettings::default(),
             ..view_request(SMALL_EDGE, Shading::Unshaded, &tf)

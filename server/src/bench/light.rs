@@ -28,9 +28,7 @@ use std::time::Instant;
 use blocks::TransferFunction;
 use shaders::colour_difference::{colour_difference, object_colour_difference};
 use shaders::global_light::{DirectLightMethod, LightTimings, svr_dims};
-use shaders::{
-    AnyRenderer, Backend, Frame, FrameRequest, GpuContext, GpuError, LightSettings, Shading,
-};
+use shaders::{AnyRenderer, Backend, Frame, FrameRequest, GpuError, LightSettings, Shading};
 
 use super::args::BenchLightArgs;
 use super::{bench_dataset, timed, view_request};
@@ -72,11 +70,7 @@ fn unscattered(svr_scale: u32, segment_voxels: u32) -> LightSettings {
 /// `voxserve bench light`; see the module docs.
 pub fn light(args: &BenchLightArgs) -> anyhow::Result<()> {
     let backend = args.renderer.backend()?;
-    let adapter = serde_json::json!({
-        "renderer": backend.kind(),
-        "adapter": backend.describe(),
-        "threads": rayon::current_num_threads(),
-    });
+    let adapter = adapter_json(&backend);
     let Some(&first_svr) = args.svr_scales.first() else {
         anyhow::bail!("--svr-scales: expected at least one of 1, 2, 4, 8");
     };
@@ -436,12 +430,12 @@ pub(crate) fn unlit_and_gradient_ms(
     Ok((ms[0], ms[1]))
 }
 
-/// The adapter's name, backend and device type, for every JSON line.
-pub(crate) fn adapter_json(gpu: &GpuContext) -> serde_json::Value {
+/// Which renderer draws, what it runs on and its threads, for every JSON line.
+pub(crate) fn adapter_json(backend: &Backend) -> serde_json::Value {
     serde_json::json!({
-        "adapter": gpu.info.name,
-        "backend": gpu.info.backend.to_string(),
-        "device_type": format!("{:?}", gpu.info.device_type),
+        "renderer": backend.kind(),
+        "adapter": backend.describe(),
+        "threads": rayon::current_num_threads(),
     })
 }
 

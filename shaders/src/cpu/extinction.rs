@@ -8,12 +8,21 @@
 use glam::{IVec3, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 
+use std::time::Instant;
+
+use blocks::TransferFunction;
+
+use super::ColourTexture;
 use super::march::{MAX_SAMPLE_OPACITY, classify_table};
-use super::packed::PackedTexture;
+use super::packed::{BlockLocation, PackedTexture};
+use super::texture::{ceil_i32, floor_i32, floor3};
+use crate::GpuError;
+use crate::extinction::update::{ExtinctionStages, update_extinction};
 use crate::extinction::{
-    AoMethod, ExtinctionParams, ExtinctionSettings, FIXED_ONE, LightUniform, MAX_CELL_DEPTH,
-    MAX_CONE_CUBOIDS, ShadowMethod, Stage,
+    AoMethod, ExtinctionParams, ExtinctionSettings, ExtinctionTimings, FIXED_ONE, LightUniform,
+    MAX_CELL_DEPTH, MAX_CONE_CUBOIDS, ShadowMethod, Stage,
 };
+use crate::illumination::StageCache;
 
 /// The most samples of one shadow ray (WGSL `MAX_RAY_STEPS`).
 const MAX_RAY_STEPS: u32 = 8192;
@@ -112,18 +121,32 @@ pub fn extinction_sat(
     let grid = p.grid;
     let gridf = Vec3::new(grid[0] as f32, grid[1] as f32, grid[2] as f32);
     let n = p.sub as f32;
+    // A sample no value of which the transfer function makes visible adds
+    // nothing (its Δt·τ is 0): it is not read.
+    let visible = packed.visible_texels.as_deref();
     let reconstructed: Vec<Vec4> = cells(grid)
         .map(|gid| {
             let mut sum = Vec4::ZERO;
+            let mut last: Option<BlockLocation> = None;
             for z in 0..p.sub {
                 for y in 0..p.sub {
                     for x in 0..p.sub {
                         let tc = (Vec3::new(gid[0] as f32, gid[1] as f32, gid[2] as f32)
                             + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) / n)
                             / gridf;
-                        let loc = packed.locate(&g, tc);
-                        if !loc.empty {
-                            let value = packed.sample_block(&g, tc, &loc);
+                        // The block of the sample before, which this one
+                        // often shares, is not looked up again.
+                        let loc = match &last {
+                            Some(last) => packed.locate_near(&g, tc, last),
+                            None => packed.locate(&g, tc),
+                        };
+                        last = Some(loc);
+                        if loc.empty {
+                            continue;
+                        }
+                        if let Some(value) =
+                            packed.atlas.sample_block_visible(&g, tc, &loc, visible)
+                        {
                             let rgba = classify_table(
                                 p.volume.tf_len,
                                 transfer_function,
@@ -139,11 +162,11 @@ pub fn extinction_sat(
             (sum / (n * n * n)).min(Vec4::splat(MAX_CELL_DEPTH))
         })
         .collect();
-    let extinction: Vec<f32> = reconstructed.iter().map(|c| c.x).collect();
+    let extinction: Vec<f32> = reconstructed.par_iter().map(|c| c.x).collect();
     let channels = p.channels as usize;
     let mut data: [Vec<u64>; 4] = Default::default();
     for (ch, out) in data.iter_mut().enumerate().take(channels) {
-        *out = reconstructed.iter().map(|c| fixed_of(c[ch])).collect();
+        *out = reconstructed.par_iter().map(|c| fixed_of(c[ch])).collect();
     }
     for axis in 0..3 {
         scan(grid, axis, &mut data[..channels]);
@@ -158,21 +181,40 @@ pub fn extinction_sat(
     )
 }
 
-/// WGSL `scan`: the inclusive prefix sum along `axis`, every line.
+/// WGSL `scan`: the inclusive prefix sum along `axis`, every line (the same
+/// wrapping sums, run over whole rows and slices at once so the reads are
+/// contiguous, rows or slices in parallel).
 fn scan(grid: [u32; 3], axis: usize, channels: &mut [Vec<u64>]) {
-    let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+    let [gx, gy, _] = grid.map(|n| n as usize);
+    let add = |into: &mut [u64], from: &[u64]| {
+        for (a, b) in into.iter_mut().zip(from) {
+            *a = a.wrapping_add(*b);
+        }
+    };
     for data in channels {
-        for j in 0..grid[c] {
-            for i in 0..grid[b] {
-                let mut cell = [0u32; 3];
-                cell[b] = i;
-                cell[c] = j;
+        match axis {
+            0 => data.par_chunks_mut(gx.max(1)).for_each(|row| {
                 let mut run = 0u64;
-                for k in 0..grid[axis] {
-                    cell[axis] = k;
-                    let index = cell_index(grid, cell);
-                    run = run.wrapping_add(data[index]);
-                    data[index] = run;
+                for v in row {
+                    run = run.wrapping_add(*v);
+                    *v = run;
+                }
+            }),
+            1 => data.par_chunks_mut((gx * gy).max(1)).for_each(|slice| {
+                for y in 1..gy {
+                    let (before, rest) = slice.split_at_mut(y * gx);
+                    add(&mut rest[..gx], &before[(y - 1) * gx..]);
+                }
+            }),
+            _ => {
+                let n = (gx * gy).max(1);
+                for z in 1..data.len() / n {
+                    let (before, rest) = data.split_at_mut(z * n);
+                    let previous = &before[(z - 1) * n..];
+                    rest[..n]
+                        .par_chunks_mut(4096)
+                        .zip(previous.par_chunks(4096))
+                        .for_each(|(into, from)| add(into, from));
                 }
             }
         }
@@ -199,8 +241,7 @@ pub fn cell_is_read(p: &ExtinctionParams, near_blocks: &[u32], c: IVec3) -> bool
     let tc = (c.as_vec3() + 0.5) / grid;
     let g = p.volume.block_grid;
     let last = IVec3::new(g[0] as i32 - 1, g[1] as i32 - 1, g[2] as i32 - 1);
-    let b = (tc * Vec3::from(p.volume.volume_dims) / super::packed::BLOCK)
-        .floor()
+    let b = floor3(tc * Vec3::from(p.volume.volume_dims) / super::packed::BLOCK)
         .as_ivec3()
         .clamp(IVec3::ZERO, last);
     near_blocks[(b.x as u32 + g[0] * (b.y as u32 + g[1] * b.z as u32)) as usize] != 0
@@ -353,9 +394,7 @@ fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -
         if start as f32 > d_end {
             break;
         }
-        let end = ((dist + 0.5).floor() as i32)
-            .max(start)
-            .min(d_end.floor() as i32);
+        let end = floor_i32(dist + 0.5).max(start).min(floor_i32(d_end));
         let m0 = c[a] + sign * start;
         let m1 = c[a] + sign * end;
         let mut lo = IVec3::ZERO;
@@ -369,10 +408,23 @@ fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -
         let w = mid * slant * p.cone_tan + 0.5;
         let cb = pos[b] + slope[b] * mid;
         let ce = pos[e] + slope[e] * mid;
-        lo[b] = (cb - w).floor() as i32;
-        hi[b] = (((cb + w).ceil() as i32) - 1).max(lo[b]);
-        lo[e] = (ce - w).floor() as i32;
-        hi[e] = (((ce + w).ceil() as i32) - 1).max(lo[e]);
+        lo[b] = floor_i32(cb - w);
+        hi[b] = (ceil_i32(cb + w) - 1).max(lo[b]);
+        lo[e] = floor_i32(ce - w);
+        hi[e] = (ceil_i32(ce + w) - 1).max(lo[e]);
+        // CPU only: a cuboid beside the grid along b or e whose side moves
+        // away from it faster than the cone widens has no later cuboid in
+        // the grid either; they all add 0, so the cone ends here. (Its side
+        // moves by at least a thousandth of a cell per cuboid, far more than
+        // rounding moves it, so no later one comes back.)
+        let widening = slant * p.cone_tan + 1e-3;
+        let leaves = |axis: usize| {
+            (lo[axis] > last[axis] && slope[axis] > widening)
+                || (hi[axis] < 0 && slope[axis] < -widening)
+        };
+        if leaves(b) || leaves(e) {
+            break;
+        }
         let size = (hi - lo + IVec3::ONE).as_vec3();
         let volume = size.x * size.y * size.z;
         depth += depth_of(sat.cuboid_sum(lo, hi, 0)) / volume * (end - start + 1) as f32 * slant;
@@ -442,7 +494,7 @@ fn ray_depth(p: &ExtinctionParams, extinction: &[f32], light: &LightUniform, pos
         if t > t_end {
             break;
         }
-        let cell = (pos + dir * t).floor().as_ivec3();
+        let cell = floor3(pos + dir * t).as_ivec3();
         if cell.cmplt(IVec3::ZERO).any() || cell.cmpgt(last).any() {
             break;
         }
@@ -542,6 +594,102 @@ pub fn compute_extinction(inputs: &ExtinctionInputs<'_>) -> ExtinctionState {
         run(stage, inputs, &mut state);
     }
     state
+}
+
+/// What the CPU renderer's extinction stages read besides their settings.
+#[derive(Debug, Clone, Copy)]
+pub struct CpuExtinctionInputs<'a> {
+    /// The blocks' packing (which cells are worth filling).
+    pub packing: &'a blocks::packing::Packing,
+    /// The packed data.
+    pub packed: &'a PackedTexture,
+    /// The transfer-function table.
+    pub tf: &'a [[f32; 4]],
+}
+
+/// Extinction-based illumination on the CPU renderer, brought up to date
+/// under the policy the GPU's [`crate::extinction::Extinction`] follows
+/// ([`update_extinction`], the paper's algorithm 1): a change recomputes from
+/// the first stage it affects (a light moved: the shadows alone), a camera
+/// move nothing. Keeps every stage's result, as the GPU keeps its textures.
+#[derive(Debug, Default)]
+pub struct CpuExtinction {
+    cache: StageCache,
+    /// The stages' results (empty until the first update).
+    state: Option<ExtinctionState>,
+    /// The uniforms, settings and near-cells mask the stages run with.
+    prepared: Option<(ExtinctionParams, ExtinctionSettings, Vec<u32>)>,
+}
+
+impl CpuExtinction {
+    /// Brings the light cache up to date for `settings` over the resident
+    /// data of `data_version` classified by `tf`, the uniforms `params`.
+    pub fn update(
+        &mut self,
+        inputs: CpuExtinctionInputs<'_>,
+        params: &ExtinctionParams,
+        settings: &ExtinctionSettings,
+        data_version: u64,
+        tf: &TransferFunction,
+    ) -> Result<ExtinctionTimings, GpuError> {
+        settings.validate()?;
+        let keys = StageCache::keys_of(&Stage::NAMES, settings, data_version, tf);
+        update_extinction(self, inputs, keys, params, settings)
+    }
+
+    /// The light cache, grid-shaped, once every stage has run.
+    pub fn light_cache(&self) -> Option<ColourTexture> {
+        let (params, _, _) = self.prepared.as_ref()?;
+        let state = self.state.as_ref()?;
+        (self.cache.is_complete() && !state.light_cache.is_empty())
+            .then(|| ColourTexture::new(params.grid, &state.light_cache))
+    }
+}
+
+impl ExtinctionStages for CpuExtinction {
+    type Inputs<'a> = CpuExtinctionInputs<'a>;
+
+    fn cache(&mut self) -> &mut StageCache {
+        &mut self.cache
+    }
+
+    fn prepare(
+        &mut self,
+        inputs: CpuExtinctionInputs<'_>,
+        params: &ExtinctionParams,
+        settings: &ExtinctionSettings,
+    ) -> Result<bool, GpuError> {
+        let near = crate::extinction::near_cells_mask(inputs.packing, params);
+        let fits = self.prepared.as_ref().is_some_and(|(old, _, old_near)| {
+            old.grid == params.grid
+                && old.channels == params.channels
+                && old_near.len() == near.len()
+        });
+        if !fits {
+            self.state = Some(ExtinctionState::empty(params));
+        }
+        self.prepared = Some((*params, settings.clone(), near));
+        Ok(!fits)
+    }
+
+    fn run(&mut self, inputs: CpuExtinctionInputs<'_>, stage: Stage) -> Result<f64, GpuError> {
+        let start = Instant::now();
+        let (Some((params, settings, near)), Some(state)) = (&self.prepared, &mut self.state)
+        else {
+            return Err(GpuError::InvalidRequest(
+                "the extinction stages were not prepared".into(),
+            ));
+        };
+        let twin = ExtinctionInputs {
+            params,
+            settings,
+            packed: inputs.packed,
+            tf: inputs.tf,
+            near_blocks: near,
+        };
+        run(stage, &twin, state);
+        Ok(start.elapsed().as_secs_f64() * 1e3)
+    }
 }
 
 #[cfg(test)]

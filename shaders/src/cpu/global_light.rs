@@ -15,6 +15,7 @@ use blocks::packing::Packing;
 
 use super::march::{classify_table, corrected_opacity, intersect_box};
 use super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture, RayBlocks};
+use super::texture::ceil_i32;
 use super::{SlotAtlas, Texture3d};
 use crate::global_light::update::{LightStages, update_light};
 use crate::global_light::{
@@ -293,7 +294,7 @@ pub fn in_scatter(
                 }
                 let loc = *blocks.at(packed, &g, t);
                 if loc.empty {
-                    i = (i + 1).max((blocks.exit(&g) / p.step).ceil() as u32);
+                    i = (i + 1).max(ceil_i32(blocks.exit(&g) / p.step).max(0) as u32);
                     continue;
                 }
                 // The data and, at atlas_coord's texel in the slot (the same
@@ -495,7 +496,7 @@ pub fn direct_light_reference(
             }
             let loc = *blocks.at(packed, &g, t);
             if loc.empty {
-                i = (i + 1).max((blocks.exit(&g) / p.step).ceil() as u32);
+                i = (i + 1).max(ceil_i32(blocks.exit(&g) / p.step).max(0) as u32);
                 continue;
             }
             let value = packed

@@ -53,9 +53,6 @@ use blocks::cache::BlockCache;
 use blocks::lod::LodSelection;
 use blocks::transfer_function::TABLE_LEN;
 
-use crate::extinction::ExtinctionParams;
-use crate::global_light::LightSetup;
-use crate::illumination::Mode;
 use crate::packed_volume::PackedLayout;
 use crate::raycast::RaycastParams;
 use crate::volume_texture::VolumeTexture;
@@ -79,44 +76,6 @@ pub fn render_packed(
         .cloned()
         .ok_or_else(|| GpuError::InvalidRequest("no blocks were selected".into()))?;
     Ok((frame, selection))
-}
-
-/// Computes illumination mode `mode`'s light for `request` on the CPU
-/// (converged: every stage, every refinement) and puts it where the `raycast`
-/// twin reads it.
-pub fn illuminate(
-    mode: Mode,
-    desc: &VolumeTexture,
-    request: &FrameRequest,
-    packing: &blocks::packing::Packing,
-    layout: PackedLayout,
-    packed: &mut PackedTexture,
-    table: &[[f32; 4]],
-) {
-    let tf_len = table.len() as u32;
-    match mode {
-        Mode::GlobalLight => {
-            let setup = LightSetup::new(desc, &request.light, packing, layout, tf_len);
-            let state = global_light::compute_light(&setup.twin_inputs(
-                packed,
-                table,
-                request.light.method,
-            ));
-            packed.set_light(state.light_volume);
-        }
-        Mode::Extinction => {
-            let params = ExtinctionParams::new(desc, &request.extinction, layout, tf_len);
-            let near = crate::extinction::near_cells_mask(packing, &params);
-            let state = extinction::compute_extinction(&extinction::ExtinctionInputs {
-                params: &params,
-                settings: &request.extinction,
-                packed,
-                tf: table,
-                near_blocks: &near,
-            });
-            packed.set_light_cache(ColourTexture::new(params.grid, &state.light_cache));
-        }
-    }
 }
 
 /// Renders `request` of `volume` on the CPU through the twin of `reference`:

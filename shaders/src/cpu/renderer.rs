@@ -10,8 +10,9 @@
 //! GPU ([`CpuGlobalLight`]: a change recomputes with one in-scattering
 //! direction, later frames blend one more each), but only frames of an
 //! unchanged view refine it, so a drag draws from the light there is and a
-//! still view converges; extinction-based illumination is computed whole
-//! when its inputs change.
+//! still view converges; extinction-based illumination likewise recomputes
+//! from the first stage a change affects ([`CpuExtinction`]: a light moved
+//! recomputes the shadows alone).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -22,10 +23,11 @@ use blocks::lod::LodSelection;
 use blocks::packing::Packing;
 use blocks::transfer_function::TABLE_LEN;
 
+use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::occupancy::{visible_cells, visible_texels};
-use super::{illuminate, raycast};
-use crate::extinction::ExtinctionSettings;
+use super::raycast;
+use crate::extinction::ExtinctionParams;
 use crate::illumination::{Mode, Refine, Timings};
 use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
 use crate::packed_volume::PackedVolume;
@@ -39,14 +41,6 @@ use crate::{Camera, Frame, FrameRequest, GpuError};
 /// 16-bit normalized textures, so CPU and GPU frames quantize alike.
 pub const CPU_FEATURES: wgpu::Features = wgpu::Features::TEXTURE_FORMAT_16BIT_NORM;
 
-/// What a computed extinction light cache depends on besides the camera.
-#[derive(Debug, Clone, PartialEq)]
-struct ExtinctionKey {
-    data_version: u64,
-    tf: TransferFunction,
-    extinction: ExtinctionSettings,
-}
-
 /// Renders a brick store on the CPU; see the module docs.
 #[derive(Debug)]
 pub struct CpuRenderer {
@@ -58,8 +52,8 @@ pub struct CpuRenderer {
     table: Option<(TransferFunction, Vec<[f32; 4]>)>,
     /// Global light's stages and refinement.
     global_light: CpuGlobalLight,
-    /// What the extinction light cache in the atlas's texture was computed for.
-    extinction: Option<ExtinctionKey>,
+    /// Extinction-based illumination's stages.
+    extinction: CpuExtinction,
     /// The view of the last frame drawn: light refines only while it stays.
     last_view: Option<(Camera, u32, u32)>,
     /// What the atlas's visible cells were computed for: the shown blocks
@@ -96,7 +90,7 @@ impl CpuRenderer {
             desc,
             table: None,
             global_light: CpuGlobalLight::default(),
-            extinction: None,
+            extinction: CpuExtinction::default(),
             last_view: None,
             cells: None,
             last: RenderStats::default(),
@@ -180,7 +174,9 @@ impl CpuRenderer {
             Some(Mode::GlobalLight) => {
                 stats.illumination = self.update_global_light(request, &tf, refine)?;
             }
-            Some(Mode::Extinction) => self.update_extinction(request, &tf),
+            Some(Mode::Extinction) => {
+                stats.illumination = self.update_extinction(request, &tf)?;
+            }
             None => {}
         }
         // Frames of the other mode may have left their light beside this one's.
@@ -237,33 +233,41 @@ impl CpuRenderer {
         Ok(Some(Timings::GlobalLight(timings)))
     }
 
-    /// Computes the extinction light cache into the atlas's texture unless
-    /// what it depends on is unchanged.
-    fn update_extinction(&mut self, request: &FrameRequest, tf: &TransferFunction) {
-        let key = ExtinctionKey {
-            data_version: self.residency.data_version(),
-            tf: tf.clone(),
-            extinction: request.extinction.clone(),
-        };
+    /// Brings the extinction light cache up to date (from the first stage
+    /// whose inputs changed) and puts it where the ray caster reads it;
+    /// returns what its stages took.
+    fn update_extinction(
+        &mut self,
+        request: &FrameRequest,
+        tf: &TransferFunction,
+    ) -> Result<Option<Timings>, GpuError> {
+        let data_version = self.residency.data_version();
         let (Some(atlas), Some((_, table))) = (self.residency.atlas_mut(), &self.table) else {
-            return;
+            return Ok(None);
         };
-        if self.extinction.as_ref() == Some(&key) {
-            return;
-        }
-        let (packing, layout) = (atlas.packing.clone(), atlas.layout);
-        let texture = &mut atlas.texture;
-        texture.light_cache = None;
-        illuminate(
-            Mode::Extinction,
+        let params = ExtinctionParams::new(
             &self.desc,
-            request,
-            &packing,
-            layout,
-            texture,
-            table,
+            &request.extinction,
+            atlas.layout,
+            table.len() as u32,
         );
-        self.extinction = Some(key);
+        let inputs = CpuExtinctionInputs {
+            packing: &atlas.packing,
+            packed: &atlas.texture,
+            tf: table,
+        };
+        let timings =
+            self.extinction
+                .update(inputs, &params, &request.extinction, data_version, tf)?;
+        let texture = &mut atlas.texture;
+        let recomputed =
+            timings.sat_ms + timings.ambient_occlusion_ms + timings.soft_shadow_ms > 0.0;
+        if (recomputed || texture.light_cache.is_none())
+            && let Some(cache) = self.extinction.light_cache()
+        {
+            texture.set_light_cache(cache);
+        }
+        Ok(Some(Timings::Extinction(timings)))
     }
 
     /// Ray-casts the frame of `request` from what is resident.

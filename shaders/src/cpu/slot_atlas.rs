@@ -140,6 +140,29 @@ impl SlotAtlas {
         trilinear(&self.texels, first, edge, edge * edge, f)
     }
 
+    /// [`SlotAtlas::sample_block`], or `None` where `visible` (the bits of
+    /// [`super::occupancy::visible_texels`]) says the sample cannot be
+    /// visible: the transfer function gives every value it may blend no
+    /// opacity, so a caller that weighs it by its opacity can leave it out.
+    #[inline(always)]
+    pub fn sample_block_visible(
+        &self,
+        g: &PackedVolume,
+        tc: Vec3,
+        loc: &BlockLocation,
+        visible: Option<&[u64]>,
+    ) -> Option<f32> {
+        let (first, f) = block_corner(g, tc, loc);
+        if visible.is_some_and(|bits| {
+            bits.get(first / 64)
+                .is_some_and(|w| w >> (first % 64) & 1 == 0)
+        }) {
+            return None;
+        }
+        let edge = loc.slot_edge;
+        Some(trilinear(&self.texels, first, edge, edge * edge, f))
+    }
+
     /// [`SlotAtlas::sample_slot`] of these slots and of `other`, an atlas
     /// of the same slots (such as [`SlotAtlas::with_texels_of`] makes), at
     /// once: the position and weights found once, the same values.

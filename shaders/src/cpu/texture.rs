@@ -61,6 +61,14 @@ pub fn floor_i32(x: f32) -> i32 {
     i.saturating_sub(i32::from(i as f32 > x))
 }
 
+/// `ceil(x)` as a whole number (`ceil(x) as i32`, saturating, 0 for NaN),
+/// branch-free: truncation, one more where that rounded down.
+#[inline(always)]
+pub fn ceil_i32(x: f32) -> i32 {
+    let i = x as i32;
+    i.saturating_add(i32::from((i as f32) < x))
+}
+
 /// [`floor`] per component.
 #[inline]
 pub fn floor3(v: Vec3) -> Vec3 {
@@ -247,7 +255,7 @@ mod tests {
     }
 
     #[test]
-    fn floor_i32_is_floor_as_a_whole_number() {
+    fn floor_i32_and_ceil_i32_are_floor_and_ceil_as_whole_numbers() {
         let mut values = vec![
             0.0f32,
             -0.0,
@@ -277,7 +285,8 @@ mod tests {
             x *= 1.37;
         }
         for v in values {
-            assert_eq!(floor_i32(v), floor(v) as i32, "floor of {v}");
+            assert_eq!(floor_i32(v), v.floor() as i32, "floor of {v}");
+            assert_eq!(ceil_i32(v), v.ceil() as i32, "ceil of {v}");
         }
     }
 

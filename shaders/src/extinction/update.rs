@@ -13,7 +13,9 @@ use super::{
     AoMethod, ExtinctionParams, ExtinctionPipelines, ExtinctionSettings, ExtinctionVolumes,
     ShadowMethod, Stage, near_cells_mask, scan_workgroups,
 };
-use crate::illumination::{Illumination, Inputs, Refine, StageCache, Timings, workgroups};
+use crate::illumination::{
+    Illumination, Inputs, Refine, StageCache, StageKey, Timings, workgroups,
+};
 use crate::pipeline::run;
 use crate::{FrameRequest, GpuContext, GpuError};
 
@@ -53,6 +55,61 @@ pub struct Extinction {
     cache: StageCache,
     params: Option<ExtinctionParams>,
     methods: (AoMethod, ShadowMethod),
+}
+
+/// What the update policy of extinction-based illumination drives: the
+/// stages of one implementation, [`Extinction`] on the GPU or
+/// [`crate::cpu::extinction::CpuExtinction`] for the CPU renderer.
+pub(crate) trait ExtinctionStages {
+    /// What the stages read besides the settings.
+    type Inputs<'a>: Copy;
+
+    /// What each stage was computed for.
+    fn cache(&mut self) -> &mut StageCache;
+
+    /// Builds what the stages need for `params` and `settings`; true when
+    /// the SAT and textures were made anew (so every stage must run).
+    fn prepare(
+        &mut self,
+        inputs: Self::Inputs<'_>,
+        params: &ExtinctionParams,
+        settings: &ExtinctionSettings,
+    ) -> Result<bool, GpuError>;
+
+    /// Runs `stage` by the methods of the prepared settings; returns its
+    /// milliseconds.
+    fn run(&mut self, inputs: Self::Inputs<'_>, stage: Stage) -> Result<f64, GpuError>;
+}
+
+/// Brings `stages` up to date for one frame whose stages have `keys`
+/// (algorithm 1): from the first stale stage on; nothing when none is.
+pub(crate) fn update_extinction<S: ExtinctionStages>(
+    stages: &mut S,
+    inputs: S::Inputs<'_>,
+    keys: Vec<StageKey>,
+    params: &ExtinctionParams,
+    settings: &ExtinctionSettings,
+) -> Result<ExtinctionTimings, GpuError> {
+    let start = Instant::now();
+    let mut timings = ExtinctionTimings {
+        grid: params.grid,
+        ..ExtinctionTimings::default()
+    };
+    if let Some(stale) = stages.cache().first_stale(&keys) {
+        // New buffers hold nothing: everything is recomputed into them.
+        let first = if stages.prepare(inputs, params, settings)? {
+            0
+        } else {
+            stale
+        };
+        for &stage in &Stage::ALL[first..] {
+            let ms = stages.run(inputs, stage)?;
+            timings.add(stage, ms);
+        }
+        stages.cache().computed(first, keys);
+    }
+    timings.total_ms = start.elapsed().as_secs_f64() * 1e3;
+    Ok(timings)
 }
 
 impl Extinction {
@@ -107,35 +164,15 @@ impl Extinction {
         settings: &ExtinctionSettings,
     ) -> Result<ExtinctionTimings, GpuError> {
         settings.validate()?;
-        let start = Instant::now();
         let params =
             ExtinctionParams::new(inputs.texture, settings, inputs.atlas.layout, inputs.tf_len);
-        let mut timings = ExtinctionTimings {
-            grid: params.grid,
-            ..ExtinctionTimings::default()
-        };
         let keys = StageCache::keys(&Stage::NAMES, settings, &inputs);
-        if let Some(stale) = self.cache.first_stale(&keys) {
-            // New buffers hold nothing: everything is recomputed into them.
-            let first = if self.prepare(gpu, inputs, &params)? {
-                0
-            } else {
-                stale
-            };
-            self.methods = (settings.ao_method, settings.shadow_method);
-            for &stage in &Stage::ALL[first..] {
-                let ms = self.run(gpu, inputs, stage)?;
-                timings.add(stage, ms);
-            }
-            self.cache.computed(first, keys);
-        }
-        timings.total_ms = start.elapsed().as_secs_f64() * 1e3;
-        Ok(timings)
+        update_extinction(self, (gpu, inputs), keys, &params, settings)
     }
 
     /// Writes `params` and the near-cells mask, and (re)allocates the SAT and
     /// textures when the grid or the channels changed: true when they were.
-    fn prepare(
+    fn prepare_volumes(
         &mut self,
         gpu: &GpuContext,
         inputs: Inputs<'_>,
@@ -172,7 +209,7 @@ impl Extinction {
     }
 
     /// Runs `stage` by the methods of the settings; returns its milliseconds.
-    fn run<'a>(
+    fn run_stage<'a>(
         &'a self,
         gpu: &GpuContext,
         inputs: Inputs<'_>,
@@ -272,6 +309,28 @@ impl Extinction {
             )?;
         }
         Ok(ms)
+    }
+}
+
+impl ExtinctionStages for Extinction {
+    type Inputs<'a> = (&'a GpuContext, Inputs<'a>);
+
+    fn cache(&mut self) -> &mut StageCache {
+        &mut self.cache
+    }
+
+    fn prepare(
+        &mut self,
+        (gpu, inputs): Self::Inputs<'_>,
+        params: &ExtinctionParams,
+        settings: &ExtinctionSettings,
+    ) -> Result<bool, GpuError> {
+        self.methods = (settings.ao_method, settings.shadow_method);
+        self.prepare_volumes(gpu, inputs, params)
+    }
+
+    fn run(&mut self, (gpu, inputs): Self::Inputs<'_>, stage: Stage) -> Result<f64, GpuError> {
+        self.run_stage(gpu, inputs, stage)
     }
 }
 
