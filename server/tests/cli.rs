@@ -976,6 +976,56 @@ fn bench_lines(stdout: &str, kind: &str) -> Vec<serde_json::Value> {
 }
 
 #[test]
+fn bench_extinction_times_the_cpu_renderer_s_stages() {
+    let args = [
+        "bench",
+        "extinction",
+        "--renderer",
+        "cpu",
+        "--datasets",
+        "phantom",
+        "--phantom-size",
+        "32",
+        "--sat-sizes",
+        "16",
+        "--shells",
+        "2",
+        "--ao-radius",
+        "2",
+        "--cone-frequencies",
+        "20",
+        "--size",
+        "32",
+        "--frames",
+        "1",
+        "--repeats",
+        "1",
+    ];
+    let out = voxserve(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    for (kind, field) in [
+        ("extinction-sat", "sat_ms"),
+        ("extinction-ao", "ao_ms"),
+        ("extinction-ao", "sampled_ms"),
+        ("extinction-shadow", "soft_shadow_ms"),
+        ("extinction-shadow", "shadow_ray_ms"),
+        ("extinction-frame", "lit_ms"),
+    ] {
+        let lines = bench_lines(&stdout, kind);
+        assert_eq!(lines.len(), 1, "{kind}: {stdout}");
+        let line = &lines[0];
+        assert_eq!(line["renderer"], "cpu", "{line}");
+        // Every stage ran and was timed (a stage the CPU renderer did not
+        // report would fail the benchmark or read 0).
+        assert!(
+            line[field].as_f64().is_some_and(|ms| ms > 0.0),
+            "{kind}.{field}: {line}"
+        );
+    }
+}
+
+#[test]
 fn bench_out_of_core_ingests_a_generated_volume_then_serves_it_and_serves_it_again() {
     let dir = tempfile::tempdir().expect("temp");
     let store = dir.path().join("generated.zarr");

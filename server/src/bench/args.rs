@@ -113,9 +113,10 @@ pub struct BenchPeerArgs {
     /// Where the real datasets are.
     #[arg(long, default_value = "../shared/data")]
     pub data_dir: PathBuf,
-    /// Modes compared, comma separated: composite, phong, global_light,
+    /// Modes compared, comma separated: composite, phong (cubic B-spline
+    /// normals), phong_central (central differences), global_light,
     /// extinction (VTK FixedPoint) and shadows (VTK's GPU mapper, slow).
-    #[arg(long, value_delimiter = ',', default_value = "composite,phong,global_light,extinction",
+    #[arg(long, value_delimiter = ',', default_value = "composite,phong,phong_central,global_light,extinction",
           value_parser = PeerMode::parse)]
     pub modes: Vec<PeerMode>,
     /// Image edge in pixels (square images).

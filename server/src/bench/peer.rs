@@ -12,7 +12,10 @@
 //! which must agree within 5 % for the ratio to compare like with like.
 //!
 //! Modes: `composite` (VTK FixedPoint composite against unshaded frames),
-//! `phong` (FixedPoint Phong against gradient shading), `global_light` and
+//! `phong` (FixedPoint Phong against gradient shading with the cubic
+//! B-spline's normals, what still frames draw), `phong_central` (the same
+//! with central differences, the normals VTK's FixedPoint mapper shades with
+//! and voxserve's frames of a moving view), `global_light` and
 //! `extinction` (FixedPoint Phong against frames lit by the cached light),
 //! `shadows` (VTK's GPU mapper with volumetric shadows against global light).
 
@@ -90,8 +93,10 @@ const DATASETS: [PeerDataset; 3] = [
 pub enum PeerMode {
     /// FixedPoint composite against unshaded frames.
     Composite,
-    /// FixedPoint Phong against gradient shading.
+    /// FixedPoint Phong against gradient shading (cubic B-spline normals).
     Phong,
+    /// FixedPoint Phong against gradient shading with central differences.
+    PhongCentral,
     /// FixedPoint Phong against frames lit by cached global light.
     GlobalLight,
     /// FixedPoint Phong against frames lit by cached extinction-based light.
@@ -102,9 +107,10 @@ pub enum PeerMode {
 
 impl PeerMode {
     /// Every mode, for parsing.
-    pub const ALL: [PeerMode; 5] = [
+    pub const ALL: [PeerMode; 6] = [
         PeerMode::Composite,
         PeerMode::Phong,
+        PeerMode::PhongCentral,
         PeerMode::GlobalLight,
         PeerMode::Extinction,
         PeerMode::Shadows,
@@ -115,6 +121,7 @@ impl PeerMode {
         match self {
             PeerMode::Composite => "composite",
             PeerMode::Phong => "phong",
+            PeerMode::PhongCentral => "phong_central",
             PeerMode::GlobalLight => "global_light",
             PeerMode::Extinction => "extinction",
             PeerMode::Shadows => "shadows",
@@ -125,9 +132,10 @@ impl PeerMode {
     fn vtk(self) -> (&'static str, &'static str) {
         match self {
             PeerMode::Composite => ("fixedpoint", "composite"),
-            PeerMode::Phong | PeerMode::GlobalLight | PeerMode::Extinction => {
-                ("fixedpoint", "phong")
-            }
+            PeerMode::Phong
+            | PeerMode::PhongCentral
+            | PeerMode::GlobalLight
+            | PeerMode::Extinction => ("fixedpoint", "phong"),
             PeerMode::Shadows => ("gpu", "shadows"),
         }
     }
@@ -147,7 +155,7 @@ impl PeerMode {
     fn shading(self) -> Shading {
         match self {
             PeerMode::Composite => Shading::Unshaded,
-            PeerMode::Phong => Shading::Gradient,
+            PeerMode::Phong | PeerMode::PhongCentral => Shading::Gradient,
             PeerMode::GlobalLight | PeerMode::Shadows => Shading::GlobalLight,
             PeerMode::Extinction => Shading::Extinction,
         }
@@ -156,7 +164,7 @@ impl PeerMode {
     /// The ratio (voxserve over VTK) the targets ask for at most.
     fn target_ratio(self) -> f64 {
         match self {
-            PeerMode::Composite | PeerMode::Phong => 0.5,
+            PeerMode::Composite | PeerMode::Phong | PeerMode::PhongCentral => 0.5,
             PeerMode::GlobalLight | PeerMode::Extinction => 1.0,
             PeerMode::Shadows => 1.0 / 30.0,
         }
@@ -437,6 +445,7 @@ impl PeerRun<'_> {
         let request = FrameRequest {
             camera,
             shading: self.mode.shading(),
+            cubic_gradient: self.mode != PeerMode::PhongCentral,
             background: BACKGROUND,
             step_voxels: self.args.step,
             ..FrameRequest::new(
@@ -479,6 +488,7 @@ impl PeerRun<'_> {
                 "dataset": self.peer.name,
                 "mode": self.mode.name(),
                 "shading": self.mode.shading().name(),
+                "cubic_gradient": self.mode != PeerMode::PhongCentral,
                 "renderer": self.backend,
                 "width": self.args.size,
                 "height": self.args.size,
