@@ -100,9 +100,11 @@ pub trait Storage: Sync + Sized {
     fn voxel_edge(loc: &Self::Location) -> f32;
     /// WGSL `sample_neighbour`.
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &Self::Location) -> f32;
-    /// WGSL `light_at`: the stored light at a sample (I_s of global light
-    /// propagation, or the light cache's colour; 1 where there is none).
-    fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &Self::Location) -> Vec3;
+    /// WGSL `light_at`: the stored light at `tc`, the ray's point at `t`
+    /// (I_s of global light propagation, or the light cache's colour; 1
+    /// where there is none), read from the sample's stretch `span` where
+    /// the storage can.
+    fn light_at(&self, p: &RaycastParams, span: &Span<Self::Location>, t: f32, tc: Vec3) -> Vec3;
     /// WGSL `empty_exit`.
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &Self::Location) -> f32;
 }
@@ -523,8 +525,10 @@ impl Accumulator {
             // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
             let bias = p.light[3];
             let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
-            rgb *= Vec3::splat(bias)
-                + (1.0 - bias) * colour * s.light_at(p, tc - tex_dir * p.light_offset, &span.loc);
+            // The light is read light_offset back along the ray.
+            let t_light = t - p.light_offset;
+            let light = s.light_at(p, span, t_light, tex_origin + tex_dir * t_light);
+            rgb *= Vec3::splat(bias) + (1.0 - bias) * colour * light;
         }
         if p.flags & FLAG_EXTINCTION != 0 {
             // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).

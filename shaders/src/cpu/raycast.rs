@@ -15,6 +15,11 @@ use crate::illumination::Mode;
 use crate::packed_volume::PackedVolume;
 use crate::raycast::{FLAG_CUBIC_GRADIENT, FLAG_SKIP_EMPTY, RaycastParams};
 
+/// How far (level-0 voxels) inside its block's faces a light read must lie
+/// to be read from the sample's block without locating it: rounding moves
+/// `block_of`'s faces by about 10⁻⁴ voxel.
+const LIGHT_MARGIN: f32 = 1e-2;
+
 impl Storage for PackedTexture {
     type Location = BlockLocation;
 
@@ -241,13 +246,25 @@ impl Storage for PackedTexture {
         self.sample_at(p, tc, &other)
     }
 
-    fn light_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> Vec3 {
+    fn light_at(&self, p: &RaycastParams, span: &Span<BlockLocation>, t: f32, tc: Vec3) -> Vec3 {
+        let loc = &span.loc;
         match (self.lit_by, &self.light_cache, &self.light) {
             // shared/light_cache.wgsl: grid-shaped, read at tc.
             (Some(Mode::Extinction), Some(cache), _) => cache.sample_level(tc),
             // shared/light_volume.wgsl: in the block tc lies in, else in
             // `loc`'s, read from that block's slot (its eight texels are in it).
             (Some(Mode::GlobalLight), _, Some(light)) => {
+                // Well inside the sample's block (the usual case), tc's
+                // block is that one: its slot position is the stretch's
+                // affine map at t (the same texels and weights up to
+                // rounding), no lookup.
+                let local = span.local_at_zero + span.local_per_t * t;
+                if local.cmpge(Vec3::splat(LIGHT_MARGIN)).all()
+                    && local.cmple(Vec3::splat(BLOCK - LIGHT_MARGIN)).all()
+                {
+                    let at = span.texel_at_zero + span.texel_per_t * t;
+                    return Vec3::splat(light.sample_slot(loc.slot, loc.slot_edge, at));
+                }
                 let there = self.locate_near(&p.volume, tc, loc);
                 let home = if there.empty { loc } else { &there };
                 Vec3::splat(light.sample_block(&p.volume, tc, home))

@@ -48,7 +48,13 @@ impl Storage for Texture3d {
         self.sample_at(p, tc, home)
     }
 
-    fn light_at(&self, _p: &RaycastParams, _tc: Vec3, _loc: &PlainLocation) -> Vec3 {
+    fn light_at(
+        &self,
+        _p: &RaycastParams,
+        _span: &Span<PlainLocation>,
+        _t: f32,
+        _tc: Vec3,
+    ) -> Vec3 {
         Vec3::ONE
     }
 
