@@ -615,10 +615,19 @@ pub struct CpuExtinctionInputs<'a> {
 #[derive(Debug, Default)]
 pub struct CpuExtinction {
     cache: StageCache,
-    /// The stages' results (empty until the first update).
-    state: Option<ExtinctionState>,
-    /// The uniforms, settings and near-cells mask the stages run with.
-    prepared: Option<(ExtinctionParams, ExtinctionSettings, Vec<u32>)>,
+    /// What the stages run with and their results (none before the first
+    /// update).
+    prepared: Option<Prepared>,
+}
+
+/// The uniforms, settings and near-cells mask [`CpuExtinction`]'s stages run
+/// with, and the stages' results.
+#[derive(Debug)]
+struct Prepared {
+    params: ExtinctionParams,
+    settings: ExtinctionSettings,
+    near: Vec<u32>,
+    state: ExtinctionState,
 }
 
 impl CpuExtinction {
@@ -639,8 +648,7 @@ impl CpuExtinction {
 
     /// The light cache, grid-shaped, once every stage has run.
     pub fn light_cache(&self) -> Option<ColourTexture> {
-        let (params, _, _) = self.prepared.as_ref()?;
-        let state = self.state.as_ref()?;
+        let Prepared { params, state, .. } = self.prepared.as_ref()?;
         (self.cache.is_complete() && !state.light_cache.is_empty())
             .then(|| ColourTexture::new(params.grid, &state.light_cache))
     }
@@ -660,21 +668,34 @@ impl ExtinctionStages for CpuExtinction {
         settings: &ExtinctionSettings,
     ) -> Result<bool, GpuError> {
         let near = crate::extinction::near_cells_mask(inputs.packing, params);
-        let fits = self.prepared.as_ref().is_some_and(|(old, _, old_near)| {
-            old.grid == params.grid
-                && old.channels == params.channels
-                && old_near.len() == near.len()
+        // Results of another grid or channel count are of no use.
+        let state = self
+            .prepared
+            .take()
+            .filter(|old| {
+                old.params.grid == params.grid
+                    && old.params.channels == params.channels
+                    && old.near.len() == near.len()
+            })
+            .map(|old| old.state);
+        let fits = state.is_some();
+        self.prepared = Some(Prepared {
+            params: *params,
+            settings: settings.clone(),
+            near,
+            state: state.unwrap_or_else(|| ExtinctionState::empty(params)),
         });
-        if !fits {
-            self.state = Some(ExtinctionState::empty(params));
-        }
-        self.prepared = Some((*params, settings.clone(), near));
         Ok(!fits)
     }
 
     fn run(&mut self, inputs: CpuExtinctionInputs<'_>, stage: Stage) -> Result<f64, GpuError> {
         let start = Instant::now();
-        let (Some((params, settings, near)), Some(state)) = (&self.prepared, &mut self.state)
+        let Some(Prepared {
+            params,
+            settings,
+            near,
+            state,
+        }) = &mut self.prepared
         else {
             return Err(GpuError::InvalidRequest(
                 "the extinction stages were not prepared".into(),

@@ -118,6 +118,13 @@ pub fn visible_texels(
     bits
 }
 
+/// Whether [`visible_texels`]' `bits` let a sample whose lowest texel is
+/// texel `i` be visible (a texel past the bits' end may be).
+#[inline(always)]
+pub fn texel_may_show(bits: &[u64], i: usize) -> bool {
+    bits.get(i / 64).is_none_or(|w| w >> (i % 64) & 1 != 0)
+}
+
 /// [`visible_texels`]'s bits `words` of one level's slots `region` (edge `E`).
 fn region_visible<const E: usize>(region: &[f32], words: &mut [u64], any_visible: &Visibility) {
     const WORDS: usize = 64;

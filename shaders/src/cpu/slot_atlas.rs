@@ -17,6 +17,7 @@ use wide::f32x4;
 use rayon::prelude::*;
 
 use super::Texture3d;
+use super::occupancy::texel_may_show;
 use super::packed::{BlockLocation, atlas_texel};
 use super::texture::{floor3, round_down, split, trilinear};
 use crate::packed_volume::PackedVolume;
@@ -153,10 +154,7 @@ impl SlotAtlas {
         visible: Option<&[u64]>,
     ) -> Option<f32> {
         let (first, f) = block_corner(g, tc, loc);
-        if visible.is_some_and(|bits| {
-            bits.get(first / 64)
-                .is_some_and(|w| w >> (first % 64) & 1 == 0)
-        }) {
+        if visible.is_some_and(|bits| !texel_may_show(bits, first)) {
             return None;
         }
         let edge = loc.slot_edge;
@@ -337,10 +335,7 @@ impl SlotAtlas {
             .fast_trunc_int()
             .to_array();
         if let Some(bits) = visible {
-            let shown = |o: i32| {
-                let i = base + o as usize;
-                bits.get(i / 64).is_none_or(|w| w >> (i % 64) & 1 != 0)
-            };
+            let shown = |o: i32| texel_may_show(bits, base + o as usize);
             if !offset.into_iter().any(shown) {
                 return None;
             }
