@@ -94,7 +94,11 @@ impl Backend {
     pub fn describe(&self) -> String {
         match self {
             Backend::Gpu(gpu) => gpu.describe(),
-            Backend::Cpu => format!("CPU renderer, {} threads", rayon::current_num_threads()),
+            Backend::Cpu => format!(
+                "CPU renderer, {} threads, {}",
+                rayon::current_num_threads(),
+                crate::cpu::march::Isa::best().name()
+            ),
         }
     }
 

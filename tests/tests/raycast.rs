@@ -12,8 +12,12 @@
 
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
+use std::sync::Arc;
+
 use blocks::{Preset, Volume, VoxelData};
 use server::Dataset;
+use shaders::cpu::CpuRenderer;
+use shaders::cpu::march::Isa;
 use shaders::{
     Backend, Camera, ClipBox, Frame, FrameRequest, GpuError, LightSettings, Projection, Rows,
     Shading,
@@ -561,4 +565,59 @@ fn a_fitted_camera_centres_and_frames_what_the_transfer_function_shows() {
             "{name}: the chosen camera draws another frame"
         );
     }
+}
+
+/// The CPU renderer's march built for x86-64-v3 (chosen at run time where
+/// the processor has it) draws the same bytes as the baseline build: the
+/// same source with the same arithmetic, so any difference is a fused or
+/// reordered operation that changes pixels.
+#[test]
+fn the_march_built_for_x86_64_v3_draws_the_baseline_s_bytes() {
+    if !Isa::X86_64V3.is_supported() {
+        println!("this processor has no x86-64-v3: only the baseline build runs here");
+        return;
+    }
+    let dataset = phantom_64_dataset();
+    let range = phantom_64().value_range;
+    let oblique = Camera {
+        azimuth_deg: 25.0,
+        elevation_deg: 15.0,
+        ..Camera::default()
+    };
+    let lit = |shading| FrameRequest {
+        camera: oblique,
+        shading,
+        ..FrameRequest::new(96, 96, Preset::CtSoftTissue.transfer_function(range))
+    };
+    let mut requests = phantom_requests();
+    requests.push(("global-light", lit(Shading::GlobalLight)));
+    requests.push(("extinction", lit(Shading::Extinction)));
+    let mut differing = Vec::new();
+    for (name, request) in &requests {
+        let frames = [Isa::Baseline, Isa::X86_64V3].map(|isa| {
+            let mut renderer = CpuRenderer::new(Arc::clone(&dataset.cache), u64::MAX);
+            renderer.set_isa(isa);
+            renderer
+                .render_converged(request)
+                .unwrap_or_else(|e| panic!("{name}: CPU render ({isa:?}): {e}"))
+        });
+        let [baseline, v3] = &frames;
+        assert!(
+            baseline.rgba.iter().any(|&c| c != baseline.rgba[0]),
+            "{name}: a blank frame"
+        );
+        let changed = baseline
+            .rgba
+            .iter()
+            .zip(&v3.rgba)
+            .filter(|(a, b)| a != b)
+            .count();
+        if changed > 0 {
+            differing.push(format!("{name}: {changed} bytes"));
+        }
+    }
+    assert!(
+        differing.is_empty(),
+        "x86-64-v3 frames differ: {differing:?}"
+    );
 }

@@ -151,25 +151,133 @@ pub struct Cell {
 /// neighbouring rays read the same voxels, so a tile's rays find them in cache.
 const TILE: usize = WORKGROUP_SIZE as usize;
 
+/// The instructions the march is compiled for. The same source either way,
+/// with the same arithmetic in the same order (Rust never fuses a multiply
+/// and an add by itself), so the same bytes: x86-64-v3 adds AVX2, FMA, BMI
+/// and SSE4.1's rounding, which turns `floor` from a call into the C
+/// library into one instruction and shortens the vector code.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Isa {
+    /// What the binary is built for (x86-64: SSE2).
+    Baseline,
+    /// x86-64-v3, where this processor has it (found at run time).
+    X86_64V3,
+}
+
+impl Isa {
+    /// The best this processor runs.
+    pub fn best() -> Isa {
+        if Isa::X86_64V3.is_supported() {
+            Isa::X86_64V3
+        } else {
+            Isa::Baseline
+        }
+    }
+
+    /// Its name, as benchmarks report it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Baseline => "baseline instructions",
+            Isa::X86_64V3 => "x86-64-v3",
+        }
+    }
+
+    /// Whether this processor runs code built for `self`.
+    pub fn is_supported(self) -> bool {
+        match self {
+            Isa::Baseline => true,
+            #[cfg(target_arch = "x86_64")]
+            Isa::X86_64V3 => {
+                std::arch::is_x86_feature_detected!("avx2")
+                    && std::arch::is_x86_feature_detected!("fma")
+                    && std::arch::is_x86_feature_detected!("bmi1")
+                    && std::arch::is_x86_feature_detected!("bmi2")
+                    && std::arch::is_x86_feature_detected!("lzcnt")
+                    && std::arch::is_x86_feature_detected!("f16c")
+                    && std::arch::is_x86_feature_detected!("movbe")
+                    && std::arch::is_x86_feature_detected!("popcnt")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            Isa::X86_64V3 => false,
+        }
+    }
+}
+
 /// Renders into `output` (RGBA8, `params.width * params.height * 4` bytes) as the
 /// GPU dispatch does: one call of `main` per invocation, bands of rows in
-/// parallel, tile by tile within a band.
+/// parallel, tile by tile within a band; with the best instructions this
+/// processor has ([`Isa::best`]).
 pub fn march<S: Storage>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &[[f32; 4]],
     output: &mut [u8],
 ) {
+    march_on(Isa::best(), params, storage, transfer_function, output);
+}
+
+/// [`march`] with the code built for `isa`; the baseline's where this
+/// processor does not run it.
+pub fn march_on<S: Storage>(
+    isa: Isa,
+    params: &RaycastParams,
+    storage: &S,
+    transfer_function: &[[f32; 4]],
+    output: &mut [u8],
+) {
     let width = params.width as usize;
+    let v3 = isa == Isa::X86_64V3 && isa.is_supported();
     output
         .par_chunks_mut(width * 4 * TILE)
         .enumerate()
-        .for_each(|(band, rows)| march_band(params, storage, transfer_function, band, rows));
+        .for_each(|(band, rows)| {
+            #[cfg(target_arch = "x86_64")]
+            if v3 {
+                #[expect(
+                    unsafe_code,
+                    reason = "a function built for features found at run time"
+                )]
+                // SAFETY: this processor has every feature the function is
+                // built with (`Isa::is_supported`).
+                unsafe {
+                    march_band_v3(params, storage, transfer_function, band, rows);
+                };
+                return;
+            }
+            let _ = v3;
+            march_band(params, storage, transfer_function, band, rows);
+        });
+}
+
+/// [`march_band`] built for x86-64-v3.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,f16c,movbe,popcnt,sse4.1,sse4.2")]
+#[inline(never)]
+fn march_band_v3<S: Storage>(
+    params: &RaycastParams,
+    storage: &S,
+    transfer_function: &[[f32; 4]],
+    band: usize,
+    rows: &mut [u8],
+) {
+    march_band_body(params, storage, transfer_function, band, rows);
 }
 
 /// One band of rows of [`march`], tile by tile.
 #[inline(never)]
 fn march_band<S: Storage>(
+    params: &RaycastParams,
+    storage: &S,
+    transfer_function: &[[f32; 4]],
+    band: usize,
+    rows: &mut [u8],
+) {
+    march_band_body(params, storage, transfer_function, band, rows);
+}
+
+/// The body of [`march_band`], inlined into each build of it.
+#[inline(always)]
+fn march_band_body<S: Storage>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &[[f32; 4]],
@@ -545,6 +653,7 @@ impl Accumulator {
 }
 
 /// WGSL `main`: the pixel at `gid`, or `None` past the image's edge.
+#[inline(always)]
 fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) -> Option<[u8; 4]> {
     if gid[0] >= p.width || gid[1] >= p.height {
         return None;

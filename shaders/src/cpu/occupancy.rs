@@ -208,7 +208,7 @@ fn block_cells(slot: &[f32], level: usize, any_visible: &Visibility) -> u64 {
 /// crosses in the block that are alike (all transparent or all possibly
 /// visible): the march jumps them, or samples them as one run, with one
 /// lookup.
-#[inline]
+#[inline(always)]
 pub fn cell_at(visible: u64, local_at_zero: Vec3, local_per_t: Vec3, t: f32) -> Cell {
     let last = (CELLS - 1) as i32;
     let local = local_at_zero + local_per_t * t;

@@ -4,7 +4,7 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{Cell, CubicReads, Span, Storage, far_face_crossing, march};
+use super::march::{Cell, CubicReads, Isa, Span, Storage, far_face_crossing, march_on};
 use super::occupancy::cell_at;
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
@@ -27,6 +27,7 @@ impl Storage for PackedTexture {
         PackedTexture::locate(self, &p.volume, tc)
     }
 
+    #[inline(always)]
     fn span(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, t: f32) -> Span<BlockLocation> {
         let g = &p.volume;
         let block = block_of(g, origin + dir * t);
@@ -35,6 +36,7 @@ impl Storage for PackedTexture {
         self.block_span(g, origin, dir, block, t_max, t)
     }
 
+    #[inline(always)]
     fn next_span(
         &self,
         p: &RaycastParams,
@@ -90,6 +92,7 @@ impl Storage for PackedTexture {
         }
     }
 
+    #[inline(always)]
     fn cell(
         &self,
         _p: &RaycastParams,
@@ -140,6 +143,7 @@ impl Storage for PackedTexture {
         )
     }
 
+    #[inline(always)]
     fn gradient_in(&self, p: &RaycastParams, span: &Span<BlockLocation>, t: f32, tc: Vec3) -> Vec3 {
         let loc = &span.loc;
         let centre = span.texel_at_zero + span.texel_per_t * t;
@@ -246,6 +250,7 @@ impl Storage for PackedTexture {
         self.sample_at(p, tc, &other)
     }
 
+    #[inline(always)]
     fn light_at(&self, p: &RaycastParams, span: &Span<BlockLocation>, t: f32, tc: Vec3) -> Vec3 {
         let loc = &span.loc;
         match (self.lit_by, &self.light_cache, &self.light) {
@@ -415,6 +420,7 @@ impl PackedTexture {
 
     /// The stretch of the ray in `block`, which it leaves at the smallest of
     /// `t_max` (never before `t`).
+    #[inline(always)]
     fn block_span(
         &self,
         g: &PackedVolume,
@@ -486,7 +492,18 @@ pub fn raycast(
     transfer_function: &[[f32; 4]],
     output: &mut [u8],
 ) {
-    march(params, packed, transfer_function, output);
+    raycast_on(Isa::best(), params, packed, transfer_function, output);
+}
+
+/// [`raycast`] with the march built for `isa` (see [`march_on`]).
+pub fn raycast_on(
+    isa: Isa,
+    params: &RaycastParams,
+    packed: &PackedTexture,
+    transfer_function: &[[f32; 4]],
+    output: &mut [u8],
+) {
+    march_on(isa, params, packed, transfer_function, output);
 }
 
 #[cfg(test)]

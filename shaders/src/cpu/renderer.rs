@@ -25,8 +25,9 @@ use blocks::transfer_function::TABLE_LEN;
 
 use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
+use super::march::Isa;
 use super::occupancy::{visible_cells, visible_texels};
-use super::raycast;
+use super::raycast::raycast_on;
 use crate::extinction::ExtinctionParams;
 use crate::illumination::{Mode, Refine, Timings};
 use crate::packed::{Atlas, CPU_MAX_EDGE, CpuAtlas, CpuDevice};
@@ -59,6 +60,8 @@ pub struct CpuRenderer {
     /// What the atlas's visible cells were computed for: the shown blocks
     /// and the transfer function.
     cells: Option<(u64, TransferFunction)>,
+    /// The instructions the ray caster runs.
+    isa: Isa,
     last: RenderStats,
 }
 
@@ -93,8 +96,15 @@ impl CpuRenderer {
             extinction: CpuExtinction::default(),
             last_view: None,
             cells: None,
+            isa: Isa::best(),
             last: RenderStats::default(),
         }
+    }
+
+    /// Draws with the ray caster built for `isa` where this processor runs
+    /// it (the best it runs by default; the frames are the same bytes).
+    pub fn set_isa(&mut self, isa: Isa) {
+        self.isa = isa;
     }
 
     /// How voxels become texels.
@@ -282,7 +292,7 @@ impl CpuRenderer {
         let params = RaycastParams::new(&self.desc, request, tf, table.len() as u32, atlas.layout);
         let start = Instant::now();
         let mut rgba = vec![0u8; params.width as usize * params.height as usize * 4];
-        raycast(&params, &atlas.texture, table, &mut rgba);
+        raycast_on(self.isa, &params, &atlas.texture, table, &mut rgba);
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.reduction = selection.reduction();
         stats.empty_share = selection.empty_share();
