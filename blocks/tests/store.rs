@@ -410,3 +410,31 @@ fn lod_selection_on_stored_statistics_respects_budgets_and_skips_empty_blocks() 
         assert_eq!(s.lod[air], blocks::lod::EMPTY);
     }
 }
+
+/// A root whose voxel type is not its arrays' (a hand-edited `zarr.json`):
+/// chunks would decode to another number of voxels, so the store is refused
+/// when it opens, naming the array and the field (found by fuzzing, where it
+/// panicked reading a block).
+#[test]
+fn a_root_voxel_type_other_than_the_arrays_is_refused_naming_the_array() {
+    let dir = tempfile::tempdir().expect("temp");
+    let dims = [20, 20, 20];
+    let mut source = Memory::new(dims, noise_u16(dims));
+    let store = ingest_to(dir.path(), &mut source).expect("ingest");
+    let folder = store.location().file("");
+    let root = store.location().file("zarr.json");
+    let text = std::fs::read_to_string(&root).expect("read");
+    for other in ["uint32", "uint8", "float32"] {
+        let changed = text.replace("\"uint16\"", &format!("\"{other}\""));
+        assert_ne!(changed, text);
+        std::fs::write(&root, changed).expect("write");
+        reseal(&folder);
+        let msg = Store::open(store.location().clone())
+            .expect_err("voxel type unlike the arrays'")
+            .to_string();
+        assert!(
+            msg.contains("0/zarr.json") && msg.contains("data_type") && msg.contains(other),
+            "{msg}"
+        );
+    }
+}

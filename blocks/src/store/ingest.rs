@@ -157,7 +157,7 @@ fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
 }
 
 /// The zarr data type and zero fill value of a voxel type.
-fn zarr_type(t: VoxelType) -> (zarrs::array::DataType, zarrs::array::FillValue) {
+pub(crate) fn zarr_type(t: VoxelType) -> (zarrs::array::DataType, zarrs::array::FillValue) {
     use zarrs::array::FillValue;
     match t {
         VoxelType::U8 => (data_type::uint8(), FillValue::from(0u8)),

@@ -427,6 +427,20 @@ impl Store {
                     format!("{e}"),
                 )
             })?;
+            // Every array holds voxels of the root's type: chunks of another
+            // decode to another number of voxels.
+            let want = ingest::zarr_type(voxel_type).0;
+            if *array.data_type() != want {
+                return Err(store_error(
+                    &location.file(&format!("{}/zarr.json", key.trim_start_matches('/'))),
+                    "data_type",
+                    format!(
+                        "{}: expected {} (attributes.voxserve.voxel_type of the root zarr.json)",
+                        array.data_type(),
+                        voxel_type.name()
+                    ),
+                ));
+            }
             arrays.push(VoxelArray {
                 key: key.trim_start_matches('/').to_owned(),
                 level,
@@ -624,10 +638,23 @@ impl Store {
             .array
             .retrieve_subchunk_opt(&array.shard_index, &[z, y, x], &CodecOptions::default())
             .map_err(|e| self.read_error(array, chunk, e))?;
-        let raw = bytes.into_fixed().map_err(|e| {
-            let shard = self.location.file(&shard_key(&array.key, chunk));
-            store_error(&shard, "chunk", format!("{e}"))
-        })?;
+        let shard = || self.location.file(&shard_key(&array.key, chunk));
+        let raw = bytes
+            .into_fixed()
+            .map_err(|e| store_error(&shard(), "chunk", format!("{e}")))?;
+        let want = (BLOCK as usize).pow(3) * self.voxel_type.size();
+        if raw.len() != want {
+            return Err(store_error(
+                &shard(),
+                "chunk",
+                format!(
+                    "chunk {chunk:?} decoded to {} bytes: expected {want} ({}³ {} voxels)",
+                    raw.len(),
+                    BLOCK,
+                    self.voxel_type.name()
+                ),
+            ));
+        }
         Ok(VoxelData::from_bytes(self.voxel_type, &raw, false))
     }
 
