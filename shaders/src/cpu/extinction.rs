@@ -15,7 +15,7 @@ use blocks::TransferFunction;
 use super::ColourTexture;
 use super::march::{MAX_SAMPLE_OPACITY, classify_table};
 use super::packed::{BlockLocation, PackedTexture};
-use super::texture::{ceil_i32, floor_i32, floor3};
+use super::texture::{ceil_i32, floor, floor_i32, floor3};
 use crate::GpuError;
 use crate::extinction::update::{ExtinctionStages, update_extinction};
 use crate::extinction::{
@@ -41,12 +41,14 @@ pub struct Sat {
 
 impl Sat {
     /// WGSL `sat_index`.
+    #[inline(always)]
     fn index(&self, c: IVec3) -> usize {
         let g = self.grid;
         ((c.z as u32 * g[1] + c.y as u32) * g[0] + c.x as u32) as usize
     }
 
     /// WGSL `sat_at`.
+    #[inline(always)]
     pub fn at(&self, c: IVec3, ch: usize) -> u64 {
         if c.cmplt(IVec3::ZERO).any() {
             return 0;
@@ -55,6 +57,7 @@ impl Sat {
     }
 
     /// WGSL `cuboid_sum`: the exact sum over cells lo..=hi, clamped to the grid.
+    #[inline(always)]
     pub fn cuboid_sum(&self, lo_in: IVec3, hi_in: IVec3, ch: usize) -> u64 {
         let lo = lo_in.max(IVec3::ZERO) - IVec3::ONE;
         let last = IVec3::new(
@@ -247,13 +250,52 @@ pub fn cell_is_read(p: &ExtinctionParams, near_blocks: &[u32], c: IVec3) -> bool
     near_blocks[(b.x as u32 + g[0] * (b.y as u32 + g[1] * b.z as u32)) as usize] != 0
 }
 
+/// [`cell_is_read`] for the cells of a grid, by the same arithmetic: a
+/// cell's block along each axis depends on its coordinate along that axis
+/// alone, so the blocks are found once per axis, not per cell.
+struct ReadCells<'a> {
+    near_blocks: &'a [u32],
+    /// Per axis, the block of each cell coordinate.
+    blocks: [Vec<u32>; 3],
+    block_grid: [u32; 3],
+}
+
+impl<'a> ReadCells<'a> {
+    fn new(p: &ExtinctionParams, near_blocks: &'a [u32]) -> ReadCells<'a> {
+        let g = p.volume.block_grid;
+        let blocks = [0, 1, 2].map(|axis| {
+            (0..p.grid[axis])
+                .map(|c| {
+                    let tc = (c as f32 + 0.5) / p.grid[axis] as f32;
+                    let b = floor(tc * p.volume.volume_dims[axis] / super::packed::BLOCK);
+                    (b as i32).clamp(0, g[axis] as i32 - 1) as u32
+                })
+                .collect()
+        });
+        ReadCells {
+            near_blocks,
+            blocks,
+            block_grid: g,
+        }
+    }
+
+    /// Whether cell `c` is read.
+    #[inline(always)]
+    fn holds(&self, c: [u32; 3]) -> bool {
+        let [bx, by, bz] = [0, 1, 2].map(|axis| self.blocks[axis][c[axis] as usize]);
+        let g = self.block_grid;
+        self.near_blocks[(bx + g[0] * (by + g[1] * bz)) as usize] != 0
+    }
+}
+
 /// WGSL `ambient_occlusion`: I_AO per cell (rgb, a: grey).
 pub fn ambient_occlusion(p: &ExtinctionParams, sat: &Sat, near_blocks: &[u32]) -> Vec<[f32; 4]> {
     let colour = p.channels == 4;
+    let read = ReadCells::new(p, near_blocks);
     cells(p.grid)
         .map(|gid| {
             let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
-            if !cell_is_read(p, near_blocks, c) {
+            if !read.holds(gid) {
                 return [1.0; 4];
             }
             let mut inner = [sat.cuboid_sum(c, c, 0), 0, 0, 0];
@@ -299,10 +341,11 @@ pub fn ambient_occlusion_reference(
     near_blocks: &[u32],
 ) -> Vec<[f32; 4]> {
     let grid = p.grid;
+    let read = ReadCells::new(p, near_blocks);
     cells(grid)
         .map(|gid| {
             let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
-            if !cell_is_read(p, near_blocks, c) {
+            if !read.holds(gid) {
                 return [1.0; 4];
             }
             let r = p.ao_radius as i32;
@@ -357,46 +400,129 @@ fn light_factor(light: &LightUniform, p: Vec3) -> f32 {
     smoothstep(light.colour[3], light.spot[3], c)
 }
 
-/// WGSL `occlusion_depth` of `soft_shadow`.
-fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -> f32 {
-    let pos = c.as_vec3() + 0.5;
-    let v = towards(light, pos);
-    let av = v.abs();
-    let mut a = 0usize;
-    if av.y > av[a] {
-        a = 1;
-    }
-    if av.z > av[a] {
-        a = 2;
-    }
-    let va = av[a];
-    if va < 1e-6 {
-        return 0.0;
-    }
-    let mut d_end = 1e9f32;
-    if light.position[3] != 0.0 {
-        d_end = va;
-    }
-    let b = (a + 1) % 3;
-    let e = (a + 2) % 3;
-    let sign = if v[a] >= 0.0 { 1 } else { -1 };
-    let slope = v / va;
-    let slant = v.length() / va;
-    let last = IVec3::new(p.grid[0] as i32, p.grid[1] as i32, p.grid[2] as i32) - 1;
-    let mut depth = 0.0f32;
-    let mut prev = 0i32;
-    let mut dist = 0.0f32;
-    let mut spacing = p.cone_first;
-    for _k in 0..MAX_CONE_CUBOIDS {
-        dist += spacing;
-        spacing *= 1.0 + p.cone_growth;
-        let start = prev + 1;
-        if start as f32 > d_end {
-            break;
+/// The cone of WGSL `occlusion_depth` (`soft_shadow`) from a cell towards a
+/// light: its main axis `a` (the other two `b` and `e`), which way it runs
+/// along it, its slope per cell along `a` and how far it may go.
+#[derive(Debug, Clone, Copy)]
+struct Cone {
+    a: usize,
+    b: usize,
+    e: usize,
+    sign: i32,
+    slope: Vec3,
+    slant: f32,
+    d_end: f32,
+}
+
+impl Cone {
+    /// The cone from the cell centred at `pos` towards `light`; `None` where
+    /// the light is at the cell (its depth is 0).
+    #[inline(always)]
+    fn towards(light: &LightUniform, pos: Vec3) -> Option<Cone> {
+        let v = towards(light, pos);
+        let av = v.abs();
+        let mut a = 0usize;
+        if av.y > av[a] {
+            a = 1;
         }
-        let end = floor_i32(dist + 0.5).max(start).min(floor_i32(d_end));
-        let m0 = c[a] + sign * start;
-        let m1 = c[a] + sign * end;
+        if av.z > av[a] {
+            a = 2;
+        }
+        let va = av[a];
+        if va < 1e-6 {
+            return None;
+        }
+        let mut d_end = 1e9f32;
+        if light.position[3] != 0.0 {
+            d_end = va;
+        }
+        Some(Cone {
+            a,
+            b: (a + 1) % 3,
+            e: (a + 2) % 3,
+            sign: if v[a] >= 0.0 { 1 } else { -1 },
+            slope: v / va,
+            slant: v.length() / va,
+            d_end,
+        })
+    }
+
+    /// The cone's cuboids in order, as WGSL `occlusion_depth`'s loop steps
+    /// through them: what of each is the same for every cell (the loop
+    /// stops earlier where a cuboid leaves the grid).
+    #[inline(always)]
+    fn cuboids<'a>(&'a self, p: &'a ExtinctionParams) -> impl Iterator<Item = Cuboid> + 'a {
+        let (mut prev, mut dist, mut spacing) = (0i32, 0.0f32, p.cone_first);
+        (0..MAX_CONE_CUBOIDS).map_while(move |_| {
+            dist += spacing;
+            spacing *= 1.0 + p.cone_growth;
+            let start = prev + 1;
+            if start as f32 > self.d_end {
+                return None;
+            }
+            let end = floor_i32(dist + 0.5).max(start).min(floor_i32(self.d_end));
+            let mid = 0.5 * (start as f32 + end as f32);
+            prev = end;
+            Some(Cuboid {
+                start,
+                end,
+                half_width: mid * self.slant * p.cone_tan + 0.5,
+                along_b: self.slope[self.b] * mid,
+                along_e: self.slope[self.e] * mid,
+                length: (end - start + 1) as f32,
+            })
+        })
+    }
+}
+
+/// One cuboid of a [`Cone`], relative to the cone's cell: cells `start` to
+/// `end` along its axis, centred `along_b` and `along_e` off the cell's
+/// centre, `half_width` (plus half a cell) wide.
+#[derive(Debug, Clone, Copy)]
+struct Cuboid {
+    start: i32,
+    end: i32,
+    half_width: f32,
+    along_b: f32,
+    along_e: f32,
+    length: f32,
+}
+
+/// WGSL `occlusion_depth` of `soft_shadow` at cell `c` through the cone's
+/// `cuboids`.
+#[inline(always)]
+fn cone_depth(
+    p: &ExtinctionParams,
+    sat: &Sat,
+    cone: &Cone,
+    cuboids: impl Iterator<Item = Cuboid>,
+    c: IVec3,
+) -> f32 {
+    let Cone {
+        a,
+        b,
+        e,
+        sign,
+        slope,
+        slant,
+        ..
+    } = *cone;
+    let pos = c.as_vec3() + 0.5;
+    let last = IVec3::new(p.grid[0] as i32, p.grid[1] as i32, p.grid[2] as i32) - 1;
+    // CPU only: a cuboid beside the grid along b or e whose side moves away
+    // from it faster than the cone widens has no later cuboid in the grid
+    // either; they all add 0, so the cone ends there. (Its side moves by at
+    // least a thousandth of a cell per cuboid, far more than rounding moves
+    // it, so no later one comes back.)
+    let widening = slant * p.cone_tan + 1e-3;
+    let leaves = |lo: IVec3, hi: IVec3, axis: usize| {
+        (lo[axis] > last[axis] && slope[axis] > widening)
+            || (hi[axis] < 0 && slope[axis] < -widening)
+    };
+    let mut depth = 0.0f32;
+    for q in cuboids {
+        let m0 = c[a] + sign * q.start;
+        let m1 = c[a] + sign * q.end;
         let mut lo = IVec3::ZERO;
         let mut hi = IVec3::ZERO;
         lo[a] = m0.min(m1);
@@ -404,31 +530,17 @@ fn cone_depth(p: &ExtinctionParams, sat: &Sat, light: &LightUniform, c: IVec3) -
         if hi[a] < 0 || lo[a] > last[a] {
             break;
         }
-        let mid = 0.5 * (start as f32 + end as f32);
-        let w = mid * slant * p.cone_tan + 0.5;
-        let cb = pos[b] + slope[b] * mid;
-        let ce = pos[e] + slope[e] * mid;
-        lo[b] = floor_i32(cb - w);
-        hi[b] = (ceil_i32(cb + w) - 1).max(lo[b]);
-        lo[e] = floor_i32(ce - w);
-        hi[e] = (ceil_i32(ce + w) - 1).max(lo[e]);
-        // CPU only: a cuboid beside the grid along b or e whose side moves
-        // away from it faster than the cone widens has no later cuboid in
-        // the grid either; they all add 0, so the cone ends here. (Its side
-        // moves by at least a thousandth of a cell per cuboid, far more than
-        // rounding moves it, so no later one comes back.)
-        let widening = slant * p.cone_tan + 1e-3;
-        let leaves = |axis: usize| {
-            (lo[axis] > last[axis] && slope[axis] > widening)
-                || (hi[axis] < 0 && slope[axis] < -widening)
-        };
-        if leaves(b) || leaves(e) {
+        let (cb, ce) = (pos[b] + q.along_b, pos[e] + q.along_e);
+        lo[b] = floor_i32(cb - q.half_width);
+        hi[b] = (ceil_i32(cb + q.half_width) - 1).max(lo[b]);
+        lo[e] = floor_i32(ce - q.half_width);
+        hi[e] = (ceil_i32(ce + q.half_width) - 1).max(lo[e]);
+        if leaves(lo, hi, b) || leaves(lo, hi, e) {
             break;
         }
         let size = (hi - lo + IVec3::ONE).as_vec3();
         let volume = size.x * size.y * size.z;
-        depth += depth_of(sat.cuboid_sum(lo, hi, 0)) / volume * (end - start + 1) as f32 * slant;
-        prev = end;
+        depth += depth_of(sat.cuboid_sum(lo, hi, 0)) / volume * q.length * slant;
     }
     depth
 }
@@ -439,22 +551,24 @@ fn fill_cache(
     p: &ExtinctionParams,
     ambient: &[[f32; 4]],
     near_blocks: &[u32],
-    occlusion_depth: impl Fn(&LightUniform, IVec3) -> f32 + Sync,
+    occlusion_depth: impl Fn(usize, &LightUniform, IVec3) -> f32 + Sync,
 ) -> Vec<[f32; 4]> {
     let lights = &p.lights[..p.light_count as usize];
+    let read = ReadCells::new(p, near_blocks);
     cells(p.grid)
         .map(|gid| {
             let c = IVec3::new(gid[0] as i32, gid[1] as i32, gid[2] as i32);
-            if !cell_is_read(p, near_blocks, c) {
+            if !read.holds(gid) {
                 return [0.0; 4];
             }
             let pos = c.as_vec3() + 0.5;
             let mut light = p.ambient * Vec4::from(ambient[cell_index(p.grid, gid)]).xyz();
-            for source in lights {
+            for (i, source) in lights.iter().enumerate() {
                 let f = light_factor(source, pos);
                 if f > 0.0 {
-                    light +=
-                        Vec4::from(source.colour).xyz() * f * (-occlusion_depth(source, c)).exp();
+                    light += Vec4::from(source.colour).xyz()
+                        * f
+                        * (-occlusion_depth(i, source, c)).exp();
                 }
             }
             f16_round(light.extend(1.0))
@@ -469,8 +583,30 @@ pub fn soft_shadow(
     ambient: &[[f32; 4]],
     near_blocks: &[u32],
 ) -> Vec<[f32; 4]> {
-    fill_cache(p, ambient, near_blocks, |light, c| {
-        cone_depth(p, sat, light, c)
+    // CPU only: a directional light's cone is the same from every cell
+    // (`towards` does not depend on the cell), so its cuboids are stepped
+    // through once, up to the first that starts past the grid along the
+    // cone's axis (where every cell's loop has stopped).
+    let lights = &p.lights[..p.light_count as usize];
+    let parallel: Vec<Option<(Cone, Vec<Cuboid>)>> = lights
+        .iter()
+        .map(|light| {
+            if light.position[3] != 0.0 {
+                return None;
+            }
+            let cone = Cone::towards(light, Vec3::ZERO)?;
+            let extent = p.grid[cone.a] as i32;
+            let cuboids = cone.cuboids(p).take_while(|q| q.start <= extent).collect();
+            Some((cone, cuboids))
+        })
+        .collect();
+    fill_cache(p, ambient, near_blocks, |i, light, c| match &parallel[i] {
+        Some((cone, cuboids)) => cone_depth(p, sat, cone, cuboids.iter().copied(), c),
+        None if light.position[3] == 0.0 => 0.0,
+        None => match Cone::towards(light, c.as_vec3() + 0.5) {
+            Some(cone) => cone_depth(p, sat, &cone, cone.cuboids(p), c),
+            None => 0.0,
+        },
     })
 }
 
@@ -512,7 +648,7 @@ pub fn shadow_ray(
     ambient: &[[f32; 4]],
     near_blocks: &[u32],
 ) -> Vec<[f32; 4]> {
-    fill_cache(p, ambient, near_blocks, |light, c| {
+    fill_cache(p, ambient, near_blocks, |_, light, c| {
         ray_depth(p, extinction, light, c.as_vec3() + 0.5)
     })
 }
@@ -746,6 +882,82 @@ mod tests {
                 expected,
                 "{lo:?}..{hi:?}"
             );
+        }
+    }
+
+    #[test]
+    fn read_cells_are_those_cell_is_read_reads() {
+        use crate::packed_volume::PackedVolume;
+        // Grids finer and coarser than the blocks, not dividing them evenly.
+        for (dims, grid) in [
+            ([256.0, 256.0, 113.0], [128, 128, 113]),
+            ([100.0, 37.0, 64.0], [23, 40, 7]),
+        ] {
+            let block_grid = dims.map(|d: f32| (d / 16.0).ceil() as u32);
+            let mut p: ExtinctionParams = bytemuck::Zeroable::zeroed();
+            p.grid = grid;
+            p.volume = PackedVolume {
+                block_grid,
+                volume_dims: dims,
+                ..p.volume
+            };
+            let blocks = block_grid.iter().product::<u32>();
+            let near: Vec<u32> = (0..blocks).map(|i| u32::from(i * 7 % 3 == 0)).collect();
+            let read = ReadCells::new(&p, &near);
+            for z in 0..grid[2] {
+                for y in 0..grid[1] {
+                    for x in 0..grid[0] {
+                        let c = IVec3::new(x as i32, y as i32, z as i32);
+                        assert_eq!(
+                            read.holds([x, y, z]),
+                            cell_is_read(&p, &near, c),
+                            "{dims:?} {grid:?} cell {c}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_directional_light_s_cuboids_found_once_give_each_cell_its_own_cone_s_depth() {
+        let grid = [21u32, 17, 9];
+        let n = u64::from(grid.iter().product::<u32>());
+        let values: Vec<u64> = (0..n).map(|i| (i * 2_654_435_761) % (3 << 24)).collect();
+        let sat = sat_from_cells(grid, &values);
+        let mut p: ExtinctionParams = bytemuck::Zeroable::zeroed();
+        p.grid = grid;
+        p.cone_first = 1.3;
+        p.cone_growth = 0.05;
+        p.cone_tan = 2.0f32.to_radians().tan();
+        for direction in [
+            [0.3f32, -0.5, 0.8],
+            [-1.0, 0.0, 0.0],
+            [0.0, 0.7, -0.7],
+            [0.01, 0.02, -1.0],
+        ] {
+            let light = LightUniform {
+                position: [direction[0], direction[1], direction[2], 0.0],
+                colour: [1.0, 1.0, 1.0, -2.0],
+                spot: [0.0; 4],
+            };
+            p.lights[0] = light;
+            p.light_count = 1;
+            let once = Cone::towards(&light, Vec3::ZERO).expect("a direction");
+            let extent = grid[once.a] as i32;
+            let cuboids: Vec<Cuboid> = once.cuboids(&p).take_while(|q| q.start <= extent).collect();
+            for i in 0..n as u32 {
+                let c = IVec3::new(
+                    (i % grid[0]) as i32,
+                    (i / grid[0] % grid[1]) as i32,
+                    (i / (grid[0] * grid[1])) as i32,
+                );
+                let own = Cone::towards(&light, c.as_vec3() + 0.5).expect("a direction");
+                let want = cone_depth(&p, &sat, &own, own.cuboids(&p), c);
+                let got = cone_depth(&p, &sat, &once, cuboids.iter().copied(), c);
+                assert_eq!(got.to_bits(), want.to_bits(), "{direction:?} cell {c}");
+                assert!(want > 0.0 || c[once.a] == 0 || c[once.a] == extent - 1);
+            }
         }
     }
 
