@@ -228,6 +228,7 @@ impl Storage for PackedTexture {
         loc.empty
     }
 
+    #[inline(always)]
     fn sample_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> f32 {
         self.sample_block(&p.volume, tc, loc)
     }
@@ -236,6 +237,7 @@ impl Storage for PackedTexture {
         voxel_edge(loc)
     }
 
+    #[inline(always)]
     fn sample_neighbour(&self, p: &RaycastParams, tc: Vec3, home: &BlockLocation) -> f32 {
         let g = p.volume;
         let b = floor3(tc * Vec3::from(g.volume_dims) / BLOCK);

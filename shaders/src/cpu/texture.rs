@@ -187,6 +187,7 @@ impl ColourTexture {
 
     /// The colour (r, g, b) [`Texture3d::sample_level`] gives per channel at
     /// texture coordinates `tc`, the same arithmetic lane by lane.
+    #[inline(always)]
     pub fn sample_level(&self, tc: Vec3) -> Vec3 {
         let [nx, ny, nz] = self.dims.map(|d| d as i32);
         let p = tc * Vec3::new(nx as f32, ny as f32, nz as f32) - 0.5;
