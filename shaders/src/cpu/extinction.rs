@@ -127,16 +127,27 @@ pub fn extinction_sat(
     // A sample no value of which the transfer function makes visible adds
     // nothing (its Δt·τ is 0): it is not read.
     let visible = packed.visible_texels.as_deref();
+    // CPU only: a sample's texture coordinate along an axis depends on its
+    // cell's and its own index along that axis alone: each is computed
+    // once (by the shader's operations), `sub` per cell.
+    let sub = p.sub as usize;
+    let along = [0, 1, 2].map(|axis| {
+        (0..grid[axis])
+            .flat_map(|c| (0..p.sub).map(move |x| (c as f32 + (x as f32 + 0.5) / n) / gridf[axis]))
+            .collect::<Vec<f32>>()
+    });
     let reconstructed: Vec<Vec4> = cells(grid)
         .map(|gid| {
             let mut sum = Vec4::ZERO;
             let mut last: Option<BlockLocation> = None;
-            for z in 0..p.sub {
-                for y in 0..p.sub {
-                    for x in 0..p.sub {
-                        let tc = (Vec3::new(gid[0] as f32, gid[1] as f32, gid[2] as f32)
-                            + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) / n)
-                            / gridf;
+            let [ax, ay, az] = [0, 1, 2].map(|axis| {
+                let first = gid[axis] as usize * sub;
+                &along[axis][first..first + sub]
+            });
+            for &tz in az {
+                for &ty in ay {
+                    for &tx in ax {
+                        let tc = Vec3::new(tx, ty, tz);
                         // The block of the sample before, which this one
                         // often shares, is not looked up again.
                         let loc = match &last {
