@@ -484,6 +484,14 @@ impl Cone {
             })
         })
     }
+
+    /// CPU only: [`Cone::cuboids`] up to the first that starts past the
+    /// grid along the cone's axis, where every cell's loop has stopped: for
+    /// a cone that is the same from every cell (a directional light's).
+    fn cuboids_in_grid(&self, p: &ExtinctionParams) -> Vec<Cuboid> {
+        let extent = p.grid[self.a] as i32;
+        self.cuboids(p).take_while(|q| q.start <= extent).collect()
+    }
 }
 
 /// One cuboid of a [`Cone`], relative to the cone's cell: cells `start` to
@@ -596,8 +604,7 @@ pub fn soft_shadow(
 ) -> Vec<[f32; 4]> {
     // CPU only: a directional light's cone is the same from every cell
     // (`towards` does not depend on the cell), so its cuboids are stepped
-    // through once, up to the first that starts past the grid along the
-    // cone's axis (where every cell's loop has stopped).
+    // through once.
     let lights = &p.lights[..p.light_count as usize];
     let parallel: Vec<Option<(Cone, Vec<Cuboid>)>> = lights
         .iter()
@@ -606,9 +613,7 @@ pub fn soft_shadow(
                 return None;
             }
             let cone = Cone::towards(light, Vec3::ZERO)?;
-            let extent = p.grid[cone.a] as i32;
-            let cuboids = cone.cuboids(p).take_while(|q| q.start <= extent).collect();
-            Some((cone, cuboids))
+            Some((cone, cone.cuboids_in_grid(p)))
         })
         .collect();
     fill_cache(p, ambient, near_blocks, |i, light, c| match &parallel[i] {
@@ -956,7 +961,7 @@ mod tests {
             p.light_count = 1;
             let once = Cone::towards(&light, Vec3::ZERO).expect("a direction");
             let extent = grid[once.a] as i32;
-            let cuboids: Vec<Cuboid> = once.cuboids(&p).take_while(|q| q.start <= extent).collect();
+            let cuboids = once.cuboids_in_grid(&p);
             for i in 0..n as u32 {
                 let c = IVec3::new(
                     (i % grid[0]) as i32,
