@@ -484,19 +484,24 @@ pub fn cubic_gradient_at<S: Storage>(
     reads.gradient(|x| s.sample_neighbour(p, (x + Vec3::splat(0.5)) * h, loc)) / h
 }
 
-/// WGSL `shade`.
-fn shade(p: &RaycastParams, rgb: Vec3, g: Vec3, view_dir: Vec3) -> Vec3 {
+/// WGSL `shade`, for a ray whose [`half_vector`] is `h`.
+fn shade(p: &RaycastParams, rgb: Vec3, g: Vec3, h: Vec3) -> Vec3 {
     let magnitude = g.length();
     if magnitude < p.gradient_threshold {
         return rgb;
     }
     let n = g / magnitude;
     let l = Vec3::from(p.light_dir);
-    let h = (l - view_dir).normalize();
     let diffuse = n.dot(l).abs();
     let specular = pow(n.dot(h).abs(), p.phong[3]);
     let [ambient, kd, ks, _] = p.phong;
     rgb * (ambient + kd * diffuse) + Vec3::splat(ks * specular)
+}
+
+/// WGSL `shade`'s half vector between the light and the eye for a ray
+/// along `view_dir` (CPU only: found once per ray, not per sample).
+fn half_vector(p: &RaycastParams, view_dir: Vec3) -> Vec3 {
+    (Vec3::from(p.light_dir) - view_dir).normalize()
 }
 
 /// WGSL `window_grey`.
@@ -584,6 +589,8 @@ struct Accumulator {
     alpha: f32,
     /// Σ Δt·τ so far (extinction compositing).
     depth: f32,
+    /// The ray's [`half_vector`] (gradient shading).
+    half: Vec3,
     found: bool,
     extreme: f32,
 }
@@ -592,10 +599,6 @@ impl Accumulator {
     /// The body of WGSL `main`'s loop after `classify`, for a sample of
     /// `span`; true when the ray is done (early ray termination).
     #[inline(always)]
-    #[expect(
-        clippy::too_many_arguments,
-        reason = "the loop's variables, as the shader has them"
-    )]
     fn add<S: Storage>(
         &mut self,
         p: &RaycastParams,
@@ -604,7 +607,6 @@ impl Accumulator {
         sample: Sample,
         tex_origin: Vec3,
         tex_dir: Vec3,
-        dir: Vec3,
     ) -> bool {
         let Sample { t, u, rgba } = sample;
         if rgba.w <= 0.0 {
@@ -627,7 +629,7 @@ impl Accumulator {
         if p.flags & FLAG_SHADED != 0 {
             let g = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0)).xyz()
                 * p.volume.value_scale;
-            rgb = shade(p, rgb, g, dir);
+            rgb = shade(p, rgb, g, self.half);
         }
         if p.flags & FLAG_LIT != 0 {
             // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
@@ -687,6 +689,9 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             jitter = unit_from_hash(pcg_hash(row * p.width + gid[0]));
         }
         acc.exponent = p.step / p.volume.reference_step;
+        if p.flags & FLAG_SHADED != 0 {
+            acc.half = half_vector(p, dir);
+        }
         let first = span.x + jitter * p.step;
         let mut i = 0u32;
         let mut stretch = s.span(p, tex_origin, tex_dir, first);
@@ -770,7 +775,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                             u: us[j],
                             rgba: classes.rgba(tf, j),
                         };
-                        if acc.add(p, s, &stretch, sample, tex_origin, tex_dir, dir) {
+                        if acc.add(p, s, &stretch, sample, tex_origin, tex_dir) {
                             break 'march;
                         }
                     }

@@ -195,9 +195,13 @@ impl Storage for PackedTexture {
         // along it are in the block (what `sample_neighbour` finds), so
         // they are read from its slot.
         let inner = local.cmpge(Vec3::ONE) & local.cmplt(Vec3::splat(BLOCK - 1.0));
-        // At level 0 the neighbours are a texel away.
-        if inner.all()
-            && loc.slot_edge == LEVEL0_EDGE
+        // At level 0 the neighbours are a texel away. Within a voxel of a
+        // face, the neighbour beyond it is read from the next block's slot,
+        // whose texels this slot's apron holds where that block is stored
+        // at level 0 too; this slot has them all where the sample is at
+        // least half a voxel from the face.
+        if loc.slot_edge == LEVEL0_EDGE
+            && (inner.all() || self.faces_reached_at_level0(loc, local))
             && let Some(differences) = self.atlas.central_differences(loc.slot, centre)
         {
             return differences / (2.0 * h);
@@ -286,6 +290,31 @@ impl Storage for PackedTexture {
 }
 
 impl PackedTexture {
+    /// For a sample at `local` (level-0 voxels in `loc`'s block, a block
+    /// at level 0), whether every block its central differences' reads
+    /// beyond a face of `loc`'s reach is stored at level 0: the one across
+    /// each face within a voxel of the sample (reads step along one axis at
+    /// a time, so never a diagonal neighbour). False outside the grid.
+    #[inline]
+    fn faces_reached_at_level0(&self, loc: &BlockLocation, local: Vec3) -> bool {
+        let level = self.index[self.block_index(loc.block)][3];
+        (0..3).all(|a| {
+            let side = if local[a] < 1.0 {
+                -1
+            } else if local[a] >= BLOCK - 1.0 {
+                1
+            } else {
+                return true;
+            };
+            let mut block = loc.block;
+            block[a] += side;
+            (0..self.grid[a] as i32).contains(&block[a]) && {
+                let b = self.block_index(block);
+                self.index[b][3] == level && self.atlas.slot_base(b).is_some()
+            }
+        })
+    }
+
     /// Where reads at positions of `home`'s slot that lie `step` blocks
     /// away (per axis) are read: in the slot of the block there (the grid's
     /// edge block where that is outside it), or, where that block is
@@ -514,8 +543,10 @@ mod tests {
     use blocks::packing::{Packing, slot_edge};
     use glam::Vec3;
 
-    use super::super::march::{Storage, cubic_gradient_at};
-    use super::super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture, RayBlocks, block_of};
+    use super::super::march::{Storage, central_difference_at, cubic_gradient_at};
+    use super::super::packed::{
+        BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, RayBlocks, block_of,
+    };
     use super::super::slot_atlas::SlotAtlas;
     use crate::raycast::{FLAG_CUBIC_GRADIENT, RaycastParams};
 
@@ -654,11 +685,33 @@ mod tests {
         assert!(compared > 15_000, "{compared}");
     }
 
-    /// Compares the gradient the ray caster takes from the slots with the
-    /// shader's reads through `sample_neighbour` at positions all over the
-    /// volume: how many were compared, and how many lay within two voxels
-    /// of a block's face.
+    #[test]
+    fn central_differences_near_block_faces_equal_the_shaders_reads_through_the_neighbours() {
+        // Blocks at level 0 beside blocks at level 1 and an empty one.
+        let (packed, mut params) = blocks();
+        params.flags &= !FLAG_CUBIC_GRADIENT;
+        let (compared, near_face) =
+            compare_gradients(&packed, &params, central_difference_at::<PackedTexture>);
+        assert!(
+            compared > 15_000 && near_face > 5_000,
+            "{compared}, {near_face}"
+        );
+    }
+
+    /// [`compare_gradients`] with the shader's cubic gradient.
     fn compare_cubic_gradients(packed: &PackedTexture, params: &RaycastParams) -> (u32, u32) {
+        compare_gradients(packed, params, cubic_gradient_at::<PackedTexture>)
+    }
+
+    /// Compares the gradient the ray caster takes from the slots with the
+    /// shader's reads through `sample_neighbour` (`reference`, the shader's
+    /// gradient function) at positions all over the volume: how many were
+    /// compared, and how many lay within two voxels of a block's face.
+    fn compare_gradients(
+        packed: &PackedTexture,
+        params: &RaycastParams,
+        reference: fn(&PackedTexture, &RaycastParams, Vec3, &BlockLocation) -> Vec3,
+    ) -> (u32, u32) {
         let params = *params;
         let dir = Vec3::new(0.6, 0.48, 0.64);
         let (mut compared, mut near_face) = (0, 0);
@@ -682,7 +735,7 @@ mod tests {
                 near_face += 1;
             }
             let direct = packed.gradient_in(&params, &span, 0.0, tc);
-            let reads = cubic_gradient_at(packed, &params, tc, &span.loc);
+            let reads = reference(packed, &params, tc, &span.loc);
             let scale = reads.abs().max_element().max(1.0);
             assert!(
                 (direct - reads).abs().max_element() < 1e-3 * scale,
