@@ -438,12 +438,18 @@ pub fn cubic_gradient_of(a: Vec3, row: impl Fn(usize, usize) -> f32x4) -> Vec3 {
         0.5 * a * a,
     ];
     let (mut smooth, mut along_y, mut along_z) = (f32x4::ZERO, f32x4::ZERO, f32x4::ZERO);
+    let wy = f32x4::from([w[0].y, w[1].y, w[2].y, w[3].y]);
+    let dy = f32x4::from([d[0].y, d[1].y, d[2].y, d[3].y]);
     for k in 0..4 {
+        // A slice's rows' weights, the four products at once.
+        let smooth_k = (f32x4::splat(w[k].z) * wy).to_array();
+        let along_y_k = (f32x4::splat(w[k].z) * dy).to_array();
+        let along_z_k = (f32x4::splat(d[k].z) * wy).to_array();
         for j in 0..4 {
             let r = row(k, j);
-            smooth += f32x4::splat(w[k].z * w[j].y) * r;
-            along_y += f32x4::splat(w[k].z * d[j].y) * r;
-            along_z += f32x4::splat(d[k].z * w[j].y) * r;
+            smooth += f32x4::splat(smooth_k[j]) * r;
+            along_y += f32x4::splat(along_y_k[j]) * r;
+            along_z += f32x4::splat(along_z_k[j]) * r;
         }
     }
     let wx = f32x4::from([w[0].x, w[1].x, w[2].x, w[3].x]);
