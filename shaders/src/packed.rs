@@ -341,7 +341,6 @@ impl Atlas for CpuAtlas {
                 light: None,
                 light_cache: None,
                 lit_by: None,
-                visible_cells: None,
                 visible_texels: None,
             },
             layout: PackedLayout {

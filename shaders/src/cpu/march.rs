@@ -4,9 +4,10 @@
 //! counterpart of the functions a WGSL stage defines (`locate`, `sample_at`,
 //! `sample_neighbour`, `light_at`, `empty_exit`). Where the GPU looks each
 //! sample up, the CPU walks the block grid and takes the samples within a
-//! block (and a visible cell) as a run, four at a time
-//! ([`Storage::sample4_in`], [`Classes4`]), composited in order by the
-//! shader's loop body (`Accumulator::add`).
+//! block as a run, four at a time ([`Storage::sample4_in`], which drops
+//! four samples the transfer function hides without reading them, and
+//! [`Classes4`]), composited in order by the shader's loop body
+//! (`Accumulator::add`).
 
 use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
@@ -66,21 +67,6 @@ pub trait Storage: Sync + Sized {
     ) -> Option<[f32; 4]> {
         Some(ts.map(|t| self.sample_in(p, span, t, origin + dir * t)))
     }
-    /// CPU only: the cell of `span`'s block that holds the sample at `t`
-    /// on the ray `origin + t·dir`, whether the transfer function hides
-    /// every sample in it, and where the ray leaves it; `None` where the
-    /// storage knows no cells.
-    fn cell(
-        &self,
-        p: &RaycastParams,
-        span: &Span<Self::Location>,
-        t: f32,
-        origin: Vec3,
-        dir: Vec3,
-    ) -> Option<Cell> {
-        let _ = (p, span, t, origin, dir);
-        None
-    }
     /// WGSL `gradient_at` for the sample at `t` (at `tc`) in `span`.
     fn gradient_in(
         &self,
@@ -130,21 +116,9 @@ pub struct Span<L> {
     pub local_at_zero: Vec3,
     /// See `local_at_zero`.
     pub local_per_t: Vec3,
-    /// Storage-specific: the block's cells that may be visible
-    /// ([`super::occupancy`]); all bits set where nothing is known.
-    pub visible: u64,
     /// Storage-specific (a walk of the block grid): the ray parameter where
     /// the ray crosses the stretch's next boundary along x, y and z.
     pub t_max: Vec3,
-}
-
-/// A cell of a block as a ray crosses it ([`Storage::cell`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Cell {
-    /// The transfer function hides every sample in it.
-    pub transparent: bool,
-    /// The ray parameter where the ray leaves it.
-    pub exit: f32,
 }
 
 /// Rows of pixels one task renders, and columns of a tile within them:
@@ -533,7 +507,7 @@ fn pow(x: f32, e: f32) -> f32 {
 /// CPU only: per axis, the ray parameter where the ray `origin + t·dir`
 /// crosses the far face (in its direction of travel) of the grid cell
 /// `cell` of a grid with cells `edge` wide; infinity along axes it does not
-/// move along. The walks of the block grid and of a block's cells use it.
+/// move along. The walks of the block grid use it.
 #[inline]
 pub fn far_face_crossing(cell: Vec3, edge: Vec3, origin: Vec3, dir: Vec3) -> Vec3 {
     let ahead = Vec3::select(dir.cmpgt(Vec3::ZERO), Vec3::ONE, Vec3::ZERO);
@@ -695,7 +669,6 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         let first = span.x + jitter * p.step;
         let mut i = 0u32;
         let mut stretch = s.span(p, tex_origin, tex_dir, first);
-        let mut visible_until = f32::NEG_INFINITY;
         let skipping = p.flags & FLAG_SKIP_EMPTY != 0;
         // A jump from sample `i` to the first sample at or after `t` (at
         // least the next); WGSL's f32 → u32 conversion saturates like Rust's `as`.
@@ -727,25 +700,11 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                 k += 1;
                 continue;
             }
-            // Samples at t < `limit` share the stretch (and the cell).
-            let mut limit = stretch.exit;
-            // With empty-space skipping, samples the transfer function hides
-            // are jumped over too (the GPU looks at each and drops it: the
-            // same pixels). A cell found visible is not looked up again until
-            // the ray leaves it.
-            if skipping && stretch.visible != u64::MAX {
-                if t >= visible_until
-                    && let Some(cell) = s.cell(p, &stretch, t, tex_origin, tex_dir)
-                {
-                    if cell.transparent {
-                        i = jump(i, cell.exit);
-                        k += 1;
-                        continue;
-                    }
-                    visible_until = cell.exit;
-                }
-                limit = limit.min(visible_until);
-            }
+            // Samples at t < `limit` share the stretch. (A walk of 4³-voxel
+            // cells inside blocks that jumped the transparent ones cost more
+            // than it saved: the texel test of `sample4_in` drops their
+            // samples four at a time for less.)
+            let limit = stretch.exit;
             // The run of samples from `t` to `limit`, four at a time, the
             // first whatever `limit` says (a stretch never ends before its
             // first sample); samples the transfer function hides are

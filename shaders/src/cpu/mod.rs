@@ -3,15 +3,15 @@
 //! run a scene through both and compare. They are also the CPU renderer
 //! ([`CpuRenderer`], `--renderer cpu`): the march differs from the shader only
 //! where the CPU does better with the same pixels (walking the block grid,
-//! reading slots directly, jumping over transparent cells; see [`march`]).
+//! reading slots directly, dropping transparent samples unread; see [`march`]).
 //!
 //! - [`raycast`](mod@raycast): twin of `shaders/wgsl/raycast.wgsl` (packed blocks).
 //! - [`reference`](mod@reference): twin of `shaders/wgsl/reference.wgsl` (one
 //!   plain texture).
 //! - [`march`]: twin of `shaders/wgsl/shared/march.wgsl`, the ray march both share.
 //! - [`packed`]: twin of `shaders/wgsl/shared/packed.wgsl`, block addressing.
-//! - [`occupancy`]: CPU only, transparent cells inside blocks, which the
-//!   CPU march jumps over (pixels unchanged).
+//! - [`occupancy`]: CPU only, transparent texels inside blocks, whose
+//!   samples the CPU march drops without reading them (pixels unchanged).
 //! - [`global_light`]: twins of the global light stages (`local_opacity`,
 //!   `global_opacity`, `direct_light`, `in_scatter`, `direct_light_reference`)
 //!   and [`global_light::run`], which runs one stage of

@@ -39,9 +39,6 @@ pub struct PackedTexture {
     /// `light_cache.wgsl`): a renderer keeps both while frames of either
     /// mode come.
     pub lit_by: Option<Mode>,
-    /// CPU only: per block, its cells that may be visible under the current
-    /// transfer function ([`super::occupancy`]); `None`: all may be.
-    pub visible_cells: Option<Vec<u64>>,
     /// CPU only: per atlas texel, whether a sample blending from it may be
     /// visible ([`super::occupancy::visible_texels`]); `None`: all may be.
     pub visible_texels: Option<Vec<u64>>,

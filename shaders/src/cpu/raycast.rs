@@ -4,8 +4,7 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{Cell, CubicReads, Isa, Span, Storage, far_face_crossing, march_on};
-use super::occupancy::cell_at;
+use super::march::{CubicReads, Isa, Span, Storage, far_face_crossing, march_on};
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
 };
@@ -90,23 +89,6 @@ impl Storage for PackedTexture {
                 return next;
             }
         }
-    }
-
-    #[inline(always)]
-    fn cell(
-        &self,
-        _p: &RaycastParams,
-        span: &Span<BlockLocation>,
-        t: f32,
-        _origin: Vec3,
-        _dir: Vec3,
-    ) -> Option<Cell> {
-        Some(cell_at(
-            span.visible,
-            span.local_at_zero,
-            span.local_per_t,
-            t,
-        ))
     }
 
     #[inline(always)]
@@ -467,12 +449,7 @@ impl PackedTexture {
         // `atlas_texel` unclamped, as a function of t.
         let local_at_zero = origin * dims - corner;
         let local_per_t = dir * dims;
-        let visible = self
-            .visible_cells
-            .as_ref()
-            .map_or(u64::MAX, |cells| cells[self.block_index(block)]);
         Span {
-            visible,
             loc,
             enter: f32::NEG_INFINITY,
             // Never behind `t`: a stretch ends at the next sample at the latest.
@@ -608,7 +585,6 @@ mod tests {
             light: None,
             light_cache: None,
             lit_by: None,
-            visible_cells: None,
             visible_texels: None,
         };
         let mut params: RaycastParams = bytemuck::Zeroable::zeroed();

@@ -27,7 +27,6 @@ impl Storage for Texture3d {
             texel_per_t: Vec3::ZERO,
             local_at_zero: Vec3::ZERO,
             local_per_t: Vec3::ZERO,
-            visible: u64::MAX,
             t_max: Vec3::INFINITY,
         }
     }

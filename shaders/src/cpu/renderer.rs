@@ -26,7 +26,7 @@ use blocks::transfer_function::TABLE_LEN;
 use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::march::Isa;
-use super::occupancy::{visible_cells, visible_texels};
+use super::occupancy::visible_texels;
 use super::raycast::raycast_on;
 use crate::extinction::ExtinctionParams;
 use crate::illumination::{Mode, Refine, Timings};
@@ -57,9 +57,9 @@ pub struct CpuRenderer {
     extinction: CpuExtinction,
     /// The view of the last frame drawn: light refines only while it stays.
     last_view: Option<(Camera, u32, u32)>,
-    /// What the atlas's visible cells were computed for: the shown blocks
+    /// What the atlas's visible texels were computed for: the shown blocks
     /// and the transfer function.
-    cells: Option<(u64, TransferFunction)>,
+    texels_for: Option<(u64, TransferFunction)>,
     /// The instructions the ray caster runs.
     isa: Isa,
     last: RenderStats,
@@ -95,7 +95,7 @@ impl CpuRenderer {
             global_light: CpuGlobalLight::default(),
             extinction: CpuExtinction::default(),
             last_view: None,
-            cells: None,
+            texels_for: None,
             isa: Isa::best(),
             last: RenderStats::default(),
         }
@@ -173,7 +173,7 @@ impl CpuRenderer {
         if self.table.as_ref().is_none_or(|(t, _)| *t != tf) {
             self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
         }
-        self.update_cells(&tf);
+        self.update_visible_texels(&tf);
         // A moving view draws from the light there is.
         let view = (request.camera, request.width, request.height);
         let refine = draw.refine(request, self.last_view == Some(view));
@@ -196,21 +196,20 @@ impl CpuRenderer {
         self.draw(request, stats)
     }
 
-    /// Finds the atlas's transparent cells and texels for `tf` unless the shown blocks
+    /// Finds the atlas's transparent texels for `tf` unless the shown blocks
     /// and the transfer function are those they were found for.
-    fn update_cells(&mut self, tf: &TransferFunction) {
+    fn update_visible_texels(&mut self, tf: &TransferFunction) {
         let key = (self.residency.data_version(), tf.clone());
         let (Some(atlas), Some((_, table))) = (self.residency.atlas_mut(), &self.table) else {
             return;
         };
-        if self.cells.as_ref() == Some(&key) {
+        if self.texels_for.as_ref() == Some(&key) {
             return;
         }
         let g = PackedVolume::new(&self.desc, atlas.layout, table.len() as u32);
         let texture = &mut atlas.texture;
-        texture.visible_cells = Some(visible_cells(texture, &g, table));
         texture.visible_texels = Some(visible_texels(&texture.atlas, &g, table));
-        self.cells = Some(key);
+        self.texels_for = Some(key);
     }
 
     /// Brings global light up to date for `request` as far as `refine` says
