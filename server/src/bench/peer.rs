@@ -10,6 +10,14 @@
 //! dataset and mode gives the ratio of the medians and both images'
 //! coverage (the fraction of pixels off the background, as VTK counts it),
 //! which must agree within 5 % for the ratio to compare like with like.
+//! It also gives both images' solid coverage (pixels clearly off the
+//! background), the framing without the faintest haze: VTK's FixedPoint
+//! mapper computes in 15-bit fixed point and rounds each product up (the
+//! interpolated scalar before the table lookup, colour × opacity, the
+//! compositing step), which adds up to a unit of 2⁻¹⁵ per sample and
+//! channel: on a ray through thin haze (per-sample opacities of tens of
+//! units) VTK's colour comes out 10–50 % brighter than the exact (`f32`)
+//! sum, and more of its faintest pixels cross the coverage threshold.
 //!
 //! Modes: `composite` (VTK FixedPoint composite against unshaded frames),
 //! `phong` (FixedPoint Phong against gradient shading with the cubic
@@ -28,7 +36,7 @@ use blocks::ingest::OpenOptions;
 use blocks::ingest::raw::RawOptions;
 use blocks::ingest::stream::SampleType;
 use blocks::{TfPoint, TransferFunction, VoxelType};
-use shaders::{AnyRenderer, Camera, Choice, Frame, FrameRequest, Shading};
+use shaders::{AnyRenderer, Camera, Choice, FrameRequest, Shading};
 
 use super::args::BenchPeerArgs;
 use server::Dataset;
@@ -38,6 +46,15 @@ use server::commands::say;
 const BACKGROUND: [f32; 3] = [0.1, 0.1, 0.12];
 /// Coverages closer than this (relative) frame the same object alike.
 const COVERAGE_AGREEMENT: f64 = 0.05;
+/// A pixel counts toward coverage when its channels' differences from the
+/// background sum to more than this, of 255: `vtk_bench.py`'s threshold.
+const COVERAGE_THRESHOLD: i32 = 3;
+/// The same for solid coverage: pixels clearly off the background, the
+/// object's silhouette without its faint haze. VTK's fixed-point arithmetic
+/// brightens thin haze by up to half (see the module docs), so where a
+/// transfer function's faint ramp covers many voxels (the engine's) the two
+/// renderers' coverages differ by more than the framing does.
+const SOLID_COVERAGE_THRESHOLD: i32 = 48;
 
 /// A raw dataset both renderers read, with what VTK needs to read it.
 #[derive(Debug, Clone, Copy)]
@@ -289,14 +306,38 @@ struct PeerRun<'a> {
 /// What one VTK run measured.
 struct VtkRun {
     frame_ms: f64,
-    coverage: f64,
+    coverage: Coverage,
     camera: Camera,
+}
+
+/// An image's coverage at the two thresholds.
+#[derive(Debug, Clone, Copy, Default)]
+struct Coverage {
+    /// [`COVERAGE_THRESHOLD`]: as `vtk_bench.py` counts it.
+    any: f64,
+    /// [`SOLID_COVERAGE_THRESHOLD`].
+    solid: f64,
+}
+
+impl Coverage {
+    /// The coverages of RGBA8 pixels `rgba`.
+    fn of(rgba: &[u8]) -> Coverage {
+        Coverage {
+            any: coverage(rgba, COVERAGE_THRESHOLD),
+            solid: coverage(rgba, SOLID_COVERAGE_THRESHOLD),
+        }
+    }
+}
+
+/// Whether coverage `ours` agrees with `theirs` within [`COVERAGE_AGREEMENT`].
+fn agrees(ours: f64, theirs: f64) -> bool {
+    (ours - theirs).abs() <= COVERAGE_AGREEMENT * theirs
 }
 
 impl PeerRun<'_> {
     fn compare(&self, renderer: &mut AnyRenderer) -> anyhow::Result<()> {
         let (mut vtk_ms, mut voxserve_ms) = (Vec::new(), Vec::new());
-        let (mut vtk_coverage, mut voxserve_coverage) = (0.0, 0.0);
+        let (mut vtk_coverage, mut voxserve_coverage) = (Coverage::default(), Coverage::default());
         for round in 0..self.args.rounds {
             let vtk = self.vtk(round)?;
             vtk_ms.push(vtk.frame_ms);
@@ -307,7 +348,7 @@ impl PeerRun<'_> {
         }
         let (vtk, ours) = (median(&mut vtk_ms), median(&mut voxserve_ms));
         let ratio = ours / vtk;
-        let agree = (voxserve_coverage - vtk_coverage).abs() <= COVERAGE_AGREEMENT * vtk_coverage;
+        let agree = agrees(voxserve_coverage.any, vtk_coverage.any);
         say(&serde_json::json!({
             "bench": "peer",
             "dataset": self.peer.name,
@@ -323,9 +364,12 @@ impl PeerRun<'_> {
             "ratio": ratio,
             "target_ratio": self.mode.target_ratio(),
             "met": ratio <= self.mode.target_ratio() && agree,
-            "vtk_coverage": vtk_coverage,
-            "voxserve_coverage": voxserve_coverage,
+            "vtk_coverage": vtk_coverage.any,
+            "voxserve_coverage": voxserve_coverage.any,
             "coverage_agrees": agree,
+            "vtk_solid_coverage": vtk_coverage.solid,
+            "voxserve_solid_coverage": voxserve_coverage.solid,
+            "solid_coverage_agrees": agrees(voxserve_coverage.solid, vtk_coverage.solid),
         })
         .to_string())
     }
@@ -360,14 +404,23 @@ impl PeerRun<'_> {
             .args(["--step", &self.args.step.to_string()])
             .args(["--frames", &self.args.frames.to_string()])
             .args(["--min-frames", &self.args.frames.min(3).to_string()]);
-        if let Some(dir) = &self.args.images {
-            let png = dir.join(format!(
-                "{}-{}-vtk-{round}.png",
-                self.peer.name,
-                self.mode.name()
-            ));
-            command.arg("--png").arg(png);
-        }
+        // VTK's first frame as a PNG, for its coverages: in `--images`, else
+        // in a folder removed when this run ends.
+        let scratch;
+        let dir = match &self.args.images {
+            Some(dir) => dir.as_path(),
+            None => {
+                scratch = tempfile::tempdir()
+                    .context("cannot create a temporary folder for VTK's image")?;
+                scratch.path()
+            }
+        };
+        let png = dir.join(format!(
+            "{}-{}-vtk-{round}.png",
+            self.peer.name,
+            self.mode.name()
+        ));
+        command.arg("--png").arg(&png);
         let output = command.output().with_context(|| {
             format!(
                 "cannot run {} {}",
@@ -397,9 +450,10 @@ impl PeerRun<'_> {
         let frame_ms = frames["value"]
             .as_f64()
             .context("vtk_bench.py's frame_ms line has no value")?;
-        let coverage = first["coverage"]
-            .as_f64()
-            .context("vtk_bench.py's first line has no coverage")?;
+        let image = image::open(&png)
+            .with_context(|| format!("cannot read VTK's image {}", png.display()))?
+            .to_rgba8();
+        let coverage = Coverage::of(image.as_raw());
         Ok(VtkRun {
             frame_ms,
             coverage,
@@ -441,7 +495,7 @@ impl PeerRun<'_> {
         renderer: &mut AnyRenderer,
         camera: Camera,
         round: u32,
-    ) -> anyhow::Result<(f64, f64)> {
+    ) -> anyhow::Result<(f64, Coverage)> {
         let request = FrameRequest {
             camera,
             shading: self.mode.shading(),
@@ -480,7 +534,7 @@ impl PeerRun<'_> {
             times.push(start.elapsed().as_secs_f64() * 1e3);
         }
         let frame_ms = median(&mut times);
-        let coverage = coverage(&first);
+        let coverage = Coverage::of(&first.rgba);
         say(&serde_json::json!({
             "bench": "peer",
             "round": round,
@@ -498,7 +552,8 @@ impl PeerRun<'_> {
                 "first_frame_ms": first_ms,
                 "frames": self.args.frames,
                 "frame_ms": frame_ms,
-                "coverage": coverage,
+                "coverage": coverage.any,
+                "solid_coverage": coverage.solid,
                 "camera": format!("{camera:?}"),
             },
         })
@@ -510,21 +565,20 @@ impl PeerRun<'_> {
 /// `vtk_bench.py`'s default camera turn between frames, degrees.
 const VTK_AZIMUTH_STEP: f32 = 2.0;
 
-/// The fraction of pixels off the background, as `vtk_bench.py` counts it:
-/// channel differences from the background summing to more than 3 of 255.
-fn coverage(frame: &Frame) -> f64 {
+/// The fraction of RGBA8 pixels `rgba` off the background: channel
+/// differences from it summing to more than `threshold` of 255.
+fn coverage(rgba: &[u8], threshold: i32) -> f64 {
     let background = BACKGROUND.map(|c| (c * 255.0).round() as i32);
-    let covered = frame
-        .rgba
+    let covered = rgba
         .chunks_exact(4)
         .filter(|p| {
             (0..3)
                 .map(|i| (i32::from(p[i]) - background[i]).abs())
                 .sum::<i32>()
-                > 3
+                > threshold
         })
         .count();
-    covered as f64 / (frame.rgba.len() / 4).max(1) as f64
+    covered as f64 / (rgba.len() / 4).max(1) as f64
 }
 
 /// The median of `values` (sorted in place); NaN when empty.
@@ -579,4 +633,28 @@ fn vtk_python(explicit: Option<&Path>) -> anyhow::Result<PathBuf> {
         python.display()
     );
     Ok(python)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A pixel this far off the background along each channel (clamped to bytes).
+    fn pixel(off: i32) -> [u8; 4] {
+        let background = BACKGROUND.map(|c| (c * 255.0).round() as i32);
+        let c = |i: usize| (background[i] + off).clamp(0, 255) as u8;
+        [c(0), c(1), c(2), 255]
+    }
+
+    #[test]
+    fn faint_haze_counts_toward_coverage_but_not_solid_coverage() {
+        // Background, haze 2 off per channel (6 in all), an object 30 off (90).
+        let rgba: Vec<u8> = [pixel(0), pixel(0), pixel(2), pixel(30)]
+            .into_iter()
+            .flatten()
+            .collect();
+        let c = Coverage::of(&rgba);
+        assert_eq!((c.any, c.solid), (0.5, 0.25));
+        assert!(agrees(0.2449, 0.24) && !agrees(0.2132, 0.2449));
+    }
 }
