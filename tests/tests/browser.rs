@@ -14,7 +14,8 @@
 //! in the address bar.
 //!
 //! A second test serves from the CPU renderer (`--renderer cpu`) and counts
-//! the frames a 2-second drag brings: at least 5. A third holds the one
+//! the frames a 2-second drag brings: at least 5, with no other browser test
+//! running meanwhile (the tests hold the machine shared, that one alone). A third holds the one
 //! session place of a server: the page names the full server in a banner
 //! below the toolbar, tries again at most 3 times in 7 s, and draws once the
 //! place frees. A fourth restarts
@@ -53,6 +54,7 @@
 use std::net::TcpListener as StdListener;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
+use std::sync::{PoisonError, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 
 use fantoccini::actions::{ActionSequence, InputSource, MouseActions, PointerAction, TouchActions};
@@ -66,10 +68,43 @@ use voxserve_tests::server::{TestServer, sessions_open};
 /// How long the page may take to show each expected change.
 const PATIENCE: Duration = Duration::from_secs(120);
 
-/// `chromedriver` on a free port, killed when dropped.
+/// The machine, as the browser tests (two at a time) share it: each holds
+/// it shared while its browser is open; the one that counts the frames of a
+/// drag holds it alone, so that it measures what two cores draw, not what
+/// they draw beside another test's server and browser (beside one it saw 3
+/// frames where alone it sees 5 or more).
+static MACHINE: RwLock<()> = RwLock::new(());
+
+/// A test's hold on [`MACHINE`], for as long as its browser is open.
+enum Turn {
+    Shared {
+        _held: RwLockReadGuard<'static, ()>,
+    },
+    Alone {
+        _held: RwLockWriteGuard<'static, ()>,
+    },
+}
+
+impl Turn {
+    fn shared() -> Turn {
+        Turn::Shared {
+            _held: MACHINE.read().unwrap_or_else(PoisonError::into_inner),
+        }
+    }
+
+    fn alone() -> Turn {
+        Turn::Alone {
+            _held: MACHINE.write().unwrap_or_else(PoisonError::into_inner),
+        }
+    }
+}
+
+/// `chromedriver` on a free port, killed when dropped (then the test's
+/// [`Turn`] ends).
 struct Driver {
     child: Child,
     port: u16,
+    _turn: Turn,
 }
 
 impl Drop for Driver {
@@ -87,7 +122,7 @@ fn find(program: &str) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
-fn start_driver() -> Result<Driver, String> {
+fn start_driver(turn: Turn) -> Result<Driver, String> {
     let binary =
         find("chromedriver").ok_or("chromedriver is not installed (Debian: chromium-driver)")?;
     let port = StdListener::bind("127.0.0.1:0")
@@ -100,7 +135,11 @@ fn start_driver() -> Result<Driver, String> {
         .stderr(Stdio::null())
         .spawn()
         .map_err(|e| format!("cannot start chromedriver: {e}"))?;
-    Ok(Driver { child, port })
+    Ok(Driver {
+        child,
+        port,
+        _turn: turn,
+    })
 }
 
 /// The number `script` computes in the page (NaN if it is not one).
@@ -326,6 +365,12 @@ async fn open_browser(test: &str) -> Option<(Driver, Client)> {
     open_browser_as(test, 640, 480, false).await
 }
 
+/// [`open_browser`] for a test that measures speed: it waits until no other
+/// browser test runs, and none starts until it is done.
+async fn open_browser_alone(test: &str) -> Option<(Driver, Client)> {
+    open_browser_with(test, 640, 480, false, Turn::alone()).await
+}
+
 /// [`open_browser`] with a window of `width`×`height` CSS pixels; with
 /// `touch`, as a phone: Chromium's mobile emulation of that size with a
 /// touch screen (coarse pointer) at device pixel ratio 3.
@@ -335,8 +380,19 @@ async fn open_browser_as(
     height: u32,
     touch: bool,
 ) -> Option<(Driver, Client)> {
+    open_browser_with(test, width, height, touch, Turn::shared()).await
+}
+
+/// [`open_browser_as`] holding the machine by `turn`.
+async fn open_browser_with(
+    test: &str,
+    width: u32,
+    height: u32,
+    touch: bool,
+    turn: Turn,
+) -> Option<(Driver, Client)> {
     let require = std::env::var("VOXSERVE_REQUIRE_BROWSER").is_ok_and(|v| v == "1");
-    let driver = match start_driver() {
+    let driver = match start_driver(turn) {
         Ok(d) => d,
         Err(reason) if require => panic!("{test}: VOXSERVE_REQUIRE_BROWSER=1 but {reason}"),
         Err(reason) => {
@@ -569,7 +625,7 @@ async fn frames_during_drag(client: &Client, seconds: f64) -> Result<f64, String
 async fn on_the_cpu_renderer_a_two_second_drag_shows_at_least_five_frames_in_chromium() {
     // No GPU needed: the server renders on the CPU.
     let test = "on_the_cpu_renderer_a_two_second_drag_shows_at_least_five_frames_in_chromium";
-    let Some((_driver, client)) = open_browser(test).await else {
+    let Some((_driver, client)) = open_browser_alone(test).await else {
         return;
     };
     let dataset = server::Dataset::phantom(64, 256 << 20).expect("phantom");
