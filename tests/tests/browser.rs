@@ -15,11 +15,11 @@
 //!
 //! A second test serves from the CPU renderer (`--renderer cpu`) and counts
 //! the frames a 2-second drag brings: at least 5, with no other browser test
-//! running meanwhile (the tests hold the machine shared, that one alone). A third holds the one
-//! session place of a server: the page names the full server in a banner
-//! below the toolbar, tries again at most 3 times in 7 s, and draws once the
-//! place frees. A fourth restarts
-//! the server on the same port without the dataset the page shows: the page
+//! running meanwhile (the tests hold the machine shared, that one alone). A
+//! third holds the one session place of a server: the page names the full
+//! server in a banner below the toolbar, tries again at most 3 times in 7 s,
+//! and draws once the place frees. A fourth restarts the server on the same
+//! port without the dataset the page shows: the page
 //! switches to one the new server offers and draws it at its own size. A
 //! fifth loads the page through nginx (Debian's) in front of two nodes,
 //! drags the view round, shuts down the node serving it: the page reconnects
@@ -72,7 +72,7 @@ const PATIENCE: Duration = Duration::from_secs(120);
 /// it shared while its browser is open; the one that counts the frames of a
 /// drag holds it alone, so that it measures what two cores draw, not what
 /// they draw beside another test's server and browser (beside one it saw 3
-/// frames where alone it sees 5 or more).
+/// frames, alone 35–37).
 static MACHINE: RwLock<()> = RwLock::new(());
 
 /// A test's hold on [`MACHINE`], for as long as its browser is open.
