@@ -16,8 +16,8 @@ from the reference, and their coverage as both benchmarks count it.
 
 It settles which renderer's faint haze is right where their coverages
 differ (the engine's): neither voxserve's nor VTK's code is used. It needs
-the Python that `bench peer` uses for VTK (vtk and numpy, and Pillow for the
-PNGs: `pip install pillow`).
+the Python that `bench peer` uses for VTK (vtk and numpy; Pillow, for the
+PNGs, comes with vtk's pip install).
 
     python tests/peer/exact_composite.py --raw ../shared/data/raw/engine_256x256x128_uint8.raw \\
         --dims 256 256 128 --dtype uint8 --tf-range 40 255 \\
@@ -85,7 +85,12 @@ def main():
     if volume.size != nx * ny * nz:
         sys.exit(f"--raw: {args.raw} holds {volume.size} voxels, expected {nx * ny * nz}")
     volume = volume.reshape(nz, ny, nx).astype(np.float64)
+    dims = np.array(args.dims)
     spacing = np.array(args.spacing)
+    x0, y0, w, h = args.patch
+    if not (0 <= x0 and 0 <= y0 and 0 < w and 0 < h and x0 + w <= args.size
+            and y0 + h <= args.size):
+        sys.exit(f"--patch {args.patch}: expected a rectangle inside the {args.size}² image")
     camera = json.loads(args.camera)
     camera = camera.get("camera", camera)
     c_at, c_rgb, o_at, o_alpha = transfer_function(args.vtk_bench, *args.tf_range)
@@ -98,7 +103,6 @@ def main():
     right /= np.linalg.norm(right)
     up = np.cross(right, forward)
     half = np.tan(np.radians(camera["view_angle_deg"]) / 2)
-    x0, y0, w, h = args.patch
     rows, cols = np.mgrid[y0:y0 + h, x0:x0 + w]
     ndc_x = (cols + 0.5) / args.size * 2 - 1
     ndc_y = 1 - (rows + 0.5) / args.size * 2
@@ -106,15 +110,17 @@ def main():
     dirs = (dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)).reshape(-1, 3)
 
     # Where each ray is inside the box of voxel centres.
-    top = (np.array(args.dims) - 1) * spacing
+    top = (dims - 1) * spacing
     with np.errstate(divide="ignore"):
         inverse = 1.0 / dirs
-    a, b = (0.0 - eye) * inverse, (top - eye) * inverse
-    enter = np.nan_to_num(np.minimum(a, b), nan=-np.inf).max(axis=1)
-    leave = np.nan_to_num(np.maximum(a, b), nan=np.inf).min(axis=1)
+    low, high = (0.0 - eye) * inverse, (top - eye) * inverse
+    enter = np.nan_to_num(np.minimum(low, high), nan=-np.inf).max(axis=1)
+    leave = np.nan_to_num(np.maximum(low, high), nan=np.inf).min(axis=1)
 
     step = args.step * spacing.min()
-    exponent = step / spacing.min()
+    # The opacity correction's exponent: the step over the unit distance
+    # (the smallest spacing), i.e. --step.
+    exponent = args.step
     colour = np.zeros((len(dirs), 3))
     alpha = np.zeros(len(dirs))
     for k in range(int(np.ceil(max((leave - enter).max(), 0) / step)) + 1):
@@ -123,13 +129,14 @@ def main():
         if not inside.any():
             break
         p = (eye + dirs * t[:, None]) / spacing
-        p = np.clip(p, 0, np.array(args.dims) - 1)
-        i = np.minimum(np.floor(p).astype(int), np.array(args.dims) - 2)
+        p = np.clip(p, 0, dims - 1)
+        i = np.minimum(np.floor(p).astype(int), dims - 2)
         f = p - i
         value = np.zeros(len(dirs))
         for corner in range(8):
             d = [(corner >> axis) & 1 for axis in range(3)]
-            weight = np.prod([f[:, a] if d[a] else 1 - f[:, a] for a in range(3)], axis=0)
+            weight = np.prod([f[:, axis] if d[axis] else 1 - f[:, axis] for axis in range(3)],
+                             axis=0)
             value += weight * volume[i[:, 2] + d[2], i[:, 1] + d[1], i[:, 0] + d[0]]
         sample_alpha = 1 - (1 - np.interp(value, o_at, o_alpha)) ** exponent
         sample_alpha = np.where(inside, sample_alpha, 0.0)
