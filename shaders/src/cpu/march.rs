@@ -464,7 +464,8 @@ fn shade(p: &RaycastParams, rgb: Vec3, g: Vec3, h: Vec3) -> Vec3 {
     if magnitude < p.gradient_threshold {
         return rgb;
     }
-    let n = g / magnitude;
+    // One division, not three.
+    let n = g * magnitude.recip();
     let l = Vec3::from(p.light_dir);
     let diffuse = n.dot(l).abs();
     let specular = pow(n.dot(h).abs(), p.phong[3]);

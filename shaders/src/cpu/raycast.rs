@@ -135,14 +135,22 @@ impl Storage for PackedTexture {
             // faces at ½ and edge − 1.5. Where every read is inside the
             // block (what `sample_neighbour` finds there), they are read
             // from its slot; else `sample_neighbour` reads them as the
-            // shader does.
+            // shader does. The reads lie within the 4³ texels about
+            // `centre` (from floor − 1 to floor + 2): where those are a
+            // texel from the slot's edge, every read is inside, known
+            // without the reads' positions (a dozen divisions).
+            let per_voxel = h * voxel_edge(loc);
+            let corner = centre.floor();
+            let deep = loc.slot_edge as f32 - 4.0;
+            if corner.cmpge(Vec3::splat(2.0)).all() && corner.cmple(Vec3::splat(deep)).all() {
+                return self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
+            }
             let reads = CubicReads::at(centre);
             let low = reads.derivative_at[0].min(reads.smooth_at[0]);
             let high = reads.derivative_at[1].max(reads.smooth_at[1]);
             let face = loc.slot_edge as f32 - 1.5;
             let inside =
                 |x: Vec3| x.cmpge(Vec3::splat(0.5)).all() && x.cmplt(Vec3::splat(face)).all();
-            let per_voxel = h * voxel_edge(loc);
             if inside(low) && inside(high) {
                 // Every read in the block: its 4³ texels are in the slot.
                 return self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
