@@ -140,10 +140,13 @@ impl Storage for PackedTexture {
             // texel from the slot's edge, every read is inside, known
             // without the reads' positions (a dozen divisions).
             let per_voxel = h * voxel_edge(loc);
+            // Every read in the block: its 4³ texels are in the slot.
+            let from_slot =
+                || self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
             let corner = centre.floor();
             let deep = loc.slot_edge as f32 - 4.0;
             if corner.cmpge(Vec3::splat(2.0)).all() && corner.cmple(Vec3::splat(deep)).all() {
-                return self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
+                return from_slot();
             }
             let reads = CubicReads::at(centre);
             let low = reads.derivative_at[0].min(reads.smooth_at[0]);
@@ -152,8 +155,7 @@ impl Storage for PackedTexture {
             let inside =
                 |x: Vec3| x.cmpge(Vec3::splat(0.5)).all() && x.cmplt(Vec3::splat(face)).all();
             if inside(low) && inside(high) {
-                // Every read in the block: its 4³ texels are in the slot.
-                return self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
+                return from_slot();
             }
             if let Some(g) = self.cubic_gradient_across(loc, centre, low, high) {
                 return g / per_voxel;

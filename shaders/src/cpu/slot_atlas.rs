@@ -428,7 +428,8 @@ pub fn cubic_gradient_of(a: Vec3, row: impl Fn(usize, usize) -> f32x4) -> Vec3 {
     // derivative weighs with two weights, so the sums are 72 times theirs,
     // taken out at the end with one multiplication instead of a dozen
     // divisions per sample.
-    let (a2, a3) = (a * a, a * a * a);
+    let a2 = a * a;
+    let a3 = a2 * a;
     let w = [
         b * b * b,
         3.0 * a3 - 6.0 * a2 + Vec3::splat(4.0),
