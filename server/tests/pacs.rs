@@ -478,6 +478,16 @@ async fn a_failing_pacs_gives_errors_naming_the_study_or_series_and_bricks_nothi
             e.to_string().contains(words) && e.to_string().contains(sop),
             "{e}"
         );
+        if words == "truncated" {
+            // All the bytes came: the body itself was cut short, not its transfer.
+            let n = body.len();
+            assert!(
+                e.to_string().contains(&format!(
+                    "after {n} of the {n} bytes its Content-Length announced"
+                )),
+                "{e}"
+            );
+        }
     }
 
     // 404 from a real PACS, and a frame that does not decode.

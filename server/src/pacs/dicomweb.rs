@@ -8,6 +8,8 @@
 
 use std::io::Write;
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use bytes::Bytes;
@@ -422,19 +424,30 @@ impl DicomWeb {
                 ),
             )
         })?;
-        let body = futures_util::stream::unfold(Some(response), |response| async move {
-            let mut response = response?;
-            match response.chunk().await {
-                Ok(Some(chunk)) => Some((Ok::<Bytes, reqwest::Error>(chunk), Some(response))),
-                Ok(None) => None,
-                Err(e) => Some((Err(e), None)),
+        let body = Body {
+            received: Arc::default(),
+            announced: response.content_length(),
+        };
+        let received = Arc::clone(&body.received);
+        let stream = futures_util::stream::unfold(Some(response), move |response| {
+            let received = Arc::clone(&received);
+            async move {
+                let mut response = response?;
+                match response.chunk().await {
+                    Ok(Some(chunk)) => {
+                        received.fetch_add(chunk.len() as u64, Ordering::Relaxed);
+                        Some((Ok::<Bytes, reqwest::Error>(chunk), Some(response)))
+                    }
+                    Ok(None) => None,
+                    Err(e) => Some((Err(e), None)),
+                }
             }
         });
-        let mut parts = multer::Multipart::new(body, boundary);
+        let mut parts = multer::Multipart::new(stream, boundary);
         let mut part = match parts.next_field().await {
             Ok(Some(part)) => part,
             Ok(None) => return Err(self.malformed(&url, "no part: expected the instance".into())),
-            Err(e) => return Err(self.multipart_error(&url, e)),
+            Err(e) => return Err(self.multipart_error(&url, e, &body)),
         };
         if let Some(t) = part.content_type()
             && t.essence_str() != "application/dicom"
@@ -444,7 +457,9 @@ impl DicomWeb {
                 format!("a part of type {t}: expected application/dicom"),
             ));
         }
-        let written = self.write_part(&url, &mut part, dest, max_bytes).await;
+        let written = self
+            .write_part(&url, &mut part, &body, dest, max_bytes)
+            .await;
         if written.is_err() {
             // No partial instance is left behind.
             let _ = std::fs::remove_file(dest);
@@ -457,7 +472,7 @@ impl DicomWeb {
             Ok(Some(_)) => {
                 return Err(self.malformed(&url, "several parts: expected one instance".into()));
             }
-            Err(e) => return Err(self.multipart_error(&url, e)),
+            Err(e) => return Err(self.multipart_error(&url, e, &body)),
         }
         if written < 132 {
             return Err(self.malformed(&url, format!("{written} bytes: expected a DICOM file")));
@@ -470,6 +485,7 @@ impl DicomWeb {
         &self,
         url: &Url,
         part: &mut multer::Field<'_>,
+        body: &Body,
         dest: &Path,
         max_bytes: u64,
     ) -> Result<u64, PacsError> {
@@ -491,7 +507,7 @@ impl DicomWeb {
                     file.write_all(&chunk).map_err(io)?;
                 }
                 Ok(None) => break,
-                Err(e) => return Err(self.multipart_error(url, e)),
+                Err(e) => return Err(self.multipart_error(url, e, body)),
             }
         }
         file.sync_all().map_err(io)?;
@@ -591,7 +607,7 @@ impl DicomWeb {
         }
     }
 
-    fn multipart_error(&self, url: &Url, e: multer::Error) -> PacsError {
+    fn multipart_error(&self, url: &Url, e: multer::Error, body: &Body) -> PacsError {
         match e {
             multer::Error::StreamReadFailed(inner) => {
                 match inner.downcast::<reqwest::Error>() {
@@ -605,9 +621,31 @@ impl DicomWeb {
             }
             multer::Error::IncompleteStream | multer::Error::IncompleteFieldData { .. } => self.malformed(
                 url,
-                "the multipart body ended before its closing boundary: expected a whole instance (truncated)".into(),
+                format!(
+                    "the multipart body ended before its closing boundary, {}: expected a whole instance (truncated)",
+                    body.extent()
+                ),
             ),
             other => self.malformed(url, format!("{other}: expected a multipart/related body")),
+        }
+    }
+}
+
+/// What came of a response's body, for errors about it.
+struct Body {
+    /// Bytes read so far.
+    received: Arc<AtomicU64>,
+    /// Its Content-Length, where the response has one.
+    announced: Option<u64>,
+}
+
+impl Body {
+    /// How much of it arrived: "after N bytes (of M announced)".
+    fn extent(&self) -> String {
+        let received = self.received.load(Ordering::Relaxed);
+        match self.announced {
+            Some(n) => format!("after {received} of the {n} bytes its Content-Length announced"),
+            None => format!("after {received} bytes (no Content-Length)"),
         }
     }
 }
