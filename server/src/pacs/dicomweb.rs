@@ -428,19 +428,19 @@ impl DicomWeb {
             received: Arc::default(),
             announced: response.content_length(),
         };
-        let received = Arc::clone(&body.received);
-        let stream = futures_util::stream::unfold(Some(response), move |response| {
-            let received = Arc::clone(&received);
-            async move {
-                let mut response = response?;
-                match response.chunk().await {
-                    Ok(Some(chunk)) => {
-                        received.fetch_add(chunk.len() as u64, Ordering::Relaxed);
-                        Some((Ok::<Bytes, reqwest::Error>(chunk), Some(response)))
-                    }
-                    Ok(None) => None,
-                    Err(e) => Some((Err(e), None)),
+        let state = Some((response, Arc::clone(&body.received)));
+        let stream = futures_util::stream::unfold(state, |state| async move {
+            let (mut response, received) = state?;
+            match response.chunk().await {
+                Ok(Some(chunk)) => {
+                    received.fetch_add(chunk.len() as u64, Ordering::Relaxed);
+                    Some((
+                        Ok::<Bytes, reqwest::Error>(chunk),
+                        Some((response, received)),
+                    ))
                 }
+                Ok(None) => None,
+                Err(e) => Some((Err(e), None)),
             }
         });
         let mut parts = multer::Multipart::new(stream, boundary);
@@ -640,7 +640,8 @@ struct Body {
 }
 
 impl Body {
-    /// How much of it arrived: "after N bytes (of M announced)".
+    /// How much of it arrived: "after R of the N bytes its Content-Length
+    /// announced", or "after R bytes (no Content-Length)".
     fn extent(&self) -> String {
         let received = self.received.load(Ordering::Relaxed);
         match self.announced {
