@@ -121,6 +121,12 @@ pub struct Span<L> {
     pub t_max: Vec3,
 }
 
+/// The largest sample index a run of samples starts at: its four lanes'
+/// indices are whole numbers as `i32` (they convert to floats as the
+/// shader's `u32`s do). A ray that got this far has long left the volume
+/// (its samples' positions stopped being distinct floats at 2²⁴).
+const MAX_RUN_INDEX: u32 = i32::MAX as u32 - 4;
+
 /// Rows of pixels one task renders, and columns of a tile within them:
 /// neighbouring rays read the same voxels, so a tile's rays find them in cache.
 const TILE: usize = WORKGROUP_SIZE as usize;
@@ -199,6 +205,37 @@ pub fn march_on<S: Storage>(
     transfer_function: &[[f32; 4]],
     output: &mut [u8],
 ) {
+    match kind_of(params) {
+        PLAIN => march_as::<S, PLAIN>(isa, params, storage, transfer_function, output),
+        _ => march_as::<S, ANY>(isa, params, storage, transfer_function, output),
+    }
+}
+
+/// What a build of the march serves (its `KIND`): any parameters, or
+/// plain compositing, where the branches for shading, stored light and
+/// extinction fold away and the loop keeps its variables in registers (a
+/// build for compositing with gradient shading measured no faster).
+const ANY: u8 = 0;
+/// Compositing without shading, stored light or extinction.
+const PLAIN: u8 = 1;
+
+/// The build of the march for `p`.
+fn kind_of(p: &RaycastParams) -> u8 {
+    if p.mode == MODE_COMPOSITE && p.flags & (FLAG_SHADED | FLAG_LIT | FLAG_EXTINCTION) == 0 {
+        PLAIN
+    } else {
+        ANY
+    }
+}
+
+/// [`march_on`] built for parameters of kind `KIND` ([`kind_of`]).
+fn march_as<S: Storage, const KIND: u8>(
+    isa: Isa,
+    params: &RaycastParams,
+    storage: &S,
+    transfer_function: &[[f32; 4]],
+    output: &mut [u8],
+) {
     let width = params.width as usize;
     let v3 = isa == Isa::X86_64V3 && isa.is_supported();
     output
@@ -214,12 +251,12 @@ pub fn march_on<S: Storage>(
                 // SAFETY: this processor has every feature the function is
                 // built with (`Isa::is_supported`).
                 unsafe {
-                    march_band_v3(params, storage, transfer_function, band, rows);
+                    march_band_v3::<S, KIND>(params, storage, transfer_function, band, rows);
                 };
                 return;
             }
             let _ = v3;
-            march_band(params, storage, transfer_function, band, rows);
+            march_band::<S, KIND>(params, storage, transfer_function, band, rows);
         });
 }
 
@@ -227,31 +264,31 @@ pub fn march_on<S: Storage>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,lzcnt,f16c,movbe,popcnt,sse4.1,sse4.2")]
 #[inline(never)]
-fn march_band_v3<S: Storage>(
+fn march_band_v3<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &[[f32; 4]],
     band: usize,
     rows: &mut [u8],
 ) {
-    march_band_body(params, storage, transfer_function, band, rows);
+    march_band_body::<S, KIND>(params, storage, transfer_function, band, rows);
 }
 
 /// One band of rows of [`march`], tile by tile.
 #[inline(never)]
-fn march_band<S: Storage>(
+fn march_band<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &[[f32; 4]],
     band: usize,
     rows: &mut [u8],
 ) {
-    march_band_body(params, storage, transfer_function, band, rows);
+    march_band_body::<S, KIND>(params, storage, transfer_function, band, rows);
 }
 
 /// The body of [`march_band`], inlined into each build of it.
 #[inline(always)]
-fn march_band_body<S: Storage>(
+fn march_band_body<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &[[f32; 4]],
@@ -264,7 +301,9 @@ fn march_band_body<S: Storage>(
         for dy in 0..height {
             let y = (band * TILE + dy) as u32;
             for x in x0..(x0 + TILE).min(width) {
-                if let Some(rgba) = main(params, storage, transfer_function, [x as u32, y]) {
+                if let Some(rgba) =
+                    main::<S, KIND>(params, storage, transfer_function, [x as u32, y])
+                {
                     let at = (dy * width + x) * 4;
                     rows[at..at + 4].copy_from_slice(&rgba);
                 }
@@ -339,6 +378,20 @@ pub fn table_position(tf_len: u32, u: f32) -> (i32, f32) {
 /// WGSL `classify`.
 pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Vec4 {
     classify_table(p.volume.tf_len, transfer_function, u)
+}
+
+/// [`corrected_opacity`] of four opacities, lane by lane with its arithmetic
+/// (the square root, like the scalar one, is correctly rounded).
+#[inline(always)]
+fn corrected_opacity4(a: f32x4, exponent: f32) -> f32x4 {
+    let transmittance = f32x4::ONE - a.fast_min(f32x4::splat(MAX_SAMPLE_OPACITY));
+    if exponent == 1.0 {
+        return f32x4::ONE - transmittance;
+    }
+    if exponent == 0.5 {
+        return f32x4::ONE - transmittance.sqrt();
+    }
+    f32x4::from(a.to_array().map(|a| corrected_opacity(a, exponent)))
 }
 
 /// WGSL `corrected_opacity`.
@@ -547,12 +600,14 @@ pub fn intersect_box_inverse(origin: Vec3, inv: Vec3, lo: Vec3, hi: Vec3) -> Vec
     Vec2::new(enter, exit)
 }
 
-/// A sample on a ray: where (`t`), its normalised value and its class.
+/// A sample on a ray: where (`t`), its normalised value, its class and
+/// the class's opacity corrected for the step (`corrected_opacity`).
 #[derive(Debug, Clone, Copy)]
 struct Sample {
     t: f32,
     u: f32,
     rgba: Vec4,
+    a: f32,
 }
 
 /// What a ray has gathered so far: the variables of WGSL `main`'s loop.
@@ -574,7 +629,7 @@ impl Accumulator {
     /// The body of WGSL `main`'s loop after `classify`, for a sample of
     /// `span`; true when the ray is done (early ray termination).
     #[inline(always)]
-    fn add<S: Storage>(
+    fn add<S: Storage, const KIND: u8>(
         &mut self,
         p: &RaycastParams,
         s: &S,
@@ -583,11 +638,11 @@ impl Accumulator {
         tex_origin: Vec3,
         tex_dir: Vec3,
     ) -> bool {
-        let Sample { t, u, rgba } = sample;
+        let Sample { t, u, rgba, a } = sample;
         if rgba.w <= 0.0 {
             return false;
         }
-        if p.mode != MODE_COMPOSITE {
+        if KIND == ANY && p.mode != MODE_COMPOSITE {
             if !self.found {
                 self.extreme = u;
                 self.found = true;
@@ -599,14 +654,13 @@ impl Accumulator {
             return false;
         }
         let tc = tex_origin + tex_dir * t;
-        let a = corrected_opacity(rgba.w, self.exponent);
         let mut rgb = rgba.xyz();
-        if p.flags & FLAG_SHADED != 0 {
+        if KIND == ANY && p.flags & FLAG_SHADED != 0 {
             let g = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0)).xyz()
                 * p.volume.value_scale;
             rgb = shade(p, rgb, g, self.half);
         }
-        if p.flags & FLAG_LIT != 0 {
+        if KIND == ANY && p.flags & FLAG_LIT != 0 {
             // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
             let bias = p.light[3];
             let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
@@ -615,7 +669,7 @@ impl Accumulator {
             let light = s.light_at(p, span, t_light, tex_origin + tex_dir * t_light);
             rgb *= Vec3::splat(bias) + (1.0 - bias) * colour * light;
         }
-        if p.flags & FLAG_EXTINCTION != 0 {
+        if KIND == ANY && p.flags & FLAG_EXTINCTION != 0 {
             // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).
             let dtau = -(1.0 - a.min(MAX_SAMPLE_OPACITY)).ln();
             self.depth += dtau;
@@ -631,7 +685,12 @@ impl Accumulator {
 
 /// WGSL `main`: the pixel at `gid`, or `None` past the image's edge.
 #[inline(always)]
-fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) -> Option<[u8; 4]> {
+fn main<S: Storage, const KIND: u8>(
+    p: &RaycastParams,
+    s: &S,
+    tf: &[[f32; 4]],
+    gid: [u32; 2],
+) -> Option<[u8; 4]> {
     if gid[0] >= p.width || gid[1] >= p.height {
         return None;
     }
@@ -664,7 +723,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             jitter = unit_from_hash(pcg_hash(row * p.width + gid[0]));
         }
         acc.exponent = p.step / p.volume.reference_step;
-        if p.flags & FLAG_SHADED != 0 {
+        if KIND == ANY && p.flags & FLAG_SHADED != 0 {
             acc.half = half_vector(p, dir);
         }
         let first = span.x + jitter * p.step;
@@ -678,7 +737,7 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
         let mut k = 0u32;
         'march: while k < p.max_steps {
             let t = first + i as f32 * p.step;
-            if t > span.y {
+            if t > span.y || i > MAX_RUN_INDEX {
                 break;
             }
             if t >= stretch.exit {
@@ -712,21 +771,28 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
             // dropped before their class is looked up.
             let mut first_of_run = true;
             loop {
-                let ts = [0, 1, 2, 3].map(|j| first + (i + j) as f32 * p.step);
-                let mut n = 0;
-                while n < 4 {
-                    let t = ts[n];
-                    if !first_of_run && (t >= limit || t > span.y || k + n as u32 >= p.max_steps) {
-                        break;
-                    }
+                // Sample indices stay far below 2³¹ here: the march stops
+                // past the box, long before (see `MAX_RUN_INDEX`).
+                let lanes = (i32x4::splat(i as i32) + i32x4::new([0, 1, 2, 3])).round_float();
+                let tv = f32x4::splat(first) + lanes * f32x4::splat(p.step);
+                let ts = tv.to_array();
+                // The lanes in the run: those before the stretch's end, in
+                // the box and within the step budget; the samples go up
+                // along the ray, so they are the first `n` (the first of a
+                // run always, whatever `limit` says).
+                let inside = tv.simd_lt(f32x4::splat(limit)) & tv.simd_le(f32x4::splat(span.y));
+                let mut n = (inside.to_bitmask().trailing_ones() as usize)
+                    .min(p.max_steps.saturating_sub(k) as usize);
+                if first_of_run {
+                    n = n.max(1);
                     first_of_run = false;
-                    n += 1;
                 }
                 if let Some(values) = s.sample4_in(p, &stretch, ts, tex_origin, tex_dir) {
                     let us = values.map(|v| v * p.volume.value_scale + p.volume.value_offset);
                     let classes = Classes4::new(p, us);
-                    let mut shown =
-                        classes.opacity(tf).simd_gt(f32x4::ZERO).to_bitmask() & ((1 << n) - 1);
+                    let opacity = classes.opacity(tf);
+                    let mut shown = opacity.simd_gt(f32x4::ZERO).to_bitmask() & ((1 << n) - 1);
+                    let corrected = corrected_opacity4(opacity, acc.exponent).to_array();
                     while shown != 0 {
                         let j = shown.trailing_zeros() as usize;
                         shown &= shown - 1;
@@ -734,8 +800,9 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
                             t: ts[j],
                             u: us[j],
                             rgba: classes.rgba(tf, j),
+                            a: corrected[j],
                         };
-                        if acc.add(p, s, &stretch, sample, tex_origin, tex_dir) {
+                        if acc.add::<S, KIND>(p, s, &stretch, sample, tex_origin, tex_dir) {
                             break 'march;
                         }
                     }
@@ -773,7 +840,11 @@ fn main<S: Storage>(p: &RaycastParams, s: &S, tf: &[[f32; 4]], gid: [u32; 2]) ->
 mod tests {
     use glam::Vec3;
 
-    use super::{central_difference_at, cubic_gradient_at, pow};
+    use wide::f32x4;
+
+    use super::{
+        central_difference_at, corrected_opacity, corrected_opacity4, cubic_gradient_at, pow,
+    };
     use crate::cpu::Texture3d;
     use crate::cpu::reference::PlainLocation;
     use crate::raycast::RaycastParams;
@@ -872,6 +943,25 @@ mod tests {
             cubic < 1.5 && central > 3.0 * cubic,
             "cubic {cubic:.2}°, central {central:.2}°"
         );
+    }
+
+    #[test]
+    fn four_corrected_opacities_are_the_scalar_ones_bit_for_bit() {
+        for exponent in [1.0, 0.5, 0.25, 0.7, 2.0] {
+            for i in 0..=1000 {
+                let a = [i, 1000 - i, i / 3, 999].map(|i| i as f32 / 1000.0);
+                let four = corrected_opacity4(f32x4::from(a), exponent).to_array();
+                for (lane, a) in a.into_iter().enumerate() {
+                    let one = corrected_opacity(a, exponent);
+                    assert_eq!(
+                        four[lane].to_bits(),
+                        one.to_bits(),
+                        "opacity {a}, exponent {exponent}: {} of four, {one} alone",
+                        four[lane]
+                    );
+                }
+            }
+        }
     }
 
     #[test]
