@@ -511,19 +511,109 @@ pub fn cubic_gradient_at<S: Storage>(
     reads.gradient(|x| s.sample_neighbour(p, (x + Vec3::splat(0.5)) * h, loc)) / h
 }
 
-/// WGSL `shade`, for a ray whose [`half_vector`] is `h`.
-fn shade(p: &RaycastParams, rgb: Vec3, g: Vec3, h: Vec3) -> Vec3 {
-    let magnitude = g.length();
-    if magnitude < p.gradient_threshold {
-        return rgb;
-    }
+/// WGSL `shade` for four samples side by side, for a ray whose
+/// [`half_vector`] is `h`: lane by lane the arithmetic of one sample
+/// (colours `rgb` and gradients `g` per axis, a lane per sample).
+#[inline(always)]
+fn shade(p: &RaycastParams, rgb: [f32x4; 3], g: [f32x4; 3], h: Vec3) -> [f32x4; 3] {
+    let [gx, gy, gz] = g;
+    let magnitude = (gx * gx + gy * gy + gz * gz).sqrt();
+    let flat = magnitude.simd_lt(f32x4::splat(p.gradient_threshold));
     // One division, not three.
-    let n = g * magnitude.recip();
-    let l = Vec3::from(p.light_dir);
-    let diffuse = n.dot(l).abs();
-    let specular = pow(n.dot(h).abs(), p.phong[3]);
+    let recip = f32x4::ONE / magnitude;
+    let [nx, ny, nz] = [gx * recip, gy * recip, gz * recip];
+    let dot = |v: [f32; 3]| nx * v[0] + ny * v[1] + nz * v[2];
+    let diffuse = dot(p.light_dir).abs();
+    let specular = pow4(dot(h.to_array()).abs(), p.phong[3]);
     let [ambient, kd, ks, _] = p.phong;
-    rgb * (ambient + kd * diffuse) + Vec3::splat(ks * specular)
+    let factor = f32x4::splat(ambient) + f32x4::splat(kd) * diffuse;
+    let highlight = f32x4::splat(ks) * specular;
+    rgb.map(|c| flat.select(c, c * factor + highlight))
+}
+
+/// The shown lanes of a group of four samples (bit `j` for lane `j`) and
+/// where they lie: the ray parameters `ts` along `tex_origin + t·tex_dir`.
+struct Shown {
+    lanes: u32,
+    ts: [f32; 4],
+    tex_origin: Vec3,
+    tex_dir: Vec3,
+}
+
+/// `f(j)` for each lane `j` set in `lanes`, in order.
+#[inline(always)]
+fn for_each_lane(mut lanes: u32, mut f: impl FnMut(usize)) {
+    while lanes != 0 {
+        f(lanes.trailing_zeros() as usize);
+        lanes &= lanes - 1;
+    }
+}
+
+/// The body of WGSL `main`'s loop from the gradient to the light (eq.
+/// 12), for the shown samples of a group of four in `span` at once, each
+/// lane the shader's arithmetic for one sample: with [`FLAG_SHADED`] their
+/// gradients (in the model's frame) and then their shading side by side,
+/// with [`FLAG_LIT`] the light each is lit by. `rgbas`' colours are
+/// replaced by the results (the lanes not shown are left as they are).
+/// Done before the samples are composited (which depends on the samples
+/// before), the four samples' reads overlap.
+#[inline(always)]
+fn colour_shown<S: Storage>(
+    p: &RaycastParams,
+    s: &S,
+    span: &Span<S::Location>,
+    shown: &Shown,
+    half: Vec3,
+    rgbas: &mut [Vec4; 4],
+) {
+    if p.flags & FLAG_SHADED != 0 {
+        let mut g = [[0.0f32; 4]; 3];
+        for_each_lane(shown.lanes, |j| {
+            let t = shown.ts[j];
+            let tc = shown.tex_origin + shown.tex_dir * t;
+            let gradient = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0))
+                .xyz()
+                * p.volume.value_scale;
+            for (axis, lanes) in g.iter_mut().enumerate() {
+                lanes[j] = gradient[axis];
+            }
+        });
+        let channel = |c: usize| f32x4::from(rgbas.map(|v| v[c]));
+        let shaded = shade(
+            p,
+            [channel(0), channel(1), channel(2)],
+            g.map(f32x4::from),
+            half,
+        )
+        .map(f32x4::to_array);
+        for_each_lane(shown.lanes, |j| {
+            rgbas[j] = Vec4::new(shaded[0][j], shaded[1][j], shaded[2][j], rgbas[j].w);
+        });
+    }
+    if p.flags & FLAG_LIT != 0 {
+        for_each_lane(shown.lanes, |j| {
+            rgbas[j] = lit(p, s, span, shown.ts[j], shown, rgbas[j]);
+        });
+    }
+}
+
+/// Eq. 12, g_k = (I_bias + (1 − I_bias)·I_s)·c·α with coloured light: the
+/// colour `rgba` of the sample at `t` on `shown`'s ray in `span`, lit by the
+/// light read `light_offset` back along the ray.
+#[inline(always)]
+fn lit<S: Storage>(
+    p: &RaycastParams,
+    s: &S,
+    span: &Span<S::Location>,
+    t: f32,
+    ray: &Shown,
+    rgba: Vec4,
+) -> Vec4 {
+    let bias = p.light[3];
+    let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
+    let t_light = t - p.light_offset;
+    let light = s.light_at(p, span, t_light, ray.tex_origin + ray.tex_dir * t_light);
+    (rgba.xyz() * (Vec3::splat(bias) + (1.0 - bias) * colour * light)).extend(rgba.w)
 }
 
 /// WGSL `shade`'s half vector between the light and the eye for a ray
@@ -537,17 +627,17 @@ fn window_grey(p: &RaycastParams, u: f32) -> f32 {
     ((u - p.window[0]) / p.window[1]).clamp(0.0, 1.0)
 }
 
-/// WGSL `pow(x, e)` for `x ≥ 0`: by squaring where `e` is a whole number
-/// up to 64 (shininess is), without a call into the C library (each squaring
-/// doubles the relative error so far: at most 2⁻¹⁸ for e ≤ 64, far below
-/// an 8-bit colour step); `powf` otherwise.
+/// WGSL `pow(x, e)` for `x ≥ 0`, four at once: by squaring where `e` is a
+/// whole number up to 64 (shininess is), without a call into the C library
+/// (each squaring doubles the relative error so far: at most 2⁻¹⁸ for e ≤
+/// 64, far below an 8-bit colour step); `powf` lane by lane otherwise.
 #[inline]
-fn pow(x: f32, e: f32) -> f32 {
+fn pow4(x: f32x4, e: f32) -> f32x4 {
     let whole = e as u32;
     if whole as f32 != e || whole > 64 {
-        return x.powf(e);
+        return f32x4::from(x.to_array().map(|x| x.powf(e)));
     }
-    let (mut n, mut square, mut power) = (whole, x, 1.0);
+    let (mut n, mut square, mut power) = (whole, x, f32x4::ONE);
     while n > 0 {
         if n & 1 == 1 {
             power *= square;
@@ -600,11 +690,11 @@ pub fn intersect_box_inverse(origin: Vec3, inv: Vec3, lo: Vec3, hi: Vec3) -> Vec
     Vec2::new(enter, exit)
 }
 
-/// A sample on a ray: where (`t`), its normalised value, its class and
-/// the class's opacity corrected for the step (`corrected_opacity`).
+/// A sample on a ray: its normalised value, its class's colour (shaded and
+/// lit where the flags ask) and opacity, and that opacity corrected for the
+/// step (`corrected_opacity`).
 #[derive(Debug, Clone, Copy)]
 struct Sample {
-    t: f32,
     u: f32,
     rgba: Vec4,
     a: f32,
@@ -626,19 +716,12 @@ struct Accumulator {
 }
 
 impl Accumulator {
-    /// The body of WGSL `main`'s loop after `classify`, for a sample of
-    /// `span`; true when the ray is done (early ray termination).
+    /// The body of WGSL `main`'s loop after the light (eq. 12): the
+    /// sample composited, or kept as the extreme value; true when the ray
+    /// is done (early ray termination).
     #[inline(always)]
-    fn add<S: Storage, const KIND: u8>(
-        &mut self,
-        p: &RaycastParams,
-        s: &S,
-        span: &Span<S::Location>,
-        sample: Sample,
-        tex_origin: Vec3,
-        tex_dir: Vec3,
-    ) -> bool {
-        let Sample { t, u, rgba, a } = sample;
+    fn add<const KIND: u8>(&mut self, p: &RaycastParams, sample: Sample) -> bool {
+        let Sample { u, rgba, a } = sample;
         if rgba.w <= 0.0 {
             return false;
         }
@@ -653,22 +736,8 @@ impl Accumulator {
             }
             return false;
         }
-        let tc = tex_origin + tex_dir * t;
-        let mut rgb = rgba.xyz();
-        if KIND == ANY && p.flags & FLAG_SHADED != 0 {
-            let g = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0)).xyz()
-                * p.volume.value_scale;
-            rgb = shade(p, rgb, g, self.half);
-        }
-        if KIND == ANY && p.flags & FLAG_LIT != 0 {
-            // Eq. 12: g_k = (I_bias + (1 − I_bias)·I_s)·c·α, with coloured light.
-            let bias = p.light[3];
-            let colour = Vec3::new(p.light[0], p.light[1], p.light[2]);
-            // The light is read light_offset back along the ray.
-            let t_light = t - p.light_offset;
-            let light = s.light_at(p, span, t_light, tex_origin + tex_dir * t_light);
-            rgb *= Vec3::splat(bias) + (1.0 - bias) * colour * light;
-        }
+        // Shaded and lit already where the flags ask (`colour_shown`).
+        let rgb = rgba.xyz();
         if KIND == ANY && p.flags & FLAG_EXTINCTION != 0 {
             // Eq. 2 (Schlegel et al.): E_i·Δt·τ_i·exp(−Σ_{j≤i} Δt·τ_j).
             let dtau = -(1.0 - a.min(MAX_SAMPLE_OPACITY)).ln();
@@ -793,16 +862,40 @@ fn main<S: Storage, const KIND: u8>(
                     let opacity = classes.opacity(tf);
                     let mut shown = opacity.simd_gt(f32x4::ZERO).to_bitmask() & ((1 << n) - 1);
                     let corrected = corrected_opacity4(opacity, acc.exponent).to_array();
+                    let shown_at = Shown {
+                        lanes: shown,
+                        ts,
+                        tex_origin,
+                        tex_dir,
+                    };
+                    let composite = KIND == ANY && p.mode == MODE_COMPOSITE;
+                    // Shaded samples are coloured (shaded and lit) four at a
+                    // time before they are composited; the others one by
+                    // one as they are (which measured faster for them).
+                    let shaded = composite && p.flags & FLAG_SHADED != 0;
+                    let lit_alone = composite && !shaded && p.flags & FLAG_LIT != 0;
+                    let mut rgbas = [Vec4::ZERO; 4];
+                    if shaded {
+                        for_each_lane(shown, |j| rgbas[j] = classes.rgba(tf, j));
+                        colour_shown(p, s, &stretch, &shown_at, acc.half, &mut rgbas);
+                    }
                     while shown != 0 {
                         let j = shown.trailing_zeros() as usize;
                         shown &= shown - 1;
+                        let mut rgba = if shaded {
+                            rgbas[j]
+                        } else {
+                            classes.rgba(tf, j)
+                        };
+                        if lit_alone {
+                            rgba = lit(p, s, &stretch, ts[j], &shown_at, rgba);
+                        }
                         let sample = Sample {
-                            t: ts[j],
                             u: us[j],
-                            rgba: classes.rgba(tf, j),
+                            rgba,
                             a: corrected[j],
                         };
-                        if acc.add::<S, KIND>(p, s, &stretch, sample, tex_origin, tex_dir) {
+                        if acc.add::<KIND>(p, sample) {
                             break 'march;
                         }
                     }
@@ -843,7 +936,7 @@ mod tests {
     use wide::f32x4;
 
     use super::{
-        central_difference_at, corrected_opacity, corrected_opacity4, cubic_gradient_at, pow,
+        central_difference_at, corrected_opacity, corrected_opacity4, cubic_gradient_at, pow4,
     };
     use crate::cpu::Texture3d;
     use crate::cpu::reference::PlainLocation;
@@ -969,7 +1062,7 @@ mod tests {
         for e in [0.0, 1.0, 2.0, 7.0, 24.0, 64.0, 2.5, 65.0, 100.0] {
             for i in 0..=1000 {
                 let x = i as f32 / 1000.0;
-                let (ours, libm) = (pow(x, e), x.powf(e));
+                let (ours, libm) = (pow4(f32x4::splat(x), e).to_array()[0], x.powf(e));
                 let tolerance = libm / 262_144.0 + 1e-30;
                 assert!(
                     (ours - libm).abs() <= tolerance,

@@ -192,9 +192,21 @@ impl Storage for PackedTexture {
         // whose texels this slot's apron holds where that block is stored
         // at level 0 too; this slot has them all where the sample is at
         // least half a voxel from the face.
+        // Within half a voxel of a face, the reads reach a texel past the
+        // apron: that from the next block's slot (stored at level 0 too).
         if loc.slot_edge == LEVEL0_EDGE
-            && (inner.all() || self.faces_reached_at_level0(loc, local))
-            && let Some(differences) = self.atlas.central_differences(loc.slot, centre)
+            && let Some(across) = if inner.all() {
+                Some([[None; 2]; 3])
+            } else {
+                self.faces_reached_at_level0(loc, local)
+            }
+            && let Some(differences) =
+                self.atlas
+                    .central_differences(loc.slot, centre)
+                    .or_else(|| {
+                        self.atlas
+                            .central_differences_across(loc.slot, centre, across)
+                    })
         {
             return differences / (2.0 * h);
         }
@@ -283,28 +295,40 @@ impl Storage for PackedTexture {
 
 impl PackedTexture {
     /// For a sample at `local` (level-0 voxels in `loc`'s block, a block
-    /// at level 0), whether every block its central differences' reads
-    /// beyond a face of `loc`'s reach is stored at level 0: the one across
-    /// each face within a voxel of the sample (reads step along one axis at
-    /// a time, so never a diagonal neighbour). False outside the grid.
+    /// at level 0), the slots of the blocks its central differences' reads
+    /// beyond a face of `loc`'s reach (`[axis][side]`, side 0 below and 1
+    /// above; `None` where they do not go): the one across each face within
+    /// a voxel of the sample (reads step along one axis at a time, so never
+    /// a diagonal neighbour). `None` unless each is stored at level 0 (or
+    /// where it is outside the grid).
     #[inline]
-    fn faces_reached_at_level0(&self, loc: &BlockLocation, local: Vec3) -> bool {
+    fn faces_reached_at_level0(
+        &self,
+        loc: &BlockLocation,
+        local: Vec3,
+    ) -> Option<[[Option<usize>; 2]; 3]> {
         let level = self.index[self.block_index(loc.block)][3];
-        (0..3).all(|a| {
+        let mut across = [[None; 2]; 3];
+        for a in 0..3 {
             let side = if local[a] < 1.0 {
-                -1
+                0
             } else if local[a] >= BLOCK - 1.0 {
                 1
             } else {
-                return true;
+                continue;
             };
             let mut block = loc.block;
-            block[a] += side;
-            (0..self.grid[a] as i32).contains(&block[a]) && {
-                let b = self.block_index(block);
-                self.index[b][3] == level && self.atlas.slot_base(b).is_some()
+            block[a] += if side == 0 { -1 } else { 1 };
+            if !(0..self.grid[a] as i32).contains(&block[a]) {
+                return None;
             }
-        })
+            let b = self.block_index(block);
+            if self.index[b][3] != level {
+                return None;
+            }
+            across[a][side] = Some(self.atlas.slot_base(b)?);
+        }
+        Some(across)
     }
 
     /// Where reads at positions of `home`'s slot that lie `step` blocks

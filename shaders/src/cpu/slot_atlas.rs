@@ -388,9 +388,9 @@ impl SlotAtlas {
         const E: usize = LEVEL0_EDGE;
         const ROW: usize = E;
         const SLICE: usize = E * E;
-        // From the texel a slice before the first corner to the one a slice
-        // after the last.
-        const W: usize = 3 * SLICE + ROW + 2;
+        // From the texel a slice and a texel before the first corner to
+        // the one a slice and two texels after the last.
+        const W: usize = 3 * SLICE + ROW + 4;
         let (x, fx) = split(p.x);
         let (y, fy) = split(p.y);
         let (z, fz) = split(p.z);
@@ -401,18 +401,130 @@ impl SlotAtlas {
         let first = base + (z as usize * E + y as usize) * E + x as usize;
         let w: &[f32; W] = self
             .texels
-            .get(first - SLICE..first - SLICE + W)?
+            .get(first - SLICE - 1..first - SLICE - 1 + W)?
             .try_into()
             .ok()?;
-        let d = |c: usize| differences::<W, ROW, SLICE>(w, SLICE + c);
-        let lerp = |a: f32x4, b: f32x4, t: f32| a + (b - a) * f32x4::splat(t);
-        let c00 = lerp(d(0), d(1), fx);
-        let c10 = lerp(d(ROW), d(ROW + 1), fx);
-        let c01 = lerp(d(SLICE), d(SLICE + 1), fx);
-        let c11 = lerp(d(SLICE + ROW), d(SLICE + ROW + 1), fx);
-        let [dx, dy, dz, _] = lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array();
-        Some(Vec3::new(dx, dy, dz))
+        Some(blended_differences::<W, ROW, SLICE>(
+            w,
+            SLICE + 1,
+            [fx, fy, fz],
+        ))
     }
+
+    /// [`SlotAtlas::central_differences`] where `p`'s reads reach a texel
+    /// past its slot's apron (within half a texel of the slot's interior
+    /// faces): the texels about `p` gathered first, those past a face from
+    /// the slot of the block across it, `across[axis][side]` (side 0 below,
+    /// 1 above), stored at level 0 too; as the shader's reads of the
+    /// neighbour there find them (the apron holds that block's texels).
+    /// `None` where a read needs a slot `across` has not.
+    #[inline(always)]
+    pub fn central_differences_across(
+        &self,
+        base: usize,
+        p: Vec3,
+        across: [[Option<usize>; 2]; 3],
+    ) -> Option<Vec3> {
+        const E: i32 = LEVEL0_EDGE as i32;
+        // A slot's texel `c` along an axis is texel `c ∓ INTERIOR` of the
+        // slot below or above along it.
+        const INTERIOR: i32 = E - 2 * APRON as i32;
+        let (x, fx) = split(p.x);
+        let (y, fy) = split(p.y);
+        let (z, fz) = split(p.z);
+        let reachable = |v: i32| (0..E - 1).contains(&v);
+        if !(reachable(x) && reachable(y) && reachable(z)) {
+            return None;
+        }
+        // Where the row of texels at (y', z') (slot coordinates, one of
+        // them at most past the apron) starts in `texels`.
+        let row = |sy: i32, sz: i32| -> Option<usize> {
+            let (slot, sy, sz) = if sy < 0 {
+                (across[1][0]?, sy + INTERIOR, sz)
+            } else if sy >= E {
+                (across[1][1]?, sy - INTERIOR, sz)
+            } else if sz < 0 {
+                (across[2][0]?, sy, sz + INTERIOR)
+            } else if sz >= E {
+                (across[2][1]?, sy, sz - INTERIOR)
+            } else {
+                (base, sy, sz)
+            };
+            Some(slot + (sz * E + sy) as usize * E as usize)
+        };
+        let at = |i: usize| self.texels.get(i).copied();
+        // Texels x − 1 … x + 2 of rows y − 1 … y + 2 and slices z − 1 … z + 2
+        // (rows 4, slices 16 apart), those the differences read: x − 1 and
+        // x + 2 in the four middle rows only, the corner rows not at all.
+        let mut w = [0.0f32; 64];
+        for k in 0..4 {
+            for j in 0..4 {
+                let middle = (1..3).contains(&j) && (1..3).contains(&k);
+                if !middle && !(1..3).contains(&j) && !(1..3).contains(&k) {
+                    continue;
+                }
+                let start = row(y - 1 + j as i32, z - 1 + k as i32)?;
+                let lane = |i: usize| j * 4 + k * 16 + i;
+                for i in 1..3 {
+                    w[lane(i)] = at(start + (x as usize + i - 1))?;
+                }
+                if middle {
+                    // The row is this slot's; x − 1 and x + 2 may be past it.
+                    let before = x - 1;
+                    w[lane(0)] = if before < 0 {
+                        at(across[0][0]? + start - base + (before + INTERIOR) as usize)?
+                    } else {
+                        at(start + before as usize)?
+                    };
+                    let after = x + 2;
+                    w[lane(3)] = if after >= E {
+                        at(across[0][1]? + start - base + (after - INTERIOR) as usize)?
+                    } else {
+                        at(start + after as usize)?
+                    };
+                }
+            }
+        }
+        Some(blended_differences::<64, 4, 16>(
+            &w,
+            16 + 4 + 1,
+            [fx, fy, fz],
+        ))
+    }
+}
+
+/// The texels' differences along x, y and z at the 2×2×2 texels from
+/// `w[c]` (rows `ROW` and slices `SLICE` apart), blended trilinearly at
+/// fractions `f`: a row of two corners at a time, their differences four
+/// texels at a time (along x lanes 0 and 1 of the first subtraction, along
+/// y and z lanes 1 and 2 of the others), gathered per corner and blended
+/// along x, then y, then z.
+#[inline(always)]
+fn blended_differences<const W: usize, const ROW: usize, const SLICE: usize>(
+    w: &[f32; W],
+    c: usize,
+    f: [f32; 3],
+) -> Vec3 {
+    // Four texels along x from `w[i]`.
+    let four = |i: usize| f32x4::from(<[f32; 4]>::try_from(&w[i..i + 4]).expect("in w"));
+    let lerp = |a: f32x4, b: f32x4, t: f32| a + (b - a) * f32x4::splat(t);
+    let corners = |o: usize| {
+        let [dx, dy, dz] = [
+            four(o + 1) - four(o - 1),
+            four(o + ROW - 1) - four(o - ROW - 1),
+            four(o + SLICE - 1) - four(o - SLICE - 1),
+        ]
+        .map(f32x4::to_array);
+        let low = f32x4::from([dx[0], dy[1], dz[1], 0.0]);
+        let high = f32x4::from([dx[1], dy[2], dz[2], 0.0]);
+        lerp(low, high, f[0])
+    };
+    let c00 = corners(c);
+    let c10 = corners(c + ROW);
+    let c01 = corners(c + SLICE);
+    let c11 = corners(c + SLICE + ROW);
+    let [dx, dy, dz, _] = lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2]).to_array();
+    Vec3::new(dx, dy, dz)
 }
 
 /// The cubic B-spline's derivative along x, y and z (per texel) at
@@ -498,21 +610,6 @@ fn last_position(edge: usize) -> f32 {
     (edge - 1) as f32 - 1.0 / 4096.0
 }
 
-/// The texels' differences across texel `c` of `w` along x, y and z (rows
-/// `ROW` and slices `SLICE` apart).
-#[inline(always)]
-fn differences<const W: usize, const ROW: usize, const SLICE: usize>(
-    w: &[f32; W],
-    c: usize,
-) -> f32x4 {
-    f32x4::from([
-        w[c + 1] - w[c - 1],
-        w[c + ROW] - w[c - ROW],
-        w[c + SLICE] - w[c - SLICE],
-        0.0,
-    ])
-}
-
 /// The edge of a level-0 slot in texels.
 pub const LEVEL0_EDGE: usize = slot_edge(0) as usize;
 
@@ -555,6 +652,107 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn central_differences_across_a_face_are_those_of_the_field_the_slots_hold() {
+        // A level-0 block (slot 0) and its six face neighbours (slots 1–6),
+        // each slot holding its part of one uneven field, aprons included.
+        let field = |w: [i32; 3]| {
+            let i = (w[0] + 40) * 1009 + (w[1] + 40) * 7919 + (w[2] + 40) * 104_729;
+            (i % 997) as f32 / 997.0 + (w[0] as f32 * 0.3).sin()
+        };
+        let offsets: [[i32; 3]; 7] = [
+            [0, 0, 0],
+            [-1, 0, 0],
+            [1, 0, 0],
+            [0, -1, 0],
+            [0, 1, 0],
+            [0, 0, -1],
+            [0, 0, 1],
+        ];
+        let selection = LodSelection::from_levels(vec![0u8; 7]);
+        let packing = Packing::new(&selection, 2048).expect("packing");
+        let mut atlas = SlotAtlas::new(&packing);
+        let e = LEVEL0_EDGE as i32;
+        for (b, o) in offsets.iter().enumerate() {
+            let slot = atlas.slot_mut(b, 0).expect("slot");
+            for (i, t) in slot.iter_mut().enumerate() {
+                let c = [i as i32 % e, i as i32 / e % e, i as i32 / (e * e)];
+                *t = field([0, 1, 2].map(|a| o[a] * 16 + c[a] - 1));
+            }
+        }
+        let base = |b: usize| atlas.slot_base(b).expect("stored");
+        let across = [
+            [Some(base(1)), Some(base(2))],
+            [Some(base(3)), Some(base(4))],
+            [Some(base(5)), Some(base(6))],
+        ];
+        // The field's trilinear reconstruction at slot position q of slot 0.
+        let read = |q: Vec3| {
+            let c = q.floor();
+            let f = q - c;
+            let mut sum = 0.0;
+            for corner in 0..8 {
+                let d: [i32; 3] = [corner & 1, corner >> 1 & 1, corner >> 2];
+                let w = [0, 1, 2].map(|a| c[a] as i32 + d[a] - 1);
+                let weight = [0, 1, 2]
+                    .map(|a| if d[a] == 1 { f[a] } else { 1.0 - f[a] })
+                    .iter()
+                    .product::<f32>();
+                sum += weight * field(w);
+            }
+            sum
+        };
+        let mut across_faces = 0;
+        for k in 0..2000 {
+            // Slot positions in the block's interior (0.5 to 16.5), every
+            // other one within half a texel of a face along each axis.
+            let f = |s: f32| {
+                let u = (k as f32 * s).sin() * 0.5 + 0.5;
+                if k % 2 == 0 {
+                    0.5 + u * 15.99
+                } else if u < 0.5 {
+                    0.5 + u
+                } else {
+                    16.0 + (u - 0.5) * 0.99
+                }
+            };
+            let p = Vec3::new(f(1.3), f(2.7), f(0.9));
+            let ours = match atlas.central_differences(base(0), p) {
+                Some(d) => d,
+                None => {
+                    across_faces += 1;
+                    atlas
+                        .central_differences_across(base(0), p, across)
+                        .expect("the faces' slots are given")
+                }
+            };
+            let expected = Vec3::new(
+                read(p + Vec3::X) - read(p - Vec3::X),
+                read(p + Vec3::Y) - read(p - Vec3::Y),
+                read(p + Vec3::Z) - read(p - Vec3::Z),
+            );
+            assert!(
+                (ours - expected).abs().max_element() < 1e-4,
+                "at {p}: {ours} vs {expected}"
+            );
+            // Without the slot a read needs, no answer.
+            let x = p.x - 0.5;
+            if !(0.5..15.5).contains(&x) {
+                let mut without = across;
+                without[0] = [None, None];
+                assert!(
+                    atlas
+                        .central_differences_across(base(0), p, without)
+                        .is_none()
+                );
+            }
+        }
+        assert!(
+            across_faces > 200,
+            "{across_faces} positions read across a face"
+        );
     }
 
     #[test]
