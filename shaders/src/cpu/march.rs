@@ -540,6 +540,26 @@ struct Shown {
     tex_dir: Vec3,
 }
 
+/// Of the `shown` lanes (a bit each), those composited before the ray
+/// ends, for a ray whose opacity so far is `alpha`: `Accumulator::add`'s
+/// opacity after each (compositing without extinction), up to the first at
+/// or above `early_termination`.
+#[inline(always)]
+fn composited_lanes(shown: u32, mut alpha: f32, corrected: &[f32; 4], p: &RaycastParams) -> u32 {
+    let mut kept = 0;
+    let mut lanes = shown;
+    while lanes != 0 {
+        let j = lanes.trailing_zeros() as usize;
+        lanes &= lanes - 1;
+        kept |= 1 << j;
+        alpha += (1.0 - alpha) * corrected[j];
+        if alpha >= p.early_termination {
+            break;
+        }
+    }
+    kept
+}
+
 /// `f(j)` for each lane `j` set in `lanes`, in order.
 #[inline(always)]
 fn for_each_lane(mut lanes: u32, mut f: impl FnMut(usize)) {
@@ -862,21 +882,26 @@ fn main<S: Storage, const KIND: u8>(
                     let opacity = classes.opacity(tf);
                     let mut shown = opacity.simd_gt(f32x4::ZERO).to_bitmask() & ((1 << n) - 1);
                     let corrected = corrected_opacity4(opacity, acc.exponent).to_array();
-                    let shown_at = Shown {
-                        lanes: shown,
-                        ts,
-                        tex_origin,
-                        tex_dir,
-                    };
                     let composite = KIND == ANY && p.mode == MODE_COMPOSITE;
                     // Shaded samples are coloured (shaded and lit) four at a
                     // time before they are composited; the others one by
                     // one as they are (which measured faster for them).
                     let shaded = composite && p.flags & FLAG_SHADED != 0;
                     let lit_alone = composite && !shaded && p.flags & FLAG_LIT != 0;
+                    let mut shown_at = Shown {
+                        lanes: shown,
+                        ts,
+                        tex_origin,
+                        tex_dir,
+                    };
                     let mut rgbas = [Vec4::ZERO; 4];
                     if shaded {
-                        for_each_lane(shown, |j| rgbas[j] = classes.rgba(tf, j));
+                        if p.flags & FLAG_EXTINCTION == 0 {
+                            // Not the samples past the one that ends the ray:
+                            // the opacity after each, as `add` finds it.
+                            shown_at.lanes = composited_lanes(shown, acc.alpha, &corrected, p);
+                        }
+                        for_each_lane(shown_at.lanes, |j| rgbas[j] = classes.rgba(tf, j));
                         colour_shown(p, s, &stretch, &shown_at, acc.half, &mut rgbas);
                     }
                     while shown != 0 {
