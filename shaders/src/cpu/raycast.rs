@@ -190,10 +190,9 @@ impl Storage for PackedTexture {
         // At level 0 the neighbours are a texel away. Within a voxel of a
         // face, the neighbour beyond it is read from the next block's slot,
         // whose texels this slot's apron holds where that block is stored
-        // at level 0 too; this slot has them all where the sample is at
-        // least half a voxel from the face.
-        // Within half a voxel of a face, the reads reach a texel past the
-        // apron: that from the next block's slot (stored at level 0 too).
+        // at level 0 too: this slot has them all where the sample is at
+        // least half a voxel from the face; nearer, the reads reach one
+        // texel past the apron, read from that block's slot.
         if loc.slot_edge == LEVEL0_EDGE
             && let Some(across) = if inner.all() {
                 Some([[None; 2]; 3])
