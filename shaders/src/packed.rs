@@ -342,6 +342,7 @@ impl Atlas for CpuAtlas {
                 light_cache: None,
                 lit_by: None,
                 visible_texels: None,
+                visible_boxes: None,
             },
             layout: PackedLayout {
                 atlas_dims: dims,

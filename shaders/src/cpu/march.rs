@@ -101,11 +101,14 @@ pub trait Storage: Sync + Sized {
 pub struct Span<L> {
     /// The location of every sample in the stretch.
     pub loc: L,
-    /// The ray parameter where the stretch ends: samples at `t < exit` are in it.
+    /// The ray parameter where the stretch ends: samples at `t < exit` are
+    /// in it (with empty-space skipping, the samples after it up to the
+    /// next stretch are known to be invisible).
     pub exit: f32,
-    /// Where it begins, when a walk of the block grid reached it across
-    /// empty blocks it jumped (empty-space skipping): the samples before are
-    /// in those; minus infinity otherwise.
+    /// Where it begins, with empty-space skipping: the samples before are
+    /// known to be invisible (in empty blocks a walk of the block grid
+    /// jumped, or outside what the storage knows may be visible); minus
+    /// infinity otherwise.
     pub enter: f32,
     /// Storage-specific: the sample's texel position is `texel_at_zero + t·texel_per_t`.
     pub texel_at_zero: Vec3,
@@ -833,8 +836,9 @@ fn main<S: Storage, const KIND: u8>(
                 stretch = s.next_span(p, tex_origin, tex_dir, &stretch, t);
             }
             if t < stretch.enter {
-                // In the empty blocks the walk jumped: on to the first
-                // sample in the stretch, as `empty_exit` jumps one block.
+                // Known to be invisible (in the empty blocks the walk
+                // jumped, as `empty_exit` jumps one block): on to the first
+                // sample in the stretch.
                 i = jump(i, stretch.enter);
                 k += 1;
                 continue;

@@ -10,9 +10,10 @@
 
 use blocks::packing::slot_edge;
 use blocks::store::LEVELS;
+use glam::Vec3;
 use rayon::prelude::*;
 
-use super::march::table_position;
+use super::march::{inverse_direction, table_position};
 use super::slot_atlas::SlotAtlas;
 use crate::packed_volume::PackedVolume;
 
@@ -87,6 +88,120 @@ pub fn visible_texels(
     bits
 }
 
+/// The box in a block's slot outside which none of its samples can be
+/// visible, in the slot's texel coordinates: per axis, from the least to
+/// one past the greatest coordinate of the texels [`visible_texels`] sets
+/// (a sample blends from the 2×2×2 texels whose lowest it lies within a
+/// texel of; the slot's last texels, never a sample's lowest, left out),
+/// widened by [`BOX_MARGIN`], and on to infinity where it reaches the
+/// slot's first or last texel (the sampler clamps positions past them into
+/// the slot). Empty (`lo` above `hi`) where no sample in the slot can be
+/// visible. With empty-space skipping the march takes only the samples of
+/// a ray within it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisibleBox {
+    /// The least corner.
+    pub lo: Vec3,
+    /// The greatest corner.
+    pub hi: Vec3,
+}
+
+/// How far (texels) outside a [`VisibleBox`]'s texels a sample must lie to
+/// be left out: far more than the rounding of the samples' positions,
+/// which the march finds from the ray parameter in another order.
+pub const BOX_MARGIN: f32 = 0.05;
+
+impl VisibleBox {
+    /// A box holding nothing.
+    pub const EMPTY: VisibleBox = VisibleBox {
+        lo: Vec3::INFINITY,
+        hi: Vec3::NEG_INFINITY,
+    };
+
+    /// The ray parameters `(enter, exit)` between which the points
+    /// `at_zero + t·per_t` are in the box; `enter ≥ exit` where none are.
+    #[inline(always)]
+    pub fn interval(&self, at_zero: Vec3, per_t: Vec3) -> (f32, f32) {
+        if self.lo.x > self.hi.x {
+            return (f32::INFINITY, f32::NEG_INFINITY);
+        }
+        // Along an axis the ray does not move along, the slab holds the
+        // ray wholly or not at all: a huge reciprocal says so (`(lo − a)`
+        // and `(hi − a)` then have signs that differ or agree).
+        let inverse = inverse_direction(per_t);
+        let t0 = (self.lo - at_zero) * inverse;
+        let t1 = (self.hi - at_zero) * inverse;
+        (t0.min(t1).max_element(), t0.max(t1).min_element())
+    }
+}
+
+/// Per block of `index` (the block index's entries, x fastest), the
+/// [`VisibleBox`] of its slot in `atlas` from `bits` ([`visible_texels`]);
+/// [`VisibleBox::EMPTY`] for blocks not stored.
+pub fn visible_boxes(atlas: &SlotAtlas, index: &[[u16; 4]], bits: &[u64]) -> Vec<VisibleBox> {
+    index
+        .par_iter()
+        .enumerate()
+        .map(|(b, entry)| {
+            let Some(base) = atlas.slot_base(b) else {
+                return VisibleBox::EMPTY;
+            };
+            let edge = slot_edge(usize::from(entry[3]).min(LEVELS - 1)) as usize;
+            slot_box(bits, base, edge)
+        })
+        .collect()
+}
+
+/// [`visible_boxes`]' box of the slot of edge `edge` at `base`.
+fn slot_box(bits: &[u64], base: usize, edge: usize) -> VisibleBox {
+    // A row's texels that can be a sample's lowest: all but its last.
+    let len = edge - 1;
+    let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
+    for z in 0..len {
+        for y in 0..len {
+            let start = base + (z * edge + y) * edge;
+            let (word, shift) = (start / 64, start % 64);
+            // Texels past the bits' end may be visible (`texel_may_show`).
+            let at = |w: usize| bits.get(w).copied().unwrap_or(u64::MAX);
+            let mut row = at(word) >> shift;
+            if shift + len > 64 {
+                row |= at(word + 1) << (64 - shift);
+            }
+            row &= (1u64 << len) - 1;
+            if row == 0 {
+                continue;
+            }
+            let first = row.trailing_zeros() as usize;
+            let last = 63 - row.leading_zeros() as usize;
+            for (axis, (a, b)) in [(first, last), (y, y), (z, z)].into_iter().enumerate() {
+                lo[axis] = lo[axis].min(a);
+                hi[axis] = hi[axis].max(b + 1);
+            }
+        }
+    }
+    if lo[0] > hi[0] {
+        return VisibleBox::EMPTY;
+    }
+    let low = |c: usize| {
+        if c == 0 {
+            f32::NEG_INFINITY
+        } else {
+            c as f32 - BOX_MARGIN
+        }
+    };
+    let high = |c: usize| {
+        if c >= len {
+            f32::INFINITY
+        } else {
+            c as f32 + BOX_MARGIN
+        }
+    };
+    VisibleBox {
+        lo: Vec3::from(lo.map(low)),
+        hi: Vec3::from(hi.map(high)),
+    }
+}
+
 /// Whether [`visible_texels`]' `bits` let a sample whose lowest texel is
 /// texel `i` be visible (a texel past the bits' end may be).
 #[inline(always)]
@@ -130,4 +245,104 @@ fn cube_visible<const E: usize>(region: &[f32], i: usize, any_visible: &Visibili
         hi = hi.max(v);
     }
     any_visible.any(lo, hi)
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::{BOX_MARGIN, VisibleBox, slot_box, texel_may_show};
+    use crate::cpu::texture::split;
+
+    /// A slot of edge 10 at texel 70 of the bits (so its rows straddle
+    /// words), a few of its texels set as `visible_texels` sets them (its
+    /// last row, column and slice too).
+    fn slot_bits(set: &[[usize; 3]]) -> (Vec<u64>, usize, usize) {
+        let (base, edge) = (70usize, 10usize);
+        let mut bits = vec![0u64; (base + edge * edge * edge).div_ceil(64) + 1];
+        let mut put = |i: usize| bits[i / 64] |= 1 << (i % 64);
+        for z in 0..edge {
+            for y in 0..edge {
+                for x in 0..edge {
+                    let last = x + 1 == edge || y + 1 == edge || z + 1 == edge;
+                    if last || set.contains(&[x, y, z]) {
+                        put(base + (z * edge + y) * edge + x);
+                    }
+                }
+            }
+        }
+        (bits, base, edge)
+    }
+
+    /// Where the sampler blends from for slot position `p`: its lowest texel.
+    fn lowest(p: Vec3, edge: usize) -> [usize; 3] {
+        let p = p.clamp(Vec3::ZERO, Vec3::splat((edge - 1) as f32 - 1.0 / 4096.0));
+        p.to_array().map(|v| split(v).0 as usize)
+    }
+
+    #[test]
+    fn a_slot_s_box_holds_every_position_that_blends_from_a_visible_texel() {
+        for set in [
+            vec![[3, 4, 5]],
+            vec![[2, 7, 1], [6, 3, 4]],
+            vec![[0, 5, 5], [8, 8, 8]],
+        ] {
+            let (bits, base, edge) = slot_bits(&set);
+            let b = slot_box(&bits, base, edge);
+            let (mut inside, mut outside) = (0, 0);
+            for i in 0..20_000u32 {
+                let u = |k: u32| ((i * k) % 9973) as f32 / 9972.0 * 12.0 - 1.5;
+                let p = Vec3::new(u(31), u(57), u(89));
+                let [x, y, z] = lowest(p, edge);
+                let in_box = p.cmpge(b.lo).all() && p.cmple(b.hi).all();
+                if texel_may_show(&bits, base + (z * edge + y) * edge + x) {
+                    assert!(
+                        in_box,
+                        "{p} blends from visible texel {x} {y} {z}, box {b:?}"
+                    );
+                }
+                if in_box { inside += 1 } else { outside += 1 }
+            }
+            // The box is the visible texels' and no more.
+            assert!(inside > 0 && outside > inside, "{set:?}: {b:?}");
+            let lo = set.iter().map(|c| c[1]).min().unwrap_or(0);
+            if lo > 0 {
+                assert_eq!(b.lo.y, lo as f32 - BOX_MARGIN, "{set:?}");
+            }
+        }
+        let (bits, base, edge) = slot_bits(&[]);
+        assert_eq!(slot_box(&bits, base, edge), VisibleBox::EMPTY);
+    }
+
+    #[test]
+    fn a_ray_is_in_a_visible_box_between_its_interval_s_ends() {
+        let b = VisibleBox {
+            lo: Vec3::new(2.95, f32::NEG_INFINITY, 4.95),
+            hi: Vec3::new(6.05, 3.05, 9.05),
+        };
+        let (mut hits, mut misses) = (0, 0);
+        for i in 0..5000u32 {
+            let u = |k: u32| ((i * k) % 997) as f32 / 996.0;
+            let at_zero = Vec3::new(u(31), u(57), u(89)) * 12.0 - 1.0;
+            // Some rays along axes and some along none.
+            let mut per_t = Vec3::new(u(13), u(17), u(19)) * 2.0 - 1.0;
+            if i % 5 == 0 {
+                per_t[(i / 5 % 3) as usize] = 0.0;
+            }
+            let (enter, exit) = b.interval(at_zero, per_t);
+            if enter < exit {
+                hits += 1;
+            } else {
+                misses += 1;
+            }
+            for k in 0..400 {
+                let t = k as f32 * 0.05 - 10.0;
+                let p = at_zero + per_t * t;
+                let in_box = p.cmpge(b.lo).all() && p.cmple(b.hi).all();
+                let between = t >= enter - 1e-4 && t <= exit + 1e-4;
+                assert!(!in_box || between, "{p} at {t} outside {enter}..{exit}");
+            }
+        }
+        assert!(hits > 100 && misses > 100, "{hits} hits, {misses} misses");
+    }
 }

@@ -8,6 +8,7 @@ use blocks::packing::slot_edge;
 use blocks::store::LEVELS;
 
 use super::march::{far_face_crossing, intersect_box_inverse, inverse_direction};
+use super::occupancy::VisibleBox;
 use super::texture::floor_i32;
 use super::{ColourTexture, SlotAtlas, Texture3d};
 use crate::illumination::Mode;
@@ -42,6 +43,10 @@ pub struct PackedTexture {
     /// CPU only: per atlas texel, whether a sample blending from it may be
     /// visible ([`super::occupancy::visible_texels`]); `None`: all may be.
     pub visible_texels: Option<Vec<u64>>,
+    /// CPU only: per block (x fastest), the box in its slot outside which
+    /// no sample can be visible, found from `visible_texels` with them
+    /// ([`super::occupancy::visible_boxes`]); `None`: all may be.
+    pub visible_boxes: Option<Vec<VisibleBox>>,
 }
 
 /// WGSL `Location`.

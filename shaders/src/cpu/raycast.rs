@@ -32,7 +32,8 @@ impl Storage for PackedTexture {
         let block = block_of(g, origin + dir * t);
         let cell = Vec3::new(block[0] as f32, block[1] as f32, block[2] as f32);
         let t_max = far_face_crossing(cell, Vec3::from(g.texel) * BLOCK, origin, dir);
-        self.block_span(g, origin, dir, block, t_max, t)
+        let skipping = p.flags & FLAG_SKIP_EMPTY != 0;
+        self.block_span(g, skipping, origin, dir, block, t_max, t)
     }
 
     #[inline(always)]
@@ -82,9 +83,9 @@ impl Storage for PackedTexture {
                 continue;
             }
             if !skipping || self.index[self.block_index(block)][3] != EMPTY_LEVEL {
-                let mut next = self.block_span(g, origin, dir, block, t_max, t);
+                let mut next = self.block_span(g, skipping, origin, dir, block, t_max, t);
                 if t < enter {
-                    next.enter = enter;
+                    next.enter = next.enter.max(enter);
                 }
                 return next;
             }
@@ -465,11 +466,19 @@ impl PackedTexture {
     }
 
     /// The stretch of the ray in `block`, which it leaves at the smallest of
-    /// `t_max` (never before `t`).
+    /// `t_max` (never before `t`). With empty-space `skipping`, its samples
+    /// outside the block's [`VisibleBox`] are left out: the stretch begins
+    /// (`enter`) where the ray enters the box and ends where it leaves it,
+    /// or holds none where the ray misses it.
     #[inline(always)]
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "the walk's state, passed as it is"
+    )]
     fn block_span(
         &self,
         g: &PackedVolume,
+        skipping: bool,
         origin: Vec3,
         dir: Vec3,
         block: [i32; 3],
@@ -482,14 +491,36 @@ impl PackedTexture {
         // `atlas_texel` unclamped, as a function of t.
         let local_at_zero = origin * dims - corner;
         let local_per_t = dir * dims;
+        // Never behind `t`: a stretch ends at the next sample at the latest.
+        let exit = t_max.min_element().max(t);
+        let texel_at_zero = local_at_zero * loc.scale + (SLOT_APRON - 0.5);
+        let texel_per_t = local_per_t * loc.scale;
+        let (mut enter, mut exit) = (f32::NEG_INFINITY, exit);
+        if let Some(boxes) = self.visible_boxes.as_deref().filter(|_| skipping)
+            && !loc.empty
+        {
+            let seen = boxes
+                .get(self.block_index(block))
+                .map_or((f32::NEG_INFINITY, f32::INFINITY), |b| {
+                    b.interval(texel_at_zero, texel_per_t)
+                });
+            // The box's stretch of the ray within the block's (the box
+            // reaches past the block where it reaches the slot's edge).
+            let seen = (seen.0, seen.1.min(exit));
+            if seen.0 < seen.1 && seen.1 > t {
+                (enter, exit) = seen;
+            } else {
+                // No sample from `t` on can be visible: on to the next block.
+                enter = exit;
+            }
+        }
         Span {
             loc,
-            enter: f32::NEG_INFINITY,
-            // Never behind `t`: a stretch ends at the next sample at the latest.
-            exit: t_max.min_element().max(t),
+            enter,
+            exit,
             // Within the slot, whose first interior texel is at the apron's width.
-            texel_at_zero: local_at_zero * loc.scale + (SLOT_APRON - 0.5),
-            texel_per_t: local_per_t * loc.scale,
+            texel_at_zero,
+            texel_per_t,
             local_at_zero,
             local_per_t,
             t_max,
@@ -619,6 +650,7 @@ mod tests {
             light_cache: None,
             lit_by: None,
             visible_texels: None,
+            visible_boxes: None,
         };
         let mut params: RaycastParams = bytemuck::Zeroable::zeroed();
         let voxels = (n as f32) * BLOCK;

@@ -26,7 +26,7 @@ use blocks::transfer_function::TABLE_LEN;
 use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::march::Isa;
-use super::occupancy::visible_texels;
+use super::occupancy::{visible_boxes, visible_texels};
 use super::raycast::raycast_on;
 use crate::extinction::ExtinctionParams;
 use crate::illumination::{Mode, Refine, Timings};
@@ -208,7 +208,9 @@ impl CpuRenderer {
         }
         let g = PackedVolume::new(&self.desc, atlas.layout, table.len() as u32);
         let texture = &mut atlas.texture;
-        texture.visible_texels = Some(visible_texels(&texture.atlas, &g, table));
+        let bits = visible_texels(&texture.atlas, &g, table);
+        texture.visible_boxes = Some(visible_boxes(&texture.atlas, &texture.index, &bits));
+        texture.visible_texels = Some(bits);
         self.texels_for = Some(key);
     }
 
