@@ -768,9 +768,17 @@ impl Accumulator {
             self.color += (-self.depth).exp() * dtau * rgb;
             self.alpha = 1.0 - (-self.depth).exp();
         } else {
-            self.color += (1.0 - self.alpha) * a * rgb;
-            self.alpha += (1.0 - self.alpha) * a;
+            return self.add_shown(p, rgb, a);
         }
+        self.alpha >= p.early_termination
+    }
+
+    /// [`Accumulator::add`] of a shown sample of colour `rgb` and corrected
+    /// opacity `a`, composited without extinction.
+    #[inline(always)]
+    fn add_shown(&mut self, p: &RaycastParams, rgb: Vec3, a: f32) -> bool {
+        self.color += (1.0 - self.alpha) * a * rgb;
+        self.alpha += (1.0 - self.alpha) * a;
         self.alpha >= p.early_termination
     }
 }
@@ -884,14 +892,19 @@ fn main<S: Storage, const KIND: u8>(
                     let us = values.map(|v| v * p.volume.value_scale + p.volume.value_offset);
                     let classes = Classes4::new(p, us);
                     let opacity = classes.opacity(tf);
-                    let mut shown = opacity.simd_gt(f32x4::ZERO).to_bitmask() & ((1 << n) - 1);
-                    let corrected = corrected_opacity4(opacity, acc.exponent).to_array();
-                    let composite = KIND == ANY && p.mode == MODE_COMPOSITE;
+                    // The lanes of the run that show.
+                    let run = f32x4::from([0.0, 1.0, 2.0, 3.0]).simd_lt(f32x4::splat(n as f32));
+                    let showing = opacity.simd_gt(f32x4::ZERO) & run;
+                    let mut shown = showing.to_bitmask();
+                    let corrected4 = corrected_opacity4(opacity, acc.exponent);
+                    let corrected = corrected4.to_array();
+                    let composite = KIND == PLAIN || KIND == ANY && p.mode == MODE_COMPOSITE;
                     // Shaded samples are coloured (shaded and lit) four at a
                     // time before they are composited; the others one by
                     // one as they are (which measured faster for them).
-                    let shaded = composite && p.flags & FLAG_SHADED != 0;
-                    let lit_alone = composite && !shaded && p.flags & FLAG_LIT != 0;
+                    let shaded = KIND == ANY && composite && p.flags & FLAG_SHADED != 0;
+                    let lit_alone = KIND == ANY && composite && !shaded && p.flags & FLAG_LIT != 0;
+                    let extinction = KIND == ANY && p.flags & FLAG_EXTINCTION != 0;
                     let mut shown_at = Shown {
                         lanes: shown,
                         ts,
@@ -900,13 +913,33 @@ fn main<S: Storage, const KIND: u8>(
                     };
                     let mut rgbas = [Vec4::ZERO; 4];
                     if shaded {
-                        if p.flags & FLAG_EXTINCTION == 0 {
+                        if !extinction {
                             // Not the samples past the one that ends the ray:
                             // the opacity after each, as `add` finds it.
                             shown_at.lanes = composited_lanes(shown, acc.alpha, &corrected, p);
                         }
                         for_each_lane(shown_at.lanes, |j| rgbas[j] = classes.rgba(tf, j));
                         colour_shown(p, s, &stretch, &shown_at, acc.half, &mut rgbas);
+                    }
+                    if composite && !lit_alone && !extinction {
+                        // Every lane of the run in turn, without branching
+                        // on which show: a hidden one (its corrected opacity
+                        // taken as zero) adds zero to the colour and the
+                        // opacity, which leaves their bits as `add` leaves
+                        // them by skipping it; the mispredicted branches
+                        // cost more than compositing it.
+                        let a = showing.select(corrected4, f32x4::ZERO).to_array();
+                        for (j, a) in a.into_iter().enumerate() {
+                            let rgb = if shaded {
+                                rgbas[j].xyz()
+                            } else {
+                                classes.rgba(tf, j).xyz()
+                            };
+                            if acc.add_shown(p, rgb, a) {
+                                break 'march;
+                            }
+                        }
+                        shown = 0;
                     }
                     while shown != 0 {
                         let j = shown.trailing_zeros() as usize;
