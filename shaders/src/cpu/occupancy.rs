@@ -252,7 +252,7 @@ mod tests {
     use glam::Vec3;
 
     use super::{BOX_MARGIN, VisibleBox, slot_box, texel_may_show};
-    use crate::cpu::texture::split;
+    use crate::cpu::slot_atlas::slot_corner;
 
     /// A slot of edge 10 at texel 70 of the bits (so its rows straddle
     /// words), a few of its texels set as `visible_texels` sets them (its
@@ -274,12 +274,6 @@ mod tests {
         (bits, base, edge)
     }
 
-    /// Where the sampler blends from for slot position `p`: its lowest texel.
-    fn lowest(p: Vec3, edge: usize) -> [usize; 3] {
-        let p = p.clamp(Vec3::ZERO, Vec3::splat((edge - 1) as f32 - 1.0 / 4096.0));
-        p.to_array().map(|v| split(v).0 as usize)
-    }
-
     #[test]
     fn a_slot_s_box_holds_every_position_that_blends_from_a_visible_texel() {
         for set in [
@@ -293,13 +287,12 @@ mod tests {
             for i in 0..20_000u32 {
                 let u = |k: u32| ((i * k) % 9973) as f32 / 9972.0 * 12.0 - 1.5;
                 let p = Vec3::new(u(31), u(57), u(89));
-                let [x, y, z] = lowest(p, edge);
+                // The texel the sampler blends from first at `p`.
+                let (lowest, _) = slot_corner(base, edge, p);
                 let in_box = p.cmpge(b.lo).all() && p.cmple(b.hi).all();
-                if texel_may_show(&bits, base + (z * edge + y) * edge + x) {
-                    assert!(
-                        in_box,
-                        "{p} blends from visible texel {x} {y} {z}, box {b:?}"
-                    );
+                if texel_may_show(&bits, lowest) {
+                    let texel = lowest - base;
+                    assert!(in_box, "{p} blends from visible texel {texel}, box {b:?}");
                 }
                 if in_box { inside += 1 } else { outside += 1 }
             }

@@ -491,11 +491,11 @@ impl PackedTexture {
         // `atlas_texel` unclamped, as a function of t.
         let local_at_zero = origin * dims - corner;
         let local_per_t = dir * dims;
-        // Never behind `t`: a stretch ends at the next sample at the latest.
-        let exit = t_max.min_element().max(t);
         let texel_at_zero = local_at_zero * loc.scale + (SLOT_APRON - 0.5);
         let texel_per_t = local_per_t * loc.scale;
-        let (mut enter, mut exit) = (f32::NEG_INFINITY, exit);
+        let mut enter = f32::NEG_INFINITY;
+        // Never behind `t`: a stretch ends at the next sample at the latest.
+        let mut exit = t_max.min_element().max(t);
         if let Some(boxes) = self.visible_boxes.as_deref().filter(|_| skipping)
             && !loc.empty
         {

@@ -586,7 +586,7 @@ fn block_corner(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> (usize, Vec3
 /// Where trilinear filtering at `p` in the slot at `base` of edge `edge`
 /// starts (its lowest texel) and its weights, `p` kept in the slot.
 #[inline(always)]
-fn slot_corner(base: usize, edge: usize, p: Vec3) -> (usize, Vec3) {
+pub(super) fn slot_corner(base: usize, edge: usize, p: Vec3) -> (usize, Vec3) {
     let p = p.clamp(Vec3::ZERO, Vec3::splat(last_position(edge)));
     let (x, fx) = split(p.x);
     let (y, fy) = split(p.y);
