@@ -591,7 +591,13 @@ fn colour_shown<S: Storage>(
 ) {
     if p.flags & FLAG_SHADED != 0 {
         let mut g = [[0.0f32; 4]; 3];
-        for_each_lane(shown.lanes, |j| {
+        // A loop, not `for_each_lane`: a closure is compiled apart from
+        // the march, without the instructions `march_band_v3` is built
+        // for, where it is not inlined (the gradient's is not).
+        let mut lanes = shown.lanes;
+        while lanes != 0 {
+            let j = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
             let t = shown.ts[j];
             let tc = shown.tex_origin + shown.tex_dir * t;
             let gradient = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0))
@@ -600,7 +606,7 @@ fn colour_shown<S: Storage>(
             for (axis, lanes) in g.iter_mut().enumerate() {
                 lanes[j] = gradient[axis];
             }
-        });
+        }
         let channel = |c: usize| f32x4::from(rgbas.map(|v| v[c]));
         let shaded = shade(
             p,
@@ -614,9 +620,12 @@ fn colour_shown<S: Storage>(
         });
     }
     if p.flags & FLAG_LIT != 0 {
-        for_each_lane(shown.lanes, |j| {
+        let mut lanes = shown.lanes;
+        while lanes != 0 {
+            let j = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
             rgbas[j] = lit(p, s, span, shown.ts[j], shown, rgbas[j]);
-        });
+        }
     }
 }
 

@@ -141,23 +141,26 @@ impl Storage for PackedTexture {
             // texel from the slot's edge, every read is inside, known
             // without the reads' positions (a dozen divisions).
             let per_voxel = h * voxel_edge(loc);
-            // Every read in the block: its 4³ texels are in the slot.
-            let from_slot =
-                || self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
             let corner = centre.floor();
             let deep = loc.slot_edge as f32 - 4.0;
-            if corner.cmpge(Vec3::splat(2.0)).all() && corner.cmple(Vec3::splat(deep)).all() {
-                return from_slot();
-            }
-            let reads = CubicReads::at(centre);
-            let low = reads.derivative_at[0].min(reads.smooth_at[0]);
-            let high = reads.derivative_at[1].max(reads.smooth_at[1]);
             let face = loc.slot_edge as f32 - 1.5;
             let inside =
                 |x: Vec3| x.cmpge(Vec3::splat(0.5)).all() && x.cmplt(Vec3::splat(face)).all();
-            if inside(low) && inside(high) {
-                return from_slot();
+            // Every read in the block: its 4³ texels are in the slot. (No
+            // closure for it: one called twice is compiled apart from the
+            // march, without the instructions the march is built for.)
+            let mut reads = None;
+            if !(corner.cmpge(Vec3::splat(2.0)).all() && corner.cmple(Vec3::splat(deep)).all()) {
+                let found = CubicReads::at(centre);
+                let low = found.derivative_at[0].min(found.smooth_at[0]);
+                let high = found.derivative_at[1].max(found.smooth_at[1]);
+                if !(inside(low) && inside(high)) {
+                    reads = Some((found, low, high));
+                }
             }
+            let Some((reads, low, high)) = reads else {
+                return self.atlas.cubic_gradient(loc.slot, loc.slot_edge, centre) / per_voxel;
+            };
             if let Some(g) = self.cubic_gradient_across(loc, centre, low, high) {
                 return g / per_voxel;
             }
@@ -200,13 +203,12 @@ impl Storage for PackedTexture {
             } else {
                 self.faces_reached_at_level0(loc, local)
             }
-            && let Some(differences) =
-                self.atlas
-                    .central_differences(loc.slot, centre)
-                    .or_else(|| {
-                        self.atlas
-                            .central_differences_across(loc.slot, centre, across)
-                    })
+            && let Some(differences) = match self.atlas.central_differences(loc.slot, centre) {
+                None => self
+                    .atlas
+                    .central_differences_across(loc.slot, centre, across),
+                found => found,
+            }
         {
             return differences / (2.0 * h);
         }
@@ -301,7 +303,7 @@ impl PackedTexture {
     /// a voxel of the sample (reads step along one axis at a time, so never
     /// a diagonal neighbour). `None` unless each is stored at level 0 (or
     /// where it is outside the grid).
-    #[inline]
+    #[inline(always)]
     fn faces_reached_at_level0(
         &self,
         loc: &BlockLocation,

@@ -505,26 +505,45 @@ fn blended_differences<const W: usize, const ROW: usize, const SLICE: usize>(
     c: usize,
     f: [f32; 3],
 ) -> Vec3 {
-    // Four texels along x from `w[i]`.
-    let four = |i: usize| f32x4::from(<[f32; 4]>::try_from(&w[i..i + 4]).expect("in w"));
-    let lerp = |a: f32x4, b: f32x4, t: f32| a + (b - a) * f32x4::splat(t);
-    let corners = |o: usize| {
-        let [dx, dy, dz] = [
-            four(o + 1) - four(o - 1),
-            four(o + ROW - 1) - four(o - ROW - 1),
-            four(o + SLICE - 1) - four(o - SLICE - 1),
-        ]
-        .map(f32x4::to_array);
-        let low = f32x4::from([dx[0], dy[1], dz[1], 0.0]);
-        let high = f32x4::from([dx[1], dy[2], dz[2], 0.0]);
-        lerp(low, high, f[0])
-    };
-    let c00 = corners(c);
-    let c10 = corners(c + ROW);
-    let c01 = corners(c + SLICE);
-    let c11 = corners(c + SLICE + ROW);
-    let [dx, dy, dz, _] = lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2]).to_array();
+    // Functions, not closures: a closure the compiler does not inline is
+    // compiled without the instructions the march is built for.
+    let c00 = corner_differences::<W, ROW, SLICE>(w, c, f[0]);
+    let c10 = corner_differences::<W, ROW, SLICE>(w, c + ROW, f[0]);
+    let c01 = corner_differences::<W, ROW, SLICE>(w, c + SLICE, f[0]);
+    let c11 = corner_differences::<W, ROW, SLICE>(w, c + SLICE + ROW, f[0]);
+    let [dx, dy, dz, _] = lerp4(lerp4(c00, c10, f[1]), lerp4(c01, c11, f[1]), f[2]).to_array();
     Vec3::new(dx, dy, dz)
+}
+
+/// For [`blended_differences`]: the differences along x, y and z at the
+/// row of two corners from `w[o]`, blended along x at fraction `fx`.
+#[inline(always)]
+fn corner_differences<const W: usize, const ROW: usize, const SLICE: usize>(
+    w: &[f32; W],
+    o: usize,
+    fx: f32,
+) -> f32x4 {
+    let [dx, dy, dz] = [
+        four(w, o + 1) - four(w, o - 1),
+        four(w, o + ROW - 1) - four(w, o - ROW - 1),
+        four(w, o + SLICE - 1) - four(w, o - SLICE - 1),
+    ]
+    .map(f32x4::to_array);
+    let low = f32x4::from([dx[0], dy[1], dz[1], 0.0]);
+    let high = f32x4::from([dx[1], dy[2], dz[2], 0.0]);
+    lerp4(low, high, fx)
+}
+
+/// Four texels along x from `w[i]`.
+#[inline(always)]
+fn four<const W: usize>(w: &[f32; W], i: usize) -> f32x4 {
+    f32x4::from(<[f32; 4]>::try_from(&w[i..i + 4]).expect("in w"))
+}
+
+/// `a` blended towards `b` by `t`, lane by lane.
+#[inline(always)]
+fn lerp4(a: f32x4, b: f32x4, t: f32) -> f32x4 {
+    a + (b - a) * f32x4::splat(t)
 }
 
 /// The cubic B-spline's derivative along x, y and z (per texel) at
