@@ -550,10 +550,7 @@ struct Shown {
 #[inline(always)]
 fn composited_lanes(shown: u32, mut alpha: f32, corrected: &[f32; 4], p: &RaycastParams) -> u32 {
     let mut kept = 0;
-    let mut lanes = shown;
-    while lanes != 0 {
-        let j = lanes.trailing_zeros() as usize;
-        lanes &= lanes - 1;
+    for j in Lanes(shown) {
         kept |= 1 << j;
         alpha += (1.0 - alpha) * corrected[j];
         if alpha >= p.early_termination {
@@ -563,12 +560,23 @@ fn composited_lanes(shown: u32, mut alpha: f32, corrected: &[f32; 4], p: &Raycas
     kept
 }
 
-/// `f(j)` for each lane `j` set in `lanes`, in order.
-#[inline(always)]
-fn for_each_lane(mut lanes: u32, mut f: impl FnMut(usize)) {
-    while lanes != 0 {
-        f(lanes.trailing_zeros() as usize);
-        lanes &= lanes - 1;
+/// The lanes set in a mask (a bit each, bit `j` for lane `j`), in order.
+/// An iterator, not a function taking a closure: a closure the compiler
+/// does not inline is compiled apart from the march, without the
+/// instructions `march_band_v3` is built for.
+struct Lanes(u32);
+
+impl Iterator for Lanes {
+    type Item = usize;
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<usize> {
+        if self.0 == 0 {
+            return None;
+        }
+        let j = self.0.trailing_zeros() as usize;
+        self.0 &= self.0 - 1;
+        Some(j)
     }
 }
 
@@ -591,13 +599,7 @@ fn colour_shown<S: Storage>(
 ) {
     if p.flags & FLAG_SHADED != 0 {
         let mut g = [[0.0f32; 4]; 3];
-        // A loop, not `for_each_lane`: a closure is compiled apart from
-        // the march, without the instructions `march_band_v3` is built
-        // for, where it is not inlined (the gradient's is not).
-        let mut lanes = shown.lanes;
-        while lanes != 0 {
-            let j = lanes.trailing_zeros() as usize;
-            lanes &= lanes - 1;
+        for j in Lanes(shown.lanes) {
             let t = shown.ts[j];
             let tc = shown.tex_origin + shown.tex_dir * t;
             let gradient = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0))
@@ -615,15 +617,12 @@ fn colour_shown<S: Storage>(
             half,
         )
         .map(f32x4::to_array);
-        for_each_lane(shown.lanes, |j| {
+        for j in Lanes(shown.lanes) {
             rgbas[j] = Vec4::new(shaded[0][j], shaded[1][j], shaded[2][j], rgbas[j].w);
-        });
+        }
     }
     if p.flags & FLAG_LIT != 0 {
-        let mut lanes = shown.lanes;
-        while lanes != 0 {
-            let j = lanes.trailing_zeros() as usize;
-            lanes &= lanes - 1;
+        for j in Lanes(shown.lanes) {
             rgbas[j] = lit(p, s, span, shown.ts[j], shown, rgbas[j]);
         }
     }
@@ -927,7 +926,9 @@ fn main<S: Storage, const KIND: u8>(
                             // the opacity after each, as `add` finds it.
                             shown_at.lanes = composited_lanes(shown, acc.alpha, &corrected, p);
                         }
-                        for_each_lane(shown_at.lanes, |j| rgbas[j] = classes.rgba(tf, j));
+                        for j in Lanes(shown_at.lanes) {
+                            rgbas[j] = classes.rgba(tf, j);
+                        }
                         colour_shown(p, s, &stretch, &shown_at, acc.half, &mut rgbas);
                     }
                     if composite && !lit_alone && !extinction {
@@ -950,9 +951,7 @@ fn main<S: Storage, const KIND: u8>(
                         }
                         shown = 0;
                     }
-                    while shown != 0 {
-                        let j = shown.trailing_zeros() as usize;
-                        shown &= shown - 1;
+                    for j in Lanes(shown) {
                         let mut rgba = if shaded {
                             rgbas[j]
                         } else {
