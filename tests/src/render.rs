@@ -101,6 +101,7 @@ pub fn cpu_raycast(
     let tf = request.store_transfer_function(dataset.store.meta());
     let params = shaders::RaycastParams::new(desc, request, &tf, table.len() as u32, layout);
     let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
+    let table = shaders::cpu::full_table(table).expect("a table of TABLE_LEN entries");
     shaders::cpu::raycast(&params, packed, table, &mut rgba);
     Frame {
         width: request.width,

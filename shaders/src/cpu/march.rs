@@ -9,6 +9,7 @@
 //! [`Classes4`]), composited in order by the shader's loop body
 //! (`Accumulator::add`).
 
+use blocks::transfer_function::TABLE_LEN;
 use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 use wide::{f32x4, i32x4};
@@ -193,7 +194,7 @@ impl Isa {
 pub fn march<S: Storage>(
     params: &RaycastParams,
     storage: &S,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     output: &mut [u8],
 ) {
     march_on(Isa::best(), params, storage, transfer_function, output);
@@ -205,7 +206,7 @@ pub fn march_on<S: Storage>(
     isa: Isa,
     params: &RaycastParams,
     storage: &S,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     output: &mut [u8],
 ) {
     match kind_of(params) {
@@ -236,7 +237,7 @@ fn march_as<S: Storage, const KIND: u8>(
     isa: Isa,
     params: &RaycastParams,
     storage: &S,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     output: &mut [u8],
 ) {
     let width = params.width as usize;
@@ -270,7 +271,7 @@ fn march_as<S: Storage, const KIND: u8>(
 fn march_band_v3<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     band: usize,
     rows: &mut [u8],
 ) {
@@ -282,7 +283,7 @@ fn march_band_v3<S: Storage, const KIND: u8>(
 fn march_band<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     band: usize,
     rows: &mut [u8],
 ) {
@@ -294,7 +295,7 @@ fn march_band<S: Storage, const KIND: u8>(
 fn march_band_body<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     band: usize,
     rows: &mut [u8],
 ) {
@@ -355,19 +356,37 @@ impl Classes4 {
     /// The four opacities, as [`Classes4::rgba`] has them (`Vec4::lerp`'s
     /// arithmetic lane by lane).
     #[inline(always)]
-    pub fn opacity(&self, transfer_function: &[[f32; 4]]) -> f32x4 {
-        let at = |i: [i32; 4]| f32x4::from(i.map(|i| transfer_function[i as usize][3]));
+    pub fn opacity(&self, transfer_function: &TfTable) -> f32x4 {
+        let at = |i: [i32; 4]| f32x4::from(i.map(|i| entry(transfer_function, i)[3]));
         let s = f32x4::from(self.fraction);
         at(self.lower) * (f32x4::ONE - s) + at(self.upper) * s
     }
 
     /// Lane `j`'s class.
     #[inline(always)]
-    pub fn rgba(&self, transfer_function: &[[f32; 4]], j: usize) -> Vec4 {
-        let a = Vec4::from(transfer_function[self.lower[j] as usize]);
-        let b = Vec4::from(transfer_function[self.upper[j] as usize]);
+    pub fn rgba(&self, transfer_function: &TfTable, j: usize) -> Vec4 {
+        // A lane is below 4: the mask spares the bounds checks.
+        let j = j & 3;
+        let a = Vec4::from(entry(transfer_function, self.lower[j]));
+        let b = Vec4::from(entry(transfer_function, self.upper[j]));
         a.lerp(b, self.fraction[j])
     }
+}
+
+/// The transfer function's table as the march reads it: `TABLE_LEN`
+/// entries (what every renderer builds, and `p.volume.tf_len` then), so
+/// that a table position is known to be in it once masked to that power of
+/// two ([`entry`]), with no bounds check per read.
+pub type TfTable = [[f32; 4]; TABLE_LEN];
+
+const _: () = assert!(TABLE_LEN.is_power_of_two());
+
+/// Entry `i` of `table`, for `i` in `0..TABLE_LEN` ([`Classes4::new`]
+/// clamps its positions to the table): the mask leaves such an `i` as it
+/// is and spares the bounds check.
+#[inline(always)]
+fn entry(table: &TfTable, i: i32) -> [f32; 4] {
+    table[i as usize & (TABLE_LEN - 1)]
 }
 
 /// Where `classify` reads a table of `tf_len` entries for `u`: it blends
@@ -796,7 +815,7 @@ impl Accumulator {
 fn main<S: Storage, const KIND: u8>(
     p: &RaycastParams,
     s: &S,
-    tf: &[[f32; 4]],
+    tf: &TfTable,
     gid: [u32; 2],
 ) -> Option<[u8; 4]> {
     if gid[0] >= p.width || gid[1] >= p.height {

@@ -58,6 +58,17 @@ use crate::raycast::RaycastParams;
 use crate::volume_texture::VolumeTexture;
 use crate::{Frame, FrameRequest, GpuError};
 
+/// `table` as the march reads it ([`march::TfTable`]): an error unless it
+/// has `TABLE_LEN` entries, as every table the renderers build has.
+pub fn full_table(table: &[[f32; 4]]) -> Result<&march::TfTable, GpuError> {
+    table.try_into().map_err(|_| {
+        GpuError::InvalidRequest(format!(
+            "transfer-function table of {} entries: expected {TABLE_LEN}",
+            table.len()
+        ))
+    })
+}
+
 /// Renders `request` of the store behind `cache` on the CPU, converged,
 /// through a [`CpuRenderer`] that stores texels as a GPU with `features`
 /// does and packs into atlas edges of at most `max_edge` (no memory budget:
@@ -100,7 +111,7 @@ pub fn render_reference(
         PackedLayout::default(),
     );
     let mut rgba = vec![0u8; params.width as usize * params.height as usize * 4];
-    reference(&params, &texture, &table, &mut rgba);
+    reference(&params, &texture, full_table(&table)?, &mut rgba);
     Ok(Frame {
         width: params.width,
         height: params.height,

@@ -4,7 +4,7 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{CubicReads, Isa, Span, Storage, far_face_crossing, march_on};
+use super::march::{CubicReads, Isa, Span, Storage, TfTable, far_face_crossing, march_on};
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
 };
@@ -563,7 +563,7 @@ impl Beyond {
 pub fn raycast(
     params: &RaycastParams,
     packed: &PackedTexture,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     output: &mut [u8],
 ) {
     raycast_on(Isa::best(), params, packed, transfer_function, output);
@@ -574,7 +574,7 @@ pub fn raycast_on(
     isa: Isa,
     params: &RaycastParams,
     packed: &PackedTexture,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     output: &mut [u8],
 ) {
     march_on(isa, params, packed, transfer_function, output);

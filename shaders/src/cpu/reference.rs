@@ -4,7 +4,7 @@
 use glam::Vec3;
 
 use super::Texture3d;
-use super::march::{Span, Storage, march};
+use super::march::{Span, Storage, TfTable, march};
 use crate::raycast::RaycastParams;
 
 /// WGSL `Location` of the reference stage: nothing is ever empty.
@@ -72,7 +72,7 @@ impl Storage for Texture3d {
 pub fn reference(
     params: &RaycastParams,
     volume: &Texture3d,
-    transfer_function: &[[f32; 4]],
+    transfer_function: &TfTable,
     output: &mut [u8],
 ) {
     march(params, volume, transfer_function, output);
