@@ -25,7 +25,7 @@ use blocks::transfer_function::TABLE_LEN;
 
 use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
-use super::march::Isa;
+use super::march::{Isa, TfTable};
 use super::occupancy::{visible_boxes, visible_texels};
 use super::raycast::raycast_on;
 use crate::extinction::ExtinctionParams;
@@ -49,8 +49,9 @@ pub struct CpuRenderer {
     desc: VolumeTexture,
     device: CpuDevice,
     residency: Residency<CpuAtlas>,
-    /// The transfer function's table, for the function it was made from.
-    table: Option<(TransferFunction, Vec<[f32; 4]>)>,
+    /// The transfer function's table, for the function it was made from:
+    /// `TABLE_LEN` entries, as the march reads it.
+    table: Option<(TransferFunction, Box<TfTable>)>,
     /// Global light's stages and refinement.
     global_light: CpuGlobalLight,
     /// Extinction-based illumination's stages.
@@ -171,7 +172,8 @@ impl CpuRenderer {
         let request = fitted.as_ref().unwrap_or(request);
         stats.camera = fitted.as_ref().map(|r| r.camera);
         if self.table.as_ref().is_none_or(|(t, _)| *t != tf) {
-            self.table = Some((tf.clone(), tf.table(self.desc.tf_domain, TABLE_LEN)?));
+            let table = tf.table(self.desc.tf_domain, TABLE_LEN)?;
+            self.table = Some((tf.clone(), Box::new(*super::full_table(&table)?)));
         }
         self.update_visible_texels(&tf);
         // A moving view draws from the light there is.
@@ -208,7 +210,7 @@ impl CpuRenderer {
         }
         let g = PackedVolume::new(&self.desc, atlas.layout, table.len() as u32);
         let texture = &mut atlas.texture;
-        let bits = visible_texels(&texture.atlas, &g, table);
+        let bits = visible_texels(&texture.atlas, &g, table.as_slice());
         texture.visible_boxes = Some(visible_boxes(&texture.atlas, &texture.index, &bits));
         texture.visible_texels = Some(bits);
         self.texels_for = Some(key);
@@ -232,7 +234,7 @@ impl CpuRenderer {
             packing: &atlas.packing,
             layout: atlas.layout,
             packed: &atlas.texture,
-            tf: table,
+            tf: table.as_slice(),
         };
         let timings = self
             .global_light
@@ -265,7 +267,7 @@ impl CpuRenderer {
         let inputs = CpuExtinctionInputs {
             packing: &atlas.packing,
             packed: &atlas.texture,
-            tf: table,
+            tf: table.as_slice(),
         };
         let timings =
             self.extinction
@@ -297,7 +299,7 @@ impl CpuRenderer {
             self.isa,
             &params,
             &atlas.texture,
-            super::full_table(table)?,
+            table,
             &mut rgba,
         );
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;

@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use super::Texture3d;
 use super::occupancy::texel_may_show;
 use super::packed::{BlockLocation, atlas_texel};
-use super::texture::{floor3, round_down, split, trilinear};
+use super::texture::{deal, floor3, pair, round_down, split, trilinear};
 use crate::packed_volume::PackedVolume;
 
 /// The atlas of one packing, slot by slot; see the module docs.
@@ -341,20 +341,29 @@ impl SlotAtlas {
             }
         }
         let [fx, fy, fz] = [0, 1, 2].map(|a| p[a] - whole[a]);
-        let windows: [&[f32; W]; 4] = offset.map(|o| {
-            let start = base + o as usize;
-            self.texels
-                .get(start..start + W)
-                .and_then(|w| w.try_into().ok())
-                .unwrap_or(&[0.0; W])
-        });
         let (row, slice) = (E, E * E);
-        let at = |corner: usize| f32x4::from(windows.map(|w| w[corner]));
         let lerp = |a: f32x4, b: f32x4, t: f32x4| a + (b - a) * t;
-        let c00 = lerp(at(0), at(1), fx);
-        let c10 = lerp(at(row), at(row + 1), fx);
-        let c01 = lerp(at(slice), at(slice + 1), fx);
-        let c11 = lerp(at(slice + row), at(slice + row + 1), fx);
+        // The slot, then each window in it: a sample's window starts at
+        // most at (E − 2)·(E² + E + 1), where its last texel is the slot's
+        // (`p` kept below E − 1), so `min` leaves every start as it is and
+        // spares the windows' bounds checks.
+        let size = E * E * E;
+        let Some(slot) = self.texels.get(base..base + size) else {
+            return Some([0.0; 4]);
+        };
+        let windows: [&[f32; W]; 4] = offset.map(|o| {
+            let start = (o as u32 as usize).min(size - W);
+            slot[start..start + W].try_into().expect("W texels")
+        });
+        // Each corner's texel and the next along x, blended along x.
+        let along = |c: usize| {
+            let (a, b) = deal(windows.map(|w| pair(w, c)));
+            lerp(a, b, fx)
+        };
+        let c00 = along(0);
+        let c10 = along(row);
+        let c01 = along(slice);
+        let c11 = along(slice + row);
         Some(lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz).to_array())
     }
 

@@ -53,6 +53,43 @@ pub fn round_down(x: f32x4) -> f32x4 {
     ((x - f32x4::splat(0.5)) + f32x4::splat(MAGIC)) - f32x4::splat(MAGIC)
 }
 
+/// Entries `i` and `i + 1` of `values`, side by side in one 64-bit word
+/// (the first in its low half, as memory holds them): one read.
+#[inline(always)]
+pub fn pair<const N: usize>(values: &[f32; N], i: usize) -> u64 {
+    u64::from(values[i].to_bits()) | u64::from(values[i + 1].to_bits()) << 32
+}
+
+/// Four [`pair`]s dealt into two vectors: lane `l` of the first holds pair
+/// `l`'s first value, of the second its second (two shuffles, where
+/// building each vector a value at a time takes four reads and three
+/// inserts).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub fn deal(pairs: [u64; 4]) -> (f32x4, f32x4) {
+    use safe_arch::{cast_to_m128_from_m128d, set_m128d, shuffle_abi_f32_all_m128};
+    let two = |high: u64, low: u64| {
+        cast_to_m128_from_m128d(set_m128d(f64::from_bits(high), f64::from_bits(low)))
+    };
+    // Lanes: pair 0's values, then pair 1's; pair 2's, then pair 3's.
+    let (low, high) = (two(pairs[1], pairs[0]), two(pairs[3], pairs[2]));
+    (
+        bytemuck::cast(shuffle_abi_f32_all_m128::<0b10_00_10_00>(low, high)),
+        bytemuck::cast(shuffle_abi_f32_all_m128::<0b11_01_11_01>(low, high)),
+    )
+}
+
+/// Four [`pair`]s dealt into two vectors.
+#[cfg(not(target_arch = "x86_64"))]
+#[inline(always)]
+pub fn deal(pairs: [u64; 4]) -> (f32x4, f32x4) {
+    let half = |bits: u64| f32::from_bits(bits as u32);
+    (
+        f32x4::from(pairs.map(half)),
+        f32x4::from(pairs.map(|p| half(p >> 32))),
+    )
+}
+
 /// `floor(x)` as a whole number (`floor(x) as i32`, saturating, 0 for
 /// NaN), branch-free: truncation, one less where that rounded up.
 #[inline(always)]
@@ -227,6 +264,18 @@ impl ColourTexture {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn four_pairs_dealt_put_each_pair_s_values_in_its_lane() {
+        // Distinct values, a negative zero and a NaN among them: the bits
+        // must arrive unchanged.
+        let values: [f32; 9] = [1.5, -0.0, 3.25, f32::NAN, -7.0, 1e-40, 9.0, 0.1, -2.5];
+        let at = [0, 3, 7, 2];
+        let (first, second) = deal(at.map(|i| pair(&values, i)));
+        let bits = |v: f32x4| v.to_array().map(f32::to_bits);
+        assert_eq!(bits(first), at.map(|i| values[i].to_bits()));
+        assert_eq!(bits(second), at.map(|i| values[i + 1].to_bits()));
+    }
 
     #[test]
     fn a_colour_texture_samples_each_channel_as_a_texture_of_it_does() {
