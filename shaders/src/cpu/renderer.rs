@@ -295,13 +295,7 @@ impl CpuRenderer {
         let params = RaycastParams::new(&self.desc, request, tf, table.len() as u32, atlas.layout);
         let start = Instant::now();
         let mut rgba = vec![0u8; params.width as usize * params.height as usize * 4];
-        raycast_on(
-            self.isa,
-            &params,
-            &atlas.texture,
-            table,
-            &mut rgba,
-        );
+        raycast_on(self.isa, &params, &atlas.texture, table, &mut rgba);
         stats.draw_ms = start.elapsed().as_secs_f64() * 1e3;
         stats.reduction = selection.reduction();
         stats.empty_share = selection.empty_share();
