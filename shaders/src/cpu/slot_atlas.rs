@@ -349,6 +349,14 @@ impl SlotAtlas {
         // spares the windows' bounds checks.
         let size = E * E * E;
         let Some(slot) = self.texels.get(base..base + size) else {
+            // Cannot happen: `base` is where this atlas put a slot of edge
+            // `E` (`slot_base`). A debug build stops; a release build draws
+            // the samples as zeros rather than read out of bounds.
+            debug_assert!(
+                self.texels.len() >= base + size,
+                "a slot of edge {E} at texel {base}, past the atlas's {} texels",
+                self.texels.len()
+            );
             return Some([0.0; 4]);
         };
         let windows: [&[f32; W]; 4] = offset.map(|o| {
