@@ -343,6 +343,7 @@ impl Atlas for CpuAtlas {
                 lit_by: None,
                 visible_texels: None,
                 visible_boxes: None,
+                visible_extent: None,
             },
             layout: PackedLayout {
                 atlas_dims: dims,

@@ -94,6 +94,13 @@ pub trait Storage: Sync + Sized {
     fn light_at(&self, p: &RaycastParams, span: &Span<Self::Location>, t: f32, tc: Vec3) -> Vec3;
     /// WGSL `empty_exit`.
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &Self::Location) -> f32;
+    /// CPU only: with empty-space skipping, the box (`lo`, `hi` in texture
+    /// coordinates) outside which no sample can be visible, where the
+    /// storage knows one.
+    fn visible_extent(&self, p: &RaycastParams) -> Option<(Vec3, Vec3)> {
+        let _ = p;
+        None
+    }
 }
 
 /// Where the samples of a stretch of a ray fall (the CPU's way of walking
@@ -843,8 +850,18 @@ fn main<S: Storage, const KIND: u8>(
         Vec3::from(p.clip_min),
         Vec3::from(p.clip_max),
     );
+    // With empty-space skipping, the stretch of the ray where a sample may
+    // be visible: none lie before `seen.x` or after `seen.y` (the samples
+    // stay where the box puts them: from `span.x` on, a step apart).
+    let seen = match s.visible_extent(p) {
+        Some((lo, hi)) => {
+            let inside = intersect_box(tex_origin, tex_dir, lo, hi);
+            Vec2::new(inside.x, inside.y.min(span.y))
+        }
+        None => span,
+    };
     let mut acc = Accumulator::default();
-    if span.x < span.y {
+    if span.x < span.y && seen.x < seen.y {
         let mut jitter = 0.0;
         if p.flags & FLAG_JITTER != 0 {
             jitter = unit_from_hash(pcg_hash(row * p.width + gid[0]));
@@ -854,8 +871,9 @@ fn main<S: Storage, const KIND: u8>(
             acc.half = half_vector(p, dir);
         }
         let first = span.x + jitter * p.step;
-        let mut i = 0u32;
-        let mut stretch = s.span(p, tex_origin, tex_dir, first);
+        // The first sample at or after `seen.x`.
+        let mut i = (-floor(-(seen.x - first) / p.step)).max(0.0) as u32;
+        let mut stretch = s.span(p, tex_origin, tex_dir, first + i as f32 * p.step);
         let skipping = p.flags & FLAG_SKIP_EMPTY != 0;
         // A jump from sample `i` to the first sample at or after `t` (at
         // least the next); WGSL's f32 → u32 conversion saturates like Rust's `as`.
@@ -864,7 +882,7 @@ fn main<S: Storage, const KIND: u8>(
         let mut k = 0u32;
         'march: while k < p.max_steps {
             let t = first + i as f32 * p.step;
-            if t > span.y || i > MAX_RUN_INDEX {
+            if t > seen.y || i > MAX_RUN_INDEX {
                 break;
             }
             if t >= stretch.exit {

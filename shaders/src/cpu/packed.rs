@@ -47,6 +47,10 @@ pub struct PackedTexture {
     /// no sample can be visible, found from `visible_texels` with them
     /// ([`super::occupancy::visible_boxes`]); `None`: all may be.
     pub visible_boxes: Option<Vec<VisibleBox>>,
+    /// CPU only: the box in texture coordinates outside which no sample
+    /// can be visible, found from `visible_boxes` with them
+    /// ([`super::occupancy::visible_extent`]); `None`: all may be.
+    pub visible_extent: Option<VisibleBox>,
 }
 
 /// WGSL `Location`.

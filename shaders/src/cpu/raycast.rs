@@ -293,6 +293,13 @@ impl Storage for PackedTexture {
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
         empty_exit(&p.volume, origin, dir, loc)
     }
+
+    #[inline(always)]
+    fn visible_extent(&self, p: &RaycastParams) -> Option<(Vec3, Vec3)> {
+        self.visible_extent
+            .filter(|_| p.flags & FLAG_SKIP_EMPTY != 0)
+            .map(|b| (b.lo, b.hi))
+    }
 }
 
 impl PackedTexture {
@@ -653,6 +660,7 @@ mod tests {
             lit_by: None,
             visible_texels: None,
             visible_boxes: None,
+            visible_extent: None,
         };
         let mut params: RaycastParams = bytemuck::Zeroable::zeroed();
         let voxels = (n as f32) * BLOCK;

@@ -17,6 +17,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use glam::Vec3;
+
 use blocks::TransferFunction;
 use blocks::cache::BlockCache;
 use blocks::lod::LodSelection;
@@ -26,7 +28,8 @@ use blocks::transfer_function::TABLE_LEN;
 use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::march::{Isa, TfTable};
-use super::occupancy::{visible_boxes, visible_texels};
+use super::occupancy::{visible_boxes, visible_extent, visible_texels};
+use super::packed::BLOCK;
 use super::raycast::raycast_on;
 use crate::extinction::ExtinctionParams;
 use crate::illumination::{Mode, Refine, Timings};
@@ -211,7 +214,14 @@ impl CpuRenderer {
         let g = PackedVolume::new(&self.desc, atlas.layout, table.len() as u32);
         let texture = &mut atlas.texture;
         let bits = visible_texels(&texture.atlas, &g, table.as_slice());
-        texture.visible_boxes = Some(visible_boxes(&texture.atlas, &texture.index, &bits));
+        let boxes = visible_boxes(&texture.atlas, &texture.index, &bits);
+        texture.visible_extent = Some(visible_extent(
+            &boxes,
+            texture.grid,
+            BLOCK,
+            Vec3::from(g.volume_dims),
+        ));
+        texture.visible_boxes = Some(boxes);
         texture.visible_texels = Some(bits);
         self.texels_for = Some(key);
     }
