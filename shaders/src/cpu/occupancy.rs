@@ -14,6 +14,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::march::{inverse_direction, table_position};
+use super::packed::BLOCK;
 use super::slot_atlas::SlotAtlas;
 use crate::packed_volume::PackedVolume;
 
@@ -154,13 +155,13 @@ pub fn visible_boxes(atlas: &SlotAtlas, index: &[[u16; 4]], bits: &[u64]) -> Vec
 
 /// The box, in texture coordinates (0 to 1 across the volume), outside
 /// which no sample can be visible: about the blocks of `grid` (x fastest,
-/// each `block` level-0 voxels on an edge, the volume `dims` voxels) whose
+/// each [`BLOCK`] level-0 voxels on an edge, the volume `dims` voxels) whose
 /// [`VisibleBox`] in `boxes` holds something, widened by a voxel (far more
 /// than the rounding of the samples' positions); [`VisibleBox::EMPTY`]
 /// where none does. With empty-space skipping the march takes only the
 /// samples of a ray within it, so a ray that passes beside what the
 /// transfer function shows walks no block.
-pub fn visible_extent(boxes: &[VisibleBox], grid: [u32; 3], block: f32, dims: Vec3) -> VisibleBox {
+pub fn visible_extent(boxes: &[VisibleBox], grid: [u32; 3], dims: Vec3) -> VisibleBox {
     let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     let [nx, ny, _] = grid.map(|n| n as usize);
     for (b, found) in boxes.iter().enumerate() {
@@ -172,8 +173,8 @@ pub fn visible_extent(boxes: &[VisibleBox], grid: [u32; 3], block: f32, dims: Ve
             (b / nx % ny) as f32,
             (b / (nx * ny)) as f32,
         );
-        lo = lo.min(cell * block);
-        hi = hi.max((cell + 1.0) * block);
+        lo = lo.min(cell * BLOCK);
+        hi = hi.max((cell + 1.0) * BLOCK);
     }
     if lo.x > hi.x {
         return VisibleBox::EMPTY;
@@ -284,6 +285,7 @@ mod tests {
     use glam::Vec3;
 
     use super::{BOX_MARGIN, VisibleBox, slot_box, texel_may_show, visible_extent};
+    use crate::cpu::packed::BLOCK;
     use crate::cpu::slot_atlas::slot_corner;
 
     /// A slot of edge 10 at texel 70 of the bits (so its rows straddle
@@ -374,20 +376,21 @@ mod tests {
     #[test]
     fn the_visible_extent_holds_the_blocks_with_something_to_show_and_a_voxel_more() {
         // A grid of 3 × 2 × 4 blocks of 16 voxels over 40 × 32 × 60 voxels.
+        assert_eq!(BLOCK, 16.0);
         let (grid, dims) = ([3u32, 2, 4], Vec3::new(40.0, 32.0, 60.0));
         let shows = VisibleBox {
             lo: Vec3::splat(2.0),
             hi: Vec3::splat(5.0),
         };
         let mut boxes = vec![VisibleBox::EMPTY; 24];
-        assert_eq!(visible_extent(&boxes, grid, 16.0, dims), VisibleBox::EMPTY);
+        assert_eq!(visible_extent(&boxes, grid, dims), VisibleBox::EMPTY);
         // Block (1, 0, 2), then also (2, 1, 3), the grid's last.
         boxes[1 + 2 * 6] = shows;
-        let one = visible_extent(&boxes, grid, 16.0, dims);
+        let one = visible_extent(&boxes, grid, dims);
         assert_eq!(one.lo, Vec3::new(15.0, -1.0, 31.0) / dims);
         assert_eq!(one.hi, Vec3::new(33.0, 17.0, 49.0) / dims);
         boxes[2 + 3 + 3 * 6] = shows;
-        let two = visible_extent(&boxes, grid, 16.0, dims);
+        let two = visible_extent(&boxes, grid, dims);
         assert_eq!(two.lo, one.lo);
         assert_eq!(two.hi, Vec3::new(49.0, 33.0, 65.0) / dims);
     }

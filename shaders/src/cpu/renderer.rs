@@ -29,7 +29,6 @@ use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::march::{Isa, TfTable};
 use super::occupancy::{visible_boxes, visible_extent, visible_texels};
-use super::packed::BLOCK;
 use super::raycast::raycast_on;
 use crate::extinction::ExtinctionParams;
 use crate::illumination::{Mode, Refine, Timings};
@@ -218,7 +217,6 @@ impl CpuRenderer {
         texture.visible_extent = Some(visible_extent(
             &boxes,
             texture.grid,
-            BLOCK,
             Vec3::from(g.volume_dims),
         ));
         texture.visible_boxes = Some(boxes);
