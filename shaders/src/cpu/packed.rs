@@ -97,6 +97,15 @@ pub fn atlas_coord(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
 /// included, so every texel trilinear filtering touches is the block's own.
 #[inline(always)]
 pub fn atlas_texel(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
+    loc.origin + block_texel(g, tc, loc) - 0.5
+}
+
+/// [`atlas_texel`] less the block's `origin` and ½ (CPU only): `tc` in the
+/// block's level texels from its corner, kept within its apron. Where the
+/// block's slot lies in the atlas plays no part, so samples found from it do
+/// not move by a rounding error when a layout puts the slot elsewhere.
+#[inline(always)]
+pub fn block_texel(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
     let p = tc * Vec3::from(g.volume_dims);
     let block = Vec3::new(
         loc.block[0] as f32,
@@ -105,8 +114,7 @@ pub fn atlas_texel(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
     );
     let local = (p - block * BLOCK) * loc.scale;
     let edge = BLOCK * loc.scale;
-    let inside = local.clamp(Vec3::splat(-0.5), Vec3::splat(edge + 0.5));
-    loc.origin + inside - 0.5
+    local.clamp(Vec3::splat(-0.5), Vec3::splat(edge + 0.5))
 }
 
 /// WGSL `empty_exit`.

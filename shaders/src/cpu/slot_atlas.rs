@@ -18,7 +18,7 @@ use rayon::prelude::*;
 
 use super::Texture3d;
 use super::occupancy::texel_may_show;
-use super::packed::{BlockLocation, atlas_texel};
+use super::packed::{BlockLocation, block_texel};
 use super::texture::{deal, floor3, pair, round_down, split, trilinear};
 use crate::packed_volume::PackedVolume;
 
@@ -612,10 +612,11 @@ pub fn cubic_gradient_of(a: Vec3, row: impl Fn(usize, usize) -> f32x4) -> Vec3 {
 }
 
 /// [`slot_corner`] at `tc` in block `loc`'s slot: `atlas_texel` within the
-/// slot, whose apron starts one texel before the block's first interior texel.
+/// slot, whose apron starts one texel before the block's first interior texel,
+/// found without the slot's place in the atlas ([`block_texel`]).
 #[inline(always)]
 fn block_corner(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> (usize, Vec3) {
-    let in_slot = atlas_texel(g, tc, loc) - (loc.origin - SLOT_APRON);
+    let in_slot = block_texel(g, tc, loc) + (SLOT_APRON - 0.5);
     slot_corner(loc.slot, loc.slot_edge, in_slot)
 }
 
@@ -658,6 +659,47 @@ mod tests {
 
     use super::*;
     use crate::cpu::march::CubicReads;
+    use crate::cpu::packed::BLOCK;
+
+    #[test]
+    fn a_block_is_sampled_alike_wherever_its_slot_lies_in_the_atlas() {
+        // The same block (level 0 and level 2) with its first interior texel
+        // near the atlas's corner and far from it: the texels a sample blends
+        // and their weights are the same bits, so frames do not depend on
+        // the layout the blocks' arrival order gave the atlas.
+        let g = PackedVolume {
+            texel: [1.0 / 256.0; 3],
+            reference_step: 1.0,
+            volume_dims: [256.0; 3],
+            value_scale: 1.0,
+            atlas_size: [4096.0; 3],
+            value_offset: 0.0,
+            block_grid: [16; 3],
+            tf_len: 1024,
+        };
+        for level in [0u32, 2] {
+            let edge = slot_edge(level as usize) as usize;
+            let at = |origin: Vec3| BlockLocation {
+                empty: false,
+                block: [5, 9, 3],
+                origin,
+                scale: 1.0 / (1u32 << level) as f32,
+                slot: 0,
+                slot_edge: edge,
+            };
+            let near = at(Vec3::splat(SLOT_APRON));
+            let far = at(Vec3::new(3001.0, 2047.0, 1537.0));
+            for k in 0..20_000 {
+                let f = |s: f32, b: f32| (b * BLOCK + (k as f32 * s).sin() * 9.0 + 8.0) / 256.0;
+                let tc = Vec3::new(f(1.37, 5.0), f(2.71, 9.0), f(0.93, 3.0));
+                assert_eq!(
+                    block_corner(&g, tc, &near),
+                    block_corner(&g, tc, &far),
+                    "level {level} at {tc}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn cubic_gradients_weighed_directly_equal_the_shaders_trilinear_reads() {
