@@ -344,6 +344,7 @@ impl Atlas for CpuAtlas {
                 visible_texels: None,
                 visible_boxes: None,
                 visible_extent: None,
+                visible_cells: None,
             },
             layout: PackedLayout {
                 atlas_dims: dims,

@@ -14,7 +14,9 @@ use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 use wide::{f32x4, i32x4};
 
+use super::footprint::Footprint;
 use super::hash::{pcg_hash, unit_from_hash};
+use super::occupancy::VisibleBox;
 use super::texture::{floor, round_down, split};
 use crate::raycast::{
     FLAG_CUBIC_GRADIENT, FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY,
@@ -98,6 +100,14 @@ pub trait Storage: Sync + Sized {
     /// coordinates) outside which no sample can be visible, where the
     /// storage knows one.
     fn visible_extent(&self, p: &RaycastParams) -> Option<(Vec3, Vec3)> {
+        let _ = p;
+        None
+    }
+    /// CPU only: with empty-space skipping, boxes in texture coordinates
+    /// outside all of which no sample can be visible, where the storage
+    /// knows them: the march leaves the rays that meet none as the
+    /// background ([`Footprint`]).
+    fn visible_cells(&self, p: &RaycastParams) -> Option<&[VisibleBox]> {
         let _ = p;
         None
     }
@@ -249,6 +259,10 @@ fn march_as<S: Storage, const KIND: u8>(
 ) {
     let width = params.width as usize;
     let v3 = isa == Isa::X86_64V3 && isa.is_supported();
+    let footprint = storage
+        .visible_cells(params)
+        .and_then(|cells| Footprint::new(params, cells));
+    let footprint = footprint.as_ref();
     output
         .par_chunks_mut(width * 4 * TILE)
         .enumerate()
@@ -262,12 +276,19 @@ fn march_as<S: Storage, const KIND: u8>(
                 // SAFETY: this processor has every feature the function is
                 // built with (`Isa::is_supported`).
                 unsafe {
-                    march_band_v3::<S, KIND>(params, storage, transfer_function, band, rows);
+                    march_band_v3::<S, KIND>(
+                        params,
+                        storage,
+                        transfer_function,
+                        footprint,
+                        band,
+                        rows,
+                    );
                 };
                 return;
             }
             let _ = v3;
-            march_band::<S, KIND>(params, storage, transfer_function, band, rows);
+            march_band::<S, KIND>(params, storage, transfer_function, footprint, band, rows);
         });
 }
 
@@ -279,10 +300,11 @@ fn march_band_v3<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &TfTable,
+    footprint: Option<&Footprint>,
     band: usize,
     rows: &mut [u8],
 ) {
-    march_band_body::<S, KIND>(params, storage, transfer_function, band, rows);
+    march_band_body::<S, KIND>(params, storage, transfer_function, footprint, band, rows);
 }
 
 /// One band of rows of [`march`], tile by tile.
@@ -291,10 +313,11 @@ fn march_band<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &TfTable,
+    footprint: Option<&Footprint>,
     band: usize,
     rows: &mut [u8],
 ) {
-    march_band_body::<S, KIND>(params, storage, transfer_function, band, rows);
+    march_band_body::<S, KIND>(params, storage, transfer_function, footprint, band, rows);
 }
 
 /// The body of [`march_band`], inlined into each build of it.
@@ -303,6 +326,7 @@ fn march_band_body<S: Storage, const KIND: u8>(
     params: &RaycastParams,
     storage: &S,
     transfer_function: &TfTable,
+    footprint: Option<&Footprint>,
     band: usize,
     rows: &mut [u8],
 ) {
@@ -312,8 +336,11 @@ fn march_band_body<S: Storage, const KIND: u8>(
         for dy in 0..height {
             let y = (band * TILE + dy) as u32;
             for x in x0..(x0 + TILE).min(width) {
+                // A ray no visible box's projection covers meets no
+                // sample that can be visible: it is left unmarched.
+                let met = footprint.is_none_or(|f| f.covers(x as u32, y + params.first_row));
                 if let Some(rgba) =
-                    main::<S, KIND>(params, storage, transfer_function, [x as u32, y])
+                    main::<S, KIND>(params, storage, transfer_function, [x as u32, y], met)
                 {
                     let at = (dy * width + x) * 4;
                     rows[at..at + 4].copy_from_slice(&rgba);
@@ -817,13 +844,16 @@ impl Accumulator {
     }
 }
 
-/// WGSL `main`: the pixel at `gid`, or `None` past the image's edge.
+/// WGSL `main`: the pixel at `gid`, or `None` past the image's edge; a ray
+/// not `met` by any box of [`Storage::visible_cells`] (CPU only) is not
+/// marched.
 #[inline(always)]
 fn main<S: Storage, const KIND: u8>(
     p: &RaycastParams,
     s: &S,
     tf: &TfTable,
     gid: [u32; 2],
+    met: bool,
 ) -> Option<[u8; 4]> {
     if gid[0] >= p.width || gid[1] >= p.height {
         return None;
@@ -861,7 +891,7 @@ fn main<S: Storage, const KIND: u8>(
         None => span,
     };
     let mut acc = Accumulator::default();
-    if span.x < span.y && seen.x < seen.y {
+    if met && span.x < span.y && seen.x < seen.y {
         let mut jitter = 0.0;
         if p.flags & FLAG_JITTER != 0 {
             jitter = unit_from_hash(pcg_hash(row * p.width + gid[0]));

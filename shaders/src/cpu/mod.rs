@@ -28,6 +28,7 @@
 //! [`crate::Renderer`] and [`crate::ReferenceRenderer`] do on the GPU.
 
 pub mod extinction;
+pub mod footprint;
 pub mod global_light;
 pub mod hash;
 pub mod march;

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use super::march::{inverse_direction, table_position};
 use super::packed::BLOCK;
-use super::slot_atlas::SlotAtlas;
+use super::slot_atlas::{SLOT_APRON, SlotAtlas};
 use crate::packed_volume::PackedVolume;
 
 /// Which texel values `classify` may make visible.
@@ -185,6 +185,72 @@ pub fn visible_extent(boxes: &[VisibleBox], grid: [u32; 3], dims: Vec3) -> Visib
     }
 }
 
+/// Most boxes [`visible_cells`] gives: cells of more blocks beyond, so
+/// that projecting them stays cheap for any volume.
+pub const MAX_VISIBLE_CELLS: usize = 4096;
+
+/// The boxes, in texture coordinates, outside all of which no sample can be
+/// visible: cells of 2ᵏ × 2ᵏ × 2ᵏ blocks of `grid` (the least k giving at
+/// most [`MAX_VISIBLE_CELLS`]), each the box about the [`VisibleBox`]es in
+/// `boxes` of its blocks (taken from their slots, at the level `index`
+/// stores each at, to the volume; within each block's extent), widened by a
+/// voxel as in [`visible_extent`]. The march's
+/// [`super::footprint::Footprint`] projects them onto the image.
+pub fn visible_cells(
+    boxes: &[VisibleBox],
+    index: &[[u16; 4]],
+    grid: [u32; 3],
+    dims: Vec3,
+) -> Vec<VisibleBox> {
+    let [nx, ny, _] = grid.map(|n| n as usize);
+    // Each block's box in level-0 voxels of the volume.
+    let shown: Vec<([u32; 3], Vec3, Vec3)> = boxes
+        .iter()
+        .zip(index)
+        .enumerate()
+        .filter(|(_, (found, _))| found.lo.x <= found.hi.x)
+        .map(|(b, (found, entry))| {
+            let block = [b % nx, b / nx % ny, b / (nx * ny)].map(|c| c as u32);
+            let corner = Vec3::from(block.map(|c| c as f32)) * BLOCK;
+            // Slot position s is (s − apron + ½) level texels from the
+            // block's corner (`block_span`'s map, inverted); a box that
+            // reaches a slot's edge is unbounded there.
+            let per_texel = (1u32 << u32::from(entry[3]).min(LEVELS as u32 - 1)) as f32;
+            let voxels = |s: Vec3| {
+                ((s - (SLOT_APRON - 0.5)) * per_texel).clamp(Vec3::ZERO, Vec3::splat(BLOCK))
+            };
+            (block, corner + voxels(found.lo), corner + voxels(found.hi))
+        })
+        .collect();
+    let mut k = 0;
+    loop {
+        let cells = grid.map(|n| n.div_ceil(1 << k) as usize);
+        let mut at_cell = vec![usize::MAX; cells[0] * cells[1] * cells[2]];
+        let mut found: Vec<(Vec3, Vec3)> = Vec::new();
+        for &(block, lo, hi) in &shown {
+            let c = block.map(|v| (v >> k) as usize);
+            let at = &mut at_cell[(c[2] * cells[1] + c[1]) * cells[0] + c[0]];
+            if *at == usize::MAX {
+                *at = found.len();
+                found.push((lo, hi));
+            } else {
+                let cell = &mut found[*at];
+                *cell = (cell.0.min(lo), cell.1.max(hi));
+            }
+        }
+        if found.len() <= MAX_VISIBLE_CELLS || k >= 31 {
+            return found
+                .into_iter()
+                .map(|(lo, hi)| VisibleBox {
+                    lo: (lo - 1.0) / dims,
+                    hi: (hi + 1.0) / dims,
+                })
+                .collect();
+        }
+        k += 1;
+    }
+}
+
 /// [`visible_boxes`]' box of the slot of edge `edge` at `base`.
 fn slot_box(bits: &[u64], base: usize, edge: usize) -> VisibleBox {
     // A row's texels that can be a sample's lowest: all but its last.
@@ -284,9 +350,12 @@ fn cube_visible<const E: usize>(region: &[f32], i: usize, any_visible: &Visibili
 mod tests {
     use glam::Vec3;
 
-    use super::{BOX_MARGIN, VisibleBox, slot_box, texel_may_show, visible_extent};
+    use super::{
+        BOX_MARGIN, MAX_VISIBLE_CELLS, VisibleBox, slot_box, texel_may_show, visible_cells,
+        visible_extent,
+    };
     use crate::cpu::packed::BLOCK;
-    use crate::cpu::slot_atlas::slot_corner;
+    use crate::cpu::slot_atlas::{SLOT_APRON, slot_corner};
 
     /// A slot of edge 10 at texel 70 of the bits (so its rows straddle
     /// words), a few of its texels set as `visible_texels` sets them (its
@@ -393,5 +462,58 @@ mod tests {
         let two = visible_extent(&boxes, grid, dims);
         assert_eq!(two.lo, one.lo);
         assert_eq!(two.hi, Vec3::new(49.0, 33.0, 65.0) / dims);
+    }
+
+    #[test]
+    fn visible_cells_hold_each_block_s_box_in_voxels_and_a_voxel_more() {
+        // The grid above; a box of slot texels 2 to 5 (apron 1) is level
+        // texels 1.5 to 4.5 from the block's corner.
+        assert_eq!(SLOT_APRON, 1.0);
+        let (grid, dims) = ([3u32, 2, 4], Vec3::new(40.0, 32.0, 60.0));
+        let shows = VisibleBox {
+            lo: Vec3::splat(2.0),
+            hi: Vec3::splat(5.0),
+        };
+        let mut boxes = vec![VisibleBox::EMPTY; 24];
+        let mut index = vec![[0u16; 4]; 24];
+        assert!(visible_cells(&boxes, &index, grid, dims).is_empty());
+        // Block (1, 0, 2) at level 0; block (2, 1, 3) at level 1, its box
+        // unbounded above (it reaches its slot's far faces).
+        boxes[1 + 2 * 6] = shows;
+        boxes[2 + 3 + 3 * 6] = VisibleBox {
+            lo: Vec3::splat(2.0),
+            hi: Vec3::INFINITY,
+        };
+        index[2 + 3 + 3 * 6][3] = 1;
+        let cells = visible_cells(&boxes, &index, grid, dims);
+        assert_eq!(cells.len(), 2);
+        assert_eq!(
+            cells[0].lo,
+            Vec3::new(16.0 + 0.5, -1.0 + 1.5, 32.0 + 0.5) / dims
+        );
+        assert_eq!(cells[0].hi, Vec3::new(16.0 + 5.5, 5.5, 32.0 + 5.5) / dims);
+        assert_eq!(
+            cells[1].lo,
+            Vec3::new(32.0 + 2.0, 16.0 + 2.0, 48.0 + 2.0) / dims
+        );
+        assert_eq!(cells[1].hi, Vec3::new(49.0, 33.0, 65.0) / dims);
+    }
+
+    #[test]
+    fn visible_cells_take_more_blocks_each_past_the_most_cells() {
+        // Every block of a 32 × 32 × 8 grid shows: 8 192 blocks, so cells
+        // of 2³ blocks (1 024), each the box of its eight.
+        let grid = [32u32, 32, 8];
+        let dims = Vec3::new(512.0, 512.0, 128.0);
+        let n = 32 * 32 * 8;
+        let whole = VisibleBox {
+            lo: Vec3::NEG_INFINITY,
+            hi: Vec3::INFINITY,
+        };
+        let cells = visible_cells(&vec![whole; n], &vec![[0u16; 4]; n], grid, dims);
+        assert_eq!(cells.len(), n / 8);
+        assert!(cells.len() <= MAX_VISIBLE_CELLS);
+        assert_eq!(cells[0].lo, Vec3::splat(-1.0) / dims);
+        assert_eq!(cells[0].hi, Vec3::splat(33.0) / dims);
     }
 }

@@ -51,6 +51,10 @@ pub struct PackedTexture {
     /// can be visible, found from `visible_boxes` with them
     /// ([`super::occupancy::visible_extent`]); `None`: all may be.
     pub visible_extent: Option<VisibleBox>,
+    /// CPU only: boxes in texture coordinates outside all of which no
+    /// sample can be visible, found from `visible_boxes` with them
+    /// ([`super::occupancy::visible_cells`]); `None`: all may be.
+    pub visible_cells: Option<Vec<VisibleBox>>,
 }
 
 /// WGSL `Location`.

@@ -5,6 +5,7 @@ use glam::Vec3;
 use wide::f32x4;
 
 use super::march::{CubicReads, Isa, Span, Storage, TfTable, far_face_crossing, march_on};
+use super::occupancy::VisibleBox;
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
 };
@@ -292,6 +293,12 @@ impl Storage for PackedTexture {
 
     fn empty_exit(&self, p: &RaycastParams, origin: Vec3, dir: Vec3, loc: &BlockLocation) -> f32 {
         empty_exit(&p.volume, origin, dir, loc)
+    }
+
+    fn visible_cells(&self, p: &RaycastParams) -> Option<&[VisibleBox]> {
+        self.visible_cells
+            .as_deref()
+            .filter(|_| p.flags & FLAG_SKIP_EMPTY != 0)
     }
 
     #[inline(always)]
@@ -661,6 +668,7 @@ mod tests {
             visible_texels: None,
             visible_boxes: None,
             visible_extent: None,
+            visible_cells: None,
         };
         let mut params: RaycastParams = bytemuck::Zeroable::zeroed();
         let voxels = (n as f32) * BLOCK;

@@ -28,7 +28,7 @@ use blocks::transfer_function::TABLE_LEN;
 use super::extinction::{CpuExtinction, CpuExtinctionInputs};
 use super::global_light::{CpuGlobalLight, CpuLightInputs};
 use super::march::{Isa, TfTable};
-use super::occupancy::{visible_boxes, visible_extent, visible_texels};
+use super::occupancy::{visible_boxes, visible_cells, visible_extent, visible_texels};
 use super::raycast::raycast_on;
 use crate::extinction::ExtinctionParams;
 use crate::illumination::{Mode, Refine, Timings};
@@ -214,11 +214,9 @@ impl CpuRenderer {
         let texture = &mut atlas.texture;
         let bits = visible_texels(&texture.atlas, &g, table.as_slice());
         let boxes = visible_boxes(&texture.atlas, &texture.index, &bits);
-        texture.visible_extent = Some(visible_extent(
-            &boxes,
-            texture.grid,
-            Vec3::from(g.volume_dims),
-        ));
+        let dims = Vec3::from(g.volume_dims);
+        texture.visible_extent = Some(visible_extent(&boxes, texture.grid, dims));
+        texture.visible_cells = Some(visible_cells(&boxes, &texture.index, texture.grid, dims));
         texture.visible_boxes = Some(boxes);
         texture.visible_texels = Some(bits);
         self.texels_for = Some(key);

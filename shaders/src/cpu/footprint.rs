@@ -1,0 +1,208 @@
+//! CPU only: which pixels of a frame can show anything, from the boxes of
+//! the blocks the transfer function shows, projected onto the image. With
+//! empty-space skipping a ray whose pixel no box covers meets no sample that
+//! can be visible, so the march leaves it as the background without walking
+//! the block grid (the same bytes: such a ray composites nothing).
+
+use glam::{Vec3, Vec4};
+
+use super::occupancy::VisibleBox;
+use crate::raycast::RaycastParams;
+
+/// Pixels a projected box is widened by on every side: far more than the
+/// rounding of the projection (found from the inverse of the matrix the
+/// rays are unprojected with) and of the rays' own arithmetic.
+const MARGIN_PX: f32 = 2.0;
+
+/// Smallest `w` (clip space) a box's corner may have: a box reaching to or
+/// behind the eye projects onto no bounded rectangle, and the frame gets no
+/// footprint.
+const MIN_W: f32 = 1e-6;
+
+/// The pixels of a band of rows (`first_row`, `rows` rows of `width`) that
+/// some projected box covers.
+#[derive(Debug, Clone)]
+pub struct Footprint {
+    width: usize,
+    first_row: u32,
+    covered: Vec<bool>,
+}
+
+impl Footprint {
+    /// The footprint of `cells` (texture-coordinate boxes, `occupancy::visible_cells`)
+    /// in the band of rows `p` draws; `None` where a box reaches behind the eye
+    /// or the projection is not finite (every ray is marched then).
+    pub fn new(p: &RaycastParams, cells: &[VisibleBox]) -> Option<Footprint> {
+        let (width, rows) = (p.width as usize, p.height as usize);
+        let clip_from_texture = p.inv_view_proj.inverse() * p.texture_from_model.inverse();
+        if !clip_from_texture.is_finite() {
+            return None;
+        }
+        // Pixel (x, row) takes its ray through NDC ((x + ½)/width·2 − 1,
+        // 1 − (row + ½)/image_height·2): the inverse, for a point's NDC.
+        let (w, h) = (p.width as f32, p.image_height as f32);
+        let first = p.first_row as f32;
+        // A 2D difference array of the rectangles, summed below: each box
+        // costs four additions whatever its size on screen.
+        let stride = width + 1;
+        let mut sums = vec![0i32; stride * (rows + 1)];
+        for cell in cells {
+            let (mut lo, mut hi) = (glam::Vec2::INFINITY, glam::Vec2::NEG_INFINITY);
+            for corner in 0..8 {
+                let pick = |bit: usize, a: f32, b: f32| if corner >> bit & 1 == 0 { a } else { b };
+                let t = Vec3::new(
+                    pick(0, cell.lo.x, cell.hi.x),
+                    pick(1, cell.lo.y, cell.hi.y),
+                    pick(2, cell.lo.z, cell.hi.z),
+                );
+                let clip = clip_from_texture * Vec4::new(t.x, t.y, t.z, 1.0);
+                if !clip.is_finite() || clip.w < MIN_W {
+                    return None;
+                }
+                let ndc = clip.truncate().truncate() / clip.w;
+                let pixel = glam::Vec2::new(
+                    (ndc.x + 1.0) * 0.5 * w - 0.5,
+                    (1.0 - ndc.y) * 0.5 * h - 0.5 - first,
+                );
+                lo = lo.min(pixel);
+                hi = hi.max(pixel);
+            }
+            if !(lo.is_finite() && hi.is_finite()) {
+                return None;
+            }
+            let (lo, hi) = (lo - MARGIN_PX, hi + MARGIN_PX);
+            // Whole pixels from ⌈lo⌉ to ⌊hi⌋, within the band.
+            let x0 = lo.x.ceil().max(0.0);
+            let y0 = lo.y.ceil().max(0.0);
+            let x1 = (hi.x.floor() + 1.0).min(w);
+            let y1 = (hi.y.floor() + 1.0).min(rows as f32);
+            if x0 >= x1 || y0 >= y1 {
+                continue;
+            }
+            let [x0, y0, x1, y1] = [x0, y0, x1, y1].map(|v| v as usize);
+            sums[y0 * stride + x0] += 1;
+            sums[y0 * stride + x1] -= 1;
+            sums[y1 * stride + x0] -= 1;
+            sums[y1 * stride + x1] += 1;
+        }
+        let mut covered = vec![false; width * rows];
+        let mut above = vec![0i32; width];
+        for y in 0..rows {
+            let mut run = 0;
+            for x in 0..width {
+                run += sums[y * stride + x];
+                above[x] += run;
+                covered[y * width + x] = above[x] > 0;
+            }
+        }
+        Some(Footprint {
+            width,
+            first_row: p.first_row,
+            covered,
+        })
+    }
+
+    /// Whether a box covers pixel `x` of image row `row` (a row of the band).
+    #[inline(always)]
+    pub fn covers(&self, x: u32, row: u32) -> bool {
+        let at = row.wrapping_sub(self.first_row) as usize * self.width + x as usize;
+        self.covered.get(at).copied().unwrap_or(true)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::camera::rh::proj::directx::{orthographic, perspective};
+    use glam::camera::rh::view::look_to_mat4;
+    use glam::{Mat4, Vec2};
+
+    use super::*;
+    use crate::cpu::march::intersect_box;
+
+    /// Parameters of a band of rows `first_row..first_row + rows` of a
+    /// `width` × `image_height` image seen through `view_proj`, with the
+    /// model's box [−1, 1]³ as the texture's [0, 1]³.
+    fn params(
+        view_proj: Mat4,
+        width: u32,
+        image_height: u32,
+        first_row: u32,
+        rows: u32,
+    ) -> RaycastParams {
+        let mut p: RaycastParams = bytemuck::Zeroable::zeroed();
+        p.inv_view_proj = view_proj.inverse();
+        p.texture_from_model =
+            Mat4::from_translation(Vec3::splat(0.5)) * Mat4::from_scale(Vec3::splat(0.5));
+        (p.width, p.image_height, p.first_row, p.height) = (width, image_height, first_row, rows);
+        p
+    }
+
+    /// Whether the ray `main` casts through pixel `x` of image row `row`
+    /// meets `cell` (its arithmetic, to the box test).
+    fn meets(p: &RaycastParams, x: u32, row: u32, cell: &VisibleBox) -> bool {
+        let ndc = Vec2::new(
+            (x as f32 + 0.5) / p.width as f32 * 2.0 - 1.0,
+            1.0 - (row as f32 + 0.5) / p.image_height as f32 * 2.0,
+        );
+        let near = p.inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
+        let far = p.inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
+        let origin = near.truncate() / near.w;
+        let dir = (far.truncate() / far.w - origin).normalize();
+        let tex_origin = (p.texture_from_model * origin.extend(1.0)).truncate();
+        let tex_dir = (p.texture_from_model * dir.extend(0.0)).truncate();
+        let span = intersect_box(tex_origin, tex_dir, cell.lo, cell.hi);
+        span.x < span.y
+    }
+
+    #[test]
+    fn every_ray_that_meets_a_box_is_covered_and_others_are_not_all() {
+        let eye = Vec3::new(0.4, -0.7, 3.1);
+        let view = look_to_mat4(eye, -eye.normalize(), Vec3::Y);
+        let cameras = [
+            perspective(0.8, 1.25, 0.1, 10.0) * view,
+            // Rays that start behind the eye, as the orthographic camera's.
+            orthographic(-1.2, 1.2, -1.0, 1.0, -1.0, 10.0) * view,
+        ];
+        // Small boxes scattered through the volume.
+        let cells: Vec<VisibleBox> = (0..12)
+            .map(|k| {
+                let f = |s: f32| ((k as f32 * s).sin() * 0.5 + 0.5) * 0.85;
+                let lo = Vec3::new(f(1.7), f(2.3), f(0.9));
+                VisibleBox {
+                    lo,
+                    hi: lo + Vec3::new(0.06, 0.1, 0.04),
+                }
+            })
+            .collect();
+        for view_proj in cameras {
+            // The whole image, and a band of it.
+            for (first_row, rows) in [(0, 64), (23, 17)] {
+                let p = params(view_proj, 80, 64, first_row, rows);
+                let footprint = Footprint::new(&p, &cells).expect("every box in front");
+                let (mut met, mut left) = (0, 0);
+                for row in first_row..first_row + rows {
+                    for x in 0..p.width {
+                        if cells.iter().any(|c| meets(&p, x, row, c)) {
+                            met += 1;
+                            assert!(footprint.covers(x, row), "pixel {x}, row {row}");
+                        } else if !footprint.covers(x, row) {
+                            left += 1;
+                        }
+                    }
+                }
+                assert!(met > 0 && left > 0, "{met} rays met, {left} left out");
+            }
+        }
+    }
+
+    #[test]
+    fn a_box_reaching_behind_the_eye_gives_no_footprint() {
+        let view = look_to_mat4(Vec3::new(0.0, 0.0, 0.2), Vec3::NEG_Z, Vec3::Y);
+        let p = params(perspective(0.8, 1.0, 0.01, 10.0) * view, 32, 32, 0, 32);
+        let around = VisibleBox {
+            lo: Vec3::splat(0.2),
+            hi: Vec3::splat(0.8),
+        };
+        assert!(Footprint::new(&p, &[around]).is_none());
+    }
+}
