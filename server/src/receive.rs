@@ -399,7 +399,7 @@ async fn stow_into(
         )
             .into_response());
     }
-    let mut parts = multer::Multipart::new(body.into_data_stream(), boundary);
+    let mut parts = crate::pacs::dicomweb::dicom_parts(body.into_data_stream(), boundary);
     let mut outcomes = Vec::new();
     loop {
         let mut part = match parts.next_field().await {

@@ -8,11 +8,14 @@
 
 use std::io::Write;
 use std::path::Path;
+use std::pin::Pin;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use bytes::Bytes;
+use futures_util::Stream;
 use reqwest::{StatusCode, Url};
 use serde::Serialize;
 use serde_json::Value;
@@ -138,6 +141,55 @@ pub fn dicom_parts_boundary(content_type: &str) -> Option<String> {
     }
     mime.get_param(mime::BOUNDARY)
         .map(|b| b.as_str().to_owned())
+}
+
+/// The parts of a multipart body `stream` with `boundary`, read with
+/// multer, the body's end reported to it one poll late ([`EndAfterData`]).
+pub fn dicom_parts<'a, S, O, E>(stream: S, boundary: String) -> multer::Multipart<'a>
+where
+    S: Stream<Item = Result<O, E>> + Send + 'a,
+    O: Into<Bytes> + 'static,
+    E: Into<Box<dyn std::error::Error + Send + Sync>> + 'static,
+{
+    multer::Multipart::new(
+        EndAfterData {
+            inner: Box::pin(stream),
+            ended: false,
+        },
+        boundary,
+    )
+}
+
+/// A body stream that reports its end only on a poll that brings no data.
+///
+/// multer 3.1.0, while it looks for the first boundary, reads the stream a
+/// second time within one poll; when that second read brings the rest of
+/// the body and its end together, it fails with "incomplete stream" without
+/// looking at what it has just read (so a whole body arriving at once on a
+/// busy machine was refused now and then). Reporting the end on the next
+/// poll, after waking the task, lets it look first.
+struct EndAfterData<'a, T> {
+    inner: Pin<Box<dyn Stream<Item = T> + Send + 'a>>,
+    /// The inner stream has ended (it is not polled again).
+    ended: bool,
+}
+
+impl<T> Stream for EndAfterData<'_, T> {
+    type Item = T;
+
+    fn poll_next(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<T>> {
+        if self.ended {
+            return Poll::Ready(None);
+        }
+        match self.inner.as_mut().poll_next(cx) {
+            Poll::Ready(None) => {
+                self.ended = true;
+                cx.waker().wake_by_ref();
+                Poll::Pending
+            }
+            other => other,
+        }
+    }
 }
 
 /// A study a search found.
@@ -443,7 +495,7 @@ impl DicomWeb {
                 Err(e) => Some((Err(e), None)),
             }
         });
-        let mut parts = multer::Multipart::new(stream, boundary);
+        let mut parts = dicom_parts(stream, boundary);
         let mut part = match parts.next_field().await {
             Ok(Some(part)) => part,
             Ok(None) => return Err(self.malformed(&url, "no part: expected the instance".into())),
@@ -735,5 +787,63 @@ mod tests {
         assert_eq!(uid(&object, "0020000E"), None, "not a UID");
         assert_eq!(text(&object, "0008103E"), None, "no value");
         assert_eq!(clip(&"x".repeat(1000)).len(), MAX_TEXT_CHARS);
+    }
+
+    /// A body that arrives whole, with its end, on multer's second read of
+    /// the stream within one poll (the first read found nothing yet).
+    fn whole_body_on_second_read() -> impl Stream<Item = Result<Bytes, std::io::Error>> + Send {
+        let body = Bytes::from_static(
+            b"--b0\r\nContent-Type: application/dicom\r\n\r\nDICM pixels\r\n--b0--\r\n",
+        );
+        let mut reads = 0;
+        futures_util::stream::poll_fn(move |cx| {
+            reads += 1;
+            match reads {
+                1 => {
+                    cx.waker().wake_by_ref();
+                    Poll::Pending
+                }
+                2 => Poll::Ready(Some(Ok(body.clone()))),
+                _ => Poll::Ready(None),
+            }
+        })
+    }
+
+    #[tokio::test]
+    async fn a_body_whose_end_arrives_with_its_first_boundary_is_read_whole() {
+        // multer alone refuses it: this is what `dicom_parts` is for.
+        let mut bare = multer::Multipart::new(whole_body_on_second_read(), "b0");
+        assert!(
+            matches!(
+                bare.next_field().await,
+                Err(multer::Error::IncompleteStream)
+            ),
+            "multer reads this body whole by itself now: EndAfterData can go"
+        );
+
+        let mut parts = dicom_parts(whole_body_on_second_read(), "b0".into());
+        let mut part = parts
+            .next_field()
+            .await
+            .expect("a well-formed body")
+            .expect("one part");
+        assert_eq!(
+            part.content_type().expect("a Content-Type").essence_str(),
+            "application/dicom"
+        );
+        let mut data = Vec::new();
+        while let Some(chunk) = part.chunk().await.expect("the part's data") {
+            data.extend_from_slice(&chunk);
+        }
+        assert_eq!(data, b"DICM pixels");
+        drop(part);
+        assert!(
+            parts
+                .next_field()
+                .await
+                .expect("the closing boundary")
+                .is_none(),
+            "one part only"
+        );
     }
 }
