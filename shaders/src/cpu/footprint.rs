@@ -2,7 +2,10 @@
 //! the blocks the transfer function shows, projected onto the image. With
 //! empty-space skipping a ray whose pixel no box covers meets no sample that
 //! can be visible, so the march leaves it as the background without walking
-//! the block grid (the same bytes: such a ray composites nothing).
+//! the block grid (the same bytes: such a ray composites nothing). A ray
+//! that is marched starts and ends within the depths (NDC z) of the boxes
+//! projected onto its tile of pixels: no sample before or after them can
+//! show either.
 
 use glam::{Vec3, Vec4};
 
@@ -19,13 +22,49 @@ const MARGIN_PX: f32 = 2.0;
 /// footprint.
 const MIN_W: f32 = 1e-6;
 
+/// Edge of the square tiles of pixels that share a range of depths.
+const DEPTH_TILE: usize = 8;
+
 /// The pixels of a band of rows (`first_row`, `rows` rows of `width`) that
-/// some projected box covers.
+/// some projected box covers, and per tile of [`DEPTH_TILE`]² pixels the
+/// depths of the boxes projected onto it.
 #[derive(Debug, Clone)]
 pub struct Footprint {
     width: usize,
     first_row: u32,
     covered: Vec<bool>,
+    /// Tiles per row.
+    tiles_x: usize,
+    /// Per tile the least and the greatest NDC z of the corners of the
+    /// boxes whose rectangles reach it (empty, lo > hi, where none does).
+    depths: Vec<[f32; 2]>,
+}
+
+/// The depths (NDC z) where a ray may meet a box: nothing to march where
+/// `lo > hi`, and no bound on a side where that side is infinite.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reach {
+    pub lo: f32,
+    pub hi: f32,
+}
+
+impl Reach {
+    /// Anywhere along the ray (no footprint).
+    pub const ALL: Reach = Reach {
+        lo: f32::NEG_INFINITY,
+        hi: f32::INFINITY,
+    };
+    /// Nowhere.
+    pub const NONE: Reach = Reach {
+        lo: f32::INFINITY,
+        hi: f32::NEG_INFINITY,
+    };
+
+    /// Whether the ray may meet a box at all.
+    #[inline(always)]
+    pub fn met(self) -> bool {
+        self.lo <= self.hi
+    }
 }
 
 impl Footprint {
@@ -46,8 +85,14 @@ impl Footprint {
         // costs four additions whatever its size on screen.
         let stride = width + 1;
         let mut sums = vec![0i32; stride * (rows + 1)];
+        let tiles_x = width.div_ceil(DEPTH_TILE);
+        let mut depths =
+            vec![[f32::INFINITY, f32::NEG_INFINITY]; tiles_x * rows.div_ceil(DEPTH_TILE)];
         for cell in cells {
             let (mut lo, mut hi) = (glam::Vec2::INFINITY, glam::Vec2::NEG_INFINITY);
+            // Depth is affine in the point (the view's z), and NDC z grows
+            // with it: the box's least and greatest lie at corners.
+            let (mut z_lo, mut z_hi) = (f32::INFINITY, f32::NEG_INFINITY);
             for corner in 0..8 {
                 let pick = |bit: usize, a: f32, b: f32| if corner >> bit & 1 == 0 { a } else { b };
                 let t = Vec3::new(
@@ -59,7 +104,9 @@ impl Footprint {
                 if !clip.is_finite() || clip.w < MIN_W {
                     return None;
                 }
-                let ndc = clip.truncate().truncate() / clip.w;
+                let ndc = clip.truncate() / clip.w;
+                z_lo = z_lo.min(ndc.z);
+                z_hi = z_hi.max(ndc.z);
                 let pixel = glam::Vec2::new(
                     (ndc.x + 1.0) * 0.5 * w - 0.5,
                     (1.0 - ndc.y) * 0.5 * h - 0.5 - first,
@@ -67,7 +114,7 @@ impl Footprint {
                 lo = lo.min(pixel);
                 hi = hi.max(pixel);
             }
-            if !(lo.is_finite() && hi.is_finite()) {
+            if !(lo.is_finite() && hi.is_finite() && z_lo.is_finite() && z_hi.is_finite()) {
                 return None;
             }
             let (lo, hi) = (lo - MARGIN_PX, hi + MARGIN_PX);
@@ -84,6 +131,12 @@ impl Footprint {
             sums[y0 * stride + x1] -= 1;
             sums[y1 * stride + x0] -= 1;
             sums[y1 * stride + x1] += 1;
+            for ty in y0 / DEPTH_TILE..(y1 - 1) / DEPTH_TILE + 1 {
+                for tx in x0 / DEPTH_TILE..(x1 - 1) / DEPTH_TILE + 1 {
+                    let d = &mut depths[ty * tiles_x + tx];
+                    *d = [d[0].min(z_lo), d[1].max(z_hi)];
+                }
+            }
         }
         let mut covered = vec![false; width * rows];
         let mut above = vec![0i32; width];
@@ -99,14 +152,28 @@ impl Footprint {
             width,
             first_row: p.first_row,
             covered,
+            tiles_x,
+            depths,
         })
     }
 
-    /// Whether a box covers pixel `x` of image row `row` (a row of the band).
+    /// Where the ray of pixel `x` of image row `row` (a row of the band) may
+    /// meet a box: [`Reach::NONE`] where no box covers the pixel.
     #[inline(always)]
-    pub fn covers(&self, x: u32, row: u32) -> bool {
-        let at = row.wrapping_sub(self.first_row) as usize * self.width + x as usize;
-        self.covered.get(at).copied().unwrap_or(true)
+    pub fn reach(&self, x: u32, row: u32) -> Reach {
+        let y = row.wrapping_sub(self.first_row) as usize;
+        let (x, at) = (
+            x as usize,
+            y.wrapping_mul(self.width).wrapping_add(x as usize),
+        );
+        match self.covered.get(at) {
+            Some(false) => Reach::NONE,
+            Some(true) => {
+                let [lo, hi] = self.depths[(y / DEPTH_TILE) * self.tiles_x + x / DEPTH_TILE];
+                Reach { lo, hi }
+            }
+            None => Reach::ALL,
+        }
     }
 }
 
@@ -117,7 +184,7 @@ mod tests {
     use glam::{Mat4, Vec2};
 
     use super::*;
-    use crate::cpu::march::intersect_box;
+    use crate::cpu::march::{PixelRay, intersect_box};
 
     /// Parameters of a band of rows `first_row..first_row + rows` of a
     /// `width` × `image_height` image seen through `view_proj`, with the
@@ -137,21 +204,12 @@ mod tests {
         p
     }
 
-    /// Whether the ray `main` casts through pixel `x` of image row `row`
-    /// meets `cell` (its arithmetic, to the box test).
-    fn meets(p: &RaycastParams, x: u32, row: u32, cell: &VisibleBox) -> bool {
-        let ndc = Vec2::new(
-            (x as f32 + 0.5) / p.width as f32 * 2.0 - 1.0,
-            1.0 - (row as f32 + 0.5) / p.image_height as f32 * 2.0,
-        );
-        let near = p.inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
-        let far = p.inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
-        let origin = near.truncate() / near.w;
-        let dir = (far.truncate() / far.w - origin).normalize();
-        let tex_origin = (p.texture_from_model * origin.extend(1.0)).truncate();
-        let tex_dir = (p.texture_from_model * dir.extend(0.0)).truncate();
+    /// The stretch of the ray `main` casts through pixel `x` of image row
+    /// `row` that lies in `cell`, where it meets it.
+    fn meets(p: &RaycastParams, x: u32, row: u32, cell: &VisibleBox) -> Option<Vec2> {
+        let (tex_origin, tex_dir) = PixelRay::new(p, x, row).in_texture(p);
         let span = intersect_box(tex_origin, tex_dir, cell.lo, cell.hi);
-        span.x < span.y
+        (span.x < span.y).then_some(span)
     }
 
     #[test]
@@ -179,18 +237,36 @@ mod tests {
             for (first_row, rows) in [(0, 64), (23, 17)] {
                 let p = params(view_proj, 80, 64, first_row, rows);
                 let footprint = Footprint::new(&p, &cells).expect("every box in front");
-                let (mut met, mut left) = (0, 0);
+                let (mut met, mut left, mut shortened) = (0, 0, 0);
                 for row in first_row..first_row + rows {
                     for x in 0..p.width {
-                        if cells.iter().any(|c| meets(&p, x, row, c)) {
-                            met += 1;
-                            assert!(footprint.covers(x, row), "pixel {x}, row {row}");
-                        } else if !footprint.covers(x, row) {
-                            left += 1;
+                        let reach = footprint.reach(x, row);
+                        let within = PixelRay::new(&p, x, row).within(&p, reach);
+                        let spans: Vec<Vec2> =
+                            cells.iter().filter_map(|c| meets(&p, x, row, c)).collect();
+                        if spans.is_empty() {
+                            left += usize::from(!reach.met());
+                            continue;
                         }
+                        met += 1;
+                        assert!(reach.met(), "pixel {x}, row {row}");
+                        for span in &spans {
+                            assert!(
+                                within.x <= span.x && span.y <= within.y,
+                                "pixel {x}, row {row}: a box from t = {} to {}, marched from {} to {}",
+                                span.x,
+                                span.y,
+                                within.x,
+                                within.y
+                            );
+                        }
+                        // Bounded on both sides (the near plane lies
+                        // in front of every box).
+                        shortened += usize::from(within.x > 0.0 && within.y.is_finite());
                     }
                 }
                 assert!(met > 0 && left > 0, "{met} rays met, {left} left out");
+                assert!(shortened * 2 > met, "{shortened} of {met} rays cut short");
             }
         }
     }

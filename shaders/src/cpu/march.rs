@@ -14,7 +14,7 @@ use glam::{Vec2, Vec3, Vec4, Vec4Swizzles};
 use rayon::prelude::*;
 use wide::{f32x4, i32x4};
 
-use super::footprint::Footprint;
+use super::footprint::{Footprint, Reach};
 use super::hash::{pcg_hash, unit_from_hash};
 use super::occupancy::VisibleBox;
 use super::texture::{floor, round_down, split};
@@ -338,9 +338,10 @@ fn march_band_body<S: Storage, const KIND: u8>(
             for x in x0..(x0 + TILE).min(width) {
                 // A ray no visible box's projection covers meets no
                 // sample that can be visible: it is left unmarched.
-                let met = footprint.is_none_or(|f| f.covers(x as u32, y + params.first_row));
+                let reach =
+                    footprint.map_or(Reach::ALL, |f| f.reach(x as u32, y + params.first_row));
                 if let Some(rgba) =
-                    main::<S, KIND>(params, storage, transfer_function, [x as u32, y], met)
+                    main::<S, KIND>(params, storage, transfer_function, [x as u32, y], reach)
                 {
                     let at = (dy * width + x) * 4;
                     rows[at..at + 4].copy_from_slice(&rgba);
@@ -844,35 +845,111 @@ impl Accumulator {
     }
 }
 
-/// WGSL `main`: the pixel at `gid`, or `None` past the image's edge; a ray
-/// not `met` by any box of [`Storage::visible_cells`] (CPU only) is not
-/// marched.
+/// The ray WGSL `main` casts through a pixel (CPU only: its first lines).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PixelRay {
+    /// The pixel's centre in NDC.
+    pub ndc: Vec2,
+    /// Where the ray leaves the near plane, in model space.
+    pub origin: Vec3,
+    /// Where it meets the far plane.
+    pub far: Vec3,
+    /// Its direction, of unit length: `t` counts mm of model space.
+    pub dir: Vec3,
+}
+
+impl PixelRay {
+    /// The ray through pixel `x` of image row `row`, from the near plane to
+    /// the far plane (right for perspective and orthographic projections
+    /// alike).
+    #[inline(always)]
+    pub(super) fn new(p: &RaycastParams, x: u32, row: u32) -> PixelRay {
+        let pixel = Vec2::new(x as f32 + 0.5, row as f32 + 0.5);
+        let ndc = Vec2::new(
+            pixel.x / p.width as f32 * 2.0 - 1.0,
+            1.0 - pixel.y / p.image_height as f32 * 2.0,
+        );
+        let inv_view_proj = p.inv_view_proj;
+        let near = inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
+        let far = inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
+        let origin = near.xyz() / near.w;
+        let far = far.xyz() / far.w;
+        let dir = (far - origin).normalize();
+        PixelRay {
+            ndc,
+            origin,
+            far,
+            dir,
+        }
+    }
+
+    /// The same ray in texture space (`t` still counts mm of model space).
+    #[inline(always)]
+    pub(super) fn in_texture(&self, p: &RaycastParams) -> (Vec3, Vec3) {
+        let texture_from_model = p.texture_from_model;
+        (
+            (texture_from_model * self.origin.extend(1.0)).xyz(),
+            (texture_from_model * self.dir.extend(0.0)).xyz(),
+        )
+    }
+
+    /// The stretch of the ray (its `t`) within the depths `reach`: wider by
+    /// [`REACH_MARGIN`] of its length, and unbounded on a side whose depth
+    /// is infinite or at or past the far plane (where NDC z stops following
+    /// the depth).
+    #[inline(always)]
+    pub(super) fn within(&self, p: &RaycastParams, reach: Reach) -> Vec2 {
+        let mut range = Vec2::new(f32::NEG_INFINITY, f32::INFINITY);
+        let bounded = |z: f32| z.is_finite() && z < 1.0;
+        if !(bounded(reach.lo) || bounded(reach.hi)) {
+            return range;
+        }
+        let margin = REACH_MARGIN * (self.far - self.origin).length();
+        // The point of NDC depth z lies on the ray: t is its distance.
+        let t_at = |z: f32| {
+            let q = p.inv_view_proj * Vec4::new(self.ndc.x, self.ndc.y, z, 1.0);
+            (q.xyz() / q.w - self.origin).dot(self.dir)
+        };
+        if bounded(reach.lo) {
+            let t = t_at(reach.lo) - margin;
+            if t.is_finite() {
+                range.x = t;
+            }
+        }
+        if bounded(reach.hi) {
+            let t = t_at(reach.hi) + margin;
+            if t.is_finite() {
+                range.y = t;
+            }
+        }
+        range
+    }
+}
+
+/// How far past the depths of the boxes a ray may meet it is marched, as a
+/// share of its length from the near to the far plane: far more than the
+/// rounding of the depths and of their unprojection.
+const REACH_MARGIN: f32 = 1e-3;
+
+/// WGSL `main`: the pixel at `gid`, or `None` past the image's edge. CPU
+/// only: a ray is marched only within the `reach` of the boxes of
+/// [`Storage::visible_cells`] (not at all where it meets none).
 #[inline(always)]
 fn main<S: Storage, const KIND: u8>(
     p: &RaycastParams,
     s: &S,
     tf: &TfTable,
     gid: [u32; 2],
-    met: bool,
+    reach: Reach,
 ) -> Option<[u8; 4]> {
     if gid[0] >= p.width || gid[1] >= p.height {
         return None;
     }
     // Rows count in the whole image: a band is drawn as that part of it.
     let row = gid[1] + p.first_row;
-    let pixel = Vec2::new(gid[0] as f32 + 0.5, row as f32 + 0.5);
-    let ndc = Vec2::new(
-        pixel.x / p.width as f32 * 2.0 - 1.0,
-        1.0 - pixel.y / p.image_height as f32 * 2.0,
-    );
-    let inv_view_proj = p.inv_view_proj;
-    let near = inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
-    let far = inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
-    let origin = near.xyz() / near.w;
-    let dir = (far.xyz() / far.w - origin).normalize();
-    let texture_from_model = p.texture_from_model;
-    let tex_origin = (texture_from_model * origin.extend(1.0)).xyz();
-    let tex_dir = (texture_from_model * dir.extend(0.0)).xyz();
+    let ray = PixelRay::new(p, gid[0], row);
+    let dir = ray.dir;
+    let (tex_origin, tex_dir) = ray.in_texture(p);
 
     let span = intersect_box(
         tex_origin,
@@ -886,12 +963,13 @@ fn main<S: Storage, const KIND: u8>(
     let seen = match s.visible_extent(p) {
         Some((lo, hi)) => {
             let inside = intersect_box(tex_origin, tex_dir, lo, hi);
-            Vec2::new(inside.x, inside.y.min(span.y))
+            let within = ray.within(p, reach);
+            Vec2::new(inside.x.max(within.x), inside.y.min(span.y).min(within.y))
         }
         None => span,
     };
     let mut acc = Accumulator::default();
-    if met && span.x < span.y && seen.x < seen.y {
+    if reach.met() && span.x < span.y && seen.x < seen.y {
         let mut jitter = 0.0;
         if p.flags & FLAG_JITTER != 0 {
             jitter = unit_from_hash(pcg_hash(row * p.width + gid[0]));
