@@ -161,15 +161,15 @@ impl Footprint {
     /// meet a box: [`Reach::NONE`] where no box covers the pixel.
     #[inline(always)]
     pub fn reach(&self, x: u32, row: u32) -> Reach {
-        let y = row.wrapping_sub(self.first_row) as usize;
-        let (x, at) = (
-            x as usize,
-            y.wrapping_mul(self.width).wrapping_add(x as usize),
-        );
-        match self.covered.get(at) {
+        let (x, y) = (x as usize, row.wrapping_sub(self.first_row) as usize);
+        if x >= self.width {
+            return Reach::ALL;
+        }
+        let tile = (y / DEPTH_TILE).wrapping_mul(self.tiles_x) + x / DEPTH_TILE;
+        match self.covered.get(y.wrapping_mul(self.width).wrapping_add(x)) {
             Some(false) => Reach::NONE,
             Some(true) => {
-                let [lo, hi] = self.depths[(y / DEPTH_TILE) * self.tiles_x + x / DEPTH_TILE];
+                let [lo, hi] = self.depths[tile];
                 Reach { lo, hi }
             }
             None => Reach::ALL,
@@ -267,6 +267,10 @@ mod tests {
                 }
                 assert!(met > 0 && left > 0, "{met} rays met, {left} left out");
                 assert!(shortened * 2 > met, "{shortened} of {met} rays cut short");
+                // Pixels outside the band: no bound.
+                for (x, row) in [(p.width, first_row), (0, first_row + rows)] {
+                    assert_eq!(footprint.reach(x, row), Reach::ALL, "pixel {x}, row {row}");
+                }
             }
         }
     }
