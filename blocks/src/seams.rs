@@ -41,7 +41,7 @@ use std::sync::Arc;
 use crate::cache::ChunkKey;
 use crate::lod::EMPTY;
 use crate::packing::{APRON, slot_edge};
-use crate::store::{BLOCK, LEVELS, level_dims};
+use crate::store::{BLOCK, LEVELS, grid_index, level_dims};
 use crate::{Voxel, VoxelData};
 
 /// The levels of a block and its 26 neighbours: entry
@@ -71,11 +71,6 @@ fn neighbour(block: [u32; 3], d: [i64; 3], grid: [u32; 3]) -> Option<[u32; 3]> {
     Some(n)
 }
 
-/// Where block `n` is in per-block arrays over a grid of `grid` blocks (x fastest).
-fn grid_index(n: [u32; 3], grid: [u32; 3]) -> usize {
-    (n[2] as usize * grid[1] as usize + n[1] as usize) * grid[0] as usize + n[0] as usize
-}
-
 /// The offsets of the 26 neighbours.
 fn offsets() -> impl Iterator<Item = [i64; 3]> {
     (-1..=1)
@@ -87,10 +82,10 @@ fn offsets() -> impl Iterator<Item = [i64; 3]> {
 /// `grid` blocks).
 pub fn neighbourhood(lod: &[u8], grid: [u32; 3], block: [u32; 3]) -> Neighbourhood {
     let mut levels = [EMPTY; 27];
-    levels[13] = lod.get(grid_index(block, grid)).copied().unwrap_or(EMPTY);
+    levels[13] = lod.get(grid_index(grid, block)).copied().unwrap_or(EMPTY);
     for d in offsets() {
         if let Some(n) = neighbour(block, d, grid) {
-            levels[entry(d)] = lod.get(grid_index(n, grid)).copied().unwrap_or(EMPTY);
+            levels[entry(d)] = lod.get(grid_index(grid, n)).copied().unwrap_or(EMPTY);
         }
     }
     levels
@@ -107,7 +102,7 @@ pub fn neighbour_changed(old: &[u8], new: &[u8], grid: [u32; 3]) -> Vec<bool> {
     for (c, (&was, &now)) in old.iter().zip(new).enumerate().filter(|(_, (o, n))| o != n) {
         let block = [c % gx, (c / gx) % gy, c / (gx * gy)].map(|v| v as u32);
         for d in offsets() {
-            let Some(b) = neighbour(block, d, grid).map(|n| grid_index(n, grid)) else {
+            let Some(b) = neighbour(block, d, grid).map(|n| grid_index(grid, n)) else {
                 continue;
             };
             let Some(&own) = new.get(b) else {

@@ -18,6 +18,7 @@ use blocks::TransferFunction;
 use blocks::geometry::IDENTITY_DIRECTION;
 use blocks::lod::LodSelection;
 use blocks::packing::{APRON, Packing};
+use blocks::store::grid_position;
 use blocks::{Geometry, ValueMap, Volume, VoxelData};
 use glam::Vec3;
 use server::Dataset;
@@ -121,11 +122,7 @@ fn largest_error(lod: &[u8], level: u8, margin: f64, error: impl Fn([f64; 3]) ->
     let mut largest: f64 = 0.0;
     let steps = 64;
     for (b, _) in lod.iter().enumerate().filter(|(_, l)| **l == level) {
-        let block = [
-            b as u32 % grid[0],
-            (b as u32 / grid[0]) % grid[1],
-            b as u32 / (grid[0] * grid[1]),
-        ];
+        let block = grid_position(grid, b);
         for i in 0..steps * steps {
             let t = [i % steps, (i / steps) % steps, (i * 7 + 3) % steps]
                 .map(|s| margin + (16.0 - 2.0 * margin) * (f64::from(s as u32) + 0.5) / 64.0);
@@ -140,11 +137,7 @@ fn largest_error(lod: &[u8], level: u8, margin: f64, error: impl Fn([f64; 3]) ->
 fn checkerboard(grid: [u32; 3]) -> Vec<u8> {
     (0..grid.iter().product::<u32>())
         .map(|b| {
-            let (x, y, z) = (
-                b % grid[0],
-                (b / grid[0]) % grid[1],
-                b / (grid[0] * grid[1]),
-            );
+            let [x, y, z] = grid_position(grid, b as usize);
             if (x + y + z) % 2 == 0 { 0 } else { 2 }
         })
         .collect()

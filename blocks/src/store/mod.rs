@@ -70,7 +70,7 @@ pub use location::StoreLocation;
 pub use manifest::{Manifest, Verification, verify};
 pub use pyramid::{LEVELS, level_dims};
 pub use remote::{Remote, is_url};
-pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS};
+pub use stats::{BLOCK, BlockStats, HISTOGRAM_BINS, grid_index, grid_position};
 
 use crate::geometry::GeometryFields;
 use crate::{Error, Geometry, ValueMap, VoxelData, VoxelType};

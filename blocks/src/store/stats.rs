@@ -30,6 +30,23 @@ pub struct BlockStats {
     pub histogram: Vec<u16>,
 }
 
+/// Where block `b` of a grid of `grid` blocks is in every per-block list:
+/// x fastest, then y, then z.
+pub fn grid_index(grid: [u32; 3], b: [u32; 3]) -> usize {
+    (b[2] as usize * grid[1] as usize + b[1] as usize) * grid[0] as usize + b[0] as usize
+}
+
+/// The block at index `i` of the per-block lists of a grid of `grid` blocks
+/// ([`grid_index`] inverted).
+pub fn grid_position(grid: [u32; 3], i: usize) -> [u32; 3] {
+    let (gx, gy) = (grid[0] as usize, grid[1] as usize);
+    [
+        (i % gx) as u32,
+        ((i / gx) % gy) as u32,
+        (i / (gx * gy)) as u32,
+    ]
+}
+
 impl BlockStats {
     /// Empty statistics for a grid (filled row by row).
     pub fn new(grid: [u32; 3], range: [f64; 2]) -> BlockStats {
@@ -47,20 +64,14 @@ impl BlockStats {
         self.grid.iter().map(|&g| g as usize).product()
     }
 
-    /// The linear index of block (x, y, z).
+    /// The linear index of block (x, y, z) ([`grid_index`]).
     pub fn block_index(&self, b: [u32; 3]) -> usize {
-        (b[2] as usize * self.grid[1] as usize + b[1] as usize) * self.grid[0] as usize
-            + b[0] as usize
+        grid_index(self.grid, b)
     }
 
-    /// The block's grid position from its linear index.
+    /// The block's grid position from its linear index ([`grid_position`]).
     pub fn block_position(&self, i: usize) -> [u32; 3] {
-        let (gx, gy) = (self.grid[0] as usize, self.grid[1] as usize);
-        [
-            (i % gx) as u32,
-            ((i / gx) % gy) as u32,
-            (i / (gx * gy)) as u32,
-        ]
+        grid_position(self.grid, i)
     }
 
     /// Smallest and largest stored value of block `b` at `level` (NaN if it holds none).
@@ -224,6 +235,20 @@ fn block_stats<T: crate::Voxel>(
 mod tests {
     use super::*;
     use crate::store::pyramid::levels;
+
+    #[test]
+    fn a_block_index_and_its_grid_position_invert_each_other() {
+        let grid = [3, 5, 2];
+        for i in 0..30 {
+            let b = grid_position(grid, i);
+            assert!((0..3).all(|a| b[a] < grid[a]), "block {i} at {b:?}");
+            assert_eq!(grid_index(grid, b), i);
+        }
+        // x fastest, then y, then z.
+        assert_eq!(grid_position(grid, 1), [1, 0, 0]);
+        assert_eq!(grid_position(grid, 3), [0, 1, 0]);
+        assert_eq!(grid_position(grid, 15), [0, 0, 1]);
+    }
 
     #[test]
     fn a_row_of_blocks_gets_min_max_and_histograms_at_every_level() {

@@ -963,10 +963,8 @@ mod tests {
             let extent = grid[once.a] as i32;
             let cuboids = once.cuboids_in_grid(&p);
             for i in 0..n as u32 {
-                let c = IVec3::new(
-                    (i % grid[0]) as i32,
-                    (i / grid[0] % grid[1]) as i32,
-                    (i / (grid[0] * grid[1])) as i32,
+                let c = IVec3::from_array(
+                    blocks::store::grid_position(grid, i as usize).map(|v| v as i32),
                 );
                 let own = Cone::towards(&light, c.as_vec3() + 0.5).expect("a direction");
                 let want = cone_depth(&p, &sat, &own, own.cuboids(&p), c);

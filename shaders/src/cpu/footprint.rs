@@ -9,6 +9,7 @@
 
 use glam::{Vec3, Vec4};
 
+use super::march::ndc_pixel;
 use super::occupancy::VisibleBox;
 use crate::raycast::RaycastParams;
 
@@ -77,9 +78,7 @@ impl Footprint {
         if !clip_from_texture.is_finite() {
             return None;
         }
-        // Pixel (x, row) takes its ray through NDC ((x + ½)/width·2 − 1,
-        // 1 − (row + ½)/image_height·2): the inverse, for a point's NDC.
-        let (w, h) = (p.width as f32, p.image_height as f32);
+        let w = p.width as f32;
         let first = p.first_row as f32;
         // A 2D difference array of the rectangles, summed below: each box
         // costs four additions whatever its size on screen.
@@ -107,10 +106,8 @@ impl Footprint {
                 let ndc = clip.truncate() / clip.w;
                 z_lo = z_lo.min(ndc.z);
                 z_hi = z_hi.max(ndc.z);
-                let pixel = glam::Vec2::new(
-                    (ndc.x + 1.0) * 0.5 * w - 0.5,
-                    (1.0 - ndc.y) * 0.5 * h - 0.5 - first,
-                );
+                // In the band's rows.
+                let pixel = ndc_pixel(p, ndc.truncate()) - glam::Vec2::new(0.0, first);
                 lo = lo.min(pixel);
                 hi = hi.max(pixel);
             }
@@ -184,7 +181,7 @@ mod tests {
     use glam::{Mat4, Vec2};
 
     use super::*;
-    use crate::cpu::march::{PixelRay, intersect_box};
+    use crate::cpu::march::{PixelRay, intersect_box, pixel_ndc};
 
     /// Parameters of a band of rows `first_row..first_row + rows` of a
     /// `width` × `image_height` image seen through `view_proj`, with the
@@ -210,6 +207,20 @@ mod tests {
         let (tex_origin, tex_dir) = PixelRay::new(p, x, row).in_texture(p);
         let span = intersect_box(tex_origin, tex_dir, cell.lo, cell.hi);
         (span.x < span.y).then_some(span)
+    }
+
+    #[test]
+    fn a_pixel_centre_maps_to_ndc_and_back() {
+        let p = params(Mat4::IDENTITY, 37, 23, 0, 23);
+        for (x, row) in [(0, 0), (36, 22), (18, 11), (5, 17)] {
+            let back = ndc_pixel(&p, pixel_ndc(&p, x, row));
+            let error = (back - Vec2::new(x as f32, row as f32)).abs().max_element();
+            assert!(error < 1e-4, "pixel ({x}, {row}) came back as {back}");
+        }
+        // The image's corners lie at NDC ±1, half a pixel beyond the
+        // corner pixels' centres.
+        assert_eq!(ndc_pixel(&p, Vec2::new(-1.0, 1.0)), Vec2::new(-0.5, -0.5));
+        assert_eq!(ndc_pixel(&p, Vec2::new(1.0, -1.0)), Vec2::new(36.5, 22.5));
     }
 
     #[test]
@@ -241,7 +252,7 @@ mod tests {
                 for row in first_row..first_row + rows {
                     for x in 0..p.width {
                         let reach = footprint.reach(x, row);
-                        let within = PixelRay::new(&p, x, row).within(&p, reach);
+                        let within = PixelRay::new(&p, x, row).within(reach);
                         let spans: Vec<Vec2> =
                             cells.iter().filter_map(|c| meets(&p, x, row, c)).collect();
                         if spans.is_empty() {

@@ -12,6 +12,7 @@ use std::time::Instant;
 
 use blocks::TransferFunction;
 use blocks::packing::Packing;
+use blocks::store::grid_position;
 
 use super::march::{classify_table, corrected_opacity, intersect_box};
 use super::packed::{BLOCK, EMPTY_LEVEL, PackedTexture, RayBlocks};
@@ -386,12 +387,7 @@ fn light_seams_pass(
     // (holding block `b`), if anything. Only apron texels can write and the
     // others return at once, so only the slots' shells are visited below.
     let texel_value = |slot: [u32; 3], b: u32, gid: [u32; 3]| -> Option<(usize, f32)> {
-        let block = [
-            b % grid[0],
-            (b / grid[0]) % grid[1],
-            b / (grid[0] * grid[1]),
-        ]
-        .map(|v| v as i32);
+        let block = grid_position(grid, b as usize).map(|v| v as i32);
         let c = [0, 1, 2].map(|a| (gid[a] - slot[a] * edge) as i32);
         let d = c.map(|v| {
             if v == 0 {

@@ -845,14 +845,38 @@ impl Accumulator {
     }
 }
 
+/// The centre of pixel `x` of image row `row` in NDC, as WGSL `main` finds
+/// it (CPU only: [`PixelRay::new`]).
+#[inline(always)]
+pub(super) fn pixel_ndc(p: &RaycastParams, x: u32, row: u32) -> Vec2 {
+    let pixel = Vec2::new(x as f32 + 0.5, row as f32 + 0.5);
+    Vec2::new(
+        pixel.x / p.width as f32 * 2.0 - 1.0,
+        1.0 - pixel.y / p.image_height as f32 * 2.0,
+    )
+}
+
+/// [`pixel_ndc`] inverted: the image position (x, row) whose pixel centre
+/// lies at `ndc` (pixel centres at whole numbers).
+#[inline]
+pub(super) fn ndc_pixel(p: &RaycastParams, ndc: Vec2) -> Vec2 {
+    Vec2::new(
+        (ndc.x + 1.0) * 0.5 * p.width as f32 - 0.5,
+        (1.0 - ndc.y) * 0.5 * p.image_height as f32 - 0.5,
+    )
+}
+
 /// The ray WGSL `main` casts through a pixel (CPU only: its first lines).
 #[derive(Debug, Clone, Copy)]
 pub(super) struct PixelRay {
-    /// The pixel's centre in NDC.
-    pub ndc: Vec2,
-    /// Where the ray leaves the near plane, in model space.
+    /// Where the ray leaves the near plane (NDC depth 0), in model space,
+    /// as homogeneous coordinates.
+    pub near_h: Vec4,
+    /// Where it meets the far plane (NDC depth 1), the same way.
+    pub far_h: Vec4,
+    /// `near_h` as a point.
     pub origin: Vec3,
-    /// Where it meets the far plane.
+    /// `far_h` as a point.
     pub far: Vec3,
     /// Its direction, of unit length: `t` counts mm of model space.
     pub dir: Vec3,
@@ -864,19 +888,16 @@ impl PixelRay {
     /// alike).
     #[inline(always)]
     pub(super) fn new(p: &RaycastParams, x: u32, row: u32) -> PixelRay {
-        let pixel = Vec2::new(x as f32 + 0.5, row as f32 + 0.5);
-        let ndc = Vec2::new(
-            pixel.x / p.width as f32 * 2.0 - 1.0,
-            1.0 - pixel.y / p.image_height as f32 * 2.0,
-        );
+        let ndc = pixel_ndc(p, x, row);
         let inv_view_proj = p.inv_view_proj;
-        let near = inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
-        let far = inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
-        let origin = near.xyz() / near.w;
-        let far = far.xyz() / far.w;
+        let near_h = inv_view_proj * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
+        let far_h = inv_view_proj * Vec4::new(ndc.x, ndc.y, 1.0, 1.0);
+        let origin = near_h.xyz() / near_h.w;
+        let far = far_h.xyz() / far_h.w;
         let dir = (far - origin).normalize();
         PixelRay {
-            ndc,
+            near_h,
+            far_h,
             origin,
             far,
             dir,
@@ -898,16 +919,18 @@ impl PixelRay {
     /// is infinite or at or past the far plane (where NDC z stops following
     /// the depth).
     #[inline(always)]
-    pub(super) fn within(&self, p: &RaycastParams, reach: Reach) -> Vec2 {
+    pub(super) fn within(&self, reach: Reach) -> Vec2 {
         let mut range = Vec2::new(f32::NEG_INFINITY, f32::INFINITY);
         let bounded = |z: f32| z.is_finite() && z < 1.0;
         if !(bounded(reach.lo) || bounded(reach.hi)) {
             return range;
         }
         let margin = REACH_MARGIN * (self.far - self.origin).length();
-        // The point of NDC depth z lies on the ray: t is its distance.
+        // The point of NDC depth z lies on the ray: t is its distance. Its
+        // homogeneous coordinates are affine in z (the inverse projection
+        // is linear), so they blend the near and far planes' points.
         let t_at = |z: f32| {
-            let q = p.inv_view_proj * Vec4::new(self.ndc.x, self.ndc.y, z, 1.0);
+            let q = self.near_h * (1.0 - z) + self.far_h * z;
             (q.xyz() / q.w - self.origin).dot(self.dir)
         };
         if bounded(reach.lo) {
@@ -963,7 +986,7 @@ fn main<S: Storage, const KIND: u8>(
     let seen = match s.visible_extent(p) {
         Some((lo, hi)) => {
             let inside = intersect_box(tex_origin, tex_dir, lo, hi);
-            let within = ray.within(p, reach);
+            let within = ray.within(reach);
             Vec2::new(inside.x.max(within.x), inside.y.min(span.y).min(within.y))
         }
         None => span,

@@ -9,7 +9,7 @@
 //! shown blocks.
 
 use blocks::packing::slot_edge;
-use blocks::store::LEVELS;
+use blocks::store::{LEVELS, grid_position};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -163,16 +163,11 @@ pub fn visible_boxes(atlas: &SlotAtlas, index: &[[u16; 4]], bits: &[u64]) -> Vec
 /// transfer function shows walks no block.
 pub fn visible_extent(boxes: &[VisibleBox], grid: [u32; 3], dims: Vec3) -> VisibleBox {
     let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-    let [nx, ny, _] = grid.map(|n| n as usize);
     for (b, found) in boxes.iter().enumerate() {
         if found.lo.x > found.hi.x {
             continue;
         }
-        let cell = Vec3::new(
-            (b % nx) as f32,
-            (b / nx % ny) as f32,
-            (b / (nx * ny)) as f32,
-        );
+        let cell = Vec3::from(grid_position(grid, b).map(|c| c as f32));
         lo = lo.min(cell * BLOCK);
         hi = hi.max((cell + 1.0) * BLOCK);
     }
@@ -202,7 +197,6 @@ pub fn visible_cells(
     grid: [u32; 3],
     dims: Vec3,
 ) -> Vec<VisibleBox> {
-    let [nx, ny, _] = grid.map(|n| n as usize);
     // Each block's box in level-0 voxels of the volume.
     let shown: Vec<([u32; 3], Vec3, Vec3)> = boxes
         .iter()
@@ -210,7 +204,7 @@ pub fn visible_cells(
         .enumerate()
         .filter(|(_, (found, _))| found.lo.x <= found.hi.x)
         .map(|(b, (found, entry))| {
-            let block = [b % nx, b / nx % ny, b / (nx * ny)].map(|c| c as u32);
+            let block = grid_position(grid, b);
             let corner = Vec3::from(block.map(|c| c as f32)) * BLOCK;
             // Slot position s is (s − apron + ½) level texels from the
             // block's corner (`block_span`'s map, inverted); a box that
