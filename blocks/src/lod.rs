@@ -222,12 +222,11 @@ impl LodSelection {
         dims: [u32; 3],
         stray: f64,
     ) -> Option<[[u32; 3]; 2]> {
-        let (gx, gy) = (grid[0] as usize, grid[1] as usize);
         // Shown blocks per block coordinate, per axis.
         let mut counts: [Vec<usize>; 3] = grid.map(|n| vec![0; n as usize]);
         let mut shown = 0usize;
         for (b, _) in self.lod.iter().enumerate().filter(|(_, l)| **l != EMPTY) {
-            let n = [b % gx, b / gx % gy, b / (gx * gy)];
+            let n = crate::store::grid_position(grid, b).map(|c| c as usize);
             for (a, count) in counts.iter_mut().enumerate() {
                 if let Some(c) = count.get_mut(n[a]) {
                     *c += 1;

@@ -41,7 +41,7 @@ use std::sync::Arc;
 use crate::cache::ChunkKey;
 use crate::lod::EMPTY;
 use crate::packing::{APRON, slot_edge};
-use crate::store::{BLOCK, LEVELS, grid_index, level_dims};
+use crate::store::{BLOCK, LEVELS, grid_index, grid_position, level_dims};
 use crate::{Voxel, VoxelData};
 
 /// The levels of a block and its 26 neighbours: entry
@@ -98,9 +98,8 @@ pub fn neighbourhood(lod: &[u8], grid: [u32; 3], block: [u32; 3]) -> Neighbourho
 /// something not coarser leaves the apron as it was: at the block's level.
 pub fn neighbour_changed(old: &[u8], new: &[u8], grid: [u32; 3]) -> Vec<bool> {
     let mut touched = vec![false; new.len()];
-    let [gx, gy, _] = grid.map(|g| g as usize);
     for (c, (&was, &now)) in old.iter().zip(new).enumerate().filter(|(_, (o, n))| o != n) {
-        let block = [c % gx, (c / gx) % gy, c / (gx * gy)].map(|v| v as u32);
+        let block = grid_position(grid, c);
         for d in offsets() {
             let Some(b) = neighbour(block, d, grid).map(|n| grid_index(grid, n)) else {
                 continue;

@@ -125,7 +125,6 @@ pub const SEAM_PASSES: [(u32, u32); 12] = [
 /// has any), so both implementations leave them out.
 pub fn seam_passes(lod: &[u8], grid: [u32; 3]) -> Vec<(u32, u32)> {
     let mut beside_coarser = [false; blocks::store::LEVELS];
-    let [gx, gy, _] = grid;
     for (b, &level) in lod.iter().enumerate() {
         let Some(found) = beside_coarser.get_mut(usize::from(level)) else {
             continue;
@@ -133,7 +132,7 @@ pub fn seam_passes(lod: &[u8], grid: [u32; 3]) -> Vec<(u32, u32)> {
         if *found {
             continue;
         }
-        let block = [b as u32 % gx, (b as u32 / gx) % gy, b as u32 / (gx * gy)];
+        let block = blocks::store::grid_position(grid, b);
         let around = blocks::seams::neighbourhood(lod, grid, block);
         *found = around
             .iter()
