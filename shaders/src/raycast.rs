@@ -207,9 +207,6 @@ impl RaycastParams {
         let mut flags = FLAG_JITTER;
         if request.shading == Shading::Gradient {
             flags |= FLAG_SHADED;
-            if request.cubic_gradient {
-                flags |= FLAG_CUBIC_GRADIENT;
-            }
         }
         if request.skip_empty {
             flags |= FLAG_SKIP_EMPTY;
@@ -220,6 +217,11 @@ impl RaycastParams {
             let light = mode.raycast_light(request, texture);
             flags |= light.flags;
             (lit, light_offset) = (light.light, light.light_offset);
+        }
+        // Every shaded frame (gradient shading, and extinction light's
+        // gradient factor) takes the normals the request asks for.
+        if flags & FLAG_SHADED != 0 && request.cubic_gradient {
+            flags |= FLAG_CUBIC_GRADIENT;
         }
         if request.compositing == Compositing::Extinction {
             flags |= FLAG_EXTINCTION;
@@ -415,6 +417,45 @@ mod tests {
         // one vec3<u32> + scalar (16 each), eight scalars.
         assert_eq!(size_of::<RaycastParams>(), 3 * 64 + 11 * 16 + 8 * 4);
         assert_eq!(size_of::<RaycastParams>() % 16, 0);
+    }
+
+    #[test]
+    fn every_shaded_frame_takes_the_normals_it_asks_for() {
+        let texture = VolumeTexture {
+            geometry: Geometry::new([8, 8, 8], [1.0; 3]),
+            format: crate::volume_texture::TexelFormat::R8Unorm,
+            voxel_type: blocks::VoxelType::U8,
+            value_map: blocks::ValueMap::IDENTITY,
+            tf_domain: [0.0, 1.0],
+            value_scale: 1.0,
+            value_offset: 0.0,
+        };
+        let tf = blocks::Preset::Generic.transfer_function([0.0, 1.0]);
+        for shading in [
+            Shading::Unshaded,
+            Shading::Gradient,
+            Shading::GlobalLight,
+            Shading::Extinction,
+            Shading::Mip,
+        ] {
+            for cubic_gradient in [false, true] {
+                let request = FrameRequest {
+                    shading,
+                    cubic_gradient,
+                    ..FrameRequest::new(8, 8, tf.clone())
+                };
+                let flags =
+                    RaycastParams::new(&texture, &request, &tf, 16, PackedLayout::default()).flags;
+                // Gradient shading and extinction light's gradient factor shade.
+                let shaded = matches!(shading, Shading::Gradient | Shading::Extinction);
+                assert_eq!(flags & FLAG_SHADED != 0, shaded, "{shading:?}");
+                assert_eq!(
+                    flags & FLAG_CUBIC_GRADIENT != 0,
+                    shaded && cubic_gradient,
+                    "{shading:?}, cubic_gradient {cubic_gradient}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -115,8 +115,9 @@ pub struct BenchPeerArgs {
     pub data_dir: PathBuf,
     /// Modes compared, comma separated: composite, phong (cubic B-spline
     /// normals), phong_central (central differences), global_light,
-    /// extinction (VTK FixedPoint) and shadows (VTK's GPU mapper, slow).
-    #[arg(long, value_delimiter = ',', default_value = "composite,phong,phong_central,global_light,extinction",
+    /// extinction (cubic normals), extinction_central (VTK FixedPoint) and
+    /// shadows (VTK's GPU mapper, slow).
+    #[arg(long, value_delimiter = ',', default_value = "composite,phong,phong_central,global_light,extinction,extinction_central",
           value_parser = PeerMode::parse)]
     pub modes: Vec<PeerMode>,
     /// Image edge in pixels (square images).

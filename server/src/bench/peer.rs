@@ -25,7 +25,10 @@
 //! B-spline's normals, what still frames draw), `phong_central` (the same
 //! with central differences, the normals VTK's FixedPoint mapper shades with
 //! and voxserve's frames of a moving view), `global_light` and
-//! `extinction` (FixedPoint Phong against frames lit by the cached light),
+//! `extinction` (FixedPoint Phong against frames lit by the cached light,
+//! shaded with the cubic B-spline's normals as still frames are),
+//! `extinction_central` (the same with central differences, as frames of a
+//! moving view are),
 //! `shadows` (VTK's GPU mapper with volumetric shadows against global light).
 
 use std::path::{Path, PathBuf};
@@ -117,20 +120,24 @@ pub enum PeerMode {
     PhongCentral,
     /// FixedPoint Phong against frames lit by cached global light.
     GlobalLight,
-    /// FixedPoint Phong against frames lit by cached extinction-based light.
+    /// FixedPoint Phong against frames lit by cached extinction-based light
+    /// (cubic B-spline normals).
     Extinction,
+    /// The same with central differences.
+    ExtinctionCentral,
     /// VTK's GPU mapper with volumetric shadows against cached global light.
     Shadows,
 }
 
 impl PeerMode {
     /// Every mode, for parsing.
-    pub const ALL: [PeerMode; 6] = [
+    pub const ALL: [PeerMode; 7] = [
         PeerMode::Composite,
         PeerMode::Phong,
         PeerMode::PhongCentral,
         PeerMode::GlobalLight,
         PeerMode::Extinction,
+        PeerMode::ExtinctionCentral,
         PeerMode::Shadows,
     ];
 
@@ -142,6 +149,7 @@ impl PeerMode {
             PeerMode::PhongCentral => "phong_central",
             PeerMode::GlobalLight => "global_light",
             PeerMode::Extinction => "extinction",
+            PeerMode::ExtinctionCentral => "extinction_central",
             PeerMode::Shadows => "shadows",
         }
     }
@@ -153,7 +161,8 @@ impl PeerMode {
             PeerMode::Phong
             | PeerMode::PhongCentral
             | PeerMode::GlobalLight
-            | PeerMode::Extinction => ("fixedpoint", "phong"),
+            | PeerMode::Extinction
+            | PeerMode::ExtinctionCentral => ("fixedpoint", "phong"),
             PeerMode::Shadows => ("gpu", "shadows"),
         }
     }
@@ -175,15 +184,21 @@ impl PeerMode {
             PeerMode::Composite => Shading::Unshaded,
             PeerMode::Phong | PeerMode::PhongCentral => Shading::Gradient,
             PeerMode::GlobalLight | PeerMode::Shadows => Shading::GlobalLight,
-            PeerMode::Extinction => Shading::Extinction,
+            PeerMode::Extinction | PeerMode::ExtinctionCentral => Shading::Extinction,
         }
+    }
+
+    /// Whether voxserve shades with the cubic B-spline's normals (what still
+    /// frames draw) rather than central differences.
+    fn cubic_normals(self) -> bool {
+        !matches!(self, PeerMode::PhongCentral | PeerMode::ExtinctionCentral)
     }
 
     /// The ratio (voxserve over VTK) the targets ask for at most.
     fn target_ratio(self) -> f64 {
         match self {
             PeerMode::Composite | PeerMode::Phong | PeerMode::PhongCentral => 0.5,
-            PeerMode::GlobalLight | PeerMode::Extinction => 1.0,
+            PeerMode::GlobalLight | PeerMode::Extinction | PeerMode::ExtinctionCentral => 1.0,
             PeerMode::Shadows => 1.0 / 30.0,
         }
     }
@@ -500,7 +515,7 @@ impl PeerRun<'_> {
         let request = FrameRequest {
             camera,
             shading: self.mode.shading(),
-            cubic_gradient: self.mode != PeerMode::PhongCentral,
+            cubic_gradient: self.mode.cubic_normals(),
             background: BACKGROUND,
             step_voxels: self.args.step,
             ..FrameRequest::new(
@@ -543,7 +558,7 @@ impl PeerRun<'_> {
                 "dataset": self.peer.name,
                 "mode": self.mode.name(),
                 "shading": self.mode.shading().name(),
-                "cubic_gradient": self.mode != PeerMode::PhongCentral,
+                "cubic_gradient": self.mode.cubic_normals(),
                 "renderer": self.backend,
                 "width": self.args.size,
                 "height": self.args.size,
