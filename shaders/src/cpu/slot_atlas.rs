@@ -387,6 +387,14 @@ impl SlotAtlas {
         let i = p.floor();
         let first =
             base + ((i.z as usize - 1) * edge + (i.y as usize - 1)) * edge + (i.x as usize - 1);
+        if edge == LEVEL0_EDGE {
+            const E: usize = LEVEL0_EDGE;
+            const W: usize = 3 * E * E + 3 * E + 4;
+            if let Some(w) = self.texels.get(first..first + W) {
+                let w: &[f32; W] = w.try_into().expect("W texels");
+                return cubic_gradient_of(p - i, |k, j| four(w, (k * E + j) * E));
+            }
+        }
         cubic_gradient_of(p - i, |k, j| {
             let row: &[f32; 4] = self.texels[first + (k * edge + j) * edge..][..4]
                 .try_into()
