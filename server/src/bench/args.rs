@@ -113,10 +113,10 @@ pub struct BenchPeerArgs {
     /// Where the real datasets are.
     #[arg(long, default_value = "../shared/data")]
     pub data_dir: PathBuf,
-    /// Modes compared, comma separated: composite, phong (cubic B-spline
-    /// normals), phong_central (central differences), global_light,
-    /// extinction (cubic normals), extinction_central (VTK FixedPoint) and
-    /// shadows (VTK's GPU mapper, slow).
+    /// Modes compared, comma separated: against VTK FixedPoint composite,
+    /// phong (cubic B-spline normals), phong_central (central differences),
+    /// global_light, extinction (cubic normals) and extinction_central
+    /// (central differences); against VTK's GPU mapper shadows (slow).
     #[arg(long, value_delimiter = ',', default_value = "composite,phong,phong_central,global_light,extinction,extinction_central",
           value_parser = PeerMode::parse)]
     pub modes: Vec<PeerMode>,
