@@ -419,17 +419,22 @@ mod tests {
         assert_eq!(size_of::<RaycastParams>() % 16, 0);
     }
 
-    #[test]
-    fn every_shaded_frame_takes_the_normals_it_asks_for() {
-        let texture = VolumeTexture {
-            geometry: Geometry::new([8, 8, 8], [1.0; 3]),
+    /// An 8-bit volume of `geometry`, its values mapped to 0..1 as stored.
+    fn u8_texture(geometry: Geometry) -> VolumeTexture {
+        VolumeTexture {
+            geometry,
             format: crate::volume_texture::TexelFormat::R8Unorm,
             voxel_type: blocks::VoxelType::U8,
             value_map: blocks::ValueMap::IDENTITY,
             tf_domain: [0.0, 1.0],
             value_scale: 1.0,
             value_offset: 0.0,
-        };
+        }
+    }
+
+    #[test]
+    fn every_shaded_frame_takes_the_normals_it_asks_for() {
+        let texture = u8_texture(Geometry::new([8, 8, 8], [1.0; 3]));
         let tf = blocks::Preset::Generic.transfer_function([0.0, 1.0]);
         for shading in [
             Shading::Unshaded,
@@ -460,18 +465,10 @@ mod tests {
 
     #[test]
     fn texture_from_model_undoes_the_placement() {
-        let texture = VolumeTexture {
-            geometry: Geometry {
-                direction: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
-                ..Geometry::new([10, 20, 5], [1.0, 0.5, 2.0])
-            },
-            format: crate::volume_texture::TexelFormat::R8Unorm,
-            voxel_type: blocks::VoxelType::U8,
-            value_map: blocks::ValueMap::IDENTITY,
-            tf_domain: [0.0, 1.0],
-            value_scale: 1.0,
-            value_offset: 0.0,
-        };
+        let texture = u8_texture(Geometry {
+            direction: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
+            ..Geometry::new([10, 20, 5], [1.0, 0.5, 2.0])
+        });
         let tf = blocks::Preset::Generic.transfer_function([0.0, 1.0]);
         let p = RaycastParams::new(
             &texture,
