@@ -96,7 +96,8 @@ pub struct RaycastParams {
     pub max_steps: u32,
     /// How far towards the eye (mm) the light is read, so a surface reads the
     /// light just outside it rather than a blend with the shadowed texels
-    /// behind it: one light-cache cell for extinction-based illumination,
+    /// behind it: [`crate::extinction::LIGHT_READ_CELLS`] light-cache cells
+    /// for extinction-based illumination,
     /// [`crate::illumination::LIGHT_READ_VOXELS`] voxels for global light;
     /// 0 otherwise.
     pub light_offset: f32,

@@ -389,41 +389,14 @@ fn a_frame_drawn_band_by_band_is_the_frame_drawn_whole() {
 /// many pixels.
 #[test]
 fn a_smooth_surface_seen_head_on_shows_no_rings() {
-    // The phantom's skull vault under ct-bone, at 256³, zoomed until a pixel
-    // is about 0.6 of a voxel, seen from straight above on the CPU twin. The
-    // vault's outer surface is an ellipsoid centred 10 mm anterior and 20 mm
-    // superior of the cube's centre, semi-axes 70 (x), 92 (y) and 86 (z) mm;
-    // its top, the vertex, faces the eye. A step of ⅛ voxel keeps the
-    // jitter's noise below the rings.
-    let volume = blocks::phantom::head(256).expect("phantom");
-    let range = volume.value_range;
-    let radius = shaders::raycast::VolumePlacement::of_geometry(&volume.geometry).radius();
-    let dataset = dataset_of(volume);
-    let size = 128u32;
-    let camera = Camera {
-        fov_y_deg: 8.0,
-        elevation_deg: 90.0,
-        ..Camera::default()
-    };
-    // Model space is the volume's index axes (LPS: y towards posterior).
-    let vertex = glam::Vec3::new(0.0, -10.0, 20.0 + 86.0);
-    let ndc = camera.view_proj(radius, 1.0).project_point3(vertex);
-    let centre = (
-        f64::from((ndc.x + 1.0) * 0.5 * size as f32 - 0.5),
-        f64::from((1.0 - ndc.y) * 0.5 * size as f32 - 0.5),
-    );
+    let vault = Vault::new();
     // Across the image (x, left) the vertex curves with radius 70²/86 mm, up
     // and down (y) with 92²/86 mm: iso-depth lines are ellipses.
     let squash = (70.0f64 / 92.0).powi(2);
+    let centre = vault.centre;
     let mut worst = 0.0f64;
     for shading in [Shading::Gradient, Shading::Unshaded] {
-        let request = FrameRequest {
-            camera,
-            shading,
-            step_voxels: 0.125,
-            ..FrameRequest::new(size, size, Preset::CtBone.transfer_function(range))
-        };
-        let frame = cpu_packed(None, &dataset, &request);
+        let frame = vault.frame(shading);
         let residual = ring_residual(&frame, centre, squash);
         println!("{shading:?}: ring residual {residual:.3} of 255 about {centre:?}");
         worst = worst.max(residual);
@@ -432,6 +405,115 @@ fn a_smooth_surface_seen_head_on_shows_no_rings() {
     // edges of ±2 voxels; with the phantom's edges at ±1.5 voxels, 0.21, the
     // rings plain to see with the contrast stretched.
     assert!(worst < 0.17, "rings: residual {worst:.3}");
+}
+
+/// The phantom's skull vault under ct-bone, at 256³, zoomed until a pixel is
+/// about 0.6 of a voxel, seen from straight above on the CPU twin at 128².
+/// The vault's outer surface is an ellipsoid centred 10 mm anterior and 20 mm
+/// superior of the cube's centre, semi-axes 70 (x), 92 (y) and 86 (z) mm;
+/// its top, the vertex, faces the eye. A step of ⅛ voxel keeps the jitter's
+/// noise below the rings.
+struct Vault {
+    dataset: Dataset,
+    camera: Camera,
+    range: [f32; 2],
+    /// Where the vertex is drawn (pixels).
+    centre: (f64, f64),
+}
+
+impl Vault {
+    const SIZE: u32 = 128;
+
+    fn new() -> Vault {
+        let volume = blocks::phantom::head(256).expect("phantom");
+        let range = volume.value_range;
+        let radius = shaders::raycast::VolumePlacement::of_geometry(&volume.geometry).radius();
+        let camera = Camera {
+            fov_y_deg: 8.0,
+            elevation_deg: 90.0,
+            ..Camera::default()
+        };
+        // Model space is the volume's index axes (LPS: y towards posterior).
+        let vertex = glam::Vec3::new(0.0, -10.0, 20.0 + 86.0);
+        let ndc = camera.view_proj(radius, 1.0).project_point3(vertex);
+        let size = Vault::SIZE as f32;
+        let centre = (
+            f64::from((ndc.x + 1.0) * 0.5 * size - 0.5),
+            f64::from((1.0 - ndc.y) * 0.5 * size - 0.5),
+        );
+        Vault {
+            dataset: dataset_of(volume),
+            camera,
+            range,
+            centre,
+        }
+    }
+
+    fn frame(&self, shading: Shading) -> Frame {
+        let request = FrameRequest {
+            camera: self.camera,
+            shading,
+            step_voxels: 0.125,
+            ..FrameRequest::new(
+                Vault::SIZE,
+                Vault::SIZE,
+                Preset::CtBone.transfer_function(self.range),
+            )
+        };
+        cpu_packed(None, &self.dataset, &request)
+    }
+}
+
+/// Extinction light read from its cache (cells of 2 voxels here) must not
+/// lay the cache's layers over a smooth surface: the vault's detail a few
+/// pixels across, lit by extinction light, stays that of gradient shading
+/// (the same normals, no shadows: what is left is the surface's own
+/// texture and the jitter's noise). Read one cell towards the eye (before
+/// `LIGHT_READ_CELLS`), the light drew bands where the vault cuts the
+/// cache's layers.
+#[test]
+fn extinction_light_lays_no_bands_on_a_smooth_surface() {
+    let vault = Vault::new();
+    let detail = |shading| surface_detail(&vault.frame(shading), vault.centre.0);
+    let (gradient, extinction) = (detail(Shading::Gradient), detail(Shading::Extinction));
+    println!("surface detail: gradient {gradient:.3}, extinction light {extinction:.3} of 255");
+    // Measured: gradient 0.65; extinction light read two cells towards the
+    // eye 0.73, read one cell towards it 2.01, the bands plain to see.
+    assert!(
+        extinction < 1.5 * gradient,
+        "extinction light lays bands: detail {extinction:.3} against gradient shading's {gradient:.3}"
+    );
+}
+
+/// The RMS, in 255ths of luminance, of the detail a few pixels across
+/// (`high_pass_luminance`) over the pixels at least 8 pixels inside the
+/// drawn surface, leaving out the columns within 2 pixels of `centre_x`
+/// (the sagittal sinus grooves the vault's midline).
+fn surface_detail(frame: &Frame, centre_x: f64) -> f64 {
+    const INSET: i64 = 8;
+    let (w, h) = (i64::from(frame.width), i64::from(frame.height));
+    let detail = voxserve_tests::checks::high_pass_luminance(frame);
+    let drawn = |x: i64, y: i64| {
+        x >= 0 && y >= 0 && x < w && y < h && {
+            let i = ((y * w + x) * 4) as usize;
+            frame.rgba[i..i + 3].iter().any(|&c| c > 20)
+        }
+    };
+    let (mut sum, mut n) = (0.0f64, 0u32);
+    for y in 0..h {
+        for x in 0..w {
+            if (x as f64 - centre_x).abs() <= 2.0 {
+                continue;
+            }
+            let inside =
+                (-INSET..=INSET).all(|dy| (-INSET..=INSET).all(|dx| drawn(x + dx, y + dy)));
+            if inside {
+                sum += detail[(y * w + x) as usize].powi(2);
+                n += 1;
+            }
+        }
+    }
+    (sum / f64::from(n.max(1))).sqrt()
 }
 
 /// The RMS, in 255ths of luminance, of what oscillates with the radius at

@@ -37,8 +37,8 @@ pub mod settings;
 pub mod update;
 
 pub use params::{
-    AoShells, ExtinctionParams, LightUniform, cell_mm, grid_dims, near_cells_mask, scan_workgroups,
-    sphere_norm,
+    AoShells, ExtinctionParams, LIGHT_READ_CELLS, LightUniform, cell_mm, grid_dims,
+    near_cells_mask, scan_workgroups, sphere_norm,
 };
 pub use pipelines::ExtinctionPipelines;
 pub use resources::ExtinctionVolumes;

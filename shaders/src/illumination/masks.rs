@@ -29,7 +29,8 @@ pub fn slot_blocks(packing: &Packing) -> Vec<u32> {
 /// light term is ever read. `global_opacity` computes SVR points only there
 /// (`direct_light` reads the SVR one segment from a stored voxel and
 /// `in_scatter` at R_Ω from one), and the extinction stages fill only light-cache
-/// cells there (the ray caster reads the cache one cell from a stored sample),
+/// cells there (the ray caster reads the cache two cells from a stored
+/// sample: `extinction::near_cells_mask`),
 /// so the light's cost follows the kept blocks, not the volume. A separable
 /// dilation, so the cost is linear in blocks whatever the margin.
 pub fn near_blocks(packing: &Packing, grid: [u32; 3], margin_blocks: u32) -> Vec<u32> {

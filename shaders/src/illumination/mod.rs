@@ -142,11 +142,13 @@ impl Mode {
             }
             // The light cache holds the coloured light: white, no bias; the
             // gradient factor k of eq. 8 keeps gradient shading; the cache is
-            // read one cell towards the eye (see `RaycastParams::light_offset`).
+            // read `LIGHT_READ_CELLS` cells towards the eye (see
+            // `RaycastParams::light_offset`).
             Mode::Extinction => RaycastLight {
                 flags: raycast::FLAG_LIT | raycast::FLAG_SHADED,
                 light: [1.0, 1.0, 1.0, 0.0],
-                light_offset: crate::extinction::cell_mm(texture, request.extinction.sat_size),
+                light_offset: crate::extinction::LIGHT_READ_CELLS
+                    * crate::extinction::cell_mm(texture, request.extinction.sat_size),
             },
         }
     }

@@ -1,5 +1,6 @@
 // near_cells: which light-cache cells the ray caster can ever read. It reads
-// the cache one cell from samples in stored blocks, so only cells whose block
+// the cache two cells from samples in stored blocks (LIGHT_READ_CELLS, see
+// `extinction::near_cells_mask`), so only cells whose block
 // lies within a margin of a stored block (the `near_blocks` mask, per block)
 // are computed; the others are written neutral and never read. Needs
 // `params.grid`, `params.volume.volume_dims`, `params.volume.block_grid`, BLOCK

@@ -42,7 +42,7 @@ struct RaycastParams {
     flags: u32,
     mode: u32,
     // The upper bound on samples per ray; how far towards the eye (mm) the
-    // light is read (one light-cache cell for extinction-based illumination, so
+    // light is read (two light-cache cells for extinction-based illumination, so
     // a surface reads the light just outside it, not a blend with the shadowed
     // cells behind it; else 0); the image row this dispatch's first row is and
     // the image's height in rows (a big image is drawn band by band).
