@@ -275,7 +275,7 @@ impl ExtinctionParams {
 /// cache, in cells ([`cell_mm`]). A cell's light leaves out its own
 /// extinction but takes in its neighbours', so across a surface the cache
 /// falls from lit to shadowed within a cell or two; read nearer than that
-/// (it was read one cell out), the trilinear blend of the cells about the
+/// (it was read one cell towards the eye), the trilinear blend of the cells about the
 /// read point varies with where the surface cuts the grid, and smooth
 /// surfaces show the grid's layers as bands (rings on a sphere). Two cells
 /// out the read's cells lie outside that fall; shadows move out by as much,
@@ -287,16 +287,17 @@ pub const LIGHT_READ_CELLS: f32 = 2.0;
 /// Per block (x fastest), 1 where light-cache cells are ever read: blocks
 /// within the reach of a stored one. The ray caster reads the cache
 /// [`LIGHT_READ_CELLS`] of the mean cell edge towards the eye from samples
-/// in stored blocks (at most twice as many cells along an axis of more than
-/// one cell:
-/// [`grid_dims`] makes such an axis's cells ¾ to 1¼ of the longest side's,
-/// and an axis of one cell at most 1½), filtering over the cells around
-/// that point (1½ cells more); the margin covers that in whole blocks.
+/// in stored blocks, at most twice as many cells along an axis of more than
+/// one cell ([`grid_dims`] makes such an axis's cells ¾ to 1¼ of the longest
+/// side's, and an axis of one cell at most 1½), filtering over the cells
+/// around that point (1½ cells more); the margin covers that in whole blocks.
 pub fn near_cells_mask(packing: &blocks::packing::Packing, params: &ExtinctionParams) -> Vec<u32> {
     let cell_voxels = (0..3)
         .map(|a| params.volume.volume_dims[a] / params.grid[a].max(1) as f32)
         .fold(1.0f32, f32::max);
-    let reach_cells = LIGHT_READ_CELLS * 2.0 + 1.5;
+    // The most cells along an axis that the mean cell edge spans (above).
+    let cells_per_mean_edge = 2.0;
+    let reach_cells = LIGHT_READ_CELLS * cells_per_mean_edge + 1.5;
     let margin = (reach_cells * cell_voxels / blocks::store::BLOCK as f32)
         .ceil()
         .max(1.0) as u32;
