@@ -23,10 +23,11 @@ pub fn floor(x: f32) -> f32 {
 /// z, texel `c[i]` at the corner `(i & 1, i >> 1 & 1, i >> 2)`: each row's
 /// two texels blended along x and weighed by the row's share along y and z,
 /// the four rows summed in pairs. (The rows' weights are ready before the
-/// texels arrive, so the blend waits on the reads for three steps where
+/// texels arrive, so the blend waits on the reads for five steps where
 /// three rounds of lerps take nine.) Of one value or of several side by
-/// side in lanes (`one` is 1 in each), each lane the same arithmetic: every
-/// trilinear read of the CPU twins is this one.
+/// side in lanes (`one` is 1 in each), each lane the same arithmetic: the
+/// CPU twins read their textures and slots through it
+/// (`SlotAtlas::sample_slot4` writes it out for four samples at once).
 #[inline(always)]
 pub fn blend<T>(c: [T; 8], f: [T; 3], one: T) -> T
 where
