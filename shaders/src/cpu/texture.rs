@@ -42,26 +42,29 @@ where
     (y0z0 + y1z0) + (y0z1 + y1z1)
 }
 
+/// The 2×2×2 texels whose first (lowest) is `texels[first]`, rows `row`
+/// and slices `slice` apart, in [`blend`]'s order.
+#[inline(always)]
+fn corners<T: Copy>(texels: &[T], first: usize, row: usize, slice: usize) -> [T; 8] {
+    let t = &texels[first..first + slice + row + 2];
+    [
+        t[0],
+        t[1],
+        t[row],
+        t[row + 1],
+        t[slice],
+        t[slice + 1],
+        t[slice + row],
+        t[slice + row + 1],
+    ]
+}
+
 /// Trilinear interpolation ([`blend`]) of the 2×2×2 texels whose first
 /// (lowest) is `texels[first]`, rows `row` and slices `slice` apart, at
 /// fractions `f`.
 #[inline(always)]
 pub fn trilinear(texels: &[f32], first: usize, row: usize, slice: usize, f: Vec3) -> f32 {
-    let t = &texels[first..first + slice + row + 2];
-    blend(
-        [
-            t[0],
-            t[1],
-            t[row],
-            t[row + 1],
-            t[slice],
-            t[slice + 1],
-            t[slice + row],
-            t[slice + row + 1],
-        ],
-        f.to_array(),
-        1.0,
-    )
+    blend(corners(texels, first, row, slice), f.to_array(), 1.0)
 }
 
 /// `x` as a whole number `i` and a fraction `x − i` in `0..=1`, for
@@ -262,17 +265,7 @@ impl ColourTexture {
             if x >= 0 && y >= 0 && z >= 0 && x + 1 < nx && y + 1 < ny && z + 1 < nz {
                 let (row, slice) = (nx as usize, (nx * ny) as usize);
                 let first = (z as usize * ny as usize + y as usize) * row + x as usize;
-                let t = &self.texels[first..first + slice + row + 2];
-                [
-                    t[0],
-                    t[1],
-                    t[row],
-                    t[row + 1],
-                    t[slice],
-                    t[slice + 1],
-                    t[slice + row],
-                    t[slice + row + 1],
-                ]
+                corners(&self.texels, first, row, slice)
             } else {
                 [0, 1, 2, 3, 4, 5, 6, 7]
                     .map(|c| self.load(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2)))
