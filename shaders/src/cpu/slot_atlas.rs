@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use super::Texture3d;
 use super::occupancy::texel_may_show;
 use super::packed::{BlockLocation, block_texel};
-use super::texture::{blend, deal, floor3, pair, round_down, split, trilinear};
+use super::texture::{blend, corners_from, deal, floor3, pair, round_down, split, trilinear};
 use crate::packed_volume::PackedVolume;
 
 /// The atlas of one packing, slot by slot; see the module docs.
@@ -274,8 +274,7 @@ impl SlotAtlas {
         let base = floor3(p);
         let f = p - base;
         let (x, y, z) = (base.x as i32, base.y as i32, base.z as i32);
-        let corners = [0, 1, 2, 3, 4, 5, 6, 7]
-            .map(|c| self.load(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2)));
+        let corners = corners_from(x, y, z, |x, y, z| self.load(x, y, z));
         blend(corners, f.to_array(), 1.0)
     }
 

@@ -59,6 +59,14 @@ fn corners<T: Copy>(texels: &[T], first: usize, row: usize, slice: usize) -> [T;
     ]
 }
 
+/// The 2×2×2 texels from (x, y, z) up, each read by `load` at its
+/// coordinates, in [`blend`]'s order (where they are not known to lie in
+/// one array: clamped reads at a texture's edge).
+#[inline(always)]
+pub fn corners_from<T>(x: i32, y: i32, z: i32, load: impl Fn(i32, i32, i32) -> T) -> [T; 8] {
+    [0, 1, 2, 3, 4, 5, 6, 7].map(|c| load(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2)))
+}
+
 /// Trilinear interpolation ([`blend`]) of the 2×2×2 texels whose first
 /// (lowest) is `texels[first]`, rows `row` and slices `slice` apart, at
 /// fractions `f`.
@@ -221,8 +229,7 @@ impl Texture3d {
             let first = (z as usize * ny as usize + y as usize) * row + x as usize;
             return trilinear(&self.texels, first, row, slice, f);
         }
-        let corners = [0, 1, 2, 3, 4, 5, 6, 7]
-            .map(|c| self.load(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2)));
+        let corners = corners_from(x, y, z, |x, y, z| self.load(x, y, z));
         blend(corners, f.to_array(), 1.0)
     }
 }
@@ -267,8 +274,7 @@ impl ColourTexture {
                 let first = (z as usize * ny as usize + y as usize) * row + x as usize;
                 corners(&self.texels, first, row, slice)
             } else {
-                [0, 1, 2, 3, 4, 5, 6, 7]
-                    .map(|c| self.load(x + (c & 1), y + (c >> 1 & 1), z + (c >> 2)))
+                corners_from(x, y, z, |x, y, z| self.load(x, y, z))
             };
         let f = f.to_array().map(f32x4::splat);
         let [r, g, b, _] = blend(corners, f, f32x4::ONE).to_array();
