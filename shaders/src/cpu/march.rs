@@ -968,6 +968,10 @@ fn main<S: Storage, const KIND: u8>(
     if gid[0] >= p.width || gid[1] >= p.height {
         return None;
     }
+    if !reach.met() {
+        // No ray to find: it would meet no sample that can be visible.
+        return Some(pixel(p, &Accumulator::default()));
+    }
     // Rows count in the whole image: a band is drawn as that part of it.
     let row = gid[1] + p.first_row;
     let ray = PixelRay::new(p, gid[0], row);
@@ -992,7 +996,7 @@ fn main<S: Storage, const KIND: u8>(
         None => span,
     };
     let mut acc = Accumulator::default();
-    if reach.met() && span.x < span.y && seen.x < seen.y {
+    if span.x < span.y && seen.x < seen.y {
         let mut jitter = 0.0;
         if p.flags & FLAG_JITTER != 0 {
             jitter = unit_from_hash(pcg_hash(row * p.width + gid[0]));
@@ -1146,13 +1150,19 @@ fn main<S: Storage, const KIND: u8>(
             }
         }
     }
+    Some(pixel(p, &acc))
+}
+
+/// The pixel a ray that composited `acc` draws (rgba8unorm).
+#[inline(always)]
+fn pixel(p: &RaycastParams, acc: &Accumulator) -> [u8; 4] {
     let Accumulator {
         color,
         alpha,
         found,
         extreme,
         ..
-    } = acc;
+    } = *acc;
     let background = Vec4::from(p.background).xyz();
     let mut out = color + (1.0 - alpha) * background;
     if p.mode != MODE_COMPOSITE {
@@ -1164,7 +1174,7 @@ fn main<S: Storage, const KIND: u8>(
     let out = out.clamp(Vec3::ZERO, Vec3::ONE);
     // rgba8unorm stores round(v * 255).
     let unorm = |v: f32| (v * 255.0).round() as u8;
-    Some([unorm(out.x), unorm(out.y), unorm(out.z), 255])
+    [unorm(out.x), unorm(out.y), unorm(out.z), 255]
 }
 
 #[cfg(test)]
