@@ -74,6 +74,18 @@ pub struct BlockLocation {
     pub slot_edge: usize,
 }
 
+/// Level-l texels per level-0 voxel, 2⁻ˡ, per level (a table: the walk
+/// finds it per block it enters, where a division waited on the index's read).
+const LEVEL_SCALE: [f32; LEVELS] = {
+    let mut scale = [1.0; LEVELS];
+    let mut level = 1;
+    while level < LEVELS {
+        scale[level] = scale[level - 1] * 0.5;
+        level += 1;
+    }
+    scale
+};
+
 /// WGSL `voxel_edge`: the edge of a voxel of block `loc`'s level, in level-0 voxels.
 pub fn voxel_edge(loc: &BlockLocation) -> f32 {
     1.0 / loc.scale
@@ -367,7 +379,7 @@ impl PackedTexture {
                 f32::from(entry[1]),
                 f32::from(entry[2]),
             ),
-            scale: 1.0 / (1u32 << u32::from(entry[3]).min(4)) as f32,
+            scale: LEVEL_SCALE[usize::from(entry[3]).min(LEVELS - 1)],
         }
     }
 }
