@@ -17,6 +17,7 @@ use wide::{f32x4, i32x4};
 use super::footprint::{Footprint, Reach};
 use super::hash::{pcg_hash, unit_from_hash};
 use super::occupancy::VisibleBox;
+use super::ray_lanes::{RAY_LANES, RayStart};
 use super::texture::{floor, round_down, split};
 use crate::raycast::{
     FLAG_CUBIC_GRADIENT, FLAG_EXTINCTION, FLAG_JITTER, FLAG_LIT, FLAG_SHADED, FLAG_SKIP_EMPTY,
@@ -151,6 +152,9 @@ const MAX_RUN_INDEX: u32 = i32::MAX as u32 - 4;
 /// Rows of pixels one task renders, and columns of a tile within them:
 /// neighbouring rays read the same voxels, so a tile's rays find them in cache.
 const TILE: usize = WORKGROUP_SIZE as usize;
+
+// A tile's row of pixels is one set of rays found side by side.
+const _: () = assert!(TILE == RAY_LANES);
 
 /// The instructions the march is compiled for. The same source either way,
 /// with the same arithmetic in the same order (Rust never fuses a multiply
@@ -332,20 +336,44 @@ fn march_band_body<S: Storage, const KIND: u8>(
 ) {
     let width = params.width as usize;
     let height = rows.len() / (width * 4);
+    let extent = storage.visible_extent(params);
     for x0 in (0..width).step_by(TILE) {
         for dy in 0..height {
             let y = (band * TILE + dy) as u32;
-            for x in x0..(x0 + TILE).min(width) {
-                // A ray no visible box's projection covers meets no
-                // sample that can be visible: it is left unmarched.
-                let reach =
-                    footprint.map_or(Reach::ALL, |f| f.reach(x as u32, y + params.first_row));
-                if let Some(rgba) =
-                    main::<S, KIND>(params, storage, transfer_function, [x as u32, y], reach)
-                {
-                    let at = (dy * width + x) * 4;
-                    rows[at..at + 4].copy_from_slice(&rgba);
+            if y >= params.height {
+                continue;
+            }
+            let row = y + params.first_row;
+            // A ray no visible box's projection covers meets no sample
+            // that can be visible: it is left unmarched, and not found.
+            let reaches: [Reach; RAY_LANES] = std::array::from_fn(|j| {
+                let x = x0 + j;
+                if x >= width {
+                    return Reach::NONE;
                 }
+                footprint.map_or(Reach::ALL, |f| f.reach(x as u32, row))
+            });
+            let met = reaches.map(Reach::met);
+            let starts = met
+                .contains(&true)
+                .then(|| RayStart::lanes(params, extent, x0 as u32, row, &reaches));
+            for (j, met) in met.into_iter().enumerate() {
+                let x = x0 + j;
+                if x >= width {
+                    break;
+                }
+                let rgba = match &starts {
+                    Some(starts) if met => main::<S, KIND>(
+                        params,
+                        storage,
+                        transfer_function,
+                        [x as u32, y],
+                        &starts[j],
+                    ),
+                    _ => pixel(params, &Accumulator::default()),
+                };
+                let at = (dy * width + x) * 4;
+                rows[at..at + 4].copy_from_slice(&rgba);
             }
         }
     }
@@ -952,49 +980,29 @@ impl PixelRay {
 /// How far past the depths of the boxes a ray may meet it is marched, as a
 /// share of its length from the near to the far plane: far more than the
 /// rounding of the depths and of their unprojection.
-const REACH_MARGIN: f32 = 1e-3;
+pub(super) const REACH_MARGIN: f32 = 1e-3;
 
-/// WGSL `main`: the pixel at `gid`, or `None` past the image's edge. CPU
-/// only: a ray is marched only within the `reach` of the boxes of
-/// [`Storage::visible_cells`] (not at all where it meets none).
+/// WGSL `main` for the pixel at `gid`, whose ray starts as `start` finds
+/// it ([`RayStart`]). CPU only: a ray is marched only within the reach of
+/// the boxes of [`Storage::visible_cells`] (`start.seen`), and not at all
+/// where it meets none (the caller draws the background there).
 #[inline(always)]
 fn main<S: Storage, const KIND: u8>(
     p: &RaycastParams,
     s: &S,
     tf: &TfTable,
     gid: [u32; 2],
-    reach: Reach,
-) -> Option<[u8; 4]> {
-    if gid[0] >= p.width || gid[1] >= p.height {
-        return None;
-    }
-    if !reach.met() {
-        // No ray to find: it would meet no sample that can be visible.
-        return Some(pixel(p, &Accumulator::default()));
-    }
+    start: &RayStart,
+) -> [u8; 4] {
     // Rows count in the whole image: a band is drawn as that part of it.
     let row = gid[1] + p.first_row;
-    let ray = PixelRay::new(p, gid[0], row);
-    let dir = ray.dir;
-    let (tex_origin, tex_dir) = ray.in_texture(p);
-
-    let span = intersect_box(
+    let RayStart {
+        dir,
         tex_origin,
         tex_dir,
-        Vec3::from(p.clip_min),
-        Vec3::from(p.clip_max),
-    );
-    // With empty-space skipping, the stretch of the ray where a sample may
-    // be visible: none lie before `seen.x` or after `seen.y` (the samples
-    // stay where the box puts them: from `span.x` on, a step apart).
-    let seen = match s.visible_extent(p) {
-        Some((lo, hi)) => {
-            let inside = intersect_box(tex_origin, tex_dir, lo, hi);
-            let within = ray.within(reach);
-            Vec2::new(inside.x.max(within.x), inside.y.min(span.y).min(within.y))
-        }
-        None => span,
-    };
+        span,
+        seen,
+    } = *start;
     let mut acc = Accumulator::default();
     if span.x < span.y && seen.x < seen.y {
         let mut jitter = 0.0;
@@ -1150,7 +1158,7 @@ fn main<S: Storage, const KIND: u8>(
             }
         }
     }
-    Some(pixel(p, &acc))
+    pixel(p, &acc)
 }
 
 /// The pixel a ray that composited `acc` draws (rgba8unorm).

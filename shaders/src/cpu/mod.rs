@@ -12,6 +12,9 @@
 //! - [`packed`]: twin of `shaders/wgsl/shared/packed.wgsl`, block addressing.
 //! - [`occupancy`]: CPU only, transparent texels inside blocks, whose
 //!   samples the CPU march drops without reading them (pixels unchanged).
+//! - [`footprint`]: CPU only, the pixels the boxes that can show cover.
+//! - [`ray_lanes`]: CPU only, the first lines of WGSL `main` for eight
+//!   pixels' rays side by side.
 //! - [`global_light`]: twins of the global light stages (`local_opacity`,
 //!   `global_opacity`, `direct_light`, `in_scatter`, `direct_light_reference`)
 //!   and [`global_light::run`], which runs one stage of
@@ -34,6 +37,7 @@ pub mod hash;
 pub mod march;
 pub mod occupancy;
 pub mod packed;
+pub mod ray_lanes;
 pub mod raycast;
 pub mod reference;
 pub mod renderer;
