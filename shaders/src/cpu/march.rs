@@ -1014,13 +1014,14 @@ fn main<S: Storage, const KIND: u8>(
             acc.half = half_vector(p, dir);
         }
         let first = span.x + jitter * p.step;
+        let inverse_step = 1.0 / p.step;
         // The first sample at or after `seen.x`.
-        let mut i = (-floor(-(seen.x - first) / p.step)).max(0.0) as u32;
+        let mut i = steps_up(seen.x - first, p.step, inverse_step).max(0.0) as u32;
         let mut stretch = s.span(p, tex_origin, tex_dir, first + i as f32 * p.step);
         let skipping = p.flags & FLAG_SKIP_EMPTY != 0;
         // A jump from sample `i` to the first sample at or after `t` (at
         // least the next); WGSL's f32 → u32 conversion saturates like Rust's `as`.
-        let jump = |i: u32, t: f32| (i + 1).max(-floor(-(t - first) / p.step) as u32);
+        let jump = |i: u32, t: f32| (i + 1).max(steps_up(t - first, p.step, inverse_step) as u32);
         // Loop iterations, as the GPU counts them (a sample or a skip each).
         let mut k = 0u32;
         'march: while k < p.max_steps {
@@ -1161,6 +1162,26 @@ fn main<S: Storage, const KIND: u8>(
     pixel(p, &acc)
 }
 
+/// `-floor(-(d / step))`, the whole steps in `d` rounded up, for `inverse`
+/// = 1 / `step`: the product `d · inverse` rounded up where it lies far
+/// enough from a whole number that the quotient, within a few units in the
+/// last place of it, rounds up to the same; the quotient otherwise. The
+/// same bits either way, without a division on the march's way from one
+/// stretch of a ray to the next in nearly every case.
+#[inline(always)]
+fn steps_up(d: f32, step: f32, inverse: f32) -> f32 {
+    let q = d * inverse;
+    let up = -floor(-q);
+    // Two roundings put q within 2⁻²² of d / step relatively, the quotient
+    // one: 2⁻²⁰ of q holds both. Tiny and non-finite q divide.
+    let margin = q.abs() * (1.0 / 1_048_576.0);
+    if up - q > margin && q - (up - 1.0) > margin && margin > 1e-30 {
+        up
+    } else {
+        -floor(-(d / step))
+    }
+}
+
 /// The pixel a ray that composited `acc` draws (rgba8unorm).
 #[inline(always)]
 fn pixel(p: &RaycastParams, acc: &Accumulator) -> [u8; 4] {
@@ -1192,7 +1213,8 @@ mod tests {
     use wide::f32x4;
 
     use super::{
-        central_difference_at, corrected_opacity, corrected_opacity4, cubic_gradient_at, pow4,
+        central_difference_at, corrected_opacity, corrected_opacity4, cubic_gradient_at, floor,
+        pow4, steps_up,
     };
     use crate::cpu::Texture3d;
     use crate::cpu::reference::PlainLocation;
@@ -1292,6 +1314,72 @@ mod tests {
             cubic < 1.5 && central > 3.0 * cubic,
             "cubic {cubic:.2}°, central {central:.2}°"
         );
+    }
+
+    #[test]
+    fn steps_up_by_the_inverse_are_those_of_the_division() {
+        // Steps of voxel spacings in mm and fractions of them; distances
+        // of every size, and at and beside whole numbers of steps.
+        let mut checked = 0;
+        for step in [
+            0.5f32,
+            0.25,
+            0.3515625,
+            0.488_281_25,
+            0.1,
+            0.7,
+            1.3,
+            0.45,
+            3.0e-3,
+        ] {
+            let inverse = 1.0 / step;
+            let mut d = -3.7e5f32;
+            let mut state = 0x9e37_79b9u32;
+            for _ in 0..400 {
+                state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                let whole = (state >> 8) as f32 % 4096.0 - 2048.0;
+                for x in [
+                    d,
+                    whole * step,
+                    f32::from_bits((whole * step).to_bits().wrapping_add(1)),
+                    f32::from_bits((whole * step).to_bits().wrapping_sub(1)),
+                    (whole + 0.5) * step,
+                ] {
+                    let want = -floor(-(x / step));
+                    let got = steps_up(x, step, inverse);
+                    assert_eq!(
+                        got.to_bits(),
+                        want.to_bits(),
+                        "{x} / {step}: {got} against {want}"
+                    );
+                    checked += 1;
+                }
+                // From −3.7·10⁵ through small distances to large ones.
+                d = if d < 0.0 && d > -1e-3 {
+                    1e-3
+                } else if d < 0.0 {
+                    d * 0.93
+                } else {
+                    d * 1.07
+                };
+            }
+        }
+        for (x, step) in [
+            (0.0, 0.5),
+            (-0.0, 0.5),
+            (1e-40, 0.5),
+            (-1e-40, 0.5),
+            (f32::INFINITY, 0.5),
+            (f32::NEG_INFINITY, 0.5),
+            (1e30, 0.3),
+            (-1e30, 0.3),
+        ] {
+            let (want, got) = (-floor(-(x / step)), steps_up(x, step, 1.0 / step));
+            assert_eq!(got.to_bits(), want.to_bits(), "{x} / {step}");
+        }
+        let nan = steps_up(f32::NAN, 0.5, 2.0);
+        assert!(nan.is_nan());
+        assert!(checked > 1000, "{checked}");
     }
 
     #[test]
