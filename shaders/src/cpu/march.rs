@@ -1080,7 +1080,21 @@ fn main<S: Storage, const KIND: u8>(
                 if let Some(values) = s.sample4_in(p, &stretch, ts, tex_origin, tex_dir) {
                     let us = values.map(|v| v * p.volume.value_scale + p.volume.value_offset);
                     let classes = Classes4::new(p, us);
-                    let opacity = classes.opacity(tf);
+                    // Plain compositing takes every lane's class (a hidden
+                    // one adds zero): their opacities are read with them,
+                    // not apart.
+                    let plain = (KIND == PLAIN).then(|| {
+                        [
+                            classes.rgba(tf, 0),
+                            classes.rgba(tf, 1),
+                            classes.rgba(tf, 2),
+                            classes.rgba(tf, 3),
+                        ]
+                    });
+                    let opacity = match &plain {
+                        Some(classes) => f32x4::from(classes.map(|c| c.w)),
+                        None => classes.opacity(tf),
+                    };
                     // The lanes of the run that show.
                     let run = f32x4::from([0.0, 1.0, 2.0, 3.0]).simd_lt(f32x4::splat(n as f32));
                     let showing = opacity.simd_gt(f32x4::ZERO) & run;
@@ -1123,6 +1137,8 @@ fn main<S: Storage, const KIND: u8>(
                         for (j, a) in a.into_iter().enumerate() {
                             let rgb = if shaded {
                                 rgbas[j].xyz()
+                            } else if let Some(plain) = &plain {
+                                plain[j & 3].xyz()
                             } else {
                                 classes.rgba(tf, j).xyz()
                             };
