@@ -776,7 +776,7 @@ pub fn far_face_crossing(cell: Vec3, edge: Vec3, origin: Vec3, dir: Vec3) -> Vec
     let ahead = Vec3::select(dir.cmpgt(Vec3::ZERO), Vec3::ONE, Vec3::ZERO);
     let face = (cell + ahead) * edge;
     Vec3::select(
-        dir.abs().cmplt(Vec3::splat(1e-12)),
+        dir.abs().cmplt(Vec3::splat(TINY_DIRECTION)),
         Vec3::INFINITY,
         (face - origin) / dir,
     )
@@ -787,12 +787,17 @@ pub fn intersect_box(origin: Vec3, dir: Vec3, lo: Vec3, hi: Vec3) -> Vec2 {
     intersect_box_inverse(origin, inverse_direction(dir), lo, hi)
 }
 
+/// A direction's component below which WGSL `intersect_box` takes it as
+/// this (`ray.wgsl`'s `1e-12`), and the walks of the block grid as no
+/// movement along its axis.
+pub const TINY_DIRECTION: f32 = 1e-12;
+
 /// The reciprocal of `dir` as WGSL `intersect_box` takes it (CPU only:
 /// found once per ray for many boxes).
 #[inline]
 pub fn inverse_direction(dir: Vec3) -> Vec3 {
-    let tiny = dir.abs().cmplt(Vec3::splat(1e-12));
-    let safe_dir = Vec3::select(tiny, Vec3::splat(1e-12), dir);
+    let tiny = dir.abs().cmplt(Vec3::splat(TINY_DIRECTION));
+    let safe_dir = Vec3::select(tiny, Vec3::splat(TINY_DIRECTION), dir);
     1.0 / safe_dir
 }
 

@@ -11,7 +11,7 @@ use glam::{Mat4, Vec2, Vec3};
 use wide::f32x8;
 
 use super::footprint::Reach;
-use super::march::{PixelRay, REACH_MARGIN, intersect_box, pixel_ndc};
+use super::march::{PixelRay, REACH_MARGIN, TINY_DIRECTION, intersect_box, pixel_ndc};
 use crate::raycast::RaycastParams;
 
 /// Rays set up side by side: a tile's row of pixels.
@@ -231,8 +231,8 @@ impl V3 {
     #[inline(always)]
     fn inverse_direction(self) -> V3 {
         let safe = |d: f32x8| {
-            let tiny = d.abs().simd_lt(f32x8::splat(1e-12));
-            ONE / tiny.select(f32x8::splat(1e-12), d)
+            let tiny = d.abs().simd_lt(f32x8::splat(TINY_DIRECTION));
+            ONE / tiny.select(f32x8::splat(TINY_DIRECTION), d)
         };
         V3 {
             x: safe(self.x),
