@@ -29,6 +29,7 @@ macro_rules! wgsl {
 wgsl!(
     f32 => "f32",
     u32 => "u32",
+    [f32; 2] => "vec2<f32>",
     [f32; 3] => "vec3<f32>",
     [u32; 3] => "vec3<u32>",
     [f32; 4] => "vec4<f32>",
@@ -185,6 +186,7 @@ fn every_mirrored_struct_matches_its_wgsl_twin_field_by_field() {
         first_row,
         image_height,
         window,
+        cubic_normal_weight,
     });
     for source in [
         crate::wgsl::RAYCAST,

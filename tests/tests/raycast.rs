@@ -703,3 +703,103 @@ fn the_march_built_for_x86_64_v3_draws_the_baseline_s_bytes() {
         "x86-64-v3 frames differ: {differing:?}"
     );
 }
+
+/// With cubic normals asked for, a sample is shaded with them only where it
+/// weighs at least `CUBIC_NORMAL_WEIGHT` in its pixel (the ray's
+/// transparency before it times its class's opacity); the lighter ones take
+/// central differences. The reference twin's frame of the phantom's soft
+/// tissue (faint haze in front of the surfaces) at the house weight against
+/// the same frame with every sample's normal cubic (weight 0) and with none
+/// (an infinite weight, which draws central differences' bytes): within a
+/// few 8-bit steps of the first and far from the second, and not the first's
+/// bytes (the light samples did take central differences).
+#[test]
+fn only_samples_heavy_enough_to_show_it_are_shaded_with_cubic_normals() {
+    use shaders::packed_volume::PackedLayout;
+    use shaders::raycast::CUBIC_NORMAL_WEIGHT;
+    use shaders::volume_texture::VolumeTexture;
+
+    let volume = phantom_64();
+    let request = FrameRequest {
+        camera: Camera {
+            azimuth_deg: 35.0,
+            elevation_deg: 20.0,
+            ..Camera::default()
+        },
+        shading: Shading::Gradient,
+        ..FrameRequest::new(
+            128,
+            128,
+            Preset::CtSoftTissue.transfer_function(volume.value_range),
+        )
+    };
+    assert!(request.cubic_gradient, "still frames take cubic normals");
+    let desc = VolumeTexture::for_volume(volume, shaders::cpu::CPU_FEATURES);
+    let texture =
+        shaders::cpu::Texture3d::new(desc.geometry.dims, desc.texel_values(&volume.voxels));
+    let tf = request.volume_transfer_function(volume);
+    let table = tf
+        .table(desc.tf_domain, blocks::transfer_function::TABLE_LEN)
+        .expect("the transfer function's table");
+    let draw = |weight: f32| {
+        let mut params = shaders::RaycastParams::new(
+            &desc,
+            &request,
+            &tf,
+            table.len() as u32,
+            PackedLayout::default(),
+        );
+        params.cubic_normal_weight = weight;
+        let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
+        let table = shaders::cpu::full_table(&table).expect("a full table");
+        shaders::cpu::reference(&params, &texture, table, &mut rgba);
+        rgba
+    };
+    let house = draw(CUBIC_NORMAL_WEIGHT);
+    let all_cubic = draw(0.0);
+    let none_cubic = draw(f32::INFINITY);
+    let central = shaders::cpu::render_reference(
+        volume,
+        &FrameRequest {
+            cubic_gradient: false,
+            ..request.clone()
+        },
+        shaders::cpu::CPU_FEATURES,
+    )
+    .expect("a frame with central differences");
+    assert_eq!(
+        none_cubic, central.rgba,
+        "no sample heavy enough draws central differences' bytes"
+    );
+    // Per pixel, the largest channel difference.
+    let differences = |a: &[u8], b: &[u8]| -> Vec<u8> {
+        a.chunks(4)
+            .zip(b.chunks(4))
+            .map(|(p, q)| (0..3).map(|c| p[c].abs_diff(q[c])).max().unwrap_or(0))
+            .collect()
+    };
+    let to_cubic = differences(&house, &all_cubic);
+    let to_central = differences(&house, &none_cubic);
+    let count = |d: &[u8], above: u8| d.iter().filter(|&&v| v > above).count();
+    let largest = |d: &[u8]| d.iter().copied().max().unwrap_or(0);
+    println!(
+        "against every normal cubic: {} pixels differ, largest {}; against none: {} pixels \
+         differ by more than 3, largest {}",
+        count(&to_cubic, 0),
+        largest(&to_cubic),
+        count(&to_central, 3),
+        largest(&to_central)
+    );
+    assert!(
+        count(&to_cubic, 0) > 0,
+        "every pixel as with cubic normals everywhere: no light sample took central differences"
+    );
+    assert!(
+        largest(&to_cubic) <= 3,
+        "light samples moved a pixel by more than 3 of 255"
+    );
+    assert!(
+        count(&to_central, 3) > 100,
+        "the heavy samples' cubic normals did not show"
+    );
+}

@@ -71,16 +71,18 @@ pub trait Storage: Sync + Sized {
     ) -> Option<[f32; 4]> {
         Some(ts.map(|t| self.sample_in(p, span, t, origin + dir * t)))
     }
-    /// WGSL `gradient_at` for the sample at `t` (at `tc`) in `span`.
+    /// WGSL `gradient_at` for the sample at `t` (at `tc`) in `span` of
+    /// `weight` in its pixel.
     fn gradient_in(
         &self,
         p: &RaycastParams,
         span: &Span<Self::Location>,
         t: f32,
         tc: Vec3,
+        weight: f32,
     ) -> Vec3 {
         let _ = t;
-        gradient_at(self, p, tc, &span.loc)
+        gradient_at(self, p, tc, &span.loc, weight)
     }
     /// WGSL `Location.empty`.
     fn is_empty(loc: &Self::Location) -> bool;
@@ -499,9 +501,21 @@ pub fn corrected_opacity(a: f32, exponent: f32) -> f32 {
     1.0 - transmittance.powf(exponent)
 }
 
+/// WGSL `cubic_normal`.
+#[inline(always)]
+pub fn cubic_normal(p: &RaycastParams, weight: f32) -> bool {
+    p.flags & FLAG_CUBIC_GRADIENT != 0 && weight >= p.cubic_normal_weight
+}
+
 /// WGSL `gradient_at`.
-pub fn gradient_at<S: Storage>(s: &S, p: &RaycastParams, tc: Vec3, loc: &S::Location) -> Vec3 {
-    if p.flags & FLAG_CUBIC_GRADIENT != 0 {
+pub fn gradient_at<S: Storage>(
+    s: &S,
+    p: &RaycastParams,
+    tc: Vec3,
+    loc: &S::Location,
+    weight: f32,
+) -> Vec3 {
+    if cubic_normal(p, weight) {
         return cubic_gradient_at(s, p, tc, loc);
     }
     central_difference_at(s, p, tc, loc)
@@ -626,6 +640,9 @@ fn shade(p: &RaycastParams, rgb: [f32x4; 3], g: [f32x4; 3], h: Vec3) -> [f32x4; 
 /// where they lie: the ray parameters `ts` along `tex_origin + t·tex_dir`.
 struct Shown {
     lanes: u32,
+    /// The shown lanes' weights in the pixel (WGSL `main`'s `weight`), found
+    /// only with [`FLAG_CUBIC_GRADIENT`] (zero otherwise).
+    weights: [f32; 4],
     ts: [f32; 4],
     tex_origin: Vec3,
     tex_dir: Vec3,
@@ -646,6 +663,22 @@ fn composited_lanes(shown: u32, mut alpha: f32, corrected: &[f32; 4], p: &Raycas
         }
     }
     kept
+}
+
+/// WGSL `main`'s `weight` of each of the `shown` lanes (a bit each), for a
+/// ray whose opacity so far is `alpha`: its transparency before the lane
+/// times the lane's class opacity (`opacity`), the opacity after each lane
+/// found from its corrected opacity as `Accumulator::add` composites it
+/// (with extinction, 1 − exp(−Σ Δt·τ) is the same up to rounding).
+#[inline(always)]
+fn weights(shown: u32, mut alpha: f32, opacity: &f32x4, corrected: &[f32; 4]) -> [f32; 4] {
+    let opacity = opacity.to_array();
+    let mut weights = [0.0; 4];
+    for j in Lanes(shown) {
+        weights[j] = (1.0 - alpha) * opacity[j];
+        alpha += (1.0 - alpha) * corrected[j].min(MAX_SAMPLE_OPACITY);
+    }
+    weights
 }
 
 /// The lanes set in a mask (a bit each, bit `j` for lane `j`), in order.
@@ -690,9 +723,10 @@ fn colour_shown<S: Storage>(
         for j in Lanes(shown.lanes) {
             let t = shown.ts[j];
             let tc = shown.tex_origin + shown.tex_dir * t;
-            let gradient = (p.gradient_from_texture * s.gradient_in(p, span, t, tc).extend(0.0))
-                .xyz()
-                * p.volume.value_scale;
+            let weight = shown.weights[j];
+            let gradient =
+                (p.gradient_from_texture * s.gradient_in(p, span, t, tc, weight).extend(0.0)).xyz()
+                    * p.volume.value_scale;
             for (axis, lanes) in g.iter_mut().enumerate() {
                 lanes[j] = gradient[axis];
             }
@@ -1121,6 +1155,7 @@ fn main<S: Storage, const KIND: u8>(
                     let extinction = KIND == ANY && p.flags & FLAG_EXTINCTION != 0;
                     let mut shown_at = Shown {
                         lanes: shown,
+                        weights: [0.0; 4],
                         ts,
                         tex_origin,
                         tex_dir,
@@ -1131,6 +1166,10 @@ fn main<S: Storage, const KIND: u8>(
                             // Not the samples past the one that ends the ray:
                             // the opacity after each, as `add` finds it.
                             shown_at.lanes = composited_lanes(shown, acc.alpha, &corrected, p);
+                        }
+                        if p.flags & FLAG_CUBIC_GRADIENT != 0 {
+                            shown_at.weights =
+                                weights(shown_at.lanes, acc.alpha, &opacity, &corrected);
                         }
                         for j in Lanes(shown_at.lanes) {
                             rgbas[j] = classes.rgba(tf, j);

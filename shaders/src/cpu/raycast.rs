@@ -4,7 +4,9 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{CubicReads, Isa, Span, Storage, TfTable, far_face_crossing, march_on};
+use super::march::{
+    CubicReads, Isa, Span, Storage, TfTable, cubic_normal, far_face_crossing, march_on,
+};
 use super::occupancy::VisibleBox;
 use super::packed::{
     BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
@@ -13,7 +15,7 @@ use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON, cubic_gradient_of};
 use super::texture::floor3;
 use crate::illumination::Mode;
 use crate::packed_volume::PackedVolume;
-use crate::raycast::{FLAG_CUBIC_GRADIENT, FLAG_SKIP_EMPTY, RaycastParams};
+use crate::raycast::{FLAG_SKIP_EMPTY, RaycastParams};
 
 /// How far (level-0 voxels) inside its block's faces a light read must lie
 /// to be read from the sample's block without locating it: rounding moves
@@ -128,11 +130,18 @@ impl Storage for PackedTexture {
     }
 
     #[inline(always)]
-    fn gradient_in(&self, p: &RaycastParams, span: &Span<BlockLocation>, t: f32, tc: Vec3) -> Vec3 {
+    fn gradient_in(
+        &self,
+        p: &RaycastParams,
+        span: &Span<BlockLocation>,
+        t: f32,
+        tc: Vec3,
+        weight: f32,
+    ) -> Vec3 {
         let loc = &span.loc;
         let centre = span.texel_at_zero + span.texel_per_t * t;
         let h = Vec3::from(p.volume.texel);
-        if p.flags & FLAG_CUBIC_GRADIENT != 0 {
+        if cubic_normal(p, weight) {
             // The slot's texel centres are at whole `centre`, the block's
             // faces at ½ and edge − 1.5. Where every read is inside the
             // block (what `sample_neighbour` finds there), they are read
@@ -793,7 +802,7 @@ mod tests {
             if local.min_element() < 2.0 || local.max_element() > BLOCK - 2.0 {
                 near_face += 1;
             }
-            let direct = packed.gradient_in(&params, &span, 0.0, tc);
+            let direct = packed.gradient_in(&params, &span, 0.0, tc, 1.0);
             let reads = reference(packed, &params, tc, &span.loc);
             let scale = reads.abs().max_element().max(1.0);
             assert!(

@@ -12,11 +12,18 @@
 // and the bindings `params`, `transfer_function`, `output`.
 // CPU twin: shaders/src/cpu/march.rs, loop for loop.
 
-// The gradient at a sample in `loc`, per unit of texture coordinate: the
-// cubic B-spline's (FLAG_CUBIC_GRADIENT, still frames), else central
-// differences (interactive frames).
-fn gradient_at(tc: vec3<f32>, loc: Location) -> vec3<f32> {
-    if (params.flags & FLAG_CUBIC_GRADIENT) != 0u {
+// Whether a sample of `weight` in its pixel (the ray's transparency before
+// it times its class's opacity) is shaded with the cubic B-spline's normal.
+fn cubic_normal(weight: f32) -> bool {
+    return (params.flags & FLAG_CUBIC_GRADIENT) != 0u && weight >= params.cubic_normal_weight;
+}
+
+// The gradient at a sample in `loc` of `weight` in its pixel, per unit of
+// texture coordinate: the cubic B-spline's (FLAG_CUBIC_GRADIENT, still
+// frames, where `cubic_normal`), else central differences (interactive
+// frames, and the samples too light to show the difference).
+fn gradient_at(tc: vec3<f32>, loc: Location, weight: f32) -> vec3<f32> {
+    if cubic_normal(weight) {
         return cubic_gradient_at(tc, loc);
     }
     return central_difference_at(tc, loc);
@@ -174,7 +181,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                     let a = corrected_opacity(rgba.a, exponent);
                     var rgb = rgba.rgb;
                     if (params.flags & FLAG_SHADED) != 0u {
-                        let g = (params.gradient_from_texture * vec4<f32>(gradient_at(tc, loc), 0.0)).xyz
+                        let weight = (1.0 - alpha) * rgba.a;
+                        let g = (params.gradient_from_texture * vec4<f32>(gradient_at(tc, loc, weight), 0.0)).xyz
                             * params.volume.value_scale;
                         rgb = shade(rgb, g, dir);
                     }
