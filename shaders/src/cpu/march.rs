@@ -345,6 +345,8 @@ fn march_band_body<S: Storage, const KIND: u8>(
     let width = params.width as usize;
     let height = rows.len() / (width * 4);
     let extent = storage.visible_extent(params);
+    // The pixel of a ray that meets nothing, found once.
+    let background = pixel(params, &Accumulator::default());
     for x0 in (0..width).step_by(TILE) {
         for dy in 0..height {
             let y = (band * BAND_ROWS + dy) as u32;
@@ -378,7 +380,7 @@ fn march_band_body<S: Storage, const KIND: u8>(
                         [x as u32, y],
                         &starts[j],
                     ),
-                    _ => pixel(params, &Accumulator::default()),
+                    _ => background,
                 };
                 let at = (dy * width + x) * 4;
                 rows[at..at + 4].copy_from_slice(&rgba);
