@@ -27,8 +27,10 @@ pub const EARLY_TERMINATION: f32 = 0.99;
 /// before it times its class's opacity (per reference step, so the same
 /// samples at any step). Lighter samples, most of a frame's shaded ones in
 /// the faint haze in front of and around a surface, are shaded with central
-/// differences: each moves its pixel by less than one 8-bit step, and their
-/// normals differ little, where the cubic normal costs four times the reads.
+/// differences: at steps up to the reference step each moves its pixel by
+/// less than one 8-bit step (its corrected opacity is at most its class's),
+/// and their normals differ little, where the cubic normal costs four times
+/// the reads.
 pub const CUBIC_NORMAL_WEIGHT: f32 = 1.0 / 256.0;
 /// The light, in view space (x right, y up, z towards the eye): above and to the
 /// left of the eye, so shapes read as lit from the upper left.
