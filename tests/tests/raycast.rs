@@ -22,7 +22,7 @@ use shaders::{
     Backend, Camera, ClipBox, Frame, FrameRequest, GpuError, LightSettings, Projection, Rows,
     Shading,
 };
-use voxserve_tests::image_compare::assert_similar;
+use voxserve_tests::image_compare::{assert_similar, measure, to_image};
 use voxserve_tests::phantom::{phantom_64, phantom_64_dataset};
 use voxserve_tests::render::{
     TEST_GPU_BUDGET_BYTES, cpu_packed, cpu_reference, dataset_of, gpu_reference, gpu_renderer,
@@ -753,7 +753,11 @@ fn only_samples_heavy_enough_to_show_it_are_shaded_with_cubic_normals() {
         let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
         let table = shaders::cpu::full_table(&table).expect("a full table");
         shaders::cpu::reference(&params, &texture, table, &mut rgba);
-        rgba
+        to_image(&Frame {
+            width: request.width,
+            height: request.height,
+            rgba,
+        })
     };
     let house = draw(CUBIC_NORMAL_WEIGHT);
     let all_cubic = draw(0.0);
@@ -768,38 +772,27 @@ fn only_samples_heavy_enough_to_show_it_are_shaded_with_cubic_normals() {
     )
     .expect("a frame with central differences");
     assert_eq!(
-        none_cubic, central.rgba,
+        none_cubic,
+        to_image(&central),
         "no sample heavy enough draws central differences' bytes"
     );
-    // Per pixel, the largest channel difference.
-    let differences = |a: &[u8], b: &[u8]| -> Vec<u8> {
-        a.chunks(4)
-            .zip(b.chunks(4))
-            .map(|(p, q)| (0..3).map(|c| p[c].abs_diff(q[c])).max().unwrap_or(0))
-            .collect()
-    };
-    let to_cubic = differences(&house, &all_cubic);
-    let to_central = differences(&house, &none_cubic);
-    let count = |d: &[u8], above: u8| d.iter().filter(|&&v| v > above).count();
-    let largest = |d: &[u8]| d.iter().copied().max().unwrap_or(0);
+    let pixels = f64::from(request.width * request.height);
+    let (to_cubic, _) = measure(&house, &all_cubic, 0);
+    let (to_central, _) = measure(&house, &none_cubic, 3);
+    let differing = to_cubic.differing_fraction * pixels;
+    let far = to_central.differing_fraction * pixels;
     println!(
-        "against every normal cubic: {} pixels differ, largest {}; against none: {} pixels \
-         differ by more than 3, largest {}",
-        count(&to_cubic, 0),
-        largest(&to_cubic),
-        count(&to_central, 3),
-        largest(&to_central)
+        "against every normal cubic: {differing} pixels differ, largest {}; against none: {far} \
+         pixels differ by more than 3, largest {}",
+        to_cubic.max, to_central.max
     );
     assert!(
-        count(&to_cubic, 0) > 0,
+        differing > 0.0,
         "every pixel as with cubic normals everywhere: no light sample took central differences"
     );
     assert!(
-        largest(&to_cubic) <= 3,
+        to_cubic.max <= 3,
         "light samples moved a pixel by more than 3 of 255"
     );
-    assert!(
-        count(&to_central, 3) > 100,
-        "the heavy samples' cubic normals did not show"
-    );
+    assert!(far > 100.0, "the heavy samples' cubic normals did not show");
 }
