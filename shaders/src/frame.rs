@@ -374,8 +374,8 @@ crate::settings! {
         /// less noise) rather than central differences one level-0 voxel
         /// apart, which cost a quarter of the reads (interactive frames).
         /// Only samples that weigh at least
-        /// [`crate::raycast::CUBIC_NORMAL_WEIGHT`] in their pixel take the
-        /// cubic normal; lighter ones take central differences either way.
+        /// [`crate::raycast::FAINT_WEIGHT`] in their pixel take either;
+        /// lighter ones take their nearest texel's central differences.
         pub cubic_gradient: bool = true,
         /// Draw only these rows of the image (a big frame is drawn band by
         /// band, so other frames can go between); all when `None`.

@@ -186,7 +186,7 @@ fn every_mirrored_struct_matches_its_wgsl_twin_field_by_field() {
         first_row,
         image_height,
         window,
-        cubic_normal_weight,
+        faint_weight,
     });
     for source in [
         crate::wgsl::RAYCAST,

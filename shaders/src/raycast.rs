@@ -22,16 +22,18 @@ use crate::{Compositing, FrameRequest, GpuContext, GpuError, Shading};
 pub const WORKGROUP_SIZE: u32 = 8;
 /// Accumulated opacity at which a ray stops.
 pub const EARLY_TERMINATION: f32 = 0.99;
-/// With [`FLAG_CUBIC_GRADIENT`], the least weight in its pixel at which a
-/// sample is shaded with the cubic B-spline's normal: the ray's transparency
-/// before it times its class's opacity (per reference step, so the same
-/// samples at any step). Lighter samples, most of a frame's shaded ones in
-/// the faint haze in front of and around a surface, are shaded with central
-/// differences: at steps up to the reference step each moves its pixel by
-/// less than one 8-bit step (its corrected opacity is at most its class's),
-/// and their normals differ little, where the cubic normal costs four times
-/// the reads.
-pub const CUBIC_NORMAL_WEIGHT: f32 = 1.0 / 256.0;
+/// The least weight in its pixel at which a sample is shaded with the
+/// frame's normal (the cubic B-spline's with [`FLAG_CUBIC_GRADIENT`], else
+/// central differences blended from the eight texels about it): its weight is
+/// the ray's transparency before it times its class's opacity (per reference
+/// step, so the same samples at any step). Lighter samples, the faint haze in
+/// front of and around a surface and most of a frame's shaded ones, are
+/// shaded with the central differences of the texel nearest them (six reads,
+/// no blend): at steps up to the reference step each moves its pixel by less
+/// than one 8-bit step (its corrected opacity is at most its class's), and
+/// their normals differ little, where the blend costs eight times the reads
+/// and the cubic normal more.
+pub const FAINT_WEIGHT: f32 = 1.0 / 256.0;
 /// The light, in view space (x right, y up, z towards the eye): above and to the
 /// left of the eye, so shapes read as lit from the upper left.
 const LIGHT_IN_VIEW: Vec3 = Vec3::new(-0.35, 0.45, 1.0);
@@ -119,8 +121,8 @@ pub struct RaycastParams {
     /// transfer-function coordinates: the value shown black (x) and the span
     /// to white (y).
     pub window: [f32; 2],
-    /// [`CUBIC_NORMAL_WEIGHT`].
-    pub cubic_normal_weight: f32,
+    /// [`FAINT_WEIGHT`].
+    pub faint_weight: f32,
     /// Unused (the uniform's size, a multiple of 16 bytes).
     pub _pad0: f32,
 }
@@ -276,7 +278,7 @@ impl RaycastParams {
             first_row: rows.first,
             image_height: request.height,
             window: [(window.low() - d0) / span, window.width / span],
-            cubic_normal_weight: CUBIC_NORMAL_WEIGHT,
+            faint_weight: FAINT_WEIGHT,
             _pad0: 0.0,
         }
     }

@@ -34,6 +34,24 @@ fn sample_at(tc: vec3<f32>, loc: Location) -> f32 {
     return textureSampleLevel(atlas, atlas_sampler, atlas_coord(tc, loc), 0.0).r;
 }
 
+// The central differences of the texel nearest tc in block `loc`'s slot
+// (six texels, no filtering; at the block's faces the apron's), per unit of
+// texture coordinate: the gradient of faint samples.
+fn nearest_difference_at(tc: vec3<f32>, loc: Location) -> vec3<f32> {
+    let local = (tc * params.volume.volume_dims - vec3<f32>(loc.block) * BLOCK) * loc.scale;
+    let last = BLOCK * loc.scale - 1.0;
+    let n = vec3<i32>(loc.origin + clamp(floor(local), vec3<f32>(0.0), vec3<f32>(last)));
+    let dx = vec3<i32>(1, 0, 0);
+    let dy = vec3<i32>(0, 1, 0);
+    let dz = vec3<i32>(0, 0, 1);
+    let differences = vec3<f32>(
+        textureLoad(atlas, n + dx, 0).r - textureLoad(atlas, n - dx, 0).r,
+        textureLoad(atlas, n + dy, 0).r - textureLoad(atlas, n - dy, 0).r,
+        textureLoad(atlas, n + dz, 0).r - textureLoad(atlas, n - dz, 0).r,
+    );
+    return differences / (2.0 * params.volume.texel * voxel_edge(loc));
+}
+
 // The value at tc for a gradient around a sample in `home`: from the block tc
 // falls in (at that block's level), or from home's apron when that block is
 // empty, so central differences stay right across block borders.

@@ -43,6 +43,25 @@ fn sample_neighbour(tc: vec3<f32>, home: Location) -> f32 {
     return sample_at(tc, home);
 }
 
+// The central differences of the voxel nearest tc (six texels, no
+// filtering; clamped to the volume's edge), per unit of texture coordinate.
+fn nearest_difference_at(tc: vec3<f32>, loc: Location) -> vec3<f32> {
+    let dims = vec3<i32>(textureDimensions(volume));
+    let n = clamp(vec3<i32>(floor(tc * vec3<f32>(dims))), vec3<i32>(0), dims - 1);
+    let differences = vec3<f32>(
+        load_clamped(n + vec3<i32>(1, 0, 0)) - load_clamped(n - vec3<i32>(1, 0, 0)),
+        load_clamped(n + vec3<i32>(0, 1, 0)) - load_clamped(n - vec3<i32>(0, 1, 0)),
+        load_clamped(n + vec3<i32>(0, 0, 1)) - load_clamped(n - vec3<i32>(0, 0, 1)),
+    );
+    return differences / (2.0 * params.volume.texel);
+}
+
+// The voxel at `n`, clamped to the volume's edge.
+fn load_clamped(n: vec3<i32>) -> f32 {
+    let last = vec3<i32>(textureDimensions(volume)) - 1;
+    return textureLoad(volume, clamp(n, vec3<i32>(0), last), 0).r;
+}
+
 // Never called: nothing is empty in a plain texture.
 fn empty_exit(origin: vec3<f32>, dir: vec3<f32>, loc: Location) -> f32 {
     return 0.0;

@@ -704,23 +704,24 @@ fn the_march_built_for_x86_64_v3_draws_the_baseline_s_bytes() {
     );
 }
 
-/// With cubic normals asked for, a sample is shaded with them only where it
-/// weighs at least `CUBIC_NORMAL_WEIGHT` in its pixel (the ray's
-/// transparency before it times its class's opacity); the lighter ones take
-/// central differences. The reference twin's frame of the phantom's soft
-/// tissue (faint haze in front of the surfaces) at the house weight against
-/// the same frame with every sample's normal cubic (weight 0) and with none
-/// (an infinite weight, which draws central differences' bytes): within a
-/// few 8-bit steps of the first and far from the second, and not the first's
-/// bytes (the light samples did take central differences).
+/// A sample is shaded with the frame's normal (cubic in still frames, blended
+/// central differences in moving ones) only where it weighs at least
+/// `FAINT_WEIGHT` in its pixel (the ray's transparency before it times its
+/// class's opacity); the fainter ones take their nearest texel's central
+/// differences. The reference twin's frames of the phantom's soft tissue
+/// (faint haze in front of the surfaces), with either normal, at the house
+/// weight against the same frame with no sample faint (weight 0) and with
+/// every sample faint (an infinite weight): within a few 8-bit steps of the
+/// first and far from the second, and not the first's bytes (the faint
+/// samples did take their nearest texel's differences).
 #[test]
-fn only_samples_heavy_enough_to_show_it_are_shaded_with_cubic_normals() {
+fn only_faint_samples_are_shaded_with_their_nearest_texels_differences() {
     use shaders::packed_volume::PackedLayout;
-    use shaders::raycast::CUBIC_NORMAL_WEIGHT;
+    use shaders::raycast::FAINT_WEIGHT;
     use shaders::volume_texture::VolumeTexture;
 
     let volume = phantom_64();
-    let request = FrameRequest {
+    let still = FrameRequest {
         camera: Camera {
             azimuth_deg: 35.0,
             elevation_deg: 20.0,
@@ -733,23 +734,27 @@ fn only_samples_heavy_enough_to_show_it_are_shaded_with_cubic_normals() {
             Preset::CtSoftTissue.transfer_function(volume.value_range),
         )
     };
-    assert!(request.cubic_gradient, "still frames take cubic normals");
+    assert!(still.cubic_gradient, "still frames take cubic normals");
+    let moving = FrameRequest {
+        cubic_gradient: false,
+        ..still.clone()
+    };
     let desc = VolumeTexture::for_volume(volume, shaders::cpu::CPU_FEATURES);
     let texture =
         shaders::cpu::Texture3d::new(desc.geometry.dims, desc.texel_values(&volume.voxels));
-    let tf = request.volume_transfer_function(volume);
+    let tf = still.volume_transfer_function(volume);
     let table = tf
         .table(desc.tf_domain, blocks::transfer_function::TABLE_LEN)
         .expect("the transfer function's table");
-    let draw = |weight: f32| {
+    let draw = |request: &FrameRequest, weight: f32| {
         let mut params = shaders::RaycastParams::new(
             &desc,
-            &request,
+            request,
             &tf,
             table.len() as u32,
             PackedLayout::default(),
         );
-        params.cubic_normal_weight = weight;
+        params.faint_weight = weight;
         let mut rgba = vec![0u8; (request.width * request.height * 4) as usize];
         let table = shaders::cpu::full_table(&table).expect("a full table");
         shaders::cpu::reference(&params, &texture, table, &mut rgba);
@@ -759,40 +764,32 @@ fn only_samples_heavy_enough_to_show_it_are_shaded_with_cubic_normals() {
             rgba,
         })
     };
-    let house = draw(CUBIC_NORMAL_WEIGHT);
-    let all_cubic = draw(0.0);
-    let none_cubic = draw(f32::INFINITY);
-    let central = shaders::cpu::render_reference(
-        volume,
-        &FrameRequest {
-            cubic_gradient: false,
-            ..request.clone()
-        },
-        shaders::cpu::CPU_FEATURES,
-    )
-    .expect("a frame with central differences");
-    assert_eq!(
-        none_cubic,
-        to_image(&central),
-        "no sample heavy enough draws central differences' bytes"
-    );
-    let pixels = f64::from(request.width * request.height);
-    let (to_cubic, _) = measure(&house, &all_cubic, 0);
-    let (to_central, _) = measure(&house, &none_cubic, 3);
-    let differing = to_cubic.differing_fraction * pixels;
-    let far = to_central.differing_fraction * pixels;
-    println!(
-        "against every normal cubic: {differing} pixels differ, largest {}; against none: {far} \
-         pixels differ by more than 3, largest {}",
-        to_cubic.max, to_central.max
-    );
-    assert!(
-        differing > 0.0,
-        "every pixel as with cubic normals everywhere: no light sample took central differences"
-    );
-    assert!(
-        to_cubic.max <= 3,
-        "light samples moved a pixel by more than 3 of 255"
-    );
-    assert!(far > 100.0, "the heavy samples' cubic normals did not show");
+    let pixels = f64::from(still.width * still.height);
+    for (name, request) in [("cubic", &still), ("central", &moving)] {
+        let house = draw(request, FAINT_WEIGHT);
+        let none_faint = draw(request, 0.0);
+        let all_faint = draw(request, f32::INFINITY);
+        let (to_full, _) = measure(&house, &none_faint, 0);
+        let (to_faint, _) = measure(&house, &all_faint, 3);
+        let differing = to_full.differing_fraction * pixels;
+        let far = to_faint.differing_fraction * pixels;
+        println!(
+            "{name}: against no sample faint {differing} pixels differ, largest {}; against \
+             every sample faint {far} pixels differ by more than 3, largest {}",
+            to_full.max, to_faint.max
+        );
+        assert!(
+            differing > 0.0,
+            "{name}: every pixel as with no sample faint: no faint sample took its nearest \
+             texel's differences"
+        );
+        assert!(
+            to_full.max <= 3,
+            "{name}: faint samples moved a pixel by more than 3 of 255"
+        );
+        assert!(
+            far > 100.0,
+            "{name}: the heavy samples' own normals did not show"
+        );
+    }
 }

@@ -4,18 +4,16 @@
 use glam::Vec3;
 use wide::f32x4;
 
-use super::march::{
-    CubicReads, Isa, Span, Storage, TfTable, cubic_normal, far_face_crossing, march_on,
-};
+use super::march::{CubicReads, Isa, Span, Storage, TfTable, faint, far_face_crossing, march_on};
 use super::occupancy::VisibleBox;
 use super::packed::{
-    BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, empty_exit, voxel_edge,
+    BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, block_of, block_texel, empty_exit, voxel_edge,
 };
 use super::slot_atlas::{LEVEL0_EDGE, SLOT_APRON, cubic_gradient_of};
 use super::texture::floor3;
 use crate::illumination::Mode;
 use crate::packed_volume::PackedVolume;
-use crate::raycast::{FLAG_SKIP_EMPTY, RaycastParams};
+use crate::raycast::{FLAG_CUBIC_GRADIENT, FLAG_SKIP_EMPTY, RaycastParams};
 
 /// How far (level-0 voxels) inside its block's faces a light read must lie
 /// to be read from the sample's block without locating it: rounding moves
@@ -141,7 +139,14 @@ impl Storage for PackedTexture {
         let loc = &span.loc;
         let centre = span.texel_at_zero + span.texel_per_t * t;
         let h = Vec3::from(p.volume.texel);
-        if cubic_normal(p, weight) {
+        if faint(p, weight) {
+            // The slot's texel centres are at whole `centre`.
+            return self
+                .atlas
+                .nearest_differences(loc.slot, loc.slot_edge, centre)
+                / (2.0 * h * voxel_edge(loc));
+        }
+        if p.flags & FLAG_CUBIC_GRADIENT != 0 {
             // The slot's texel centres are at whole `centre`, the block's
             // faces at ½ and edge − 1.5. Where every read is inside the
             // block (what `sample_neighbour` finds there), they are read
@@ -270,6 +275,14 @@ impl Storage for PackedTexture {
             return self.sample_at(p, tc, home);
         }
         self.sample_at(p, tc, &other)
+    }
+
+    fn nearest_difference_at(&self, p: &RaycastParams, tc: Vec3, loc: &BlockLocation) -> Vec3 {
+        let centre = block_texel(&p.volume, tc, loc) + (SLOT_APRON - 0.5);
+        let h = Vec3::from(p.volume.texel);
+        self.atlas
+            .nearest_differences(loc.slot, loc.slot_edge, centre)
+            / (2.0 * h * voxel_edge(loc))
     }
 
     #[inline(always)]
@@ -764,6 +777,64 @@ mod tests {
             compared > 15_000 && near_face > 5_000,
             "{compared}, {near_face}"
         );
+    }
+
+    #[test]
+    fn faint_samples_nearest_texel_differences_are_the_shaders_reads() {
+        // Blocks at levels 0, 1, 2, 3 and 4 and empty ones: the faint
+        // samples' differences read from the span's slot position equal
+        // WGSL `nearest_difference_at`'s from the sample's position.
+        for lod in [vec![0u8; 27], {
+            let mut lod = vec![1u8; 27];
+            lod[at(0, 0, 0)] = 0;
+            lod[at(1, 0, 0)] = 2;
+            lod[at(2, 2, 2)] = 4;
+            lod[at(1, 1, 1)] = 3;
+            lod[at(0, 2, 2)] = EMPTY;
+            lod
+        }] {
+            let (packed, mut params) = blocks_at(&lod);
+            // Every sample of weight 1 (what `compare_gradients` asks) faint.
+            params.faint_weight = 2.0;
+            let (compared, near_face) = compare_gradients(&packed, &params, |s, p, tc, loc| {
+                s.nearest_difference_at(p, tc, loc)
+            });
+            assert!(
+                compared > 15_000 && near_face > 5_000,
+                "{compared}, {near_face}"
+            );
+            // And they are the field's differences about the nearest voxel
+            // of the block's level (the slots hold the field at their level).
+            let h = params.volume.texel[0];
+            let mut checked = 0;
+            for i in 0..5_000u32 {
+                let u = |k: u32| ((i.wrapping_mul(k) % 997) as f32 + 0.5) / 997.0;
+                let v = Vec3::new(u(7919), u(104_729), u(1_299_709)) * 48.0;
+                let tc = v / 48.0;
+                let span = packed.span(&params, tc, Vec3::X, 0.0);
+                if span.loc.empty {
+                    continue;
+                }
+                let scale = span.loc.scale;
+                let corner = Vec3::from(span.loc.block.map(|b| b as f32)) * BLOCK * scale;
+                let n = (v * scale)
+                    .floor()
+                    .clamp(corner, corner + Vec3::splat(BLOCK * scale - 1.0));
+                let want = Vec3::new(
+                    field(n + Vec3::X) - field(n - Vec3::X),
+                    field(n + Vec3::Y) - field(n - Vec3::Y),
+                    field(n + Vec3::Z) - field(n - Vec3::Z),
+                ) / (2.0 * h / scale);
+                let got = packed.gradient_in(&params, &span, 0.0, tc, 1.0);
+                assert!(
+                    (got - want).abs().max_element() < 1e-3 * want.abs().max_element().max(1.0),
+                    "at voxel {v} (block {:?}): {got} vs {want}",
+                    span.loc.block
+                );
+                checked += 1;
+            }
+            assert!(checked > 4_000, "{checked}");
+        }
     }
 
     /// [`compare_gradients`] with the shader's cubic gradient.

@@ -47,6 +47,19 @@ impl Storage for Texture3d {
         self.sample_at(p, tc, home)
     }
 
+    fn nearest_difference_at(&self, p: &RaycastParams, tc: Vec3, _loc: &PlainLocation) -> Vec3 {
+        let [w, h, d] = self.dims().map(|n| n as i32);
+        let at =
+            |n: u32, size: i32| ((tc[n as usize] * size as f32).floor() as i32).clamp(0, size - 1);
+        let (x, y, z) = (at(0, w), at(1, h), at(2, d));
+        let differences = Vec3::new(
+            self.load(x + 1, y, z) - self.load(x - 1, y, z),
+            self.load(x, y + 1, z) - self.load(x, y - 1, z),
+            self.load(x, y, z + 1) - self.load(x, y, z - 1),
+        );
+        differences / (2.0 * Vec3::from(p.volume.texel))
+    }
+
     fn light_at(
         &self,
         _p: &RaycastParams,

@@ -6,24 +6,31 @@
 //   fn sample_at(tc: vec3<f32>, loc: Location) -> f32       texel value
 //   fn sample_neighbour(tc: vec3<f32>, home: Location) -> f32
 //                                    texel value near a sample in `home` (gradients)
+//   fn nearest_difference_at(tc: vec3<f32>, loc: Location) -> vec3<f32>
+//                                    central differences of the texel nearest tc
+//                                    in `loc`, per unit of texture coordinate
 //   fn voxel_edge(loc: Location) -> f32
 //                                    the edge of a voxel of `loc`'s level, in level-0 voxels
 //   fn empty_exit(origin: vec3<f32>, dir: vec3<f32>, loc: Location) -> f32
 // and the bindings `params`, `transfer_function`, `output`.
 // CPU twin: shaders/src/cpu/march.rs, loop for loop.
 
-// Whether a sample of `weight` in its pixel (the ray's transparency before
-// it times its class's opacity) is shaded with the cubic B-spline's normal.
-fn cubic_normal(weight: f32) -> bool {
-    return (params.flags & FLAG_CUBIC_GRADIENT) != 0u && weight >= params.cubic_normal_weight;
+// Whether a sample of `weight` in its pixel (the ray's transparency before it
+// times its class's opacity) is faint: shaded with its nearest texel's
+// central differences, not the frame's normal.
+fn faint(weight: f32) -> bool {
+    return weight < params.faint_weight;
 }
 
 // The gradient at a sample in `loc` of `weight` in its pixel, per unit of
-// texture coordinate: the cubic B-spline's (FLAG_CUBIC_GRADIENT, still
-// frames, where `cubic_normal`), else central differences (interactive
-// frames, and the samples too light to show the difference).
+// texture coordinate: for a faint sample its nearest texel's central
+// differences, else the cubic B-spline's (FLAG_CUBIC_GRADIENT, still frames)
+// or central differences (interactive frames).
 fn gradient_at(tc: vec3<f32>, loc: Location, weight: f32) -> vec3<f32> {
-    if cubic_normal(weight) {
+    if faint(weight) {
+        return nearest_difference_at(tc, loc);
+    }
+    if (params.flags & FLAG_CUBIC_GRADIENT) != 0u {
         return cubic_gradient_at(tc, loc);
     }
     return central_difference_at(tc, loc);

@@ -53,10 +53,11 @@ struct RaycastParams {
     // The greyscale window of MODE_MIP and MODE_MINIP in transfer-function
     // coordinates: the value shown black (x) and the span to white (y).
     window: vec2<f32>,
-    // With FLAG_CUBIC_GRADIENT, the least weight of a sample in its pixel (the
-    // ray's transparency before it times its class's opacity) shaded with the
-    // cubic B-spline's normal; lighter ones take central differences.
-    cubic_normal_weight: f32,
+    // The least weight of a sample in its pixel (the ray's transparency before
+    // it times its class's opacity) shaded with the frame's normal (cubic with
+    // FLAG_CUBIC_GRADIENT, else blended central differences); lighter ones
+    // take their nearest texel's central differences.
+    faint_weight: f32,
 }
 
 // Offset each ray's first sample by a per-pixel fraction of a step (hides wood-grain banding).
