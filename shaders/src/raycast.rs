@@ -31,8 +31,9 @@ pub const EARLY_TERMINATION: f32 = 0.99;
 /// shaded with the central differences of the texel nearest them (six reads,
 /// no blend): at steps up to the reference step each moves its pixel by less
 /// than one 8-bit step (its corrected opacity is at most its class's), and
-/// their normals differ little, where the blend costs eight times the reads
-/// and the cubic normal more.
+/// their normals differ little, where the blend reads several times the
+/// texels (a trilinear read per neighbour on the GPU) and the cubic normal
+/// more.
 pub const FAINT_WEIGHT: f32 = 1.0 / 256.0;
 /// The light, in view space (x right, y up, z towards the eye): above and to the
 /// left of the eye, so shapes read as lit from the upper left.
