@@ -38,9 +38,9 @@ fn sample_at(tc: vec3<f32>, loc: Location) -> f32 {
 // (six texels, no filtering; at the block's faces the apron's), per unit of
 // texture coordinate: the gradient of faint samples.
 fn nearest_difference_at(tc: vec3<f32>, loc: Location) -> vec3<f32> {
-    let local = (tc * params.volume.volume_dims - vec3<f32>(loc.block) * BLOCK) * loc.scale;
     let last = BLOCK * loc.scale - 1.0;
-    let n = vec3<i32>(loc.origin + clamp(floor(local), vec3<f32>(0.0), vec3<f32>(last)));
+    let nearest = clamp(floor(block_texel(tc, loc)), vec3<f32>(0.0), vec3<f32>(last));
+    let n = vec3<i32>(loc.origin + nearest);
     let dx = vec3<i32>(1, 0, 0);
     let dy = vec3<i32>(0, 1, 0);
     let dz = vec3<i32>(0, 0, 1);

@@ -116,7 +116,7 @@ pub fn atlas_texel(g: &PackedVolume, tc: Vec3, loc: &BlockLocation) -> Vec3 {
     loc.origin + block_texel(g, tc, loc) - 0.5
 }
 
-/// [`atlas_texel`] less the block's `origin` and ½ (CPU only): `tc` in the
+/// WGSL `block_texel`, [`atlas_texel`] less the block's `origin` and ½: `tc` in the
 /// block's level texels from its corner, kept within its apron. Where the
 /// block's slot lies in the atlas plays no part, so samples found from it do
 /// not move by a rounding error when a layout puts the slot elsewhere.

@@ -45,11 +45,16 @@ fn voxel_edge(loc: Location) -> f32 {
 // the block are clamped to its apron, so filtering never reads another slot.
 // Every atlas-shaped texture (data, local opacity, light) is read here.
 fn atlas_coord(tc: vec3<f32>, loc: Location) -> vec3<f32> {
+    return (loc.origin + block_texel(tc, loc)) / params.volume.atlas_size;
+}
+
+// tc in block `loc`'s level texels from its corner (texel centres at whole
+// + ½), kept within its apron.
+fn block_texel(tc: vec3<f32>, loc: Location) -> vec3<f32> {
     let p = tc * params.volume.volume_dims;
     let local = (p - vec3<f32>(loc.block) * BLOCK) * loc.scale;
     let edge = BLOCK * loc.scale;
-    let inside = clamp(local, vec3<f32>(-0.5), vec3<f32>(edge + 0.5));
-    return (loc.origin + inside) / params.volume.atlas_size;
+    return clamp(local, vec3<f32>(-0.5), vec3<f32>(edge + 0.5));
 }
 
 // Where the ray (texture-space origin, direction per mm) leaves block `loc`
