@@ -24,6 +24,11 @@ use crate::raycast::{
     MODE_COMPOSITE, MODE_MIP, RaycastParams, WORKGROUP_SIZE,
 };
 
+/// How far below `early_termination` a group of samples' opacity, found as
+/// a product, must stay for all its lanes to be composited without the
+/// chain of `Accumulator::add` (whose rounding moves it by far less).
+const END_MARGIN: f32 = 1.0 / 65_536.0;
+
 /// Largest opacity fed to the opacity correction (as in the shader).
 pub const MAX_SAMPLE_OPACITY: f32 = 0.9999;
 
@@ -647,20 +652,39 @@ fn shade(p: &RaycastParams, rgb: [f32x4; 3], g: [f32x4; 3], h: Vec3) -> [f32x4; 
 /// where they lie: the ray parameters `ts` along `tex_origin + t·tex_dir`.
 struct Shown {
     lanes: u32,
-    /// The shown lanes' weights in the pixel (WGSL `main`'s `weight`), found
-    /// for shaded samples (zero otherwise).
+    /// The shown lanes' weights in the pixel (WGSL `main`'s `weight`) as far
+    /// as the march reads them (whether each is `faint`: see [`weights`]),
+    /// found for shaded samples (zero otherwise).
     weights: [f32; 4],
     ts: [f32; 4],
     tex_origin: Vec3,
     tex_dir: Vec3,
 }
 
-/// Of the `shown` lanes (a bit each), those composited before the ray
-/// ends, for a ray whose opacity so far is `alpha`: `Accumulator::add`'s
-/// opacity after each (compositing without extinction), up to the first at
-/// or above `early_termination`.
+/// Of the `showing` lanes (a mask), those composited before the ray ends,
+/// for a ray whose opacity so far is `alpha`: `Accumulator::add`'s opacity
+/// after each (compositing without extinction, the lanes' corrected
+/// opacities `corrected4`, `corrected` as an array), up to the first at or
+/// above `early_termination`. Where the opacity after the whole group (one
+/// minus the product of the transparencies, within rounding of `add`'s
+/// chain) stays `END_MARGIN` below the end, that is every showing lane,
+/// found without the chain.
 #[inline(always)]
-fn composited_lanes(shown: u32, mut alpha: f32, corrected: &[f32; 4], p: &RaycastParams) -> u32 {
+fn composited_lanes(
+    showing: f32x4,
+    mut alpha: f32,
+    corrected4: f32x4,
+    corrected: &[f32; 4],
+    p: &RaycastParams,
+) -> u32 {
+    let shown = showing.to_bitmask();
+    let [a, b, c, d] = showing
+        .select(f32x4::ONE - corrected4, f32x4::ONE)
+        .to_array();
+    let after = 1.0 - (1.0 - alpha) * ((a * b) * (c * d));
+    if after < p.early_termination - END_MARGIN {
+        return shown;
+    }
     let mut kept = 0;
     for j in Lanes(shown) {
         kept |= 1 << j;
@@ -673,12 +697,27 @@ fn composited_lanes(shown: u32, mut alpha: f32, corrected: &[f32; 4], p: &Raycas
 }
 
 /// WGSL `main`'s `weight` of each of the `shown` lanes (a bit each), for a
-/// ray whose opacity so far is `alpha`: its transparency before the lane
-/// times the lane's class opacity (`opacity`), the opacity after each lane
-/// found from its corrected opacity as `Accumulator::add` composites it
-/// (with extinction, 1 − exp(−Σ Δt·τ) is the same up to rounding).
+/// ray whose opacity so far is `alpha`, as far as the march reads it
+/// (whether it is `faint`): its transparency before the lane times the
+/// lane's class opacity (`opacity`), the opacity after each lane found
+/// from its corrected opacity as `Accumulator::add` composites it (with
+/// extinction, 1 − exp(−Σ Δt·τ) is the same up to rounding). A lane's
+/// weight is at most the transparency before the group times its opacity
+/// (the opacity only grows, rounding too): where that bound is faint for
+/// every shown lane, so is each weight, and the bounds stand for them,
+/// found without the chain.
 #[inline(always)]
-fn weights(shown: u32, mut alpha: f32, opacity: &f32x4, corrected: &[f32; 4]) -> [f32; 4] {
+fn weights(
+    p: &RaycastParams,
+    shown: u32,
+    mut alpha: f32,
+    opacity: &f32x4,
+    corrected: &[f32; 4],
+) -> [f32; 4] {
+    let bound = f32x4::splat(1.0 - alpha) * *opacity;
+    if shown & !bound.simd_lt(f32x4::splat(p.faint_weight)).to_bitmask() == 0 {
+        return bound.to_array();
+    }
     let opacity = opacity.to_array();
     let mut weights = [0.0; 4];
     for j in Lanes(shown) {
@@ -1170,11 +1209,12 @@ fn main<S: Storage, const KIND: u8>(
                     let mut rgbas = [Vec4::ZERO; 4];
                     if shaded {
                         if !extinction {
-                            // Not the samples past the one that ends the ray:
-                            // the opacity after each, as `add` finds it.
-                            shown_at.lanes = composited_lanes(shown, acc.alpha, &corrected, p);
+                            // Not the samples past the one that ends the ray.
+                            shown_at.lanes =
+                                composited_lanes(showing, acc.alpha, corrected4, &corrected, p);
                         }
-                        shown_at.weights = weights(shown_at.lanes, acc.alpha, &opacity, &corrected);
+                        shown_at.weights =
+                            weights(p, shown_at.lanes, acc.alpha, &opacity, &corrected);
                         for j in Lanes(shown_at.lanes) {
                             rgbas[j] = classes.rgba(tf, j);
                         }
@@ -1283,12 +1323,13 @@ mod tests {
     use wide::f32x4;
 
     use super::{
-        Storage, central_difference_at, corrected_opacity, corrected_opacity4, cubic_gradient_at,
-        floor, pow4, steps_up,
+        Lanes, MAX_SAMPLE_OPACITY, Storage, central_difference_at, composited_lanes,
+        corrected_opacity, corrected_opacity4, cubic_gradient_at, floor, pow4, steps_up, weights,
     };
     use crate::cpu::Texture3d;
+    use crate::cpu::hash::{pcg_hash, unit_from_hash};
     use crate::cpu::reference::PlainLocation;
-    use crate::raycast::RaycastParams;
+    use crate::raycast::{FAINT_WEIGHT, RaycastParams};
 
     /// A cube of `n`³ voxels with values `f(x, y, z)` at the voxel centres
     /// (in voxels), and march parameters for it.
@@ -1475,6 +1516,109 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A group of four samples as the march meets them, drawn from `i`: the
+    /// ray's opacity so far (below `end`, often just below), the lanes'
+    /// class opacities (faint haze to opaque; a lane past the run or
+    /// transparent is not showing, and one past the run may have an
+    /// opacity), their corrected opacities and the showing lanes' mask.
+    fn group(i: u32, end: f32) -> (f32, f32x4, [f32; 4], f32x4) {
+        let r = |k: u32| unit_from_hash(pcg_hash(i.wrapping_mul(16).wrapping_add(k)));
+        let alpha = match i % 4 {
+            0 => r(0) * end,
+            1 => end - r(0) * 1e-3,
+            2 => end - r(0) * 1e-6,
+            _ => r(0) * r(1) * r(2),
+        }
+        .clamp(0.0, end.min(1.0) - f32::EPSILON);
+        let opacity = [4, 5, 6, 7].map(|k| match (i >> k) % 4 {
+            0 => 0.0,
+            1 => r(k).powi(6),
+            2 => r(k) * 0.05,
+            _ => r(k),
+        });
+        let corrected = opacity.map(|a| corrected_opacity(a, 0.5));
+        let run = (r(8) * 4.0) as usize + 1;
+        let showing = f32x4::from(std::array::from_fn::<f32, 4, _>(|j| {
+            if j < run && opacity[j] > 0.0 {
+                1.0
+            } else {
+                0.0
+            }
+        }))
+        .simd_gt(f32x4::ZERO);
+        (alpha, f32x4::from(opacity), corrected, showing)
+    }
+
+    #[test]
+    fn composited_lanes_found_without_the_chain_are_the_chains() {
+        let mut params: RaycastParams = bytemuck::Zeroable::zeroed();
+        let (mut whole, mut cut) = (0, 0);
+        for end in [0.95, 0.99, 0.999, 1.0] {
+            params.early_termination = end;
+            for i in 0..100_000 {
+                let (alpha, _, corrected, showing) = group(i, end);
+                let shown = showing.to_bitmask();
+                // `Accumulator::add`'s chain, lane by lane.
+                let (mut chain, mut kept) = (alpha, 0);
+                for j in Lanes(shown) {
+                    kept |= 1 << j;
+                    chain += (1.0 - chain) * corrected[j];
+                    if chain >= end {
+                        break;
+                    }
+                }
+                let found =
+                    composited_lanes(showing, alpha, f32x4::from(corrected), &corrected, &params);
+                assert_eq!(
+                    found, kept,
+                    "end {end}, alpha {alpha}, {corrected:?}, lanes {shown:b}"
+                );
+                if kept == shown { whole += 1 } else { cut += 1 }
+            }
+        }
+        // Both kinds of group were met: the ray ending inside one, and not.
+        assert!(whole > 10_000 && cut > 10_000, "{whole} whole, {cut} cut");
+    }
+
+    #[test]
+    fn weights_found_without_the_chain_are_faint_where_the_chains_are() {
+        let mut params: RaycastParams = bytemuck::Zeroable::zeroed();
+        let (mut bounds, mut chains) = (0, 0);
+        for faint in [FAINT_WEIGHT, 1e-3, 0.05, 0.0, 2.0] {
+            params.faint_weight = faint;
+            for i in 0..100_000 {
+                let (alpha, opacity, corrected, showing) = group(i, 1.0);
+                let shown = showing.to_bitmask();
+                let (mut chain, mut exact) = (alpha, [0.0; 4]);
+                for j in Lanes(shown) {
+                    exact[j] = (1.0 - chain) * opacity.to_array()[j];
+                    chain += (1.0 - chain) * corrected[j].min(MAX_SAMPLE_OPACITY);
+                }
+                let found = weights(&params, shown, alpha, &opacity, &corrected);
+                for j in Lanes(shown) {
+                    assert_eq!(
+                        found[j] < faint,
+                        exact[j] < faint,
+                        "faint below {faint}, alpha {alpha}, {opacity:?}, lane {j} of {shown:b}: \
+                         {} found, {} exact",
+                        found[j],
+                        exact[j]
+                    );
+                }
+                if Lanes(shown).any(|j| found[j] != exact[j]) {
+                    bounds += 1;
+                } else {
+                    chains += 1;
+                }
+            }
+        }
+        // Both ways were taken: the bounds standing for the weights, and the chain.
+        assert!(
+            bounds > 10_000 && chains > 10_000,
+            "{bounds} bounds, {chains} chains"
+        );
     }
 
     #[test]
