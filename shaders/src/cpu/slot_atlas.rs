@@ -382,8 +382,17 @@ impl SlotAtlas {
     #[inline(always)]
     pub fn nearest_differences(&self, base: usize, edge: usize, p: Vec3) -> Vec3 {
         let last = (edge - 1) as f32 - SLOT_APRON;
-        let n = floor3(p + Vec3::splat(0.5)).clamp(Vec3::splat(SLOT_APRON), Vec3::splat(last));
-        let i = base + (n.z as usize * edge + n.y as usize) * edge + n.x as usize;
+        // `floor(p + ½)` clamped to the interior, as one clamp and one
+        // truncation of three lanes: the clamp's bounds are whole numbers,
+        // so truncating the clamped value is flooring it (NaN clamps to
+        // the low bound, as `Vec3::clamp` takes it).
+        let [x, y, z, _] = (f32x4::from([p.x, p.y, p.z, 0.0]) + f32x4::splat(0.5))
+            .max(f32x4::splat(SLOT_APRON))
+            .min(f32x4::splat(last))
+            .fast_trunc_int()
+            .to_array()
+            .map(|n| n as usize);
+        let i = base + (z * edge + y) * edge + x;
         let slice = edge * edge;
         let t = &self.texels;
         Vec3::new(
@@ -753,6 +762,64 @@ mod tests {
                 assert!(
                     (direct - reads).abs().max_element() < 1e-4 * scale,
                     "level {level} at {p}: {direct} vs {reads}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn nearest_differences_are_the_nearest_interior_texels_at_any_position() {
+        // A slot of every level filled with uneven values, read at
+        // positions all over it, past its edges, at half-texel ties and at
+        // NaN and infinities: each must be the central differences of the
+        // interior texel `floor(p + ½)` clamps to, bit for bit.
+        let levels: Vec<u8> = (0..LEVELS as u8).collect();
+        let packing = Packing::new(&LodSelection::from_levels(levels), 2048).expect("packing");
+        let mut atlas = SlotAtlas::new(&packing);
+        for level in 0..LEVELS {
+            let slot = atlas.slot_mut(level, level).expect("slot");
+            for (i, t) in slot.iter_mut().enumerate() {
+                *t = ((i * 7919) % 1000) as f32 / 1000.0 + (i as f32 * 0.37).sin();
+            }
+        }
+        let odd = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -3e9,
+            3e9,
+            -0.5,
+            0.5,
+            1.5,
+        ];
+        for level in 0..LEVELS {
+            let base = atlas.slot_base(level).expect("stored");
+            let edge = slot_edge(level) as usize;
+            let last = (edge - 1) as f32 - SLOT_APRON;
+            let texel = |x: f32, y: f32, z: f32| {
+                atlas.texels[base + (z as usize * edge + y as usize) * edge + x as usize]
+            };
+            let reach = edge as f32 + 2.0;
+            for k in 0..2_000 {
+                let at = |s: f32| match k % 7 {
+                    // Ties: texel centres plus a half.
+                    0 => ((k as f32 * s).sin().mul_add(0.5, 0.5) * reach).floor() - 1.5,
+                    1 => odd[(k / 7 + (s * 10.0) as usize) % odd.len()],
+                    _ => (k as f32 * s).sin().mul_add(0.5, 0.5) * reach - 2.0,
+                };
+                let p = Vec3::new(at(1.3), at(2.7), at(0.9));
+                let n =
+                    floor3(p + Vec3::splat(0.5)).clamp(Vec3::splat(SLOT_APRON), Vec3::splat(last));
+                let expected = Vec3::new(
+                    texel(n.x + 1.0, n.y, n.z) - texel(n.x - 1.0, n.y, n.z),
+                    texel(n.x, n.y + 1.0, n.z) - texel(n.x, n.y - 1.0, n.z),
+                    texel(n.x, n.y, n.z + 1.0) - texel(n.x, n.y, n.z - 1.0),
+                );
+                let found = atlas.nearest_differences(base, edge, p);
+                assert_eq!(
+                    found.to_array().map(f32::to_bits),
+                    expected.to_array().map(f32::to_bits),
+                    "level {level} at {p}: {found} vs {expected}"
                 );
             }
         }
