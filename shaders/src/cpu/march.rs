@@ -664,23 +664,17 @@ struct Shown {
 /// Of the `showing` lanes (a mask), those composited before the ray ends,
 /// for a ray whose opacity so far is `alpha`: `Accumulator::add`'s opacity
 /// after each (compositing without extinction, the lanes' corrected
-/// opacities `corrected4`, `corrected` as an array), up to the first at or
-/// above `early_termination`. Where the opacity after the whole group (one
-/// minus the product of the transparencies, within rounding of `add`'s
-/// chain) stays `END_MARGIN` below the end, that is every showing lane,
-/// found without the chain.
+/// opacities `corrected`), up to the first at or above `early_termination`.
+/// Where the opacity after the whole group (one minus the product of the
+/// transparencies, within rounding of `add`'s chain) stays `END_MARGIN`
+/// below the end, that is every showing lane, found without the chain.
 #[inline(always)]
-fn composited_lanes(
-    showing: f32x4,
-    mut alpha: f32,
-    corrected4: f32x4,
-    corrected: &[f32; 4],
-    p: &RaycastParams,
-) -> u32 {
+fn composited_lanes(showing: f32x4, mut alpha: f32, corrected: f32x4, p: &RaycastParams) -> u32 {
     let shown = showing.to_bitmask();
     let [a, b, c, d] = showing
-        .select(f32x4::ONE - corrected4, f32x4::ONE)
+        .select(f32x4::ONE - corrected, f32x4::ONE)
         .to_array();
+    let corrected = corrected.to_array();
     let after = 1.0 - (1.0 - alpha) * ((a * b) * (c * d));
     if after < p.early_termination - END_MARGIN {
         return shown;
@@ -1210,8 +1204,7 @@ fn main<S: Storage, const KIND: u8>(
                     if shaded {
                         if !extinction {
                             // Not the samples past the one that ends the ray.
-                            shown_at.lanes =
-                                composited_lanes(showing, acc.alpha, corrected4, &corrected, p);
+                            shown_at.lanes = composited_lanes(showing, acc.alpha, corrected4, p);
                         }
                         shown_at.weights =
                             weights(p, shown_at.lanes, acc.alpha, &opacity, &corrected);
@@ -1569,8 +1562,7 @@ mod tests {
                         break;
                     }
                 }
-                let found =
-                    composited_lanes(showing, alpha, f32x4::from(corrected), &corrected, &params);
+                let found = composited_lanes(showing, alpha, f32x4::from(corrected), &params);
                 assert_eq!(
                     found, kept,
                     "end {end}, alpha {alpha}, {corrected:?}, lanes {shown:b}"
