@@ -767,12 +767,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn nearest_differences_are_the_nearest_interior_texels_at_any_position() {
-        // A slot of every level filled with uneven values, read at
-        // positions all over it, past its edges, at half-texel ties and at
-        // NaN and infinities: each must be the central differences of the
-        // interior texel `floor(p + ½)` clamps to, bit for bit.
+    /// An atlas with a slot of every level (block `l` at level `l`), each
+    /// filled with uneven values.
+    fn uneven_slot_of_every_level() -> SlotAtlas {
         let levels: Vec<u8> = (0..LEVELS as u8).collect();
         let packing = Packing::new(&LodSelection::from_levels(levels), 2048).expect("packing");
         let mut atlas = SlotAtlas::new(&packing);
@@ -782,6 +779,16 @@ mod tests {
                 *t = ((i * 7919) % 1000) as f32 / 1000.0 + (i as f32 * 0.37).sin();
             }
         }
+        atlas
+    }
+
+    #[test]
+    fn nearest_differences_are_the_nearest_interior_texels_at_any_position() {
+        // A slot of every level filled with uneven values, read at
+        // positions all over it, past its edges, at half-texel ties and at
+        // NaN and infinities: each must be the central differences of the
+        // interior texel `floor(p + ½)` clamps to, bit for bit.
+        let atlas = uneven_slot_of_every_level();
         let odd = [
             f32::NAN,
             f32::INFINITY,
@@ -830,15 +837,7 @@ mod tests {
         // A slot of every level filled with uneven values, sampled at
         // positions all over it and past its edges (clamped): each lane of
         // `sample_slot4` must be `sample_slot` at its position, bit for bit.
-        let levels: Vec<u8> = (0..LEVELS as u8).collect();
-        let packing = Packing::new(&LodSelection::from_levels(levels), 2048).expect("packing");
-        let mut atlas = SlotAtlas::new(&packing);
-        for level in 0..LEVELS {
-            let slot = atlas.slot_mut(level, level).expect("slot");
-            for (i, t) in slot.iter_mut().enumerate() {
-                *t = ((i * 7919) % 1000) as f32 / 1000.0 + (i as f32 * 0.37).sin();
-            }
-        }
+        let atlas = uneven_slot_of_every_level();
         for level in 0..LEVELS {
             let base = atlas.slot_base(level).expect("stored");
             let edge = slot_edge(level) as usize;
