@@ -3,13 +3,13 @@
 //! light twins.
 
 use glam::Vec3;
+use wide::f32x4;
 
 use blocks::packing::slot_edge;
 use blocks::store::LEVELS;
 
-use super::march::{far_face_crossing, intersect_box_inverse, inverse_direction};
+use super::march::{intersect_box_inverse, inverse_direction};
 use super::occupancy::VisibleBox;
-use super::texture::floor_i32;
 use super::{ColourTexture, SlotAtlas, Texture3d};
 use crate::illumination::Mode;
 use crate::packed_volume::PackedVolume;
@@ -94,13 +94,18 @@ pub fn voxel_edge(loc: &BlockLocation) -> f32 {
 /// WGSL `block_of`.
 #[inline(always)]
 pub fn block_of(g: &PackedVolume, tc: Vec3) -> [i32; 3] {
-    let last = g.block_grid.map(|n| n as i32 - 1);
+    let last = g.block_grid.map(|n| (n - 1) as f32);
     let b = tc * Vec3::from(g.volume_dims) / BLOCK;
-    [
-        floor_i32(b.x).clamp(0, last[0]),
-        floor_i32(b.y).clamp(0, last[1]),
-        floor_i32(b.z).clamp(0, last[2]),
-    ]
+    // `floor(b)` clamped to the grid, as one clamp and one truncation of
+    // three lanes: the bounds are whole numbers, so truncating the clamped
+    // value is flooring it (NaN clamps to the low bound, as floor_i32
+    // takes it to 0).
+    let [x, y, z, _] = f32x4::from([b.x, b.y, b.z, 0.0])
+        .max(f32x4::ZERO)
+        .min(f32x4::from([last[0], last[1], last[2], 0.0]))
+        .fast_trunc_int()
+        .to_array();
+    [x, y, z]
 }
 
 /// WGSL `atlas_coord`.
@@ -153,12 +158,10 @@ fn empty_exit_inverse(g: &PackedVolume, origin: Vec3, inv: Vec3, loc: &BlockLoca
 }
 
 /// CPU only: the blocks of the samples along a light stage's ray `origin +
-/// t·dir`, each the block WGSL `locate` finds. A walk of the block grid (a
-/// 3D DDA) proposes each sample's block with two comparisons; only a sample
-/// within a thousandth of a block of a face (where rounding decides) is
-/// located as the GPU locates it. Within a block the sample's slot position
-/// is an affine function of `t` (the same texels and weights as
-/// `atlas_texel` within the slot, up to rounding).
+/// t·dir`, each found as WGSL `locate` finds it (`block_of` of the sample's
+/// position), the index read only where the block changes. Within a block
+/// the sample's slot position is an affine function of `t` (the same texels
+/// and weights as `atlas_texel` within the slot, up to rounding).
 #[derive(Debug, Clone, Copy)]
 pub struct RayBlocks {
     /// The block of the last sample, and its location.
@@ -167,20 +170,6 @@ pub struct RayBlocks {
     slot_at_zero: Vec3,
     /// See `slot_at_zero`.
     slot_per_t: Vec3,
-    /// The walk's block (`loc`'s, but near a face), where it leaves it
-    /// along each axis, and the distance between faces along each axis.
-    walk: [i32; 3],
-    t_max: Vec3,
-    t_delta: Vec3,
-    /// Where the walk entered its block.
-    entered: f32,
-    /// Where rounding at a face may decide the block: a thousandth of a
-    /// block along the axis the ray crosses fastest (`block_of`'s faces
-    /// move by about 10⁻⁵ of a block).
-    margin: f32,
-    /// The walk has left the grid (by rounding at its edge): every sample
-    /// is located.
-    lost: bool,
     origin: Vec3,
     dir: Vec3,
     /// `dir`'s [`inverse_direction`].
@@ -191,20 +180,10 @@ impl RayBlocks {
     /// The ray's blocks, at the block holding `origin`.
     #[inline]
     pub fn new(packed: &PackedTexture, g: &PackedVolume, origin: Vec3, dir: Vec3) -> RayBlocks {
-        let dims = Vec3::from(g.volume_dims);
-        let edge = Vec3::from(g.texel) * BLOCK;
-        let walk = block_of(g, origin);
-        let cell = Vec3::new(walk[0] as f32, walk[1] as f32, walk[2] as f32);
         let mut blocks = RayBlocks {
-            loc: packed.locate_block(walk),
+            loc: packed.locate_block(block_of(g, origin)),
             slot_at_zero: Vec3::ZERO,
             slot_per_t: Vec3::ZERO,
-            walk,
-            t_max: far_face_crossing(cell, edge, origin, dir),
-            t_delta: (edge / dir.abs()).min(Vec3::INFINITY),
-            entered: f32::NEG_INFINITY,
-            margin: 1e-3 / (dir * dims / BLOCK).abs().max_element(),
-            lost: false,
             origin,
             dir,
             inverse: inverse_direction(dir),
@@ -213,62 +192,15 @@ impl RayBlocks {
         blocks
     }
 
-    /// Moves to the block of the sample at `t` (WGSL `locate`; `t` never
-    /// less than the last sample's), and returns it.
+    /// Moves to the block of the sample at `t` (WGSL `locate`), and returns it.
     #[inline(always)]
     pub fn at(&mut self, packed: &PackedTexture, g: &PackedVolume, t: f32) -> &BlockLocation {
-        let exit = self.t_max.min_element();
-        if !self.lost && t >= self.entered + self.margin && t < exit - self.margin {
-            // Well inside the walk's block (the usual case).
-            if self.walk != self.loc.block {
-                self.move_to(packed, g, self.walk);
-            }
-            return &self.loc;
-        }
-        if !self.lost && t >= exit {
-            self.advance(packed, t);
-        }
-        if !self.lost
-            && t >= self.entered + self.margin
-            && t < self.t_max.min_element() - self.margin
-        {
-            if self.walk != self.loc.block {
-                self.move_to(packed, g, self.walk);
-            }
-            return &self.loc;
-        }
-        // Near a face: as the GPU locates it.
         let block = block_of(g, self.origin + self.dir * t);
         if block != self.loc.block {
-            self.move_to(packed, g, block);
+            self.loc = packed.locate_block(block);
+            self.enter(g);
         }
         &self.loc
-    }
-
-    /// On through the grid to the walk's block holding `t` (`t ≥ exit`).
-    #[inline]
-    fn advance(&mut self, packed: &PackedTexture, t: f32) {
-        let last = packed.grid.map(|n| n as i32 - 1);
-        loop {
-            let axis = nearest_axis(self.t_max);
-            self.entered = self.t_max[axis];
-            self.walk[axis] += if self.dir[axis] > 0.0 { 1 } else { -1 };
-            self.t_max[axis] += self.t_delta[axis];
-            if !(0..=last[axis]).contains(&self.walk[axis]) {
-                self.lost = true;
-                return;
-            }
-            if t < self.t_max.min_element() {
-                return;
-            }
-        }
-    }
-
-    /// `loc` becomes `block`.
-    #[inline]
-    fn move_to(&mut self, packed: &PackedTexture, g: &PackedVolume, block: [i32; 3]) {
-        self.loc = packed.locate_block(block);
-        self.enter(g);
     }
 
     /// WGSL `empty_exit` of the block.
@@ -294,19 +226,6 @@ impl RayBlocks {
     #[inline(always)]
     pub fn slot_position(&self, t: f32) -> Vec3 {
         self.slot_at_zero + self.slot_per_t * t
-    }
-}
-
-/// The axis along which `t_max` is least (the face a walk crosses next;
-/// x before y before z on ties).
-#[inline(always)]
-pub fn nearest_axis(t_max: Vec3) -> usize {
-    if t_max.x <= t_max.y && t_max.x <= t_max.z {
-        0
-    } else if t_max.y <= t_max.z {
-        1
-    } else {
-        2
     }
 }
 
@@ -381,5 +300,61 @@ impl PackedTexture {
             ),
             scale: LEVEL_SCALE[usize::from(entry[3]).min(LEVELS - 1)],
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::block_of;
+    use crate::cpu::texture::floor_i32;
+    use crate::packed_volume::PackedVolume;
+
+    #[test]
+    fn block_of_is_the_floor_of_the_position_in_blocks_clamped_to_the_grid() {
+        // A grid of 16 × 7 × 2 blocks whose last blocks are partial, read
+        // on every face and a float's step either side of it, past the
+        // grid's edges, and at NaN and infinities: each block must be the
+        // floor of the position in blocks, clamped to the grid, lane by lane.
+        let g = PackedVolume {
+            texel: [1.0 / 256.0, 1.0 / 100.0, 1.0 / 20.0],
+            reference_step: 1.0,
+            volume_dims: [256.0, 100.0, 20.0],
+            value_scale: 1.0,
+            atlas_size: [1.0; 3],
+            value_offset: 0.0,
+            block_grid: [16, 7, 2],
+            tf_len: 2,
+        };
+        let mut positions = vec![
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -3e9,
+            3e9,
+            -0.0,
+            -1e-30,
+        ];
+        for face in 0..=20 {
+            for dims in g.volume_dims {
+                let tc = face as f32 * 16.0 / dims;
+                positions.extend([tc.next_down(), tc, tc.next_up(), tc + 0.3 / dims]);
+            }
+        }
+        let mut compared = 0;
+        for &x in &positions {
+            for &y in positions.iter().step_by(7) {
+                for &z in positions.iter().step_by(11) {
+                    let tc = Vec3::new(x, y, z);
+                    let b = tc * Vec3::from(g.volume_dims) / 16.0;
+                    let want =
+                        [0, 1, 2].map(|a| floor_i32(b[a]).clamp(0, g.block_grid[a] as i32 - 1));
+                    assert_eq!(block_of(&g, tc), want, "at {tc}");
+                    compared += 1;
+                }
+            }
+        }
+        assert!(compared > 20_000, "{compared}");
     }
 }

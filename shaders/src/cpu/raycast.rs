@@ -624,7 +624,7 @@ mod tests {
 
     use super::super::march::{Storage, central_difference_at, cubic_gradient_at};
     use super::super::packed::{
-        BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, RayBlocks, block_of,
+        BLOCK, BlockLocation, EMPTY_LEVEL, PackedTexture, RayBlocks, block_texel,
     };
     use super::super::slot_atlas::SlotAtlas;
     use crate::raycast::{FLAG_CUBIC_GRADIENT, RaycastParams};
@@ -725,13 +725,25 @@ mod tests {
             // the faces the ray crosses.
             let mut t = 0.0f32;
             while t < 2.0 {
-                let want = block_of(g, origin + dir * t);
-                if want[0] < 0 || (0..3).any(|a| !(0.0..=1.0).contains(&(origin + dir * t)[a])) {
+                let tc = origin + dir * t;
+                if (0..3).any(|a| !(0.0..=1.0).contains(&tc[a])) {
                     break;
                 }
-                let got = blocks.at(&packed, g, t).block;
+                let want = packed.locate(g, tc);
+                let got = *blocks.at(&packed, g, t);
                 assert_eq!(got, want, "ray {i} from {origin} along {dir} at {t}");
-                let b = (origin + dir * t) * 3.0;
+                if !got.empty {
+                    // `atlas_texel` in the slot (its first interior texel
+                    // at 1), kept within the apron as the sample keeps it.
+                    let slot = block_texel(g, tc, &got) + 0.5;
+                    let edge = got.slot_edge as f32 - 1.0;
+                    let position = blocks.slot_position(t).clamp(Vec3::ZERO, Vec3::splat(edge));
+                    assert!(
+                        (position - slot).abs().max_element() < 1e-3,
+                        "ray {i} at {t}: slot position {position}, atlas_texel's {slot}"
+                    );
+                }
+                let b = tc * 3.0;
                 if (b - b.round()).abs().min_element() < 1e-3 {
                     near_faces += 1;
                 }
