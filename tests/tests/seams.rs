@@ -9,6 +9,9 @@
 //! spacing, halved: see `blocks::seams`), here well under the coarser level's
 //! own error. With aprons copied at each block's own level, the jump is the
 //! whole difference between the two levels' reconstructions at the border.
+//!
+//! On the same blocks, the light twins' rays must take the same values
+//! whether they read four samples at once or one by one.
 
 #![expect(clippy::print_stdout, reason = "tests report what they measured")]
 
@@ -19,6 +22,7 @@ use blocks::geometry::IDENTITY_DIRECTION;
 use blocks::lod::LodSelection;
 use blocks::packing::{APRON, Packing};
 use blocks::store::grid_position;
+use blocks::transfer_function::TABLE_LEN;
 use blocks::{Geometry, ValueMap, Volume, VoxelData};
 use glam::Vec3;
 use server::Dataset;
@@ -319,4 +323,85 @@ fn lit_blocks_of_levels_0_and_2_meet_without_a_step_in_the_light() {
         "without light_seams the light steps by {step_without:.2e}, expected more than {:.2e}",
         0.5 * coarse_error
     );
+}
+
+/// Local opacity and in-scattering read four samples of a light ray side by
+/// side where the four lie in one block, with a transfer-function table of `TABLE_LEN`
+/// entries (what every renderer builds), and one by one with any other
+/// table: the opacities and the light stored must be the same bits either way. Blocks of
+/// levels 0 and 2 put faces between the groups, a point light in the
+/// volume turns the rays every way, and opaque stretches end rays inside
+/// groups.
+#[test]
+fn light_rays_read_four_samples_at_once_as_they_read_them_one_by_one() {
+    let dataset = dataset_of(ramp_volume());
+    let grid = dataset.store.meta().blocks;
+    let lod = checkerboard(grid);
+    let tf = TransferFunction::parse("0:ffffff:0.05,20000:ffffff:0.2,65535:ffffff:1").expect("tf");
+    let settings = LightSettings {
+        source: LightSource::Point([0.3, 0.6, 0.5]),
+        scatter_radius_voxels: 8.0,
+        directions: 6,
+        ..LightSettings::default()
+    };
+    let (packing, desc, _) = packing_of(&lod, grid);
+    let packed = assemble_cpu(&dataset.cache, &packing, &desc, &tf).expect("atlas");
+    let table = tf.table(desc.tf_domain, 1024).expect("table");
+    assert_eq!(
+        table.len(),
+        TABLE_LEN,
+        "a table the march reads four at once"
+    );
+    // The same entries and one more past them, never read (the stages read
+    // `tf_len` entries): a table the four-at-once reads do not take.
+    let one_by_one: Vec<[f32; 4]> = table.iter().copied().chain([[0.0; 4]]).collect();
+    let layout = PackedLayout {
+        atlas_dims: packing.atlas_dims,
+        block_grid: grid,
+    };
+    let setup = LightSetup::new(&desc, &settings, &packing, layout, table.len() as u32);
+    let params = &setup.params;
+    let inputs = setup.twin_inputs(&packed, &table, settings.method);
+    let mut state = LightState::default();
+    for stage in Stage::ALL {
+        twin::run(stage, &inputs, &mut state);
+    }
+    let atlas = params.atlas_dims();
+    let direct = Texture3d::new(atlas, state.direct_light.clone());
+    let shadow = Texture3d::new(params.svr_dims, state.shadow_volume.clone());
+    let mut four = vec![0.0; state.light_volume.len()];
+    let mut one = four.clone();
+    for d in &setup.directions {
+        let p = params.scattering(d);
+        let slots = &setup.slot_blocks;
+        twin::in_scatter(&p, &packed, &table, slots, &direct, &shadow, &mut four);
+        twin::in_scatter(&p, &packed, &one_by_one, slots, &direct, &shadow, &mut one);
+    }
+    let slots = &setup.slot_blocks;
+    let local = twin::local_opacity(params, &packed, &table, slots);
+    let local_one = twin::local_opacity(params, &packed, &one_by_one, slots);
+    let opaque = local.iter().filter(|&&a| a > 0.0).count();
+    let local_differ = local
+        .iter()
+        .zip(&local_one)
+        .filter(|(a, b)| a.to_bits() != b.to_bits())
+        .count();
+    println!("local opacity: {opaque} texels not clear, {local_differ} differ");
+    assert!(opaque > 10_000, "only {opaque} texels not clear");
+    assert_eq!(
+        local_differ, 0,
+        "{local_differ} texels' local opacity differs"
+    );
+    let lit = four.iter().filter(|&&l| l > 0.0).count();
+    let differ = four
+        .iter()
+        .zip(&one)
+        .filter(|(a, b)| a.to_bits() != b.to_bits())
+        .count();
+    println!(
+        "in-scattering, {} directions: {lit} texels lit, {differ} differ between four at once and one by one",
+        setup.directions.len()
+    );
+    assert!(lit > 10_000, "only {lit} texels lit");
+    assert_eq!(differ, 0, "{differ} texels' light differs");
 }

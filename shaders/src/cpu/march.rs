@@ -420,7 +420,12 @@ impl Classes4 {
     /// The table positions of `us` in a table of `p.volume.tf_len` entries.
     #[inline(always)]
     pub fn new(p: &RaycastParams, us: [f32; 4]) -> Self {
-        let n = p.volume.tf_len;
+        Self::in_table(p.volume.tf_len, us)
+    }
+
+    /// The table positions of `us` in a table of `n` entries.
+    #[inline(always)]
+    pub fn in_table(n: u32, us: [f32; 4]) -> Self {
         let x = f32x4::from(us).fast_max(f32x4::ZERO).fast_min(f32x4::ONE) * f32x4::splat(n as f32)
             - f32x4::splat(0.5);
         let whole = round_down(x);
@@ -485,7 +490,7 @@ pub fn classify(p: &RaycastParams, transfer_function: &[[f32; 4]], u: f32) -> Ve
 /// [`corrected_opacity`] of four opacities, lane by lane with its arithmetic
 /// (the square root, like the scalar one, is correctly rounded).
 #[inline(always)]
-fn corrected_opacity4(a: f32x4, exponent: f32) -> f32x4 {
+pub fn corrected_opacity4(a: f32x4, exponent: f32) -> f32x4 {
     let transmittance = f32x4::ONE - a.fast_min(f32x4::splat(MAX_SAMPLE_OPACITY));
     if exponent == 1.0 {
         return f32x4::ONE - transmittance;

@@ -227,6 +227,22 @@ impl RayBlocks {
     pub fn slot_position(&self, t: f32) -> Vec3 {
         self.slot_at_zero + self.slot_per_t * t
     }
+
+    /// Whether the sample at `t` is in the block of the last (WGSL
+    /// `locate` finds it there). Along a ray each coordinate of `block_of`
+    /// only grows or only shrinks with `t`, so a later sample in the block
+    /// has every sample between in it too.
+    #[inline(always)]
+    pub fn holds(&self, g: &PackedVolume, t: f32) -> bool {
+        block_of(g, self.origin + self.dir * t) == self.loc.block
+    }
+
+    /// [`RayBlocks::slot_position`] of four samples, their coordinates
+    /// along x, y and z side by side (the same arithmetic lane by lane).
+    #[inline(always)]
+    pub fn slot_positions(&self, t: f32x4) -> [f32x4; 3] {
+        [0, 1, 2].map(|a| f32x4::splat(self.slot_at_zero[a]) + f32x4::splat(self.slot_per_t[a]) * t)
+    }
 }
 
 impl PackedTexture {
