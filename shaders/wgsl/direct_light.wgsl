@@ -12,7 +12,7 @@
 //   3 atlas_sampler      linear filtering, clamp to edge
 //   4 slot_blocks        storage array<u32>
 //   5 direct_light       storage texture r32float, atlas-shaped (written)
-// CPU twin: shaders::cpu::light::direct_light (shaders/src/cpu/light.rs).
+// CPU twin: shaders::cpu::global_light::direct_light (shaders/src/cpu/global_light.rs).
 
 @group(0) @binding(0) var<uniform> params: LightParams;
 @group(0) @binding(1) var local_opacity: texture_3d<f32>;

@@ -11,7 +11,7 @@
 // Bindings (group 0):
 //   0–5                  shared/light_data.wgsl (params, the packed data, slot_blocks)
 //   6 direct_light       storage texture r32float, atlas-shaped (written)
-// CPU twin: shaders::cpu::light::direct_light_reference (shaders/src/cpu/light.rs).
+// CPU twin: shaders::cpu::global_light::direct_light_reference (shaders/src/cpu/global_light.rs).
 
 @group(0) @binding(6) var direct_light: texture_storage_3d<r32float, write>;
 

@@ -16,7 +16,7 @@
 //   3 block_index        texture_3d<u32> (rgba16uint)
 //   4 shadow_volume      storage texture r32float, svr_dims (written)
 //   5 svr_blocks         storage array<u32>, per block: 1 where the SVR is read
-// CPU twin: shaders::cpu::light::global_opacity (shaders/src/cpu/light.rs).
+// CPU twin: shaders::cpu::global_light::global_opacity (shaders/src/cpu/global_light.rs).
 
 @group(0) @binding(0) var<uniform> params: LightParams;
 @group(0) @binding(1) var local_opacity: texture_3d<f32>;

@@ -18,7 +18,7 @@
 //   6 direct_light       texture_3d<f32> (r32float), atlas-shaped I_d
 //   7 shadow_volume      texture_3d<f32> (r32float), the SVR α_g
 //   8 light_volume       storage texture r32float, atlas-shaped I_s (read and written)
-// CPU twin: shaders::cpu::light::in_scatter (shaders/src/cpu/light.rs).
+// CPU twin: shaders::cpu::global_light::in_scatter (shaders/src/cpu/global_light.rs).
 
 @group(0) @binding(6) var direct_light: texture_3d<f32>;
 @group(0) @binding(7) var shadow_volume: texture_3d<f32>;

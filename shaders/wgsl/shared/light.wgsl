@@ -1,5 +1,5 @@
 // light: the ray from a point towards the light, shared by the light stages.
-// CPU twin: shaders/src/cpu/light.rs.
+// CPU twin: shaders/src/cpu/global_light.rs.
 
 // Remaining transparency below which a light ray stops: what lies beyond can
 // change the light by less than 1/1000 of I0 (a quarter of an 8-bit step).

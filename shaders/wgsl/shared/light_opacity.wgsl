@@ -1,7 +1,7 @@
 // light_opacity: the opacity of one light step, from the packed data and the
 // transfer function. Needs the bindings `atlas`, `atlas_sampler`,
 // `transfer_function`, `block_index`.
-// CPU twin: shaders/src/cpu/light.rs `opacity_at`.
+// CPU twin: shaders/src/cpu/global_light.rs `opacity_of` (of the sample's value).
 
 // The opacity of one light step h at tc, from the data and the transfer
 // function, corrected for h against the reference step.

@@ -1,7 +1,7 @@
 // slot: which stored voxel an atlas texel is, for the light stages that run
 // once per atlas texel. Needs the binding `slot_blocks: array<u32>` (per slot
 // of every level's region, the block it holds, x fastest, or NO_BLOCK).
-// CPU twin: shaders/src/cpu/light.rs `slot_texel`.
+// CPU twin: shaders/src/cpu/global_light.rs `slot_texel`.
 
 // An atlas texel as a stored voxel: its texture-space position (clamped into
 // the volume's box: apron texels beyond the volume's edge repeat the edge,
