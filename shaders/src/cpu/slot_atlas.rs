@@ -173,9 +173,10 @@ impl SlotAtlas {
         p: Vec3,
     ) -> (f32, f32) {
         let (first, f) = slot_corner(base, edge, p);
+        let weights = RowWeights::of(f);
         (
-            trilinear(&self.texels, first, edge, edge * edge, f),
-            trilinear(&other.texels, first, edge, edge * edge, f),
+            weights.blend(&self.texels, first, edge),
+            weights.blend(&other.texels, first, edge),
         )
     }
 
@@ -285,7 +286,7 @@ impl SlotAtlas {
     #[inline(always)]
     pub fn sample_slot(&self, base: usize, edge: usize, p: Vec3) -> f32 {
         let (first, f) = slot_corner(base, edge, p);
-        trilinear(&self.texels, first, edge, edge * edge, f)
+        RowWeights::of(f).blend(&self.texels, first, edge)
     }
 
     /// [`SlotAtlas::sample_slot`] at four positions at once, their
@@ -667,6 +668,42 @@ pub(super) fn slot_corner(base: usize, edge: usize, p: Vec3) -> (usize, Vec3) {
     (base + (z * edge + y) * edge + x, Vec3::new(fx, fy, fz))
 }
 
+/// [`blend`]'s weights at fractions `f` with its four rows side by side in
+/// lanes (y0z0, y1z0, y0z1, y1z1): a sample's trilinear blend of a slot's
+/// texels, each row's two texels one 64-bit read, the same arithmetic.
+#[derive(Debug, Clone, Copy)]
+struct RowWeights {
+    /// The weights along x, 1 − fx and fx, in every lane.
+    x0: f32x4,
+    x1: f32x4,
+    /// Each row's weight along y and z.
+    rows: f32x4,
+}
+
+impl RowWeights {
+    #[inline(always)]
+    fn of(f: Vec3) -> Self {
+        let (gy, gz) = (1.0 - f.y, 1.0 - f.z);
+        RowWeights {
+            x0: f32x4::splat(1.0 - f.x),
+            x1: f32x4::splat(f.x),
+            rows: f32x4::from([gy * gz, f.y * gz, gy * f.z, f.y * f.z]),
+        }
+    }
+
+    /// The blend of the 2×2×2 texels whose first is `texels[first]`, rows
+    /// `edge` and slices `edge²` apart.
+    #[inline(always)]
+    fn blend(&self, texels: &[f32], first: usize, edge: usize) -> f32 {
+        let (row, slice) = (edge, edge * edge);
+        let t = &texels[first..first + slice + row + 2];
+        let two = |o: usize| u64::from(t[o].to_bits()) | u64::from(t[o + 1].to_bits()) << 32;
+        let (low, high) = deal([two(0), two(row), two(slice), two(slice + row)]);
+        let [y0z0, y1z0, y0z1, y1z1] = ((low * self.x0 + high * self.x1) * self.rows).to_array();
+        (y0z0 + y1z0) + (y0z1 + y1z1)
+    }
+}
+
 /// Texels of level `level`'s `region`: its slots, `slot_edge(level)³` each.
 fn region_len(level: usize, region: &Region) -> usize {
     let e = slot_edge(level) as usize;
@@ -836,7 +873,8 @@ mod tests {
     fn four_samples_at_once_are_each_the_bits_of_one_sample() {
         // A slot of every level filled with uneven values, sampled at
         // positions all over it and past its edges (clamped): each lane of
-        // `sample_slot4` must be `sample_slot` at its position, bit for bit.
+        // `sample_slot4` must be `sample_slot` at its position, bit for bit,
+        // and both `trilinear`'s blend of the eight texels.
         let atlas = uneven_slot_of_every_level();
         for level in 0..LEVELS {
             let base = atlas.slot_base(level).expect("stored");
@@ -859,6 +897,16 @@ mod tests {
                         one.to_bits(),
                         "level {level}, lane {lane} at {p}: {} vs {one}",
                         four[lane]
+                    );
+                    // And `sample_slot` is `trilinear` of the eight texels.
+                    let (first, f) = slot_corner(base, edge, p);
+                    let blended = trilinear(&atlas.texels, first, edge, edge * edge, f);
+                    assert_eq!(one.to_bits(), blended.to_bits(), "level {level} at {p}");
+                    let (a, b) = atlas.sample_slot_with(&atlas, base, edge, p);
+                    assert_eq!(
+                        [a, b].map(f32::to_bits),
+                        [one.to_bits(); 2],
+                        "level {level} at {p}"
                     );
                 }
             }
