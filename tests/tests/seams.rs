@@ -224,15 +224,23 @@ fn blocks_of_levels_0_and_2_meet_without_a_step() {
     );
 }
 
-/// Global light on the ramp's blocks at levels `lod` (CPU twins, converged):
-/// the stored light as the renderer keeps it, the same without
-/// `light_seams`, the packed data and the packed volume.
-fn light_of(
+/// Global light on the ramp's blocks at levels `lod` (CPU twins, every
+/// stage run, converged), with what produced it.
+struct Lit {
+    packed: PackedTexture,
+    table: Vec<[f32; 4]>,
+    setup: LightSetup,
+    state: LightState,
+}
+
+/// [`Lit`] of the ramp's blocks at levels `lod`; and the direct light and
+/// the SVR it read, as textures.
+fn lit_blocks(
     dataset: &Dataset,
     lod: &[u8],
     tf: &TransferFunction,
     settings: &LightSettings,
-) -> (Texture3d, Texture3d, PackedTexture, PackedVolume) {
+) -> (Lit, Texture3d, Texture3d) {
     let grid = dataset.store.meta().blocks;
     let (packing, desc, _) = packing_of(lod, grid);
     let packed = assemble_cpu(&dataset.cache, &packing, &desc, tf).expect("atlas");
@@ -242,15 +250,41 @@ fn light_of(
         block_grid: grid,
     };
     let setup = LightSetup::new(&desc, settings, &packing, layout, table.len() as u32);
-    let params = &setup.params;
     let inputs = setup.twin_inputs(&packed, &table, settings.method);
     let mut state = LightState::default();
     for stage in Stage::ALL {
         twin::run(stage, &inputs, &mut state);
     }
-    let atlas = params.atlas_dims();
-    let direct = Texture3d::new(atlas, state.direct_light.clone());
+    let params = &setup.params;
+    let direct = Texture3d::new(params.atlas_dims(), state.direct_light.clone());
     let shadow = Texture3d::new(params.svr_dims, state.shadow_volume.clone());
+    let lit = Lit {
+        packed,
+        table,
+        setup,
+        state,
+    };
+    (lit, direct, shadow)
+}
+
+/// Global light on the ramp's blocks at levels `lod` (CPU twins, converged):
+/// the stored light as the renderer keeps it, the same without
+/// `light_seams`, the packed data and the packed volume.
+fn light_of(
+    dataset: &Dataset,
+    lod: &[u8],
+    tf: &TransferFunction,
+    settings: &LightSettings,
+) -> (Texture3d, Texture3d, PackedTexture, PackedVolume) {
+    let (lit, direct, shadow) = lit_blocks(dataset, lod, tf, settings);
+    let Lit {
+        packed,
+        table,
+        setup,
+        state,
+    } = lit;
+    let params = &setup.params;
+    let atlas = params.atlas_dims();
     let mut without = vec![0.0; state.light_volume.len()];
     for d in &setup.directions {
         twin::in_scatter(
@@ -344,9 +378,13 @@ fn light_rays_read_four_samples_at_once_as_they_read_them_one_by_one() {
         directions: 6,
         ..LightSettings::default()
     };
-    let (packing, desc, _) = packing_of(&lod, grid);
-    let packed = assemble_cpu(&dataset.cache, &packing, &desc, &tf).expect("atlas");
-    let table = tf.table(desc.tf_domain, 1024).expect("table");
+    let (lit, direct, shadow) = lit_blocks(&dataset, &lod, &tf, &settings);
+    let Lit {
+        packed,
+        table,
+        setup,
+        state,
+    } = &lit;
     assert_eq!(
         table.len(),
         TABLE_LEN,
@@ -355,31 +393,18 @@ fn light_rays_read_four_samples_at_once_as_they_read_them_one_by_one() {
     // The same entries and one more past them, never read (the stages read
     // `tf_len` entries): a table the four-at-once reads do not take.
     let one_by_one: Vec<[f32; 4]> = table.iter().copied().chain([[0.0; 4]]).collect();
-    let layout = PackedLayout {
-        atlas_dims: packing.atlas_dims,
-        block_grid: grid,
-    };
-    let setup = LightSetup::new(&desc, &settings, &packing, layout, table.len() as u32);
     let params = &setup.params;
-    let inputs = setup.twin_inputs(&packed, &table, settings.method);
-    let mut state = LightState::default();
-    for stage in Stage::ALL {
-        twin::run(stage, &inputs, &mut state);
-    }
-    let atlas = params.atlas_dims();
-    let direct = Texture3d::new(atlas, state.direct_light.clone());
-    let shadow = Texture3d::new(params.svr_dims, state.shadow_volume.clone());
     let mut four = vec![0.0; state.light_volume.len()];
     let mut one = four.clone();
     for d in &setup.directions {
         let p = params.scattering(d);
         let slots = &setup.slot_blocks;
-        twin::in_scatter(&p, &packed, &table, slots, &direct, &shadow, &mut four);
-        twin::in_scatter(&p, &packed, &one_by_one, slots, &direct, &shadow, &mut one);
+        twin::in_scatter(&p, packed, table, slots, &direct, &shadow, &mut four);
+        twin::in_scatter(&p, packed, &one_by_one, slots, &direct, &shadow, &mut one);
     }
     let slots = &setup.slot_blocks;
-    let local = twin::local_opacity(params, &packed, &table, slots);
-    let local_one = twin::local_opacity(params, &packed, &one_by_one, slots);
+    let local = twin::local_opacity(params, packed, table, slots);
+    let local_one = twin::local_opacity(params, packed, &one_by_one, slots);
     let opaque = local.iter().filter(|&&a| a > 0.0).count();
     let local_differ = local
         .iter()
@@ -392,16 +417,16 @@ fn light_rays_read_four_samples_at_once_as_they_read_them_one_by_one() {
         local_differ, 0,
         "{local_differ} texels' local opacity differs"
     );
-    let lit = four.iter().filter(|&&l| l > 0.0).count();
+    let lighted = four.iter().filter(|&&l| l > 0.0).count();
     let differ = four
         .iter()
         .zip(&one)
         .filter(|(a, b)| a.to_bits() != b.to_bits())
         .count();
     println!(
-        "in-scattering, {} directions: {lit} texels lit, {differ} differ between four at once and one by one",
+        "in-scattering, {} directions: {lighted} texels lit, {differ} differ between four at once and one by one",
         setup.directions.len()
     );
-    assert!(lit > 10_000, "only {lit} texels lit");
+    assert!(lighted > 10_000, "only {lighted} texels lit");
     assert_eq!(differ, 0, "{differ} texels' light differs");
 }
